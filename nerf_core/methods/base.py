@@ -1,0 +1,106 @@
+"""The interface every NeRF method implements, and the registry that builds one by name.
+
+A method is a ``RadianceModel``: an ``nn.Module`` that turns a batch of rays into colours. The
+trainer (``nerf_core/train.py``) knows nothing else about it, so a new method only has to
+implement ``render_rays`` and register itself with ``@register("name")``.
+"""
+from __future__ import annotations
+
+from typing import Callable, Dict
+
+import torch
+from torch import nn
+
+_REGISTRY: Dict[str, Callable[..., "RadianceModel"]] = {}
+
+
+def register(name: str):
+    """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``."""
+
+    def deco(cls):
+        _REGISTRY[name] = cls
+        cls.method_name = name
+        return cls
+
+    return deco
+
+
+def available_methods() -> list[str]:
+    _load_builtin_methods()
+    return sorted(_REGISTRY)
+
+
+def build_model(name: str, aabb: torch.Tensor, **options) -> "RadianceModel":
+    """Build method ``name`` for a scene inside ``aabb`` (2, 3) = [[xmin, ymin, zmin], [xmax, ymax, zmax]]."""
+    _load_builtin_methods()
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
+    return _REGISTRY[name](aabb=aabb, **options)
+
+
+def _load_builtin_methods() -> None:
+    # Imported lazily so that importing the registry never pulls in every method's dependencies.
+    from . import catalog  # noqa: F401  (registers the built-in methods)
+
+
+class RadianceModel(nn.Module):
+    """Base class of every method.
+
+    Subclasses store what they need to be rebuilt in ``self.options`` (a JSON-able dict): the trainer
+    saves ``method_name`` and ``options`` in checkpoints and calls ``build_model`` to restore.
+    """
+
+    method_name = "base"
+
+    def __init__(self, aabb: torch.Tensor, **options):
+        super().__init__()
+        self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
+        self.options = dict(options)
+
+    def render_rays(
+        self,
+        rays_o: torch.Tensor,
+        rays_d: torch.Tensor,
+        near: torch.Tensor,
+        far: torch.Tensor,
+        background: torch.Tensor,
+        training: bool,
+    ) -> Dict[str, torch.Tensor]:
+        """Render a batch of rays.
+
+        Args:
+            rays_o: (n_rays, 3) origins in world space.
+            rays_d: (n_rays, 3) unit directions.
+            near, far: (n_rays,) ray interval, already clipped to the scene box by the caller.
+            background: (n_rays, 3) colour composited behind the accumulated opacity.
+            training: True inside the optimisation loop (enables jitter and noise).
+
+        Returns:
+            dict with ``rgb`` (n_rays, 3), ``depth`` (n_rays,) distance along the ray, ``acc``
+            (n_rays,) opacity, and optionally ``rgb_coarse`` (n_rays, 3), ``aux_loss`` (scalar) and
+            ``n_samples`` (int, samples evaluated for this batch).
+        """
+        raise NotImplementedError
+
+    def param_groups(self, lr: float) -> list[dict]:
+        """Optimiser parameter groups; override to give grids and MLPs different learning rates."""
+        return [{"params": [p for p in self.parameters() if p.requires_grad], "lr": lr}]
+
+    def training_hook(self, step: int, max_steps: int | None, elapsed: float, max_seconds: float | None) -> bool:
+        """Called by the trainer before each step (occupancy updates, coarse-to-fine growth).
+
+        Returns True when the set or shape of parameters changed, so the trainer rebuilds its optimiser.
+        """
+        return False
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    def num_bytes(self) -> int:
+        return sum(p.numel() * p.element_size() for p in self.parameters()) + sum(
+            b.numel() * b.element_size() for b in self.buffers()
+        )
+
+    def describe(self) -> dict:
+        """What was built and why (reported by the trainer in the ``start`` event and config.json)."""
+        return {"method": self.method_name, "options": self.options, "n_params": self.num_parameters()}
