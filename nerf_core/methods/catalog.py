@@ -1,0 +1,1 @@
+"""The built-in methods. Importing this module registers them with ``base.register``."""
