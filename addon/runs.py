@@ -1,0 +1,154 @@
+"""List training run folders (docs/CONTRACTS.md, "Run folder") with their method, settings and metrics.
+
+Reads only ``RUN/config.json``, ``RUN/metrics.json`` and the checkpoint's presence, so listing never
+needs torch. A damaged file is reported on its run (``problem``) instead of hiding the run.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional
+
+
+@dataclass
+class RunInfo:
+    path: str
+    name: str
+    method: str = "?"
+    config: Dict[str, Any] = field(default_factory=dict)
+    metrics: Dict[str, Any] = field(default_factory=dict)
+    has_checkpoint: bool = False
+    problem: str = ""
+    mtime: float = 0.0
+
+    @property
+    def finished(self) -> bool:
+        return bool(self.metrics)
+
+    def settings_summary(self) -> str:
+        """One line with the budget and seed, e.g. ``'max 60 s, 2000 steps, seed 0'``."""
+        cfg = self.config
+        parts = []
+        budgets = cfg.get("budgets") if isinstance(cfg.get("budgets"), dict) else cfg
+        if isinstance(budgets.get("max_seconds"), (int, float)):
+            parts.append(f"max {budgets['max_seconds']:g} s")
+        if isinstance(budgets.get("max_steps"), (int, float)):
+            parts.append(f"{int(budgets['max_steps'])} steps")
+        if isinstance(cfg.get("seed"), int):
+            parts.append(f"seed {cfg['seed']}")
+        return ", ".join(parts)
+
+    def metrics_summary(self) -> str:
+        """``'PSNR 27.31 dB, SSIM 0.912'`` or ``'unfinished'``."""
+        m = self.metrics
+        if not m:
+            return "unfinished" if self.has_checkpoint else "no checkpoint"
+        parts = []
+        psnr = _find_metric(m, "psnr")
+        ssim = _find_metric(m, "ssim")
+        if psnr is not None:
+            parts.append(f"PSNR {psnr:.2f} dB")
+        if ssim is not None:
+            parts.append(f"SSIM {ssim:.3f}")
+        return ", ".join(parts) or "finished"
+
+
+def _find_metric(metrics: Dict[str, Any], name: str) -> Optional[float]:
+    """``metrics[name]``, else the first ``<split>.<name>`` / ``<split>: {name}`` (test preferred)."""
+    value = metrics.get(name)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    for split in ("test", "val", "train"):
+        for key in (f"{split}_{name}", f"{name}_{split}"):
+            if isinstance(metrics.get(key), (int, float)):
+                return float(metrics[key])
+        sub = metrics.get(split)
+        if isinstance(sub, dict) and isinstance(sub.get(name), (int, float)):
+            return float(sub[name])
+    return None
+
+
+def _read_json(path: str) -> Any:
+    with open(path, encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+def read_run(path: str) -> Optional[RunInfo]:
+    """A RunInfo for ``path`` when it looks like a run folder (has config.json or checkpoints/), else None."""
+    config_path = os.path.join(path, "config.json")
+    ckpt = os.path.join(path, "checkpoints", "latest.pt")
+    if not (os.path.isfile(config_path) or os.path.isdir(os.path.join(path, "checkpoints"))):
+        return None
+    info = RunInfo(path=os.path.abspath(path), name=os.path.basename(os.path.normpath(path)),
+                   has_checkpoint=os.path.isfile(ckpt))
+    info.mtime = os.path.getmtime(path)
+    problems = []
+    for attr, file in (("config", config_path), ("metrics", os.path.join(path, "metrics.json"))):
+        if not os.path.isfile(file):
+            if attr == "config":
+                problems.append("config.json missing")
+            continue
+        try:
+            data = _read_json(file)
+        except (OSError, ValueError) as exc:
+            problems.append(f"{os.path.basename(file)} unreadable ({exc})")
+            continue
+        if isinstance(data, dict):
+            setattr(info, attr, data)
+        else:
+            problems.append(f"{os.path.basename(file)} is not a JSON object")
+    method = info.config.get("method")
+    if isinstance(method, dict):  # tolerate {"method": {"name": ...}}
+        method = method.get("name")
+    info.method = method if isinstance(method, str) else "?"
+    info.problem = "; ".join(problems)
+    return info
+
+
+def list_runs(root: str) -> List[RunInfo]:
+    """Runs directly inside ``root`` (and ``root`` itself if it is one), newest first."""
+    found: List[RunInfo] = []
+    if not root or not os.path.isdir(root):
+        return found
+    own = read_run(root)
+    if own is not None:
+        found.append(own)
+    for entry in sorted(os.listdir(root)):
+        sub = os.path.join(root, entry)
+        if os.path.isdir(sub):
+            info = read_run(sub)
+            if info is not None:
+                found.append(info)
+    found.sort(key=lambda r: r.mtime, reverse=True)
+    return found
+
+
+def run_dataset(run: str) -> Optional[str]:
+    """The dataset folder recorded in ``RUN/config.json`` (key ``dataset`` or ``dataset_path``)."""
+    try:
+        cfg = _read_json(os.path.join(run, "config.json"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(cfg, dict):
+        return None
+    for key in ("dataset", "dataset_path", "data"):
+        value = cfg.get(key)
+        if isinstance(value, dict):
+            value = value.get("path")
+        if isinstance(value, str) and value:
+            return value if os.path.isabs(value) else os.path.normpath(os.path.join(run, value))
+    return None
+
+
+def run_background(run: str) -> tuple:
+    """The background colour the run composites onto (config ``background``), white by default."""
+    try:
+        cfg = _read_json(os.path.join(run, "config.json"))
+        bg = cfg.get("background") if isinstance(cfg, dict) else None
+    except (OSError, ValueError):
+        bg = None
+    if isinstance(bg, (list, tuple)) and len(bg) >= 3 and all(isinstance(v, (int, float)) for v in bg[:3]):
+        return tuple(float(v) for v in bg[:3])
+    named = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
+    return named.get(bg, (1.0, 1.0, 1.0)) if isinstance(bg, str) else (1.0, 1.0, 1.0)
