@@ -1,0 +1,592 @@
+"""Speed against accuracy: train every method on the demo scenes and chart test PSNR against time and size.
+
+    python scripts/benchmark.py [--quick] --out DIR [--methods a,b] [--scenes x,y] [--minutes M]
+                                [--resolution R] [--views N] [--test-views N] [--checkpoints 1,2,5]
+                                [--no-sizes] [--no-profile]
+
+What it does, through the same command lines users run:
+ 1. builds each demo scene (scripts/make_demo_scene.py) and captures it (scripts/capture.py) into
+    DIR/datasets, reusing a capture whose settings match;
+ 2. trains each method on each scene (``python -m nerf_core train``) and measures held-out test PSNR
+    and SSIM (``python -m nerf_core eval``) at checkpoints in *training* time (default 1, 2 and 5
+    minutes: the issue-3 numbers). Training runs in successive ``--resume --max-seconds T`` segments
+    with an ``eval`` between them, so evaluation time is never counted as training time;
+ 3. runs the fast method at fixed sizes and with ``--size auto`` as separate series, to show whether
+    auto-sizing lands on the Pareto front of the sizes tried;
+ 4. profiles a few training steps in-process to split step time into sampling, field, rendering,
+    backward and optimiser (unless ``--no-profile``);
+ 5. writes DIR/results.csv, DIR/results.json (every checkpoint), DIR/final.csv, DIR/summary.md and
+    the charts DIR/psnr_vs_time.png and DIR/psnr_vs_size.png.
+
+Defaults are the issue-3 setup: 200x200 images, 100 train and 20 test views, 5 minutes per run, on
+the diffuse, high_frequency, glossy, thin and multi scenes. ``--quick`` shrinks everything to finish in
+under 10 minutes on 2 CPU cores. A progress bar with an ETA covers the whole plan.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Optional
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_common as bc  # noqa: E402
+
+from nerf_core.progressbar import ProgressBar  # noqa: E402
+
+FULL_SCENES = ["diffuse", "high_frequency", "glossy", "thin", "multi"]
+QUICK_SCENES = ["diffuse", "thin"]
+BASE_METHODS = ["nerf", "nerf-nope"]
+
+
+@dataclass
+class Series:
+    """One line on the charts: a method with fixed extra trainer flags, e.g. a size setting."""
+
+    label: str
+    method: str
+    extra: list[str] = field(default_factory=list)
+    size_study: bool = False  # part of the fixed-size vs auto comparison
+
+
+@dataclass
+class Plan:
+    scenes: list[str]
+    series: list[Series]
+    size_scenes: list[str]  # scenes on which the size series run
+    checkpoints: list[float]  # seconds of training time at which test metrics are taken
+    capture: dict
+    profile: bool
+
+    def runs(self) -> list[tuple[str, Series]]:
+        out = []
+        for scene in self.scenes:
+            for s in self.series:
+                if s.size_study and scene not in self.size_scenes:
+                    continue
+                out.append((scene, s))
+        return out
+
+
+def default_fast_method() -> str:
+    try:
+        from nerf_core.methods.catalog import DEFAULT_METHOD  # noqa: WPS433 (only needs the catalog)
+
+        return DEFAULT_METHOD
+    except Exception:  # noqa: BLE001 (catalog not built yet: the benchmark still runs the others)
+        return ""
+
+
+def size_series(fast: str, train_help: str) -> list[Series]:
+    """Fixed sizes of the fast method plus ``--size auto``, from what ``train --help`` offers.
+
+    ``--size`` choices named small/medium/large (or similar) are used as they are; ``auto`` is always
+    its own series. Returns [] when the trainer has no ``--size`` flag at all.
+    """
+    if not fast or "--size" not in train_help:
+        return []
+    out = []
+    match = re.search(r"--size\s+\{([^}]*)\}", train_help)
+    choices = [c.strip() for c in match.group(1).split(",")] if match else []
+    for name in ("small", "medium", "large"):
+        if name in choices:
+            out.append(Series(f"{fast} {name}", fast, ["--size", name], size_study=True))
+    out.append(Series(f"{fast} auto", fast, ["--size", "auto"], size_study=True))
+    return out
+
+
+def make_plan(args, train_help: str) -> Plan:
+    fast = default_fast_method()
+    if args.methods:
+        methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    else:
+        methods = BASE_METHODS + ([fast] if fast and fast not in BASE_METHODS else [])
+    if args.scenes:
+        scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    else:
+        scenes = QUICK_SCENES if args.quick else FULL_SCENES
+    series = [Series(m, m) for m in methods]
+    if not args.no_sizes and fast:
+        series += size_series(fast, train_help)
+    total = args.minutes * 60.0
+    if args.checkpoints:
+        checkpoints = sorted(float(x) * 60.0 for x in args.checkpoints.split(","))
+    elif args.quick:
+        checkpoints = [total / 4, total / 2, total]
+    else:
+        checkpoints = [total * f for f in (0.2, 0.4, 1.0)]
+    capture = {
+        "resolution": args.resolution,
+        "count": args.views,
+        "val_count": 1,
+        "test_count": args.test_views,
+        "engine": args.engine,
+        "samples": args.samples,
+    }
+    # Size series on every scene in a full run; only the first scene in --quick keeps it short.
+    size_scenes = scenes[:1] if args.quick else scenes
+    return Plan(scenes, series, size_scenes, checkpoints, capture, not args.no_profile)
+
+
+# --------------------------------------------------------------------------------------------
+# One training run, measured at checkpoints
+# --------------------------------------------------------------------------------------------
+
+
+def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoints: list[float], seed: int,
+                           log_path: str, on_progress) -> dict:
+    """Train in ``--resume --max-seconds T`` segments, evaluating on test after each.
+
+    ``on_progress(seconds_of_training_done)`` is called as step events arrive. Returns a dict with
+    ``points`` [{seconds, step, psnr, ssim}], the training summary of all segments and ``error``.
+    """
+    events_all: list[dict] = []
+    points: list[dict] = []
+    error = None
+    for k, budget in enumerate(checkpoints):
+        cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", series.method,
+                               "--max-seconds", f"{budget:g}", "--seed", str(seed), *series.extra)
+        if k > 0:
+            cmd.append("--resume")
+        elif os.path.isdir(run_dir) and os.listdir(run_dir):
+            cmd.append("--overwrite")  # a run folder of this benchmark's own earlier attempt
+
+        def on_event(ev, base=events_all):
+            if ev.get("event") == "step" and ev.get("elapsed") is not None:
+                on_progress(float(ev["elapsed"]))
+
+        res = bc.run_cli(cmd, on_event=on_event, log_path=log_path)
+        events_all.extend(res.events)
+        if not res.ok:
+            error = f"train segment to {budget:g}s: {res.error_message()}"
+            break
+        ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test"), log_path=log_path)
+        metrics = ev.last_json() if ev.ok else None
+        if not metrics or "psnr" not in metrics:
+            error = f"eval after {budget:g}s: {ev.error_message()}"
+            break
+        done = [e for e in res.events if e.get("event") == "done"]
+        points.append({
+            "seconds": float(done[-1].get("elapsed", budget)) if done else budget,
+            "budget": budget,
+            "step": int(done[-1].get("step", 0)) if done else None,
+            "psnr": metrics.get("psnr"),
+            "ssim": metrics.get("ssim"),
+        })
+    summary = bc.summarize_training(events_all)
+    ckpt = os.path.join(run_dir, "checkpoints", "latest.pt")
+    return {"points": points, "train": summary, "error": error or summary.get("error"),
+            "checkpoint_bytes": bc.checkpoint_size(ckpt)}
+
+
+# --------------------------------------------------------------------------------------------
+# Analysis and output
+# --------------------------------------------------------------------------------------------
+
+
+def rows_from_results(results: list[dict]) -> tuple[list[dict], list[dict]]:
+    """(one row per checkpoint, one row per run with its final numbers)."""
+    rows, finals = [], []
+    for r in results:
+        base = {"scene": r["scene"], "series": r["series"], "method": r["method"], "n_params": r["n_params"],
+                "model_bytes": r["model_bytes"], "checkpoint_bytes": r["checkpoint_bytes"],
+                "samples_per_s": r["samples_per_s"], "rollbacks": r["rollbacks"]}
+        for p in r["points"]:
+            rows.append({**base, "train_seconds": p["seconds"], "budget_seconds": p["budget"], "step": p["step"],
+                         "psnr": p["psnr"], "ssim": p["ssim"]})
+        last = r["points"][-1] if r["points"] else {}
+        finals.append({**base, "train_seconds": last.get("seconds"), "steps": last.get("step"),
+                       "psnr": last.get("psnr"), "ssim": last.get("ssim"), "error": r.get("error")})
+    return rows, finals
+
+
+def size_analysis(finals: list[dict], fast: str) -> list[dict]:
+    """Per scene: is the auto-sized fast method on/near the front of the fixed sizes tried?"""
+    out = []
+    for scene in sorted({f["scene"] for f in finals}):
+        runs = [f for f in finals if f["scene"] == scene and f["method"] == fast]
+        auto = [f for f in runs if f["series"].endswith(" auto")]
+        fixed = [f for f in runs if not f["series"].endswith(" auto")]
+        if not auto or not fixed:
+            continue
+        v = bc.auto_size_verdict((auto[0]["n_params"], auto[0]["psnr"]),
+                                 [(f["n_params"], f["psnr"]) for f in fixed])
+        front = bc.pareto_front([(f["n_params"], f["psnr"]) for f in runs])
+        out.append({"scene": scene, "auto_params": auto[0]["n_params"], "auto_psnr": auto[0]["psnr"],
+                    "best_params": (v["best"] or {}).get("params"), "best_psnr": (v["best"] or {}).get("psnr"),
+                    "gap_db": v["gap_db"], "param_ratio": v["param_ratio"], "on_front": v.get("on_front"),
+                    "near_front": v["ok"], "within_0.5dB_at_half": v["within_half"],
+                    "front": ", ".join(runs[i]["series"] for i in front)})
+    return out
+
+
+def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile: Optional[dict],
+                  wall: float, machine: dict) -> dict:
+    rows, finals = rows_from_results(results)
+    bc.write_csv(os.path.join(out, "results.csv"), rows)
+    bc.write_csv(os.path.join(out, "final.csv"), finals)
+    sizes = size_analysis(finals, fast)
+    bc.write_json(os.path.join(out, "results.json"), {
+        "machine": machine, "wall_seconds": wall, "checkpoints_seconds": plan.checkpoints,
+        "capture": plan.capture, "runs": results, "size_study": sizes, "profile": profile,
+    })
+    curves = {}
+    for r in results:
+        curves[(r["scene"], r["series"])] = [(p["seconds"], p["psnr"]) for p in r["points"]]
+    charts = []
+    if any(curves.values()):
+        charts.append(bc.chart_psnr_vs_time(curves, os.path.join(out, "psnr_vs_time.png"),
+                                            "Test PSNR against training time"))
+    pts = [{"scene": f["scene"], "series": f["series"], "params": f["n_params"], "psnr": f["psnr"]}
+           for f in finals if f["n_params"] and f["psnr"] is not None]
+    if pts:
+        charts.append(bc.chart_psnr_vs_size(pts, os.path.join(out, "psnr_vs_size.png"),
+                                            "Final test PSNR against model size"))
+    md = summary_markdown(rows, finals, sizes, profile, plan, wall, machine)
+    with open(os.path.join(out, "summary.md"), "w", encoding="utf-8") as fh:
+        fh.write(md)
+    return {"rows": rows, "finals": finals, "sizes": sizes, "charts": charts, "markdown": md}
+
+
+def psnr_at_table(rows: list[dict], checkpoints: list[float]) -> list[dict]:
+    """One row per (scene, series) with the PSNR at each checkpoint budget."""
+    table: dict = {}
+    for r in rows:
+        key = (r["scene"], r["series"])
+        entry = table.setdefault(key, {"scene": r["scene"], "series": r["series"], "n_params": r["n_params"],
+                                       "samples_per_s": r["samples_per_s"]})
+        entry[f"psnr@{r['budget_seconds']:g}s"] = r["psnr"]
+        entry["ssim"] = r["ssim"]
+    return [table[k] for k in sorted(table)]
+
+
+def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, machine: dict) -> str:
+    cols = ["scene", "series"] + [f"psnr@{c:g}s" for c in plan.checkpoints] + ["ssim", "n_params", "samples_per_s"]
+    lines = [
+        "# Benchmark results",
+        "",
+        f"Machine: {machine.get('cpu', '?')}, {machine.get('cpus', '?')} logical CPUs, torch "
+        f"{machine.get('torch', '?')}, load average at start {machine.get('load_avg', '?')}; "
+        f"total wall time {wall / 60:.1f} min.",
+        f"Capture: {plan.capture['resolution']}x{plan.capture['resolution']} px, {plan.capture['count']} train / "
+        f"{plan.capture['test_count']} test views. Checkpoints at {', '.join(f'{c:g}' for c in plan.checkpoints)} "
+        "seconds of training time (evaluation time excluded).",
+        "",
+        "## Test PSNR (dB) at each checkpoint",
+        "",
+        bc.markdown_table(psnr_at_table(rows, plan.checkpoints), cols),
+        "",
+    ]
+    errors = [f for f in finals if f.get("error")]
+    if errors:
+        lines += ["## Failed runs", ""] + [f"- {f['scene']} / {f['series']}: {f['error']}" for f in errors] + [""]
+    if sizes:
+        lines += ["## Does `--size auto` land on the Pareto front?", "",
+                  bc.markdown_table(sizes, ["scene", "auto_params", "auto_psnr", "best_params", "best_psnr", "gap_db",
+                                            "param_ratio", "on_front", "within_0.5dB_at_half", "front"]), ""]
+    if profile and profile.get("shares"):
+        lines += [f"## Where a training step's time goes ({profile.get('method')}, {profile.get('steps')} steps, "
+                  f"{profile.get('rays')} rays per step)", "",
+                  bc.markdown_table([{"stage": k, "share_%": 100 * v} for k, v in profile["shares"].items()],
+                                    ["stage", "share_%"], digits=1), ""]
+    return "\n".join(lines)
+
+
+
+# --------------------------------------------------------------------------------------------
+# Per-stage profile (in-process: the one place this script imports torch and nerf_core directly)
+# --------------------------------------------------------------------------------------------
+
+STAGE_MODULES = {"sampling": ("nerf_core.sampling", "nerf_core.occupancy"), "rendering": ("nerf_core.volrend",)}
+FIELD_MODULES = ("nerf_core.fields", "nerf_core.encodings")
+
+
+class StageTimer:
+    """Exclusive wall time per stage: a call nested in another stage is charged to the inner one."""
+
+    def __init__(self, sync):
+        self.totals: dict = {}
+        self.stack: list = []  # [stage, start, time spent in nested stages]
+        self.sync = sync
+
+    def enter(self, stage):
+        self.sync()
+        self.stack.append([stage, time.perf_counter(), 0.0])
+
+    def exit(self):
+        self.sync()
+        stage, start, nested = self.stack.pop()
+        spent = time.perf_counter() - start
+        self.totals[stage] = self.totals.get(stage, 0.0) + spent - nested
+        if self.stack:
+            self.stack[-1][2] += spent
+
+    def wrap(self, fn, stage):
+        def timed(*a, **kw):
+            self.enter(stage)
+            try:
+                return fn(*a, **kw)
+            finally:
+                self.exit()
+
+        timed.__wrapped_stage__ = fn
+        return timed
+
+
+def _instrument(model, timer: StageTimer):
+    """Wrap the sampling/rendering functions wherever nerf_core modules hold them, and hook field modules.
+
+    Returns an undo callable. Functions are matched by identity so ``from .sampling import f`` copies
+    in method modules are wrapped too.
+    """
+    import inspect
+
+    targets = {}
+    for stage, prefixes in STAGE_MODULES.items():
+        for name, mod in list(sys.modules.items()):
+            if mod is None or not any(name == p or name.startswith(p + ".") for p in prefixes):
+                continue
+            for attr, fn in vars(mod).items():
+                if inspect.isfunction(fn) and fn.__module__ == name and not attr.startswith("__"):
+                    targets[fn] = stage
+    undo = []
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not name.startswith("nerf_core"):
+            continue
+        for attr, value in list(vars(mod).items()):
+            if inspect.isfunction(value) and value in targets:
+                setattr(mod, attr, timer.wrap(value, targets[value]))
+                undo.append(lambda m=mod, a=attr, v=value: setattr(m, a, v))
+    handles = []
+    for sub in model.modules():
+        if sub is model or not type(sub).__module__.startswith(FIELD_MODULES):
+            continue
+        # Nested field modules (an encoding inside a field) push nested entries; all are "field".
+        handles.append(sub.register_forward_pre_hook(lambda m, inp: timer.enter("field")))
+        handles.append(sub.register_forward_hook(lambda m, inp, out: timer.exit()))
+
+    def restore():
+        for fn in undo:
+            fn()
+        for h in handles:
+            h.remove()
+
+    return restore
+
+
+def _training_rays(dataset: str, n_rays: int, seed: int = 0):
+    """A random batch of training rays (origins, directions, near, far, rgb, alpha) from the train split,
+    computed from the JSON with the contract's pixel convention so the profile needs no loader API."""
+    import numpy as np
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    with open(os.path.join(dataset, "transforms_train.json"), encoding="utf-8") as fh:
+        meta = json.load(fh)
+    frames = meta["frames"]
+    w, h = int(meta["w"]), int(meta["h"])
+    fx, fy, cx, cy = (float(meta[k]) for k in ("fl_x", "fl_y", "cx", "cy"))
+    images = []
+    for f in frames[: min(len(frames), 8)]:
+        path = os.path.join(dataset, f["file_path"])
+        path = path if os.path.splitext(path)[1] else path + ".png"
+        with Image.open(path) as im:
+            images.append((np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0, np.asarray(f["transform_matrix"])))
+    v = rng.integers(0, len(images), n_rays)
+    i = rng.integers(0, w, n_rays)
+    j = rng.integers(0, h, n_rays)
+    d_cam = np.stack([(i + 0.5 - cx) / fx, -(j + 0.5 - cy) / fy, -np.ones(n_rays)], -1)
+    c2w = np.stack([images[k][1] for k in v])
+    d = np.einsum("nij,nj->ni", c2w[:, :3, :3], d_cam)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    o = c2w[:, :3, 3]
+    rgba = np.stack([images[k][0][jj, ii] for k, ii, jj in zip(v, i, j)])
+    aabb = np.asarray(meta["aabb"], dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (aabb[0] - o) / d
+        t1 = (aabb[1] - o) / d
+    tmin = np.nanmax(np.minimum(t0, t1), -1)
+    tmax = np.nanmin(np.maximum(t0, t1), -1)
+    near = np.maximum(tmin, float(meta.get("near", 0.0)))
+    far = np.minimum(tmax, float(meta.get("far", 1e9)))
+    far = np.maximum(far, near + 1e-3)  # rays missing the box: an empty interval the model still accepts
+    return o, d, near, far, rgba, aabb
+
+
+def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 1024) -> dict:
+    """Time ``steps`` training steps of ``method`` split into sampling, field, rendering, the rest of the
+    forward pass, backward and the optimiser step. Returns seconds per stage and their shares."""
+    import torch
+
+    from nerf_core.methods import build_model
+
+    o, d, near, far, rgba, aabb = _training_rays(dataset, n_rays)
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=device)  # noqa: E731
+    rays_o, rays_d, t_near, t_far = as_t(o), as_t(d), as_t(near), as_t(far)
+    # Composite on white, as the trainer and the original loaders do.
+    target = as_t(rgba[:, :3] * rgba[:, 3:] + (1 - rgba[:, 3:]))
+    background = torch.ones_like(target)
+    model = build_model(method, as_t(aabb)).to(device)
+    opt = torch.optim.Adam(model.param_groups(1e-2))
+    timer = StageTimer(sync)
+    restore = _instrument(model, timer)
+    wall = {"backward": 0.0, "optimizer": 0.0, "forward": 0.0, "hook": 0.0}
+    warmup = 2
+    try:
+        for step in range(steps + warmup):
+            if step == warmup:
+                timer.totals.clear()
+                wall = dict.fromkeys(wall, 0.0)
+            sync()
+            t = time.perf_counter()
+            if model.training_hook(step, None, 0.0, None):
+                opt = torch.optim.Adam(model.param_groups(1e-2))
+            sync()
+            t_hook = time.perf_counter()
+            out = model.render_rays(rays_o, rays_d, t_near, t_far, background, training=True)
+            loss = torch.mean((out["rgb"] - target) ** 2)
+            if "rgb_coarse" in out:
+                loss = loss + torch.mean((out["rgb_coarse"] - target) ** 2)
+            if "aux_loss" in out:
+                loss = loss + out["aux_loss"]
+            sync()
+            t_fwd = time.perf_counter()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            sync()
+            t_bwd = time.perf_counter()
+            opt.step()
+            sync()
+            t_opt = time.perf_counter()
+            wall["hook"] += t_hook - t
+            wall["forward"] += t_fwd - t_hook
+            wall["backward"] += t_bwd - t_fwd
+            wall["optimizer"] += t_opt - t_bwd
+    finally:
+        restore()
+    stages = {k: timer.totals.get(k, 0.0) for k in ("sampling", "field", "rendering")}
+    # Hook-time sampling (occupancy-grid updates) is charged to sampling; the hook's own rest to "other".
+    stages["other_forward"] = max(0.0, wall["forward"] + wall["hook"] - sum(stages.values()))
+    stages["backward"] = wall["backward"]
+    stages["optimizer"] = wall["optimizer"]
+    total = sum(stages.values()) or 1.0
+    return {"method": method, "steps": steps, "rays": n_rays, "device": str(device),
+            "seconds": stages, "seconds_per_step": total / steps,
+            "shares": {k: v / total for k, v in stages.items()}}
+
+# --------------------------------------------------------------------------------------------
+# Main
+# --------------------------------------------------------------------------------------------
+
+
+def parse_args(argv):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True, help="output folder (datasets are cached in OUT/datasets)")
+    ap.add_argument("--quick", action="store_true", help="2 scenes, 64 px, 20 views, 40 s per run: under 10 min")
+    ap.add_argument("--methods", help="comma-separated methods (default: nerf, nerf-nope and the fast method)")
+    ap.add_argument("--scenes", help=f"comma-separated demo scenes (default: {','.join(FULL_SCENES)})")
+    ap.add_argument("--minutes", type=float, help="training budget per run in minutes (default 5; quick 0.67)")
+    ap.add_argument("--checkpoints", help="comma-separated minutes at which to evaluate (default 20%%, 40%%, 100%%)")
+    ap.add_argument("--resolution", type=int, help="capture resolution in pixels (default 200; quick 64)")
+    ap.add_argument("--views", type=int, help="train views (default 100; quick 20)")
+    ap.add_argument("--test-views", type=int, help="held-out test views (default 20; quick 4)")
+    ap.add_argument("--engine", default="cycles", help="capture render engine (default cycles)")
+    ap.add_argument("--samples", type=int, default=16, help="render samples per pixel for the capture")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-sizes", action="store_true", help="skip the fixed-size and --size auto series")
+    ap.add_argument("--no-profile", action="store_true", help="skip the per-stage time profile")
+    args = ap.parse_args(argv)
+    quick = args.quick
+    args.minutes = args.minutes if args.minutes is not None else (40 / 60 if quick else 5.0)
+    args.resolution = args.resolution or (64 if quick else 200)
+    args.views = args.views or (20 if quick else 100)
+    args.test_views = args.test_views or (4 if quick else 20)
+    if args.minutes <= 0:
+        ap.error("--minutes must be positive")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    out = os.path.abspath(args.out)
+    os.makedirs(out, exist_ok=True)
+    logs = os.path.join(out, "logs")
+    os.makedirs(logs, exist_ok=True)
+    machine = bc.machine_info()
+    train_help = bc.cli_help(*bc.nerf_core_cmd("train"))
+    if "--max-seconds" not in train_help:
+        print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is nerf_core/train.py built?\n"
+              + train_help[-800:], file=sys.stderr)
+        return 2
+    plan = make_plan(args, train_help)
+    fast = default_fast_method()
+    runs = plan.runs()
+    budget = plan.checkpoints[-1]
+    print(f"benchmark: {len(plan.scenes)} scenes x {len(plan.series)} series = {len(runs)} runs of {budget:g}s; "
+          f"checkpoints {', '.join(f'{c:g}s' for c in plan.checkpoints)}; output {out}", file=sys.stderr)
+    # The bar counts seconds of planned work: a capture ~ one run's budget / 2, a run its budget.
+    capture_cost = budget / 2
+    bar = ProgressBar(total=len(plan.scenes) * capture_cost + len(runs) * budget, label="benchmark")
+    t0 = time.monotonic()
+    datasets, results = {}, []
+    failures = 0
+    for scene in plan.scenes:
+        bar.set(bar.done, info=f"capture {scene}")
+        try:
+            ds, reused = bc.ensure_dataset(scene, os.path.join(out, "datasets"), plan.capture,
+                                           log_path=os.path.join(logs, f"capture_{scene}.log"))
+            datasets[scene] = ds
+        except bc.BenchError as exc:
+            print(f"\nbenchmark: {exc} (log: {os.path.join(logs, f'capture_{scene}.log')})", file=sys.stderr)
+            failures += 1
+        bar.update(capture_cost)
+    for scene, series in runs:
+        if scene not in datasets:
+            bar.update(budget)
+            continue
+        start_done = bar.done
+        run_dir = os.path.join(out, "runs", scene, series.label.replace(" ", "_"))
+        label = f"{scene}/{series.label}"
+
+        def on_progress(elapsed, start_done=start_done, label=label):
+            bar.set(start_done + min(elapsed, budget), info=label)
+
+        r = train_with_checkpoints(datasets[scene], run_dir, series, plan.checkpoints, args.seed,
+                                   os.path.join(logs, f"train_{scene}_{series.label.replace(' ', '_')}.log"),
+                                   on_progress)
+        tr = r["train"]
+        result = {"scene": scene, "series": series.label, "method": series.method, "flags": series.extra,
+                  "points": r["points"], "n_params": tr["n_params"],
+                  "model_bytes": tr["n_params"] * 4 if tr["n_params"] else None,
+                  "checkpoint_bytes": r["checkpoint_bytes"], "samples_per_s": tr["samples_per_s"],
+                  "steps": tr["steps"], "rollbacks": tr["rollbacks"], "nan": tr["nan"], "error": r["error"],
+                  "stage_times": tr.get("stage_times")}
+        results.append(result)
+        if r["error"]:
+            failures += 1
+            print(f"\nbenchmark: {label}: {r['error']}", file=sys.stderr)
+        bar.set(start_done + budget, info=f"{label} {bc.fmt(r['points'][-1]['psnr']) if r['points'] else 'failed'} dB")
+    bar.close(info="runs done")
+    profile = None
+    if plan.profile and datasets and fast:
+        try:
+            profile = profile_method(next(iter(datasets.values())), fast, steps=8 if args.quick else 20)
+        except Exception as exc:  # noqa: BLE001 (a profile failure must not lose the benchmark's results)
+            profile = {"error": f"{type(exc).__name__}: {exc}"}
+            print(f"benchmark: profile of {fast} failed: {profile['error']}", file=sys.stderr)
+    wall = time.monotonic() - t0
+    written = write_outputs(out, results, plan, fast, profile, wall, machine)
+    print(written["markdown"])
+    print(f"benchmark: wrote {out}/results.csv, final.csv, results.json, summary.md"
+          + "".join(f", {os.path.basename(c)}" for c in written["charts"]) + f" in {wall / 60:.1f} min", file=sys.stderr)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

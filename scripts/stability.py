@@ -1,0 +1,324 @@
+"""Where does each method break down? Seeds, few views, noisy poses and learning rates.
+
+    python scripts/stability.py [--quick] --out DIR [--methods a,b] [--scene NAME] [--seeds N]
+                                [--views 4,8,16,32,64] [--pose-noise 0.5:0.005,2:0.02]
+                                [--lr-scales 0.1,0.3,1,3,10] [--seconds S] [--resolution R]
+                                [--threshold DB] [--drop DB]
+
+Every run goes through the user-facing tools: the scene is captured once (scripts/make_demo_scene.py,
+scripts/capture.py, cached in DIR/datasets), derived datasets (fewer train views, perturbed train
+poses) are copies whose images are links, and each setting is trained (``python -m nerf_core
+train``), evaluated on the held-out test views (``eval``) and rendered (``render``) to look for
+floaters: opacity where the ground-truth alpha is empty.
+
+Studies (each method, each setting, ``--seeds`` seeds; mean and spread reported):
+- ``base``: the full capture, default settings (this is the seed study);
+- ``views``: train on 4, 8, 16, 32, 64 evenly spread views;
+- ``pose_noise``: train poses rotated by D degrees and moved by F times the camera distance;
+- ``lr``: learning rate scaled over a decade each way (needs the trainer's ``--lr-scale`` or ``--lr``).
+
+A setting is *broken* when a run errors, produces NaN, diverges (3 or more rollbacks, or any rollback
+with low PSNR), scores below ``--threshold`` dB or more than ``--drop`` dB below the method's own base
+PSNR, or shows floaters on more than 5% of the background pixels. Writes DIR/stability.csv (every
+run), DIR/settings.csv (mean/spread per setting), DIR/stability.md (the breakdown table) and
+DIR/stability.png.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_common as bc  # noqa: E402
+
+from nerf_core.progressbar import ProgressBar  # noqa: E402
+
+FLOATER_LIMIT = 0.05  # share of ground-truth background pixels rendered opaque
+ROLLBACK_LIMIT = 3
+
+
+def breakdown_reason(row: dict, threshold: float, base_psnr: float | None = None, drop: float = 3.0) -> str:
+    """Why a run (or a setting's mean row) counts as broken; "" when it does not."""
+    psnr = row.get("psnr")
+    if row.get("error"):
+        return f"error: {row['error']}"
+    if row.get("nan"):
+        return "NaN" + (" (no usable model)" if psnr is None else " (recovered by rollback)")
+    rollbacks = row.get("rollbacks") or 0
+    low = psnr is None or psnr < threshold or (base_psnr is not None and psnr < base_psnr - drop)
+    if rollbacks >= ROLLBACK_LIMIT or (rollbacks and low):
+        return f"diverged ({rollbacks} rollbacks)"
+    if psnr is None:
+        return "no PSNR"
+    if psnr < threshold:
+        return f"PSNR < {threshold:g}"
+    if base_psnr is not None and psnr < base_psnr - drop:
+        return f"PSNR {psnr - base_psnr:+.1f} dB vs base"
+    if (row.get("floater_pixels") or 0.0) > FLOATER_LIMIT:
+        return f"floaters ({100 * row['floater_pixels']:.0f}% of background)"
+    return ""
+
+
+def breakdown_table(rows: list[dict]) -> list[dict]:
+    """One row per (method, study): the settings that broke, in the order they were run."""
+    out: dict = {}
+    for r in rows:
+        key = (r["method"], r["study"])
+        entry = out.setdefault(key, {"method": r["method"], "study": r["study"], "failing": [], "n": 0})
+        entry["n"] += 1
+        if r.get("broken"):
+            entry["failing"].append(f"{r['setting']}: {r['broken']}")
+    table = []
+    for key in sorted(out):
+        e = out[key]
+        table.append({"method": e["method"], "study": e["study"],
+                      "breaks_at": "; ".join(e["failing"]) if e["failing"] else "no breakdown",
+                      "settings_tried": e["n"]})
+    return table
+
+
+def parse_pose_noise(text: str) -> list[tuple[float, float]]:
+    """``"0.5:0.005,2:0.02"`` -> [(0.5, 0.005), (2.0, 0.02)] (degrees, fraction of camera distance)."""
+    out = []
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        if not re.fullmatch(r"[0-9.]+:[0-9.]+", item):
+            raise SystemExit(f"stability: --pose-noise item {item!r} must be DEGREES:FRACTION, e.g. 2:0.02")
+        deg, frac = item.split(":")
+        out.append((float(deg), float(frac)))
+    return out
+
+
+def lr_flag(train_help: str) -> str | None:
+    for flag in ("--lr-scale", "--lr"):
+        if re.search(re.escape(flag) + r"\b(?!-)", train_help):
+            return flag
+    return None
+
+
+def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: float, extra: list[str],
+                log_path: str, on_progress, render: bool = True) -> dict:
+    """Train, evaluate and render one configuration; never raises for a failed run (that is data)."""
+    cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", method, "--max-seconds", f"{seconds:g}",
+                           "--seed", str(seed), "--overwrite", *extra)
+
+    def on_event(ev):
+        if ev.get("event") == "step" and ev.get("elapsed") is not None:
+            on_progress(float(ev["elapsed"]))
+
+    res = bc.run_cli(cmd, on_event=on_event, log_path=log_path)
+    summary = bc.summarize_training(res.events)
+    row = {"psnr": None, "ssim": None, "rollbacks": summary["rollbacks"], "nan": summary["nan"],
+           "steps": summary["steps"], "train_psnr": summary["train_psnr"], "n_params": summary["n_params"],
+           "lr": summary["first_lr"],
+           "floater_alpha": None, "floater_pixels": None, "error": None}
+    if not res.ok:
+        row["error"] = res.error_message()
+        return row
+    ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test"), log_path=log_path)
+    metrics = ev.last_json() if ev.ok else None
+    if not metrics or "psnr" not in metrics:
+        row["error"] = f"eval: {ev.error_message()}"
+        return row
+    row["psnr"], row["ssim"] = metrics.get("psnr"), metrics.get("ssim")
+    if row["psnr"] is None:
+        row["nan"] = True  # NaN metrics come out as null
+    if render:
+        out = os.path.join(run_dir, "test_renders")
+        rr = bc.run_cli(bc.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset, "transforms_test.json"),
+                                         "--out", out, "--split", "test"), log_path=log_path)
+        if rr.ok:
+            row.update({k: v for k, v in bc.floater_stats(out, dataset).items() if k != "n_views"})
+        else:
+            row["render_error"] = rr.error_message()
+    return row
+
+
+def parse_args(argv):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--quick", action="store_true", help="fewer settings, 1 seed off-base, 15 s runs at 48 px")
+    ap.add_argument("--methods", help="comma-separated methods (default: nerf, nerf-nope and the fast method)")
+    ap.add_argument("--scene", default="diffuse", help="demo scene (default diffuse)")
+    ap.add_argument("--seeds", type=int, help="seeds per setting (default 3; quick: 3 on base, 1 elsewhere)")
+    ap.add_argument("--views", help="train view counts (default 4,8,16,32,64; quick 4,8,24)")
+    ap.add_argument("--pose-noise", help="DEG:FRAC items (default 0.5:0.005,1:0.01,2:0.02,5:0.05; quick 2:0.02)")
+    ap.add_argument("--lr-scales", help="learning-rate multipliers (default 0.1,0.3,3,10; quick 0.1,10)")
+    ap.add_argument("--seconds", type=float, help="training seconds per run (default 60; quick 15)")
+    ap.add_argument("--resolution", type=int, help="capture resolution (default 64; quick 48)")
+    ap.add_argument("--test-views", type=int, help="held-out views (default 8; quick 4)")
+    ap.add_argument("--threshold", type=float, help="absolute PSNR floor in dB (default 18; quick 14)")
+    ap.add_argument("--drop", type=float, default=3.0, help="dB below the method's own base PSNR that counts as broken")
+    ap.add_argument("--engine", default="cycles")
+    ap.add_argument("--samples", type=int, default=16)
+    args = ap.parse_args(argv)
+    q = args.quick
+    args.views = [int(v) for v in (args.views or ("4,8,24" if q else "4,8,16,32,64")).split(",")]
+    args.pose_noise = parse_pose_noise(args.pose_noise or ("2:0.02" if q else "0.5:0.005,1:0.01,2:0.02,5:0.05"))
+    args.lr_scales = [float(x) for x in (args.lr_scales or ("0.1,10" if q else "0.1,0.3,3,10")).split(",")]
+    args.seconds = args.seconds or (15.0 if q else 60.0)
+    args.resolution = args.resolution or (48 if q else 64)
+    args.test_views = args.test_views or (4 if q else 8)
+    args.threshold = args.threshold if args.threshold is not None else (14.0 if q else 18.0)
+    args.base_seeds = args.seeds or 3
+    args.other_seeds = args.seeds or (1 if q else 3)
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    sys.path.insert(0, bc.REPO_ROOT)
+    import benchmark  # noqa: WPS433 (shares the method defaults)
+
+    out = os.path.abspath(args.out)
+    logs = os.path.join(out, "logs")
+    os.makedirs(logs, exist_ok=True)
+    train_help = bc.cli_help(*bc.nerf_core_cmd("train"))
+    if "--max-seconds" not in train_help:
+        print("stability: `python -m nerf_core train --help` failed; is nerf_core/train.py built?\n" + train_help[-800:],
+              file=sys.stderr)
+        return 2
+    fast = benchmark.default_fast_method()
+    methods = ([m.strip() for m in args.methods.split(",") if m.strip()] if args.methods
+               else benchmark.BASE_METHODS + ([fast] if fast and fast not in benchmark.BASE_METHODS else []))
+    lr = lr_flag(train_help)
+    notes = []
+    if not lr:
+        notes.append("The trainer has no --lr-scale/--lr flag, so the learning-rate study was skipped.")
+    n_train = max(args.views)
+    capture = {"resolution": args.resolution, "count": n_train, "val_count": 1, "test_count": args.test_views,
+               "engine": args.engine, "samples": args.samples}
+
+    # The plan: (study, setting label, dataset maker, extra flags, seeds)
+    plan = [("base", "default", None, [], list(range(args.base_seeds)))]
+    for v in args.views:
+        if v != n_train:
+            plan.append(("views", v, ("views", v), [], list(range(args.other_seeds))))
+    for deg, frac in args.pose_noise:
+        plan.append(("pose_noise", f"{deg:g}deg/{frac:g}", ("pose", deg, frac), [], list(range(args.other_seeds))))
+    if lr:
+        for s in args.lr_scales:
+            if s != 1.0:
+                plan.append(("lr", f"x{s:g}", None, [lr, f"{s:g}"] if lr == "--lr-scale" else None,
+                             list(range(args.other_seeds))))
+    n_runs = len(methods) * sum(len(p[4]) for p in plan)
+    per_run = args.seconds + 10.0  # eval + render overhead, for the ETA only
+    bar = ProgressBar(total=n_runs * per_run + 60.0, label="stability")
+    t0 = time.monotonic()
+    bar.set(0, info=f"capture {args.scene}")
+    try:
+        base_ds, _ = bc.ensure_dataset(args.scene, os.path.join(out, "datasets"), capture,
+                                       log_path=os.path.join(logs, "capture.log"))
+    except bc.BenchError as exc:
+        bar.close()
+        print(f"stability: {exc}", file=sys.stderr)
+        return 1
+    bar.set(60.0)
+    derived: dict = {}
+
+    def dataset_for(spec):
+        if spec is None:
+            return base_ds
+        if spec not in derived:
+            name = "_".join(str(x) for x in spec)
+            dst = os.path.join(out, "derived", name)
+            if spec[0] == "views":
+                derived[spec] = bc.subset_views(base_ds, dst, spec[1])
+            else:
+                derived[spec] = bc.perturb_poses(base_ds, dst, spec[1], spec[2], seed=0)
+        return derived[spec]
+
+    runs = []
+    for method in methods:
+        for study, setting, spec, extra, seeds in plan:
+            if extra is None:
+                # A plain --lr needs the method's base value: the lr its base run reported first.
+                base_lr = next((r["lr"] for r in runs if r["method"] == method and r["study"] == "base" and r["lr"]), None)
+                if base_lr is None:
+                    notes.append(f"{method}: lr study skipped (its base run reported no lr)")
+                    continue
+                extra = ["--lr", f"{base_lr * float(str(setting)[1:]):g}"]
+            ds = dataset_for(spec)
+            for seed in seeds:
+                start = bar.done
+                label = f"{method} {study}={setting} seed={seed}"
+                run_dir = os.path.join(out, "runs", method, f"{study}_{setting}".replace("/", "_"), f"seed{seed}")
+
+                def prog(elapsed, start=start, label=label):
+                    bar.set(start + min(elapsed, args.seconds), info=label)
+
+                row = run_setting(ds, run_dir, method, seed, args.seconds, list(extra),
+                                  os.path.join(logs, f"{method}_{study}_{setting}_{seed}.log".replace("/", "_")), prog)
+                row.update({"method": method, "study": study, "setting": setting, "seed": seed})
+                runs.append(row)
+                bar.set(start + per_run, info=f"{label}: {bc.fmt(row['psnr'])} dB")
+    bar.close()
+
+    # Per-setting mean and spread, then the verdicts (relative to each method's own base).
+    settings = []
+    for method in methods:
+        for study, setting, *_ in plan:
+            rs = [r for r in runs if r["method"] == method and r["study"] == study and r["setting"] == setting]
+            if not rs:
+                continue
+            m, sd, n = bc.mean_std([r["psnr"] for r in rs])
+            fm, _, _ = bc.mean_std([r["floater_pixels"] for r in rs])
+            settings.append({"method": method, "study": study, "setting": setting, "psnr_mean": m, "psnr_std": sd,
+                             "n_ok": n, "n_runs": len(rs), "ssim_mean": bc.mean_std([r["ssim"] for r in rs])[0],
+                             "floater_pixels": fm, "rollbacks": sum(r["rollbacks"] or 0 for r in rs),
+                             "nan": any(r["nan"] for r in rs),
+                             "error": next((r["error"] for r in rs if r["error"]), None)})
+    base_psnr = {s["method"]: s["psnr_mean"] for s in settings if s["study"] == "base"}
+    for r in runs:
+        r["broken"] = breakdown_reason(r, args.threshold, base_psnr.get(r["method"]) if r["study"] != "base" else None,
+                                       args.drop)
+    for s in settings:
+        # A setting is broken when any of its seeds broke: users get one seed, not the mean.
+        reasons = [r["broken"] for r in runs if r["method"] == s["method"] and r["study"] == s["study"]
+                   and r["setting"] == s["setting"] and r["broken"]]
+        s["broken"] = reasons[0] + (f" ({len(reasons)}/{s['n_runs']} seeds)" if s["n_runs"] > 1 else "") if reasons else ""
+    table = breakdown_table(settings)
+
+    bc.write_csv(os.path.join(out, "stability.csv"), runs)
+    bc.write_csv(os.path.join(out, "settings.csv"), settings)
+    wall = time.monotonic() - t0
+    machine = bc.machine_info()
+    bc.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
+                                                        "seconds_per_run": args.seconds, "threshold_db": args.threshold,
+                                                        "drop_db": args.drop, "runs": runs, "settings": settings,
+                                                        "breakdown": table, "notes": notes})
+    groups: dict = {}
+    for s in settings:
+        groups.setdefault(s["study"], {}).setdefault(s["method"], []).append((str(s["setting"]), s["psnr_mean"], s["psnr_std"]))
+    chart = bc.chart_bars(groups, os.path.join(out, "stability.png"),
+                          f"Test PSNR per setting ({args.scene}, {args.seconds:g} s runs; bars: mean, whiskers: std)",
+                          "test PSNR (dB)", threshold=args.threshold)
+    md = "\n".join([
+        "# Stability: where each method breaks down", "",
+        f"Scene `{args.scene}`, {args.resolution} px, {n_train} train / {args.test_views} test views, "
+        f"{args.seconds:g} s of training per run; machine: {machine.get('cpu', '?')}, {machine.get('cpus')} CPUs, "
+        f"load {machine.get('load_avg')}; wall time {wall / 60:.1f} min.",
+        f"Broken = error, NaN, >= {ROLLBACK_LIMIT} rollbacks, PSNR < {args.threshold:g} dB or > {args.drop:g} dB "
+        f"below the method's base, or floaters on > {100 * FLOATER_LIMIT:.0f}% of background pixels.", "",
+        *[f"Note: {n}" for n in notes], "",
+        "## Breakdown", "", bc.markdown_table(table, ["method", "study", "breaks_at", "settings_tried"]), "",
+        "## Every setting (mean and std over seeds)", "",
+        bc.markdown_table(settings, ["method", "study", "setting", "psnr_mean", "psnr_std", "n_ok", "n_runs",
+                                     "floater_pixels", "rollbacks", "broken"]), "",
+        f"![stability]({os.path.basename(chart)})", "",
+    ])
+    with open(os.path.join(out, "stability.md"), "w", encoding="utf-8") as fh:
+        fh.write(md)
+    print(md)
+    print(f"stability: wrote {out}/stability.csv, settings.csv, stability.json, stability.md, stability.png "
+          f"in {wall / 60:.1f} min", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
