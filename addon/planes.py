@@ -328,7 +328,7 @@ def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), 
         for col, (kind, path) in enumerate((("NeRF", view.image), ("Blender", view.ground_truth), ("Error", heat))):
             if not path:
                 continue
-            ob = import_image_plane(path, coll, f"{kind} {view.name}")
+            ob = import_image_plane(path, coll, f"Gallery {kind} {view.name}")
             _resize_plane(ob, col_w, row_height)
             ob.matrix_world = Matrix.Translation(
                 origin + Vector((col * (col_w + gap) + col_w / 2, 0.0, z - row_height / 2))) @ upright
@@ -339,3 +339,93 @@ def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), 
             body = f"{view.name}   (no ground truth image)"
         _text(coll, f"Label {view.name}", body, origin + Vector((0.0, 0.0, z - row_height - label - gap / 2)), label)
     return list(views)
+
+
+# -- Blender cameras to a transforms file for ``nerf_core render`` ---------------------------------------
+def _camera_intrinsics(cam_ob, scene, w: int, h: int) -> Dict[str, float]:
+    """Pixel intrinsics of ``cam_ob`` rendered at w x h: the capture helper's function when present
+    (addon/export.py), so capture and comparison can never disagree on lens shift or sensor fit."""
+    try:
+        from . import export
+    except ImportError:
+        export = None
+    fn = getattr(export, "camera_intrinsics", None) if export is not None else None
+    if fn is not None:
+        intr = fn(cam_ob, scene, w, h) if fn.__code__.co_argcount >= 4 else fn(cam_ob, scene)
+        out = {k: float(intr[k]) for k in ("fx", "fy", "cx", "cy")} if "fx" in intr else {
+            "fx": float(intr["fl_x"]), "fy": float(intr["fl_y"]), "cx": float(intr["cx"]), "cy": float(intr["cy"])}
+        out.update(w=float(w), h=float(h))
+        return out
+    return _blender_intrinsics(cam_ob.data, scene, w, h)
+
+
+def _blender_intrinsics(cam, scene, w: int, h: int) -> Dict[str, float]:
+    # Stand-in until addon/export.py provides camera_intrinsics: Blender's sensor-fit and shift rules
+    # (shift is in units of the fitted image side) for square pixels.
+    if cam.type != "PERSP":
+        raise ValueError(f"camera {cam.name!r} is {cam.type.lower()}; only perspective cameras can be rendered")
+    px_aspect = scene.render.pixel_aspect_y / scene.render.pixel_aspect_x
+    fit = cam.sensor_fit
+    if fit == "AUTO":
+        fit = "HORIZONTAL" if w >= h * px_aspect else "VERTICAL"
+        sensor = cam.sensor_width
+    else:
+        sensor = cam.sensor_width if fit == "HORIZONTAL" else cam.sensor_height
+    side = w if fit == "HORIZONTAL" else h * px_aspect
+    fx = cam.lens / sensor * side
+    fy = fx / px_aspect
+    return {"fx": fx, "fy": fy, "cx": w / 2 - cam.shift_x * side, "cy": h / 2 + cam.shift_y * side / px_aspect,
+            "w": float(w), "h": float(h)}
+
+
+def c2w_rows(matrix_world) -> List[List[float]]:
+    """camera-to-world without scale (docs/CONTRACTS.md), as 4 lists of 4 floats."""
+    loc, rot, _scale = matrix_world.decompose()
+    m = Matrix.LocRotScale(loc, rot, None)
+    return [list(map(float, row)) for row in m]
+
+
+def cameras_transforms(cameras: Sequence, scene, size: Sequence[int], frames: Optional[Sequence[int]] = None,
+                       base: Optional[dict] = None, prefix: str = "view") -> dict:
+    """A transforms dict (docs/CONTRACTS.md) for Blender cameras rendered at ``size`` = (w, h).
+
+    With ``frames``, ``cameras`` must hold one camera and one view is written per frame (a fly-through
+    along its animation). ``base`` supplies near/far/aabb from the run's dataset. Raises ValueError
+    when a camera's aspect differs from ``size`` (the run can only render the aspect it trained on).
+    """
+    w, h = int(size[0]), int(size[1])
+    res_x = scene.render.resolution_x * scene.render.pixel_aspect_x
+    res_y = scene.render.resolution_y * scene.render.pixel_aspect_y
+    if abs(res_x / res_y - w / h) > 0.005 * (w / h):
+        names = ", ".join(repr(c.name) for c in cameras)
+        raise ValueError(
+            f"camera {names} renders at {scene.render.resolution_x}x{scene.render.resolution_y} in this scene "
+            f"(aspect {res_x / res_y:.3f}) but the run was trained on {w}x{h} (aspect {w / h:.3f}): set "
+            f"Output Properties > Resolution to the same aspect, or render the run's own cameras")
+    meta = {k: v for k, v in (base or {}).items() if k in ("near", "far", "aabb", "aabb_scale")}
+    out_frames = []
+    saved_frame = scene.frame_current
+    try:
+        shots = [(cameras[0], f) for f in frames] if frames is not None else [(c, None) for c in cameras]
+        for i, (cam, frame) in enumerate(shots):
+            if cam.type != "CAMERA":
+                raise ValueError(f"object {cam.name!r} is not a camera")
+            if frame is not None:
+                scene.frame_set(frame)
+            intr = _camera_intrinsics(cam, scene, w, h)
+            stem = f"frame_{frame:04d}" if frame is not None else bpy.path.clean_name(cam.name)
+            out_frames.append({
+                "file_path": f"./{prefix}/{stem}",
+                "transform_matrix": c2w_rows(cam.matrix_world),
+                "fl_x": intr["fx"], "fl_y": intr["fy"], "cx": intr["cx"], "cy": intr["cy"], "w": w, "h": h,
+                "camera": cam.name,
+            })
+    finally:
+        scene.frame_set(saved_frame)
+    if not out_frames:
+        raise ValueError("no cameras to render")
+    first = out_frames[0]
+    meta.update({"camera_angle_x": 2 * math.atan(0.5 * w / first["fl_x"]), "fl_x": first["fl_x"],
+                 "fl_y": first["fl_y"], "cx": first["cx"], "cy": first["cy"], "w": w, "h": h,
+                 "frames": out_frames})
+    return meta

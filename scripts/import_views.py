@@ -1,0 +1,166 @@
+"""Render a trained run's novel views and import them into a .blend as image planes.
+
+    python scripts/import_views.py --blend scene.blend --run RUN --out compare.blend [--layout gallery|camera]
+    blender -b scene.blend --python scripts/import_views.py -- --run RUN --out compare.blend
+
+Renders the run's test views (``--split``) or the cameras of ``--cameras T.json`` with
+``python -m nerf_core render`` in a child process (a progress bar with an ETA on stderr), imports them
+(camera-aligned planes or a NeRF | Blender | error gallery with PSNR/SSIM), saves ``--out`` and prints
+a JSON summary (mean and per-view PSNR/SSIM) as the last stdout line. Never overwrites the scene
+file, and overwrites an existing ``--out`` only with ``--overwrite``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _bootstrap import REPO_ROOT, exit_code, open_blend, script_args  # noqa: E402
+
+
+def parse(argv):
+    ap = argparse.ArgumentParser(prog="import_views.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--blend", help="scene to import into (plain Python; under Blender the open file is used)")
+    ap.add_argument("--run", required=True, help="training run folder (has checkpoints/latest.pt)")
+    ap.add_argument("--out", required=True, help=".blend to write")
+    ap.add_argument("--layout", choices=("camera", "gallery"), default="gallery")
+    ap.add_argument("--cameras", help="transforms JSON of the cameras to render (default: the run's dataset split)")
+    ap.add_argument("--split", default="test", choices=("train", "val", "test"),
+                    help="dataset split to render when --cameras is not given (default test)")
+    ap.add_argument("--distance", type=float, default=0.0,
+                    help="camera layout: plane distance from the camera (default: the scene centre's depth)")
+    ap.add_argument("--render-dir", help="where the renders go (default: a new RUN/views/<split>_NNN folder)")
+    ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
+                    help="interpreter with torch for nerf_core (default: $NERF_PYTHON, else this Python)")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    return ap.parse_args(argv)
+
+
+def _finite(x):
+    """JSON has no inf/NaN: identical images (PSNR inf) are reported as null."""
+    return x if isinstance(x, (int, float)) and math.isfinite(x) else None
+
+
+def fail(message: str) -> None:
+    print(f"import_views: error: {message}", file=sys.stderr)
+    exit_code(2)
+
+
+def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> None:
+    """Run ``nerf_core render`` with a progress bar counting the PNGs as they appear."""
+    from addon import trainer_process
+    from nerf_core.progressbar import ProgressBar
+
+    proc = trainer_process.BackgroundProcess(trainer_process.render_command(python, run, cameras, out_dir)).start()
+    bar = ProgressBar(total=n_views, label="render views")
+    while not proc.finished():
+        proc.poll()
+        done = sum(1 for f in os.listdir(out_dir) if f.endswith(".png"))
+        bar.set(min(done, n_views))
+        time.sleep(0.2)
+    proc.poll()
+    bar.close()
+    failure = proc.failure_message()
+    if failure:
+        fail(f"rendering {run} failed: {failure}")
+
+
+def main(argv) -> int:
+    args = parse(argv)
+    import bpy
+
+    from addon import planes, runs, trainer_process
+    from addon.train_ui import auto_distance
+
+    out = os.path.abspath(args.out)
+    run = os.path.abspath(args.run)
+    scene_file = os.path.abspath(args.blend) if args.blend else bpy.data.filepath
+    if scene_file and os.path.abspath(scene_file) == out:
+        fail(f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
+    if os.path.exists(out) and not args.overwrite:
+        fail(f"--out {out} already exists; pass --overwrite to replace it or choose another name")
+    if not os.path.isfile(os.path.join(run, "checkpoints", "latest.pt")):
+        fail(f"--run {run}: no checkpoints/latest.pt (train it first with python -m nerf_core train)")
+    if args.cameras:
+        cameras = os.path.abspath(args.cameras)
+        if not os.path.isfile(cameras):
+            fail(f"--cameras {cameras}: no such file")
+    else:
+        dataset = runs.run_dataset(run)
+        if not dataset:
+            fail(f"--run {run}: config.json names no dataset; pass --cameras T.json")
+        cameras = os.path.join(dataset, f"transforms_{args.split}.json")
+        if not os.path.isfile(cameras):
+            fail(f"dataset {dataset} has no transforms_{args.split}.json; pass --cameras or another --split")
+    try:
+        with open(cameras, encoding="utf-8") as fh:
+            n_views = len(json.load(fh)["frames"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        fail(f"{cameras}: not a transforms file with 'frames' ({exc})")
+    try:
+        python = trainer_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
+    except trainer_process.SetupError as exc:
+        fail(f"{exc} (or pass --python / set NERF_PYTHON)")
+
+    open_blend(args.blend)
+    label = os.path.splitext(os.path.basename(cameras))[0].replace("transforms_", "")
+    if args.render_dir:
+        render_dir = os.path.abspath(args.render_dir)
+        if os.path.isdir(render_dir) and os.listdir(render_dir):
+            fail(f"--render-dir {render_dir} is not empty; choose an empty or new folder")
+    else:
+        parent, k = os.path.join(run, "views"), 1
+        while os.path.exists(os.path.join(parent, f"{label}_{k:03d}")):
+            k += 1
+        render_dir = os.path.join(parent, f"{label}_{k:03d}")
+    try:
+        os.makedirs(render_dir, exist_ok=True)
+    except OSError as exc:
+        fail(trainer_process.describe_os_error(exc, render_dir, "creating"))
+    render(python, run, cameras, render_dir, n_views)
+
+    try:
+        views = planes.views_from_render(render_dir, cameras)
+        scene = bpy.context.scene
+        if args.layout == "gallery":
+            planes.import_gallery(views, render_dir, background=runs.run_background(run), scene=scene)
+        else:
+            distance = args.distance or auto_distance(views, run)
+            planes.import_camera_aligned(views, distance, scene=scene)
+            for view in views:  # metrics are worth printing for the camera layout too
+                planes.compare_view(view, render_dir, runs.run_background(run))
+    except ValueError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(trainer_process.describe_os_error(exc, render_dir))
+    try:
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
+    except (OSError, RuntimeError) as exc:
+        if isinstance(exc, OSError):
+            fail(trainer_process.describe_os_error(exc, out))
+        hint = " (is the disk full?)" if "space" in str(exc).lower() else ""
+        fail(f"could not save {out}{hint}: {exc}")
+
+    scored = [v for v in views if v.metrics]
+    summary = {
+        "out": out, "layout": args.layout, "render_dir": render_dir, "cameras": cameras, "n_views": len(views),
+        "psnr": _finite(sum(v.metrics["psnr"] for v in scored) / len(scored)) if scored else None,
+        "ssim": _finite(sum(v.metrics["ssim"] for v in scored) / len(scored)) if scored else None,
+        "views": [{"name": v.name, **{k: _finite(x) for k, x in v.metrics.items()}} for v in views],
+    }
+    for v in views:
+        m = v.metrics
+        print(f"  {v.name:20s} " + (f"PSNR {m['psnr']:6.2f} dB  SSIM {m['ssim']:.3f}" if m else "(no ground truth)"))
+    print(f"import_views: wrote {out}", file=sys.stderr)
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    exit_code(main(script_args()))
