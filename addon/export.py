@@ -1,0 +1,209 @@
+"""Dataset files: intrinsics from Blender cameras, transforms JSON, point cloud, manifest.
+
+Follows ../shared/CONVENTIONS.md and docs/CONTRACTS.md: ``transforms_{train,val,test}.json`` with
+``file_path`` without extension, a nerfstudio ``transforms.json`` with real file names and split
+lists, every intrinsic, and the manifest in ``nerf_capture/manifest.json`` (out of instant-ngp's way).
+Only ``camera_intrinsics`` and ``camera_to_world`` touch bpy objects.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+
+MANIFEST_DIR = "nerf_capture"
+MANIFEST_NAME = "manifest.json"
+SPLITS = ("train", "val", "test")
+
+
+class ExportError(ValueError):
+    """A camera or scene cannot be exported; the message names the object or file."""
+
+
+def intrinsics_from_params(lens, sensor_width, sensor_height, sensor_fit, shift_x, shift_y,
+                           res_x, res_y, pixel_aspect_x=1.0, pixel_aspect_y=1.0) -> dict:
+    """Pinhole intrinsics in pixels matching Blender's viewplane (BKE_camera_params_compute_viewplane).
+
+    Sensor fit picks which image side the sensor size spans (AUTO: the longer one, in pixel-aspect
+    units); lens shift moves the principal point by ``shift * that side`` pixels (+x right, +y up, so
+    cy decreases with positive shift_y... in image rows it moves up, i.e. cy = h/2 + shift_y * side).
+    """
+    ycor = pixel_aspect_y / pixel_aspect_x
+    if sensor_fit == "AUTO":
+        sensor = sensor_width
+        fit = "HORIZONTAL" if pixel_aspect_x * res_x >= pixel_aspect_y * res_y else "VERTICAL"
+    elif sensor_fit == "HORIZONTAL":
+        sensor, fit = sensor_width, "HORIZONTAL"
+    elif sensor_fit == "VERTICAL":
+        sensor, fit = sensor_height, "VERTICAL"
+    else:
+        raise ExportError(f"unknown sensor fit {sensor_fit!r}")
+    viewfac = res_x if fit == "HORIZONTAL" else ycor * res_y
+    fx = lens * viewfac / sensor
+    fy = fx / ycor
+    cx = 0.5 * res_x - shift_x * viewfac
+    cy = 0.5 * res_y + shift_y * viewfac / ycor
+    return {
+        "camera_angle_x": 2.0 * math.atan(res_x / (2.0 * fx)),
+        "camera_angle_y": 2.0 * math.atan(res_y / (2.0 * fy)),
+        "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": int(res_x), "h": int(res_y),
+        "camera_model": "OPENCV", "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
+    }
+
+
+def camera_intrinsics(cam_obj, render) -> dict:
+    """Intrinsics of a Blender camera object for the scene's render settings (resolution %, aspect)."""
+    cam = cam_obj.data
+    if cam.type != "PERSP":
+        raise ExportError(f"camera {cam_obj.name!r} is {cam.type.lower()}; only perspective cameras make a NeRF dataset")
+    scale = render.resolution_percentage / 100.0
+    res_x, res_y = int(render.resolution_x * scale), int(render.resolution_y * scale)
+    return intrinsics_from_params(cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit, cam.shift_x,
+                                  cam.shift_y, res_x, res_y, render.pixel_aspect_x, render.pixel_aspect_y)
+
+
+def camera_to_world(cam_obj) -> list[list[float]]:
+    """``matrix_world`` with scale removed, as 4 rows (OpenGL axes, never pre-flipped)."""
+    from .layouts import camera_scale_error
+
+    err = camera_scale_error(cam_obj)
+    if err:
+        raise ExportError(err)
+    m = cam_obj.matrix_world.normalized()
+    return [[float(v) for v in row] for row in m]
+
+
+def shared_intrinsics(frames: list[dict]) -> dict | None:
+    """The intrinsics all frames share (to write once at the top level), else None."""
+    keys = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+    first = frames[0]["intrinsics"]
+    for fr in frames[1:]:
+        if any(abs(fr["intrinsics"][k] - first[k]) > 1e-6 for k in keys):
+            return None
+    return first
+
+
+def _atomic_json(path: str, data: dict) -> None:
+    tmp = path + ".partial"
+    with open(tmp, "w") as fh:
+        json.dump(data, fh, indent=2)
+    os.replace(tmp, path)
+
+
+def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str]:
+    """Write transforms_{train,val,test}.json and nerfstudio's transforms.json; return the paths.
+
+    ``frames``: dicts with split, name ("r_3"), transform_matrix, intrinsics, and optional
+    depth/normal/mask relative paths (with extension). ``common``: aabb, near, far, ply_file_path...
+    """
+    if not frames:
+        raise ExportError(f"{out_dir}: no rendered frames to export")
+    shared = shared_intrinsics(frames)
+    base = dict(shared) if shared else dict(frames[0]["intrinsics"])
+    top = {k: v for k, v in base.items() if k not in ("camera_angle_y",)}
+    top.update(common)
+    written = []
+    per_split_files = {s: [] for s in SPLITS}
+    ns_frames = []
+    for split in SPLITS:
+        split_frames = [f for f in frames if f["split"] == split]
+        out_frames = []
+        for f in split_frames:
+            entry = {"file_path": f"./{split}/{f['name']}", "transform_matrix": f["transform_matrix"]}
+            ns = {"file_path": f"{split}/{f['name']}.png", "transform_matrix": f["transform_matrix"]}
+            if shared is None:  # per-frame intrinsics: instant-ngp and nerfstudio both read these
+                for k in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"):
+                    entry[k] = ns[k] = f["intrinsics"][k]
+            for key in ("depth_file_path", "normal_file_path", "mask_path"):
+                if f.get(key):
+                    entry[key] = ns[key] = f[key]
+            if f.get("frame") is not None:
+                entry["time"] = ns["time"] = f["frame"]
+            out_frames.append(entry)
+            ns_frames.append(ns)
+            per_split_files[split].append(ns["file_path"])
+        doc = dict(top)
+        doc["frames"] = out_frames
+        path = os.path.join(out_dir, f"transforms_{split}.json")
+        _atomic_json(path, doc)
+        written.append(path)
+    ns_doc = dict(top)
+    ns_doc.update({f"{s}_filenames": per_split_files[s] for s in SPLITS})
+    ns_doc["frames"] = ns_frames
+    path = os.path.join(out_dir, "transforms.json")
+    _atomic_json(path, ns_doc)
+    written.append(path)
+    return written
+
+
+def near_far(camera_positions, lo, hi) -> tuple[float, float]:
+    """Near/far that bracket the box (lo, hi) from every camera: nearest box point, farthest corner."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    near, far = float("inf"), 0.0
+    for p in camera_positions:
+        p = np.asarray(p, float)
+        nearest = np.linalg.norm(p - np.clip(p, lo, hi))
+        near = min(near, nearest)
+        far = max(far, float(np.linalg.norm(corners - p, axis=1).max()))
+    near = max(0.9 * near, 0.01 * far, 1e-3)
+    return float(near), float(1.05 * far)
+
+
+def write_ply(path: str, points: np.ndarray, colors: np.ndarray) -> None:
+    """Binary little-endian PLY with float xyz and uchar rgb; (n, 3) float32 and (n, 3) uint8."""
+    n = len(points)
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {n}\n"
+        "property float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    ).encode("ascii")
+    rec = np.empty(n, dtype=[("p", "<f4", 3), ("c", "u1", 3)])
+    rec["p"] = points
+    rec["c"] = colors
+    tmp = path + ".partial"
+    with open(tmp, "wb") as fh:
+        fh.write(header)
+        fh.write(rec.tobytes())
+    os.replace(tmp, path)
+
+
+def backproject(depth: np.ndarray, rgb: np.ndarray, intr: dict, c2w, stride: int = 1):
+    """World points and colours of the pixels with finite depth.
+
+    depth: (h, w) planar z (inf = none); rgb: (h, w, 3) uint8; c2w: 4x4 rows. Returns (n, 3) float32, (n, 3) uint8.
+    """
+    h, w = depth.shape
+    j, i = np.mgrid[0:h:stride, 0:w:stride]
+    z = depth[j, i]
+    ok = np.isfinite(z) & (z > 0)
+    i, j, z = i[ok], j[ok], z[ok]
+    x = (i + 0.5 - intr["cx"]) / intr["fl_x"] * z
+    y = -(j + 0.5 - intr["cy"]) / intr["fl_y"] * z
+    cam = np.stack([x, y, -z, np.ones_like(z)], axis=1)
+    world = cam @ np.asarray(c2w, float).T
+    return world[:, :3].astype(np.float32), rgb[j, i]
+
+
+def manifest_path(out_dir: str) -> str:
+    return os.path.join(out_dir, MANIFEST_DIR, MANIFEST_NAME)
+
+
+def read_manifest(out_dir: str) -> dict | None:
+    """The capture manifest of ``out_dir``, None when there is none; ExportError if unreadable."""
+    path = manifest_path(out_dir)
+    if not os.path.exists(path):
+        return None
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except (OSError, ValueError) as exc:
+        raise ExportError(f"{path}: unreadable capture manifest ({exc}); move the folder aside or pass --overwrite")
+
+
+def write_manifest(out_dir: str, manifest: dict) -> None:
+    os.makedirs(os.path.join(out_dir, MANIFEST_DIR), exist_ok=True)
+    _atomic_json(manifest_path(out_dir), manifest)

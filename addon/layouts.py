@@ -1,0 +1,332 @@
+"""Camera layouts for a capture: where the train/val/test cameras go.
+
+The position generators are pure functions (no bpy) returning lists of (x, y, z) tuples;
+``create_cameras`` turns a layout into real camera objects in the "NeRF Cameras" collection, which
+users can inspect and edit before capturing (a capture renders whatever cameras that collection holds).
+
+Elevations are in degrees above the target's horizontal plane (+Z up, as in Blender).
+"""
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+COLLECTION_NAME = "NeRF Cameras"
+SPLITS = ("train", "val", "test")
+GENERATED_LAYOUTS = ("hemisphere", "sphere", "random", "rings", "spiral")
+SCENE_LAYOUTS = ("scene-cameras", "animation")
+LAYOUTS = GENERATED_LAYOUTS + SCENE_LAYOUTS
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+
+
+class LayoutError(ValueError):
+    """A layout cannot be built; the message says why and what to change."""
+
+
+@dataclass
+class LayoutSpec:
+    """Everything that decides camera placement; stored in the manifest for reproducibility."""
+
+    layout: str = "hemisphere"
+    train: int = 100
+    val: int = 10
+    test: int = 10
+    radius: float = 0.0  # 0 = auto: the target's bounding sphere fills the frame
+    elevation_min: float | None = None  # None = layout default
+    elevation_max: float | None = None
+    seed: int = 0
+    rings: int = 3
+    turns: float = 3.0
+    frame_step: int = 10
+    focal_length: float = 50.0  # mm on a 36 mm sensor: camera_angle_x 0.6911, as in the NeRF synthetic data
+    target: str = "SCENE"  # or SELECTION
+    margin: float = 1.05
+
+    def elevation_range(self) -> tuple[float, float]:
+        default = (-90.0, 90.0) if self.layout in ("sphere", "random") else (0.0, 90.0)
+        lo = default[0] if self.elevation_min is None else self.elevation_min
+        hi = default[1] if self.elevation_max is None else self.elevation_max
+        if not -90.0 <= lo <= hi <= 90.0:
+            raise LayoutError(f"elevation range [{lo}, {hi}] must satisfy -90 <= min <= max <= 90 degrees")
+        return lo, hi
+
+    def to_dict(self) -> dict:
+        d = dict(self.__dict__)
+        d["elevation_min"], d["elevation_max"] = self.elevation_range()
+        return d
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure position generators: (n, radius, centre, elevation range) -> list of n (x, y, z)
+
+
+def _on_sphere(centre, radius, z_unit, azimuth):
+    r_xy = math.sqrt(max(0.0, 1.0 - z_unit * z_unit))
+    return (
+        centre[0] + radius * r_xy * math.cos(azimuth),
+        centre[1] + radius * r_xy * math.sin(azimuth),
+        centre[2] + radius * z_unit,
+    )
+
+
+def fibonacci_positions(n, radius, centre=(0, 0, 0), elevation=(-90.0, 90.0)):
+    """n near-uniform points on the spherical band between two elevations (Fibonacci lattice).
+
+    Heights are spaced evenly in z (equal-area bands), azimuths advance by the golden angle.
+    """
+    z0, z1 = (math.sin(math.radians(e)) for e in elevation)
+    return [_on_sphere(centre, radius, z0 + (z1 - z0) * (i + 0.5) / n, i * GOLDEN_ANGLE) for i in range(n)]
+
+
+def random_positions(n, radius, centre=(0, 0, 0), elevation=(-90.0, 90.0), seed=0):
+    """n points uniform by area on the band, reproducible from ``seed``."""
+    rng = random.Random(seed)
+    z0, z1 = (math.sin(math.radians(e)) for e in elevation)
+    return [_on_sphere(centre, radius, rng.uniform(z0, z1), rng.uniform(0, 2 * math.pi)) for _ in range(n)]
+
+
+def ring_positions(n, radius, centre=(0, 0, 0), elevation=(10.0, 60.0), rings=3):
+    """n points on ``rings`` horizontal circles at evenly spaced elevations; rings are offset in azimuth."""
+    rings = max(1, min(rings, n))
+    elevations = [elevation[0]] if rings == 1 else [
+        elevation[0] + (elevation[1] - elevation[0]) * k / (rings - 1) for k in range(rings)]
+    per_ring = [n // rings + (1 if k < n % rings else 0) for k in range(rings)]
+    out = []
+    for k, (elev, count) in enumerate(zip(elevations, per_ring)):
+        z = math.sin(math.radians(elev))
+        for j in range(count):
+            out.append(_on_sphere(centre, radius, z, 2 * math.pi * (j + 0.5 * (k % 2)) / count))
+    return out
+
+
+def spiral_positions(n, radius, centre=(0, 0, 0), elevation=(0.0, 90.0), turns=3.0):
+    """n points on a spiral climbing from the lower to the upper elevation over ``turns`` turns."""
+    out = []
+    for i in range(n):
+        t = (i + 0.5) / n
+        elev = math.radians(elevation[0] + (elevation[1] - elevation[0]) * t)
+        out.append(_on_sphere(centre, radius, math.sin(elev), 2 * math.pi * turns * t))
+    return out
+
+
+def layout_positions(spec: LayoutSpec, n: int, centre, radius: float):
+    """The n positions of a generated layout (not scene-cameras/animation)."""
+    elev = spec.elevation_range()
+    if spec.layout in ("hemisphere", "sphere"):
+        return fibonacci_positions(n, radius, centre, elev)
+    if spec.layout == "random":
+        return random_positions(n, radius, centre, elev, spec.seed)
+    if spec.layout == "rings":
+        return ring_positions(n, radius, centre, elev, spec.rings)
+    if spec.layout == "spiral":
+        return spiral_positions(n, radius, centre, elev, spec.turns)
+    raise LayoutError(f"unknown layout {spec.layout!r}; choose one of {', '.join(LAYOUTS)}")
+
+
+def assign_splits(n_total: int, n_val: int, n_test: int, seed: int = 0) -> list[str]:
+    """Split names for n_total cameras: a seeded shuffle spreads val/test over the whole layout."""
+    if min(n_val, n_test) < 0 or n_val + n_test >= n_total:
+        raise LayoutError(f"{n_total} cameras cannot hold {n_val} val + {n_test} test views and still train")
+    order = list(range(n_total))
+    random.Random(seed).shuffle(order)
+    splits = ["train"] * n_total
+    for k, idx in enumerate(order[: n_val + n_test]):
+        splits[idx] = "val" if k < n_val else "test"
+    return splits
+
+
+def fov_from_lens(focal_length_mm: float, res_x: int, res_y: int, sensor_mm: float = 36.0) -> tuple[float, float]:
+    """Horizontal and vertical field of view (radians) of an AUTO-fit camera with square pixels."""
+    if res_x >= res_y:
+        fov_x = 2 * math.atan(sensor_mm / (2 * focal_length_mm))
+        fov_y = 2 * math.atan(math.tan(fov_x / 2) * res_y / res_x)
+    else:
+        fov_y = 2 * math.atan(sensor_mm / (2 * focal_length_mm))
+        fov_x = 2 * math.atan(math.tan(fov_y / 2) * res_x / res_y)
+    return fov_x, fov_y
+
+
+def auto_radius(sphere_radius: float, fov_x: float, fov_y: float, margin: float = 1.05) -> float:
+    """Distance at which a sphere of ``sphere_radius`` just fits the narrower field of view."""
+    return margin * sphere_radius / math.sin(min(fov_x, fov_y) / 2)
+
+
+def look_at(position, target, up=(0.0, 0.0, 1.0)):
+    """4x4 camera-to-world rows (OpenGL: camera looks along -Z, +Y up) for a camera at ``position``."""
+    fwd = [t - p for p, t in zip(position, target)]
+    norm = math.sqrt(sum(c * c for c in fwd))
+    if norm < 1e-9:
+        raise LayoutError("camera position coincides with its target")
+    fwd = [c / norm for c in fwd]
+    if abs(sum(f * u for f, u in zip(fwd, up))) > 0.999:  # looking straight up/down: any other up works
+        up = (0.0, 1.0, 0.0)
+    right = [fwd[1] * up[2] - fwd[2] * up[1], fwd[2] * up[0] - fwd[0] * up[2], fwd[0] * up[1] - fwd[1] * up[0]]
+    rn = math.sqrt(sum(c * c for c in right))
+    right = [c / rn for c in right]
+    true_up = [right[1] * fwd[2] - right[2] * fwd[1], right[2] * fwd[0] - right[0] * fwd[2],
+               right[0] * fwd[1] - right[1] * fwd[0]]
+    back = [-c for c in fwd]
+    return [[right[i], true_up[i], back[i], position[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
+
+
+# ---------------------------------------------------------------------------------------------
+# Blender side: camera objects in their own collection
+
+
+def camera_scale_error(obj) -> str | None:
+    """Why a camera object's transform cannot be exported as-is (scale or shear), else None."""
+    m = obj.matrix_world
+    cols = [m.col[i].xyz for i in range(3)]
+    lengths = [c.length for c in cols]
+    if any(abs(length - 1.0) > 1e-4 for length in lengths):
+        return f"camera {obj.name!r} has scale {tuple(round(v, 4) for v in lengths)}; apply or clear its scale (Ctrl+A > Scale)"
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        if abs(cols[i].dot(cols[j])) > 1e-4:
+            return f"camera {obj.name!r} is sheared (a parent with non-uniform scale?); clear the parent's scale"
+    return None
+
+
+def nerf_collection(scene, create: bool = True):
+    import bpy
+
+    coll = bpy.data.collections.get(COLLECTION_NAME)
+    if coll is None and create:
+        coll = bpy.data.collections.new(COLLECTION_NAME)
+    if coll is not None and create and coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    return coll
+
+
+def clear_cameras(scene) -> int:
+    """Delete the cameras of the "NeRF Cameras" collection (never any other object); return how many."""
+    import bpy
+
+    coll = nerf_collection(scene, create=False)
+    if coll is None:
+        return 0
+    objs = list(coll.objects)
+    for obj in objs:
+        data = obj.data
+        bpy.data.objects.remove(obj, do_unlink=True)
+        if data is not None and data.users == 0:
+            bpy.data.cameras.remove(data)
+    return len(objs)
+
+
+def capture_cameras(scene) -> dict[str, list]:
+    """The cameras a capture renders, by split, each sorted by name (order = frame index)."""
+    coll = nerf_collection(scene, create=False)
+    out = {s: [] for s in SPLITS}
+    if coll is None:
+        return out
+    for obj in coll.all_objects:
+        if obj.type == "CAMERA":
+            out[obj.get("nerf_split", "train") if obj.get("nerf_split") in SPLITS else "train"].append(obj)
+    for s in SPLITS:
+        out[s].sort(key=lambda o: o.name)
+    return out
+
+
+def _user_cameras(scene, coll):
+    return sorted((o for o in scene.objects if o.type == "CAMERA" and (coll is None or o.name not in coll.all_objects)),
+                  key=lambda o: o.name)
+
+
+def _new_camera(scene, coll, name, split, matrix, lens, sensor=36.0, src=None):
+    import bpy
+    from mathutils import Matrix
+
+    data = src.data.copy() if src is not None else bpy.data.cameras.new(name)
+    data.name = name
+    if src is None:
+        data.lens = lens
+        data.sensor_width = sensor
+        data.sensor_fit = "AUTO"
+    data.animation_data_clear()
+    obj = bpy.data.objects.new(name, data)
+    coll.objects.link(obj)
+    obj.matrix_world = Matrix(matrix)
+    obj["nerf_split"] = split
+    return obj
+
+
+def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
+    """Replace the "NeRF Cameras" collection's cameras with the layout's; returns the new objects.
+
+    Generated layouts aim every camera at the target centre from ``spec.radius`` (auto when 0).
+    "scene-cameras" copies the scene's other cameras; "animation" copies the active camera at every
+    ``frame_step``-th frame (recording the frame in ``obj["nerf_frame"]``). User cameras are never moved.
+    """
+    from . import scene_bounds
+
+    coll_existing = nerf_collection(scene, create=False)
+    centre = radius = None
+    if spec.layout in GENERATED_LAYOUTS:
+        lo, hi = scene_bounds.scene_bounds(scene, only_selected=spec.target == "SELECTION")
+        centre, sphere_r = scene_bounds.bounding_sphere(lo, hi)
+        radius = spec.radius
+        if radius <= 0:
+            radius = auto_radius(sphere_r, *fov_from_lens(spec.focal_length, res_x, res_y), spec.margin)
+        n_total = spec.train + spec.val + spec.test
+        if spec.train < 1:
+            raise LayoutError("a capture needs at least one train view")
+        splits = ["train"] * spec.train + ["val"] * spec.val + ["test"] * spec.test
+        if spec.val + spec.test:
+            splits = assign_splits(n_total, spec.val, spec.test, spec.seed)
+        positions = layout_positions(spec, n_total, tuple(centre), radius)
+        plan = [(s, look_at(p, tuple(centre)), None, None) for s, p in zip(splits, positions)]
+    elif spec.layout == "scene-cameras":
+        sources = _user_cameras(scene, coll_existing)
+        if not sources:
+            raise LayoutError(f"layout 'scene-cameras': scene {scene.name!r} has no camera of its own")
+        plan = _plan_from_sources(spec, [(o, o.matrix_world.copy(), None) for o in sources])
+    elif spec.layout == "animation":
+        cam = scene.camera
+        if cam is None or (coll_existing is not None and cam.name in coll_existing.all_objects):
+            raise LayoutError("layout 'animation': the scene has no active camera of its own (set one with Ctrl+Numpad0)")
+        step = max(1, spec.frame_step)
+        frames = list(range(scene.frame_start, scene.frame_end + 1, step))
+        current = scene.frame_current
+        sources = []
+        try:
+            for f in frames:
+                scene.frame_set(f)
+                sources.append((cam, cam.matrix_world.copy(), f))
+        finally:
+            scene.frame_set(current)
+        plan = _plan_from_sources(spec, sources)
+    else:
+        raise LayoutError(f"unknown layout {spec.layout!r}; choose one of {', '.join(LAYOUTS)}")
+
+    coll = nerf_collection(scene)
+    clear_cameras(scene)
+    counters = {s: 0 for s in SPLITS}
+    made = []
+    for split, matrix, src, frame in plan:
+        name = f"NeRF_{split}_{counters[split]:03d}"
+        counters[split] += 1
+        obj = _new_camera(scene, coll, name, split, matrix, spec.focal_length, src=src)
+        if frame is not None:
+            obj["nerf_frame"] = frame
+        if src is not None:
+            obj["nerf_source"] = src.name
+        made.append(obj)
+    for obj in made:
+        # The default 100 m clip would cut far scenes out of the render; the depth pass needs it too.
+        obj.data.clip_end = max(obj.data.clip_end, 4.0 * (radius or 0.0))
+    return made
+
+
+def _plan_from_sources(spec: LayoutSpec, sources):
+    """Split existing camera poses (obj, matrix, frame) into train/val/test."""
+    for obj, _m, _f in sources:
+        err = camera_scale_error(obj)
+        if err:
+            raise LayoutError(err)
+    n = len(sources)
+    if spec.val + spec.test == 0:
+        splits = ["train"] * n
+    else:
+        splits = assign_splits(n, spec.val, spec.test, spec.seed)
+    return [(s, m, obj, f) for s, (obj, m, f) in zip(splits, sources)]
