@@ -1,0 +1,341 @@
+"""Validating a dataset folder against ../shared/CONVENTIONS.md: ``python -m nerf_core check DATASET``.
+
+Every loader our users rely on (original NeRF, nerfstudio's blender-data and nerfstudio-data,
+instant-ngp, 3DGS) must read the folder unchanged, so the check lists *every* problem, each naming
+its file, frame and field, instead of stopping at the first. Warnings are things that load but may
+surprise (an off-centre principal point that camera_angle_x-only loaders ignore).
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from .cameras import PoseError, check_pose
+from .imageio import ImageReadError, png_info
+
+SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
+NERFSTUDIO_FILE = "transforms.json"
+REQUIRED_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
+
+
+@dataclass
+class Problem:
+    file: str
+    message: str
+    frame: Optional[int] = None
+    frame_path: Optional[str] = None
+    field: Optional[str] = None
+
+    def __str__(self) -> str:
+        where = self.file
+        if self.frame is not None:
+            where += f": frame {self.frame}" + (f" ({self.frame_path})" if self.frame_path else "")
+        if self.field:
+            where += f": field '{self.field}'"
+        return f"{where}: {self.message}"
+
+
+@dataclass
+class CheckReport:
+    root: Path
+    errors: List[Problem] = field(default_factory=list)
+    warnings: List[Problem] = field(default_factory=list)
+    n_frames: Dict[str, int] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+    def error(self, *a, **k) -> None:
+        self.errors.append(Problem(*a, **k))
+
+    def warn(self, *a, **k) -> None:
+        self.warnings.append(Problem(*a, **k))
+
+    def format(self) -> str:
+        lines = [f"ERROR   {p}" for p in self.errors] + [f"WARNING {p}" for p in self.warnings]
+        counts = ", ".join(f"{k} {v}" for k, v in self.n_frames.items())
+        verdict = "valid" if self.ok else f"INVALID: {len(self.errors)} error(s)"
+        lines.append(f"{self.root}: {verdict}, {len(self.warnings)} warning(s)" + (f" ({counts} frames)" if counts else ""))
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict:
+        return {"dataset": str(self.root), "ok": self.ok, "errors": [str(p) for p in self.errors],
+                "warnings": [str(p) for p in self.warnings], "frames": self.n_frames}
+
+
+def _load_json(report: CheckReport, path: Path) -> Optional[dict]:
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        report.error(path.name, f"cannot read ({exc})")
+        return None
+    except json.JSONDecodeError as exc:
+        report.error(path.name, f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}")
+        return None
+    if not isinstance(meta, dict):
+        report.error(path.name, "expected a JSON object")
+        return None
+    frames = meta.get("frames")
+    if not isinstance(frames, list):
+        report.error(path.name, "missing or not a list", field="frames")
+        return None
+    if not frames:
+        report.error(path.name, "no frames: the split is empty", field="frames")
+    return meta
+
+
+def _number(report, fname, value, key, frame=None, fpath=None, positive=True) -> Optional[float]:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        report.error(fname, f"not a number ({value!r})", frame, fpath, key)
+        return None
+    if not math.isfinite(v) or (positive and v <= 0):
+        report.error(fname, f"must be a {'positive ' if positive else ''}finite number, got {value!r}", frame, fpath, key)
+        return None
+    return v
+
+
+def _intrinsics(report: CheckReport, fname: str, meta: dict, fr: dict, k: int, fpath: str, need_angle: bool) -> Optional[dict]:
+    """The effective intrinsics of one frame (frame values override the file's), or None if incomplete."""
+    vals = {}
+    ok = True
+    for key in REQUIRED_INTRINSICS + ("camera_angle_x",):
+        src = fr if key in fr else meta if key in meta else None
+        if src is None:
+            if key in REQUIRED_INTRINSICS or need_angle:
+                # Report missing top-level fields once per file, not per frame.
+                if k == 0:
+                    report.error(fname, "missing (write it at the top level or in every frame)", field=key)
+                ok = False
+            continue
+        v = _number(report, fname, src[key], key, k if src is fr else None, fpath if src is fr else None,
+                    positive=key not in ("cx", "cy"))
+        if v is None:
+            ok = False
+        vals[key] = v
+    if not ok:
+        return None
+    for key in ("w", "h"):
+        if vals[key] != int(vals[key]):
+            report.error(fname, f"image size must be an integer, got {vals[key]}", k, fpath, key)
+            return None
+    return vals
+
+
+def _check_intrinsics_consistency(report: CheckReport, fname: str, intr: dict, k: int, fpath: str, seen: set) -> None:
+    w, h = intr["w"], intr["h"]
+    key = (fname, tuple(sorted(intr.items())))
+    if key in seen:  # same numbers as an earlier frame: already reported
+        return
+    seen.add(key)
+    for c, size, name in (("cx", w, "w"), ("cy", h, "h")):
+        if not 0.0 < intr[c] < size:
+            report.error(fname, f"{intr[c]} lies outside the image (0..{name}={size:g})", k, fpath, c)
+    if "camera_angle_x" in intr and intr.get("camera_angle_x"):
+        fx_from_angle = 0.5 * w / math.tan(0.5 * intr["camera_angle_x"])
+        if abs(fx_from_angle - intr["fl_x"]) > 1e-3 * intr["fl_x"] + 1e-3:
+            report.error(fname, f"camera_angle_x {intr['camera_angle_x']:.6g} gives fl_x {fx_from_angle:.4f} "
+                                f"but fl_x is {intr['fl_x']:.4f}; loaders that read only camera_angle_x would use another focal length",
+                         k, fpath, "camera_angle_x")
+    off_x, off_y = intr["cx"] - w / 2.0, intr["cy"] - h / 2.0
+    if abs(off_x) > 0.5 or abs(off_y) > 0.5:
+        report.warn(fname, f"principal point ({intr['cx']:g}, {intr['cy']:g}) is off-centre by ({off_x:+.2f}, {off_y:+.2f}) px "
+                           "(lens shift): loaders that read only camera_angle_x (original NeRF, blender-data, 3DGS) assume the centre",
+                    k, fpath, "cx/cy")
+
+
+def _check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict], k: int, fpath: str, field_name: str, rgba: bool) -> None:
+    if not img.is_file():
+        report.error(fname, f"image {img} does not exist", k, fpath, field_name)
+        return
+    if img.suffix.lower() == ".exr":
+        return
+    try:
+        w, h, mode, bits = png_info(img)
+    except ImageReadError as exc:
+        report.error(fname, str(exc), k, fpath, field_name)
+        return
+    if rgba and (mode != "RGBA" or bits != 8):
+        report.error(fname, f"{img.name} is {mode} {bits}-bit; images must be RGBA 8-bit rendered with a transparent film",
+                     k, fpath, field_name)
+    if intr is not None and (w, h) != (int(intr["w"]), int(intr["h"])):
+        report.error(fname, f"{img.name} is {w}x{h} but w x h says {int(intr['w'])}x{int(intr['h'])}", k, fpath, field_name)
+
+
+def _check_pose(report: CheckReport, fname: str, fr: dict, k: int, fpath: str) -> Optional[np.ndarray]:
+    if "transform_matrix" not in fr:
+        report.error(fname, "missing", k, fpath, "transform_matrix")
+        return None
+    m = fr["transform_matrix"]
+    if not (isinstance(m, list) and len(m) == 4 and all(isinstance(r, list) and len(r) == 4 for r in m)):
+        report.error(fname, "must be a 4x4 matrix written as a list of 4 rows", k, fpath, "transform_matrix")
+        return None
+    try:
+        return check_pose(m, "transform_matrix")
+    except PoseError as exc:
+        report.error(fname, str(exc).split(": ", 1)[-1], k, fpath, "transform_matrix")
+        return None
+
+
+def _check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int, fpath: str) -> None:
+    for key in ("depth_file_path", "depth_path", "normal_file_path", "mask_path"):
+        if key in fr:
+            p = root / str(fr[key])
+            if not p.is_file():
+                report.error(fname, f"{p} does not exist", k, fpath, key)
+            elif key == "depth_file_path" and p.suffix.lower() not in (".exr", ".png"):
+                report.warn(fname, f"{p.name}: depth should be EXR (float) or 16-bit PNG (millimetres)", k, fpath, key)
+
+
+def _check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:
+    if "aabb_scale" in meta:
+        v = meta["aabb_scale"]
+        ok = isinstance(v, (int, float)) and v >= 1 and float(v).is_integer() and (int(v) & (int(v) - 1)) == 0 and v <= 128
+        if not ok:
+            report.error(fname, f"must be a power of two between 1 and 128 (instant-ngp), got {v!r}", field="aabb_scale")
+    if "aabb" in meta:
+        try:
+            box = np.asarray(meta["aabb"], dtype=float)
+            if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
+                raise ValueError
+        except (TypeError, ValueError):
+            report.error(fname, f"must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {meta['aabb']!r}", field="aabb")
+    for key in ("near", "far"):
+        if key in meta:
+            _number(report, fname, meta[key], key, positive=False)
+
+
+def check_dataset(path: Path | str) -> CheckReport:
+    """Check a dataset folder; never raises for dataset problems (they go into the report)."""
+    root = Path(path)
+    report = CheckReport(root)
+    if not root.is_dir():
+        report.error(str(root), "dataset folder not found" if not root.exists() else "not a folder")
+        return report
+
+    # instant-ngp loads every *.json at the root as a transforms file.
+    for j in sorted(root.glob("*.json")):
+        if j.name not in SPLIT_FILES and j.name != NERFSTUDIO_FILE:
+            report.error(j.name, "stray JSON at the dataset root: instant-ngp loads every *.json here; "
+                                 "move it into a subfolder (e.g. nerf_capture/)")
+
+    poses: Dict[str, List[tuple]] = {}
+    frame_intrinsics: Dict[str, dict] = {}  # image file -> intrinsics, to compare with transforms.json
+    seen: set = set()
+    for fname in SPLIT_FILES:
+        split = fname[len("transforms_"):-len(".json")]
+        fpath_json = root / fname
+        if not fpath_json.is_file():
+            report.error(fname, f"missing: the original NeRF loader reads train, val and test; 3DGS needs train and test")
+            continue
+        meta = _load_json(report, fpath_json)
+        if meta is None:
+            continue
+        _check_meta_common(report, fname, meta)
+        if "camera_angle_x" not in meta:
+            report.error(fname, "missing: the only camera field the original NeRF loader, blender-data and 3DGS read",
+                         field="camera_angle_x")
+        report.n_frames[split] = len(meta["frames"])
+        poses[split] = []
+        for k, fr in enumerate(meta["frames"]):
+            if not isinstance(fr, dict):
+                report.error(fname, "not an object", k)
+                continue
+            fp = fr.get("file_path")
+            if not isinstance(fp, str) or not fp:
+                report.error(fname, "missing", k, None, "file_path")
+                continue
+            intr = _intrinsics(report, fname, meta, fr, k, fp, need_angle=False)
+            if intr is not None:
+                _check_intrinsics_consistency(report, fname, intr, k, fp, seen)
+            if Path(fp).suffix.lower() in IMAGE_EXTS:
+                report.error(fname, f"{fp!r} has an extension; loaders of this layout add '.png' themselves "
+                                    f"(write {str(Path(fp).with_suffix(''))!r})", k, fp, "file_path")
+                img = root / fp
+            else:
+                img = root / (fp + ".png")
+            _check_image(report, fname, img, intr, k, fp, "file_path", rgba=True)
+            m = _check_pose(report, fname, fr, k, fp)
+            _check_extras(report, fname, root, fr, k, fp)
+            if m is not None:
+                poses[split].append((k, fp, m, img.resolve()))
+            if intr is not None:
+                frame_intrinsics[str(img.resolve())] = intr
+
+    # Held-out cameras must be new viewpoints.
+    for split in ("val", "test"):
+        for k, fp, m, img in poses.get(split, []):
+            for k2, fp2, m2, img2 in poses.get("train", []):
+                if img == img2:
+                    report.error(f"transforms_{split}.json", f"uses the training image of train frame {k2} ({fp2})", k, fp, "file_path")
+                    break
+                if np.allclose(m, m2, atol=1e-6):
+                    report.error(f"transforms_{split}.json", f"camera equals train frame {k2} ({fp2}): held-out views must be new viewpoints",
+                                 k, fp, "transform_matrix")
+                    break
+
+    _check_nerfstudio(report, root, frame_intrinsics)
+    return report
+
+
+def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict]) -> None:
+    path = root / NERFSTUDIO_FILE
+    if not path.is_file():
+        report.error(NERFSTUDIO_FILE, "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names")
+        return
+    meta = _load_json(report, path)
+    if meta is None:
+        return
+    _check_meta_common(report, NERFSTUDIO_FILE, meta)
+    names = set()
+    seen: set = set()
+    for k, fr in enumerate(meta["frames"]):
+        if not isinstance(fr, dict):
+            report.error(NERFSTUDIO_FILE, "not an object", k)
+            continue
+        fp = fr.get("file_path")
+        if not isinstance(fp, str) or not fp:
+            report.error(NERFSTUDIO_FILE, "missing", k, None, "file_path")
+            continue
+        names.add(str(Path(fp)))
+        intr = _intrinsics(report, NERFSTUDIO_FILE, meta, fr, k, fp, need_angle=False)
+        if intr is not None:
+            _check_intrinsics_consistency(report, NERFSTUDIO_FILE, intr, k, fp, seen)
+        if Path(fp).suffix.lower() not in IMAGE_EXTS:
+            report.error(NERFSTUDIO_FILE, f"{fp!r} needs its real file name with the extension (nerfstudio does not add one)",
+                         k, fp, "file_path")
+            continue
+        img = root / fp
+        _check_image(report, NERFSTUDIO_FILE, img, intr, k, fp, "file_path", rgba=False)
+        _check_pose(report, NERFSTUDIO_FILE, fr, k, fp)
+        _check_extras(report, NERFSTUDIO_FILE, root, fr, k, fp)
+        other = split_intrinsics.get(str(img.resolve()))
+        if other is not None and intr is not None:
+            diff = [key for key in REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]
+            if diff:
+                report.error(NERFSTUDIO_FILE, "differs from the transforms_<split>.json entry of the same image "
+                             + ", ".join(f"{d}: {intr[d]:g} vs {other[d]:g}" for d in diff), k, fp, diff[0])
+    for key in ("train_filenames", "val_filenames", "test_filenames"):
+        if key in meta:
+            lst = meta[key]
+            if not isinstance(lst, list):
+                report.error(NERFSTUDIO_FILE, "must be a list of file names", field=key)
+                continue
+            for n in lst:
+                if str(Path(str(n))) not in names:
+                    report.error(NERFSTUDIO_FILE, f"lists {n!r}, which is not the file_path of any frame", field=key)
+    if "train_filenames" in meta and isinstance(meta["train_filenames"], list):
+        train = {str(Path(str(n))) for n in meta["train_filenames"]}
+        for key in ("val_filenames", "test_filenames"):
+            if isinstance(meta.get(key), list):
+                both = sorted(train & {str(Path(str(n))) for n in meta[key]})
+                if both:
+                    report.error(NERFSTUDIO_FILE, f"{len(both)} file(s) are also in train_filenames (e.g. {both[0]!r})", field=key)

@@ -1,0 +1,213 @@
+"""``python -m nerf_core``: train, render, eval, check (and list methods).
+
+Stable flags are documented in docs/CONTRACTS.md. Expected problems (bad dataset, existing run,
+missing checkpoint) end with one ``nerf_core <command>: error: ...`` line on stderr and exit code 2,
+never a traceback. Set ``NERF_CORE_PLUGINS=module.a,module.b`` to import modules that register
+extra methods before a command runs.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import sys
+from typing import List, Optional
+
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def _load_plugins() -> None:
+    for name in filter(None, (s.strip() for s in os.environ.get("NERF_CORE_PLUGINS", "").split(","))):
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            raise ValueError(f"NERF_CORE_PLUGINS: cannot import {name!r} ({exc})") from exc
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = argparse.ArgumentParser(
+        prog="python -m nerf_core",
+        description="Train NeRFs on Blender (or any NeRF-synthetic / nerfstudio) datasets, render novel views, "
+                    "evaluate and validate datasets. CPU first; CUDA when available.",
+        epilog="examples:\n"
+               "  python -m nerf_core check scene_dataset\n"
+               "  python -m nerf_core train scene_dataset --out runs/scene --max-seconds 600\n"
+               "  python -m nerf_core eval runs/scene --split test\n"
+               "  python -m nerf_core render runs/scene --cameras scene_dataset/transforms_test.json --out renders",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    t = sub.add_parser("train", help="train a method on a dataset into a run folder", formatter_class=fmt,
+                       description="Train a NeRF. JSON progress events go to stdout and RUN/progress.jsonl; "
+                                   "a progress bar with ETA goes to stderr.")
+    t.add_argument("dataset", metavar="DATASET", help="dataset folder (transforms_train.json or transforms.json) or a transforms file")
+    t.add_argument("--out", required=True, metavar="RUN", help="run folder to create (refused if it exists and is not empty)")
+    t.add_argument("--method", metavar="M", help="method name (see `python -m nerf_core methods`); default: the library's default method")
+    t.add_argument("--max-steps", type=_positive_int, metavar="N", help="stop after N optimisation steps")
+    t.add_argument("--max-seconds", type=_positive_float, metavar="S",
+                   help="stop after S seconds of training (previews, checkpoints and evaluation not counted)")
+    t.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (same seed + step budget = same losses)")
+    t.add_argument("--resume", action="store_true", help="continue RUN from RUN/checkpoints/latest.pt")
+    t.add_argument("--overwrite", action="store_true", help="start RUN again, deleting only files an earlier training wrote")
+    t.add_argument("--size", choices=["auto"], help="let nerf_core.sizing choose the model size for this dataset")
+    t.add_argument("--progress", metavar="FILE", help="also append the JSON progress events to FILE")
+    t.add_argument("--device", metavar="DEV", help="torch device (cpu, cuda, cuda:1); default: cuda if available else cpu")
+    t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")
+    t.add_argument("--batch-rays", type=_positive_int, default=4096, help="rays per step")
+    t.add_argument("--background", choices=["auto", "white", "black", "random"], default="auto",
+                   help="colour behind transparent pixels while training; auto = random when images have alpha")
+    t.add_argument("--downscale", type=_positive_int, default=1, metavar="F", help="train on images downscaled by F")
+    t.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="options",
+                   help="method option, repeatable (e.g. --set n_samples=64)")
+    t.add_argument("--log-every", type=_positive_int, default=50, metavar="N", help="emit a step event every N steps")
+    t.add_argument("--preview-every", type=_positive_int, metavar="N", help="preview every N steps (default: every 30 s of training)")
+    t.add_argument("--checkpoint-every", type=_positive_int, metavar="N", help="checkpoint every N steps (default: every 5 min)")
+    t.add_argument("--eval-views", type=_nonneg_int, metavar="N",
+                   help="held-out views to evaluate at the end (0 = none; default: as many as fit in 25%% of the training time)")
+    t.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
+
+    r = sub.add_parser("render", help="render novel views of a trained run", formatter_class=fmt,
+                       description="Render RGBA PNGs (alpha = opacity), planar depth EXRs and renders.json.")
+    r.add_argument("run", metavar="RUN", help="run folder written by `train`")
+    r.add_argument("--cameras", metavar="TRANSFORMS.json",
+                   help="dataset folder, transforms file (either layout) or JSON list of cameras; default: the run's dataset")
+    r.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    r.add_argument("--split", default="test", help="split to render when --cameras is a dataset folder or split transforms.json")
+    r.add_argument("--overwrite", action="store_true", help="replace existing outputs in DIR")
+    r.add_argument("--downscale", type=_positive_float, default=1.0, metavar="F", help="render at 1/F resolution")
+    r.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
+    r.add_argument("--chunk", type=_positive_int, default=8192, help="rays per model call (lower it to save memory)")
+    r.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
+    r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
+
+    e = sub.add_parser("eval", help="evaluate a run on held-out views (PSNR, SSIM, depth error)", formatter_class=fmt,
+                       description="Prints one line per view, then one JSON object as the last line of stdout.")
+    e.add_argument("run", metavar="RUN", help="run folder written by `train`")
+    e.add_argument("--split", default="test", help="split to evaluate (test or val)")
+    e.add_argument("--views", type=_positive_int, metavar="N", help="evaluate N evenly spaced views only")
+    e.add_argument("--downscale", type=_positive_int, default=1, metavar="F", help="evaluate at 1/F resolution")
+    e.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
+    e.add_argument("--chunk", type=_positive_int, default=8192, help="rays per model call")
+    e.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
+    e.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
+
+    c = sub.add_parser("check", help="validate a dataset folder against the dataset conventions", formatter_class=fmt,
+                       description="Exit 0 when valid; otherwise exit 1 and list every problem with its file/frame/field.")
+    c.add_argument("dataset", metavar="DATASET", help="dataset folder")
+    c.add_argument("--json", action="store_true", help="print the report as one JSON object")
+
+    sub.add_parser("methods", help="list the available methods")
+    return p
+
+
+def _cmd_train(a) -> int:
+    from .train import TrainConfig, parse_options, train
+
+    cfg = TrainConfig(
+        dataset=a.dataset, out=a.out, method=a.method, max_steps=a.max_steps, max_seconds=a.max_seconds, seed=a.seed,
+        resume=a.resume, overwrite=a.overwrite, size=a.size, options=parse_options(a.options), progress=a.progress,
+        device=a.device, lr=a.lr, batch_rays=a.batch_rays, background=a.background, downscale=a.downscale,
+        log_every=a.log_every, preview_every=a.preview_every, checkpoint_every=a.checkpoint_every,
+        eval_views=a.eval_views, show_bar=not a.no_bar,
+    )
+    train(cfg)
+    return 0
+
+
+def _cmd_render(a) -> int:
+    from .render import render_run
+
+    path = render_run(a.run, a.cameras, a.out, split=a.split, overwrite=a.overwrite, device=a.device,
+                      downscale=a.downscale, chunk=a.chunk, checkpoint=a.checkpoint, show_progress=not a.no_bar)
+    print(json.dumps({"renders": str(path.resolve()), "out": str(path.parent.resolve())}))
+    return 0
+
+
+def _cmd_eval(a) -> int:
+    from .evaluate import evaluate_run
+
+    summary = evaluate_run(a.run, split=a.split, device=a.device, max_views=a.views, downscale=a.downscale,
+                           chunk=a.chunk, checkpoint=a.checkpoint, show_progress=not a.no_bar,
+                           print_fn=lambda line: print(line, flush=True))
+    print(json.dumps(summary, default=lambda o: None))
+    return 0
+
+
+def _cmd_check(a) -> int:
+    from .check import check_dataset
+
+    report = check_dataset(a.dataset)
+    if a.json:
+        print(json.dumps(report.as_dict()))
+    else:
+        print(report.format())
+    return 0 if report.ok else 1
+
+
+def _cmd_methods(a) -> int:
+    from .methods import available_methods
+    from .methods import catalog
+
+    default = getattr(catalog, "DEFAULT_METHOD", None)
+    for name in available_methods():
+        print(name + ("  (default)" if name == default else ""))
+    return 0
+
+
+COMMANDS = {"train": _cmd_train, "render": _cmd_render, "eval": _cmd_eval, "check": _cmd_check, "methods": _cmd_methods}
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .data import DatasetError
+    from .imageio import ImageReadError
+    from .render import RunError
+    from .train import TrainError
+
+    expected = (DatasetError, RunError, TrainError, ImageReadError, ValueError, OSError)
+    try:
+        _load_plugins()
+        return COMMANDS[args.command](args)
+    except expected as exc:
+        msg = str(exc) or type(exc).__name__
+        print(f"nerf_core {args.command}: error: {msg}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"nerf_core {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED

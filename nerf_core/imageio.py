@@ -1,0 +1,168 @@
+"""Reading and writing the image files of datasets and renders (PNG through Pillow, EXR through OpenEXR).
+
+Every reader raises ``ImageReadError`` naming the file, so callers can turn it into a dataset error
+without a deep traceback. Writers go through a temporary file and a rename so that an interrupted
+render never leaves a truncated image behind.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Dict, Optional
+
+import numpy as np
+
+
+class ImageReadError(Exception):
+    """A file that is missing, unreadable or not the kind of image expected."""
+
+
+def _tmp_path(path: Path) -> Path:
+    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+
+
+def read_png(path: Path | str) -> np.ndarray:
+    """An 8- or 16-bit PNG/JPEG as an array (h, w) or (h, w, c), keeping its dtype (uint8 or uint16)."""
+    from PIL import Image
+
+    path = Path(path)
+    if not path.is_file():
+        raise ImageReadError(f"{path}: file not found")
+    try:
+        with Image.open(path) as im:
+            im.load()
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                arr = np.asarray(im).astype(np.uint16 if im.mode != "I" else np.int32)
+            elif im.mode in ("P", "PA", "LA", "CMYK", "YCbCr", "1"):
+                arr = np.asarray(im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB"))
+            else:
+                arr = np.asarray(im)
+    except ImageReadError:
+        raise
+    except Exception as exc:  # Pillow raises many types for corrupt files
+        raise ImageReadError(f"{path}: cannot read image ({exc})") from exc
+    return arr
+
+
+def png_info(path: Path | str) -> tuple[int, int, str, int]:
+    """(width, height, mode, bits per channel) of an image without decoding its pixels."""
+    from PIL import Image
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            bits = 16 if im.mode.startswith("I;16") or im.mode == "I" else 8
+            return im.width, im.height, im.mode, bits
+    except FileNotFoundError as exc:
+        raise ImageReadError(f"{path}: file not found") from exc
+    except Exception as exc:
+        raise ImageReadError(f"{path}: cannot read image ({exc})") from exc
+
+
+def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
+    """All channels of an EXR as float32 arrays (h, w), keyed by channel name (``R``, ``Z``, ``V.X`` ...)."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise ImageReadError(f"{path}: file not found")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            return {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in f.channels().items()}
+    except Exception as exc:
+        raise ImageReadError(f"{path}: cannot read EXR ({exc})") from exc
+
+
+def _pick(channels: Dict[str, np.ndarray], names) -> Optional[np.ndarray]:
+    for n in names:
+        for key, value in channels.items():
+            if key == n or key.endswith("." + n):
+                return value
+    return None
+
+
+def read_exr_rgba(path: Path | str) -> np.ndarray:
+    """A colour EXR as float32 (h, w, 3) or (h, w, 4) when it has alpha."""
+    ch = read_exr(path)
+    rgb = [_pick(ch, [c]) for c in "RGB"]
+    if any(c is None for c in rgb):
+        if len(ch) == 1:  # greyscale EXR
+            (only,) = ch.values()
+            rgb = [only, only, only]
+        else:
+            raise ImageReadError(f"{path}: EXR has no R, G, B channels (found {sorted(ch)})")
+    alpha = _pick(ch, ["A"])
+    return np.stack(rgb + ([alpha] if alpha is not None else []), axis=-1)
+
+
+def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
+    """Depth map as float32 (h, w) in scene units; 0 where there is no value.
+
+    EXR: channel ``Z`` (else ``R``/``Y``/``V``/the only channel), already in scene units.
+    PNG: 16-bit integers multiplied by ``png_scale`` (nerfstudio's millimetres -> metres is 1e-3).
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".exr":
+        ch = read_exr(path)
+        depth = _pick(ch, ["Z", "R", "Y", "V", "D"])
+        if depth is None:
+            if len(ch) != 1:
+                raise ImageReadError(f"{path}: depth EXR has no Z channel (found {sorted(ch)})")
+            (depth,) = ch.values()
+    else:
+        raw = read_png(path)
+        if raw.ndim == 3:
+            raw = raw[..., 0]
+        depth = raw.astype(np.float32) * np.float32(png_scale)
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
+    return depth
+
+
+def read_normals(path: Path | str) -> np.ndarray:
+    """Normal map as float32 (h, w, 3). EXR holds world-space vectors; 8-bit PNGs map [0, 255] to [-1, 1]."""
+    path = Path(path)
+    if path.suffix.lower() == ".exr":
+        ch = read_exr(path)
+        comps = [_pick(ch, [a, b]) for a, b in (("X", "R"), ("Y", "G"), ("Z", "B"))]
+        if any(c is None for c in comps):
+            raise ImageReadError(f"{path}: normal EXR needs X/Y/Z or R/G/B channels (found {sorted(ch)})")
+        return np.stack(comps, axis=-1).astype(np.float32)
+    raw = read_png(path)
+    if raw.ndim != 3 or raw.shape[2] < 3:
+        raise ImageReadError(f"{path}: normal PNG must have 3 channels")
+    scale = 65535.0 if raw.dtype == np.uint16 else 255.0
+    return (raw[..., :3].astype(np.float32) / scale) * 2.0 - 1.0
+
+
+def read_mask(path: Path | str) -> np.ndarray:
+    """Mask as bool (h, w): True where the pixel is used (nerfstudio: black means ignore)."""
+    raw = read_png(path)
+    if raw.ndim == 3:
+        raw = raw[..., 0]  # grey masks saved as RGB(A) repeat the value in every colour channel
+    return raw > 0
+
+
+def write_png(path: Path | str, image: np.ndarray) -> None:
+    """Write float [0, 1] or uint8 (h, w, 3|4) / (h, w) as an 8-bit PNG, atomically."""
+    from PIL import Image
+
+    path = Path(path)
+    arr = np.asarray(image)
+    if arr.dtype != np.uint8:
+        arr = (np.clip(np.nan_to_num(arr.astype(np.float32)), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    tmp = _tmp_path(path)
+    Image.fromarray(arr).save(tmp, format="PNG")
+    os.replace(tmp, path)
+
+
+def write_exr(path: Path | str, channels: Dict[str, np.ndarray]) -> None:
+    """Write float32 (h, w) channels, e.g. ``{"Z": depth}``, as a ZIP-compressed EXR, atomically."""
+    import OpenEXR
+
+    path = Path(path)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+    tmp = _tmp_path(path)
+    with OpenEXR.File(header, data) as f:
+        f.write(str(tmp))
+    os.replace(tmp, path)

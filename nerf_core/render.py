@@ -1,0 +1,338 @@
+"""Rendering a trained run: chunked full images, and novel views written to disk.
+
+``python -m nerf_core render RUN --cameras TRANSFORMS.json --out DIR`` writes, per camera,
+``DIR/<stem>.png`` (RGBA: straight colour, alpha = accumulated opacity), ``DIR/<stem>_depth.exr``
+(planar z-depth in scene units, channel ``Z``, 0 where nothing was hit) and ``DIR/renders.json``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Callable, Dict, List, Optional
+
+import numpy as np
+import torch
+
+from .cameras import Cameras, check_pose, PoseError, ray_bounds, rays_for_view
+from .progressbar import ProgressBar
+
+
+class RunError(Exception):
+    """A run folder or checkpoint that cannot be used; the message names the file."""
+
+
+# ----------------------------------------------------------------------------------------------
+# checkpoints
+
+
+def load_state_resizing(model: torch.nn.Module, state: Dict[str, torch.Tensor]) -> None:
+    """``load_state_dict`` that copes with parameters whose saved shape differs from a fresh build.
+
+    Methods that grow during training (coarse-to-fine grids) are rebuilt at their initial size by
+    ``build_model``. A method may handle that in its own ``load_state_dict``; otherwise the
+    mismatched tensors are resized to the saved shapes before loading.
+    """
+    try:
+        model.load_state_dict(state)
+        return
+    except RuntimeError as exc:
+        if "size mismatch" not in str(exc):
+            raise
+    own = dict(model.named_parameters())
+    own.update(dict(model.named_buffers()))
+    for key, value in state.items():
+        cur = own.get(key)
+        if cur is not None and cur.shape != value.shape:
+            cur.data = torch.empty(value.shape, dtype=cur.dtype, device=cur.device)
+    model.load_state_dict(state)
+
+
+def read_checkpoint(path: Path) -> dict:
+    if not path.is_file():
+        raise RunError(f"{path}: checkpoint not found")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # truncated or foreign file
+        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {exc})") from exc
+
+
+def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
+    from .methods import build_model
+
+    try:
+        method, options, aabb = ckpt["method"], ckpt["options"], ckpt["aabb"]
+        model = build_model(method, torch.as_tensor(aabb), **options)
+        load_state_resizing(model, ckpt["model"])
+    except KeyError as exc:
+        raise RunError(f"{where}: missing entry {exc} (not a nerf_core checkpoint?)") from exc
+    except ValueError as exc:  # unknown method name
+        raise RunError(f"{where}: {exc}") from exc
+    except RuntimeError as exc:
+        raise RunError(f"{where}: the saved weights do not fit method {ckpt.get('method')!r}: {str(exc).splitlines()[0]}") from exc
+    return model.to(device).eval()
+
+
+def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
+    """(model in eval mode, config dict, checkpoint dict) of a run folder."""
+    run = Path(run)
+    cfg_path = run / "config.json"
+    if not run.is_dir():
+        raise RunError(f"{run}: run folder not found")
+    if not cfg_path.is_file():
+        raise RunError(f"{cfg_path}: not found; is {run} a folder written by `python -m nerf_core train`?")
+    try:
+        config = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
+    ck = Path(checkpoint) if checkpoint else run / "checkpoints" / "latest.pt"
+    ckpt = read_checkpoint(ck)
+    return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+
+
+# ----------------------------------------------------------------------------------------------
+# rendering
+
+
+@torch.no_grad()
+def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int = 8192) -> Dict[str, torch.Tensor]:
+    """Evaluation rendering of (m, 3) rays in chunks of ``chunk`` rays to bound memory.
+
+    Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
+    """
+    out: Dict[str, List[torch.Tensor]] = {"rgb": [], "depth": [], "acc": []}
+    bg = background.expand(rays_o.shape[0], 3) if background.dim() == 1 else background
+    for s in range(0, rays_o.shape[0], chunk):
+        e = s + chunk
+        res = model.render_rays(rays_o[s:e], rays_d[s:e], near[s:e], far[s:e], bg[s:e], training=False)
+        for k in out:
+            out[k].append(res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1) if k != "rgb" else res[k].detach().float())
+    return {k: torch.cat(v) for k, v in out.items()}
+
+
+@torch.no_grad()
+def render_view(
+    model,
+    cameras: Cameras,
+    view: int,
+    background=(1.0, 1.0, 1.0),
+    near: Optional[float] = None,
+    far: Optional[float] = None,
+    chunk: int = 8192,
+) -> Dict[str, torch.Tensor]:
+    """Render a whole camera on the model's device.
+
+    Returns CPU tensors: rgb (h, w, 3) composited onto ``background``, acc (h, w), depth (h, w)
+    (distance along the ray, normalised by acc where acc > 0) and z_depth (h, w) planar depth
+    along the camera's -Z (0 where acc < 0.5).
+    """
+    device = model.aabb.device
+    h, w = int(cameras.height[view]), int(cameras.width[view])
+    rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
+    rays_o = rays_o.expand_as(rays_d).to(device)
+    rays_d = rays_d.to(device)
+    t0, t1 = ray_bounds(rays_o, rays_d, model.aabb, near, far)
+    bg = torch.as_tensor(background, dtype=torch.float32, device=device)
+    res = render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk)
+    acc = res["acc"].clamp(0, 1).cpu()
+    dist = res["depth"].cpu()
+    # Whether a model's depth is already divided by acc is method-specific; dividing again would be
+    # wrong, so only use acc to mark empty pixels.
+    z = torch.where(acc >= 0.5, dist * z_per_t, torch.zeros_like(dist))
+    return {
+        "rgb": res["rgb"].cpu().clamp(0, 1).reshape(h, w, 3),
+        "acc": acc.reshape(h, w),
+        "depth": dist.reshape(h, w),
+        "z_depth": z.reshape(h, w),
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# camera files
+
+
+def _camera_list(data, src: Path):
+    """Cameras from a JSON list: each item a 4x4 matrix (intrinsics from the top level) or a dict
+    with ``transform_matrix`` plus ``fl_x``/``fl_y``/``cx``/``cy``/``w``/``h`` or ``camera_angle_x``."""
+    from .data import INTRINSIC_KEYS, _intrinsics, DatasetError
+
+    items, glob = (data, {}) if isinstance(data, list) else (data.get("cameras"), data)
+    if not isinstance(items, list) or not items:
+        raise DatasetError(f"{src}: expected a list of cameras (or an object with 'frames' or 'cameras')")
+    g = _intrinsics(glob, str(src)) if isinstance(glob, dict) else {}
+    mats, params, stems = [], [], []
+    for k, item in enumerate(items):
+        where = f"{src}: camera {k}"
+        m = item.get("transform_matrix") if isinstance(item, dict) else item
+        try:
+            mats.append(check_pose(m, f"{where}: field 'transform_matrix'"))
+        except PoseError as exc:
+            raise DatasetError(str(exc)) from exc
+        intr = dict(g)
+        if isinstance(item, dict):
+            intr.update(_intrinsics(item, where))
+        if "w" not in intr or "h" not in intr:
+            raise DatasetError(f"{where}: fields 'w' and 'h' (image size in pixels) are required")
+        W, H = intr["w"], intr["h"]
+        if "fl_x" in intr:
+            fx = intr["fl_x"]
+        elif "camera_angle_x" in intr:
+            fx = 0.5 * W / math.tan(0.5 * intr["camera_angle_x"])
+        else:
+            raise DatasetError(f"{where}: field 'fl_x' or 'camera_angle_x' is required")
+        fy = intr.get("fl_y", fx)
+        params.append((fx, fy, intr.get("cx", W / 2), intr.get("cy", H / 2), W, H))
+        name = item.get("name") or item.get("file_path") if isinstance(item, dict) else None
+        stems.append(Path(str(name)).stem if name else f"view_{k:03d}")
+    p = np.asarray(params, dtype=np.float64)
+    cams = Cameras.create(np.stack(mats), p[:, 0], p[:, 1], p[:, 2], p[:, 3], p[:, 4].astype(int), p[:, 5].astype(int))
+    return cams, stems
+
+
+def _all_frames(path: Path) -> tuple[Cameras, List[str]]:
+    """Every frame of one transforms file (image sizes from ``w``/``h`` or the image headers)."""
+    from .data import DatasetError, _camera_params, _frames_of, _read_json
+    from .imageio import ImageReadError, png_info
+
+    frames = _frames_of(_read_json(path), path, add_png=True)
+    if not frames:
+        raise DatasetError(f"{path}: field 'frames' has no entries")
+    params, sizes = [], []
+    for fr in frames:
+        w, h = fr.intrinsics.get("w"), fr.intrinsics.get("h")
+        if w is None or h is None:
+            try:
+                w, h, _, _ = png_info(fr.image)
+            except ImageReadError as exc:
+                raise DatasetError(f"{fr.where}: fields 'w'/'h' are missing and the image size is unreadable: {exc}") from exc
+        params.append(_camera_params(fr, int(w), int(h), 1))
+        sizes.append((int(w), int(h)))
+    p, s = np.asarray(params), np.asarray(sizes)
+    cams = Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1])
+    return cams, [f.stem for f in frames]
+
+
+def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, List[str]]:
+    """Cameras and output stems to render.
+
+    ``path`` may be a dataset folder (the frames of ``split``), a transforms file of either layout
+    (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), or a
+    JSON list of cameras (see ``_camera_list``).
+    """
+    from .data import DatasetError, load_cameras
+
+    path = Path(path)
+    if path.is_dir():
+        cams, frames = load_cameras(path, split)
+        stems = [f.stem for f in frames]
+    else:
+        if not path.is_file():
+            raise DatasetError(f"{path}: cameras file not found")
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError) as exc:
+            raise DatasetError(f"{path}: cannot read ({exc})") from exc
+        except json.JSONDecodeError as exc:
+            raise DatasetError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from exc
+        if isinstance(data, dict) and "frames" in data:
+            if data.get("train_filenames") is not None and not path.name.startswith("transforms_"):
+                cams, frames = load_cameras(path, split)
+                stems = [f.stem for f in frames]
+            else:
+                cams, stems = _all_frames(path)
+        else:
+            cams, stems = _camera_list(data, path)
+    # Two frames with one basename (train/r_0 and test/r_0) must not overwrite each other's output.
+    seen: Dict[str, int] = {}
+    unique = []
+    for s in stems:
+        n = seen.get(s, 0)
+        seen[s] = n + 1
+        unique.append(s if n == 0 else f"{s}_{n}")
+    return cams, unique
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def render_to_dir(
+    model,
+    cameras: Cameras,
+    stems: List[str],
+    out: Path | str,
+    overwrite: bool = False,
+    near: Optional[float] = None,
+    far: Optional[float] = None,
+    chunk: int = 8192,
+    extra: Optional[dict] = None,
+    show_progress: bool = True,
+    on_view: Optional[Callable[[int, str], None]] = None,
+) -> Path:
+    """Render every camera into ``out``; returns the path of ``renders.json``.
+
+    Refuses (RunError listing the files) to replace existing outputs unless ``overwrite``.
+    """
+    out = Path(out)
+    targets = [out / "renders.json"]
+    for s in stems:
+        targets += [out / f"{s}.png", out / f"{s}_depth.exr"]
+    existing = [t for t in targets if t.exists()]
+    if existing and not overwrite:
+        names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
+        raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
+    from .imageio import write_exr, write_png
+
+    out.mkdir(parents=True, exist_ok=True)
+    frames = []
+    bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
+    for v, stem in enumerate(stems):
+        # Render onto black: the result is premultiplied, so dividing by acc gives straight colour for RGBA.
+        res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
+        acc = res["acc"]
+        rgb = torch.where(acc[..., None] > 1e-6, res["rgb"] / acc[..., None].clamp_min(1e-6), torch.zeros_like(res["rgb"]))
+        rgba = torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
+        write_png(out / f"{stem}.png", rgba)
+        write_exr(out / f"{stem}_depth.exr", {"Z": res["z_depth"].numpy()})
+        frames.append({
+            "file_path": f"{stem}.png",
+            "depth_file_path": f"{stem}_depth.exr",
+            "transform_matrix": cameras.c2w[v].tolist(),
+            "fl_x": float(cameras.fx[v]), "fl_y": float(cameras.fy[v]),
+            "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
+            "w": int(cameras.width[v]), "h": int(cameras.height[v]),
+            "camera_angle_x": float(cameras.fov_x()[v]),
+        })
+        bar.update(1, info=stem)
+        if on_view:
+            on_view(v, stem)
+    bar.close()
+    meta = {"frames": frames, "depth": "planar z-depth in scene units, EXR channel Z, 0 where nothing was hit",
+            "alpha": "accumulated opacity; colour is straight (not premultiplied)", "created": time.time()}
+    meta.update(extra or {})
+    tmp = out / ".renders.json.tmp"
+    tmp.write_text(json.dumps(meta, indent=2), encoding="utf-8")
+    tmp.replace(out / "renders.json")
+    return out / "renders.json"
+
+
+def render_run(run, cameras_path, out, split="test", overwrite=False, device=None, downscale: float = 1.0,
+               chunk: int = 8192, checkpoint=None, show_progress=True) -> Path:
+    """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file."""
+    from .device import pick_device
+
+    dev = pick_device(device)
+    model, config, ckpt = load_run(run, dev, checkpoint)
+    if cameras_path is None:
+        cameras_path = config.get("dataset")
+        if not cameras_path:
+            raise RunError(f"{run}/config.json: no 'dataset' recorded; pass --cameras")
+    cams, stems = cameras_from_file(cameras_path, split)
+    if downscale != 1.0:
+        cams = cams.scaled(1.0 / downscale)
+    return render_to_dir(
+        model, cams, stems, out, overwrite=overwrite, near=config.get("near"), far=config.get("far"), chunk=chunk,
+        extra={"run": str(Path(run).resolve()), "step": ckpt.get("step"), "method": ckpt.get("method"),
+               "cameras": str(Path(cameras_path).resolve())},
+        show_progress=show_progress,
+    )

@@ -1,0 +1,195 @@
+"""Fixtures for nerf_core's pipeline tests: tiny test-local methods and small datasets written on the fly.
+
+The methods here are registered under ``test-*`` names so that the pipeline tests neither wait for
+nor depend on the real methods in ``nerf_core/methods``. Subprocess tests load them with
+``NERF_CORE_PLUGINS=nerf_core.tests.conftest``.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from nerf_core.cameras import Cameras, rays_for_view
+from nerf_core.imageio import write_exr, write_png
+from nerf_core.methods.base import RadianceModel, register
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+@register("test-grid")
+class TinyGrid(RadianceModel):
+    """A dense (res^3) grid of density + RGB, sampled uniformly along each ray; fast on a CPU."""
+
+    default_lr = 0.05
+
+    def __init__(self, aabb, res: int = 12, n_samples: int = 24, **options):
+        super().__init__(aabb, res=res, n_samples=n_samples, **options)
+        self.grid = torch.nn.Parameter(torch.zeros(1, 4, res, res, res))
+        with torch.no_grad():
+            self.grid[:, 1:] = 0.1 * torch.randn(1, 3, res, res, res)
+        self.calls = 0
+
+    def render_rays(self, rays_o, rays_d, near, far, background, training):
+        self.calls += 1
+        n, s = rays_o.shape[0], self.options["n_samples"]
+        u = (torch.arange(s, dtype=rays_o.dtype) + 0.5) / s
+        if training:
+            u = u + (torch.rand(n, s) - 0.5) / s
+        t = near[:, None] + (far - near)[:, None] * u  # (n, s)
+        pts = rays_o[:, None] + rays_d[:, None] * t[..., None]
+        unit = (pts - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1
+        feat = F.grid_sample(self.grid, unit.view(1, n, s, 1, 3), align_corners=True)  # (1, 4, n, s, 1)
+        feat = feat[0, :, :, :, 0].permute(1, 2, 0)  # (n, s, 4)
+        sigma = F.softplus(feat[..., 0] * 10.0)
+        rgb = torch.sigmoid(feat[..., 1:])
+        delta = ((far - near) / s)[:, None].expand(n, s)
+        alpha = 1 - torch.exp(-sigma * delta)
+        trans = torch.cumprod(torch.cat([torch.ones(n, 1), 1 - alpha + 1e-10], -1), -1)[:, :-1]
+        w = alpha * trans
+        acc = w.sum(-1)
+        out_rgb = (w[..., None] * rgb).sum(1) + (1 - acc)[:, None] * background
+        depth = (w * t).sum(-1) / acc.clamp_min(1e-6)
+        return {"rgb": out_rgb, "depth": depth, "acc": acc, "n_samples": n * s}
+
+
+@register("test-nan")
+class NaNOnce(TinyGrid):
+    """TinyGrid whose ``nan_at``-th training call returns NaN colours (to exercise rollback)."""
+
+    def __init__(self, aabb, nan_at: int = 5, nan_times: int = 1, **options):
+        super().__init__(aabb, nan_at=nan_at, nan_times=nan_times, **options)
+        self.training_calls = 0
+
+    def render_rays(self, rays_o, rays_d, near, far, background, training):
+        out = super().render_rays(rays_o, rays_d, near, far, background, training)
+        if training:
+            self.training_calls += 1
+            start = self.options["nan_at"]
+            if start <= self.training_calls < start + self.options["nan_times"]:
+                out["rgb"] = out["rgb"] * float("nan")
+        return out
+
+
+# ----------------------------------------------------------------------------------------------
+# datasets
+
+
+def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """OpenGL camera-to-world (4, 4) at ``eye`` looking at ``target``."""
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+    z = eye - target
+    z /= np.linalg.norm(z)
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, y, z, eye
+    return m
+
+
+def render_sphere(c2w, fx, fy, cx, cy, w, h, radius=0.6):
+    """Analytic render of a sphere at the origin: RGBA uint8 (h, w, 4) and planar depth (h, w) (0 = miss)."""
+    cams = Cameras.create(c2w[None], fx, fy, cx, cy, w, h)
+    o, d, z_per_t = rays_for_view(cams, 0)
+    o = o.expand_as(d).double()
+    d = d.double()
+    b = (o * d).sum(-1)
+    c = (o * o).sum(-1) - radius ** 2
+    disc = b * b - c
+    hit = disc > 0
+    t = -b - torch.sqrt(disc.clamp_min(0))
+    p = o + d * t[:, None]
+    n = p / radius
+    rgb = ((n * 0.5 + 0.5).clamp(0, 1) * 255).round().to(torch.uint8)
+    rgba = torch.zeros(h * w, 4, dtype=torch.uint8)
+    rgba[hit, :3] = rgb[hit]
+    rgba[hit, 3] = 255
+    depth = torch.where(hit, t * z_per_t.double(), torch.zeros_like(t)).float()
+    return rgba.reshape(h, w, 4).numpy(), depth.reshape(h, w).numpy()
+
+
+def make_dataset(
+    root: Path,
+    n_train: int = 8,
+    n_val: int = 1,
+    n_test: int = 2,
+    w: int = 24,
+    h: int = 20,
+    shift=(1.5, -1.0),
+    layouts=("synthetic", "nerfstudio"),
+    depth: bool = True,
+    exr_images: bool = False,
+    aabb: bool = True,
+) -> Path:
+    """Write a small sphere dataset (cameras on a ring at radius 3) in the requested layouts."""
+    root = Path(root)
+    fov = 0.9
+    fx = fy = 0.5 * w / math.tan(0.5 * fov)
+    cx, cy = w / 2 + shift[0], h / 2 + shift[1]
+    counts = {"train": n_train, "val": n_val, "test": n_test}
+    total = sum(counts.values())
+    frames = {}
+    k = 0
+    for split, count in counts.items():
+        frames[split] = []
+        (root / split).mkdir(parents=True, exist_ok=True)
+        for i in range(count):
+            ang = 2 * math.pi * k / total
+            elev = 0.3 + 0.2 * math.sin(3 * ang)
+            eye = 3.0 * np.array([math.cos(ang) * math.cos(elev), math.sin(ang) * math.cos(elev), math.sin(elev)])
+            c2w = look_at(eye)
+            rgba, z = render_sphere(c2w, fx, fy, cx, cy, w, h)
+            stem = f"r_{i}"
+            fr = {"file_path": f"./{split}/{stem}", "transform_matrix": c2w.tolist()}
+            if exr_images:
+                write_exr(root / split / f"{stem}.exr", {c: rgba[..., j].astype(np.float32) / 255 for j, c in enumerate("RGBA")})
+                fr["file_path"] = f"./{split}/{stem}.exr"
+            else:
+                write_png(root / split / f"{stem}.png", rgba)
+            if depth:
+                write_exr(root / split / f"{stem}_depth.exr", {"Z": z})
+                fr["depth_file_path"] = f"{split}/{stem}_depth.exr"
+            frames[split].append(fr)
+            k += 1
+    intr = {"camera_angle_x": fov, "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": w, "h": h}
+    scene = {"aabb": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "near": 1.0, "far": 5.0} if aabb else {}
+    if "synthetic" in layouts:
+        for split in counts:
+            (root / f"transforms_{split}.json").write_text(json.dumps({**intr, **scene, "frames": frames[split]}, indent=1))
+    if "nerfstudio" in layouts:
+        ext = ".exr" if exr_images else ".png"
+        ns_frames, lists = [], {}
+        for split in counts:
+            lists[f"{split}_filenames"] = []
+            for fr in frames[split]:
+                name = fr["file_path"][2:]
+                name = name if name.endswith(ext) else name + ext
+                ns_frames.append({**fr, "file_path": name})
+                lists[f"{split}_filenames"].append(name)
+        ns = {k: v for k, v in intr.items() if k != "camera_angle_x"}
+        (root / "transforms.json").write_text(json.dumps({**ns, **scene, "frames": ns_frames, **lists}, indent=1))
+    return root
+
+
+@pytest.fixture
+def sphere_dataset(tmp_path) -> Path:
+    return make_dataset(tmp_path / "ds")
+
+
+@pytest.fixture(scope="session")
+def trained_run(tmp_path_factory):
+    """One short training run shared by the eval/render/CLI tests (read-only for them)."""
+    from nerf_core.train import TrainConfig, train
+
+    base = tmp_path_factory.mktemp("shared")
+    ds = make_dataset(base / "ds", n_train=8, n_test=2)
+    run = base / "run"
+    summary = train(TrainConfig(dataset=str(ds), out=str(run), method="test-grid", max_steps=30, batch_rays=256,
+                                seed=0, stdout_events=False, show_bar=False, log_every=10, eval_views=2))
+    return {"dataset": ds, "run": run, "summary": summary}

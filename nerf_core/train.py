@@ -1,0 +1,772 @@
+"""Training a method on a dataset: ``python -m nerf_core train DATASET --out RUN``.
+
+What the loop guarantees (docs/CONTRACTS.md has the file layout and the event vocabulary):
+
+* Seeded and deterministic for a step budget: python, numpy and torch RNGs are seeded, and batches
+  come from a dedicated generator that is saved in checkpoints, so ``--resume`` continues the same
+  random stream.
+* Budgets: ``--max-steps`` and/or ``--max-seconds`` (training time only: previews, checkpoints and
+  evaluation are not counted). The learning-rate schedule follows whichever budget is nearer.
+* Robust: a NaN/inf loss or gradient, or a loss far above its running average, rolls the model
+  and optimiser back to the last good in-memory snapshot and halves the learning rate
+  (``rollback`` event); after too many rollbacks training stops with an ``error`` event.
+* Never destroys data: an existing non-empty run folder is refused unless ``--resume`` or
+  ``--overwrite``; ``--overwrite`` removes only files the trainer writes and lists them.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import random
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import numpy as np
+import torch
+
+from . import __version__
+from .cameras import ray_bounds, rays_for_pixels
+from .data import Dataset, DatasetError, Split, load_dataset
+from .progress import EventLog
+from .evaluate import _mean
+from .progressbar import ProgressBar
+from .render import RunError, load_state_resizing, read_checkpoint
+
+BACKGROUNDS = ("auto", "white", "black", "random")
+
+
+class TrainError(Exception):
+    """Training cannot start or cannot continue; the message says why and what to do."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything that decides a run (saved in RUN/config.json and in checkpoints)."""
+
+    dataset: str
+    out: str
+    method: Optional[str] = None
+    max_steps: Optional[int] = None
+    max_seconds: Optional[float] = None
+    seed: int = 0
+    resume: bool = False
+    overwrite: bool = False
+    size: Optional[str] = None  # "auto": nerf_core.sizing picks the model size for the dataset
+    options: Dict[str, object] = field(default_factory=dict)  # explicit method options (--set key=value)
+    progress: Optional[str] = None  # extra JSON-lines file
+    device: Optional[str] = None
+    lr: Optional[float] = None  # base learning rate; default: the method's default_lr
+    batch_rays: int = 4096
+    background: str = "auto"  # auto = random when the images have alpha, else white
+    downscale: int = 1
+    log_every: int = 50
+    preview_every: Optional[int] = None  # steps; None: every preview_seconds of training time
+    preview_seconds: float = 30.0
+    preview_size: int = 256  # longest side of preview images
+    checkpoint_every: Optional[int] = None  # steps; None: every checkpoint_seconds of wall time
+    checkpoint_seconds: float = 300.0
+    keep_checkpoints: int = 3  # step_XXXXXXX.pt files kept besides latest.pt
+    max_rollbacks: int = 8
+    eval_views: Optional[int] = None  # None: as many as fit in eval_seconds; 0: skip evaluation
+    eval_seconds: Optional[float] = None  # None: max(30 s, 25 % of the training time)
+    chunk: int = 8192
+    stdout_events: bool = True
+    show_bar: bool = True
+
+    def budget_fraction(self, step: int, elapsed: float) -> float:
+        fracs = []
+        if self.max_steps:
+            fracs.append(step / self.max_steps)
+        if self.max_seconds:
+            fracs.append(elapsed / self.max_seconds)
+        return min(1.0, max(fracs)) if fracs else 0.0
+
+    def finished(self, step: int, elapsed: float) -> bool:
+        return (self.max_steps is not None and step >= self.max_steps) or (
+            self.max_seconds is not None and elapsed >= self.max_seconds
+        )
+
+
+DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
+
+
+# ----------------------------------------------------------------------------------------------
+# run folder
+
+TRAINER_FILES = ("config.json", "progress.jsonl", "metrics.json")
+
+
+def _trainer_written(run: Path) -> List[Path]:
+    """Files in ``run`` that a previous training wrote (the only ones --overwrite may delete)."""
+    found = [run / f for f in TRAINER_FILES if (run / f).is_file()]
+    ck = run / "checkpoints"
+    if ck.is_dir():
+        found += sorted(p for p in ck.iterdir() if p.is_file() and (p.suffix == ".pt" or p.name.endswith(".pt.tmp")))
+    pv = run / "previews"
+    if pv.is_dir():
+        found += sorted(p for p in pv.iterdir() if p.is_file() and p.name.startswith("step_") and p.suffix == ".png")
+    return found
+
+
+def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
+    """Refuse to touch an existing run unless asked (raises TrainError); changes nothing."""
+    if resume and overwrite:
+        raise TrainError("--resume and --overwrite contradict each other; pick one")
+    if run.exists() and not run.is_dir():
+        raise TrainError(f"{run}: exists and is not a folder")
+    if resume:
+        if not (run / "checkpoints" / "latest.pt").is_file():
+            raise TrainError(f"{run / 'checkpoints' / 'latest.pt'}: not found; nothing to resume (drop --resume to start a new run)")
+        return
+    if run.is_dir() and any(run.iterdir()) and not overwrite:
+        names = sorted(p.name for p in run.iterdir())
+        shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+        raise TrainError(
+            f"{run}: run folder exists and is not empty ({shown}); pass --resume to continue it, "
+            "--overwrite to start again (removes only files the trainer wrote), or choose another --out"
+        )
+
+
+def clear_run_folder(run: Path) -> List[str]:
+    """Delete what a previous training wrote in ``run``; return the removed paths (relative)."""
+    removed = []
+    for p in _trainer_written(run):
+        p.unlink()
+        removed.append(str(p.relative_to(run)))
+    for sub in ("checkpoints", "previews"):
+        d = run / sub
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
+    return removed
+
+
+def _atomic_json(path: Path, data: dict) -> None:
+    tmp = path.with_name("." + path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _atomic_torch_save(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % (2 ** 32))
+    torch.manual_seed(seed)
+
+
+def rng_state(gen: torch.Generator) -> dict:
+    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
+             "batches": gen.get_state()}
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: dict, gen: torch.Generator) -> None:
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    torch.set_rng_state(state["torch"])
+    gen.set_state(state["batches"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def default_method() -> str:
+    from .methods import available_methods
+    from .methods import catalog
+
+    names = available_methods()
+    name = getattr(catalog, "DEFAULT_METHOD", None)
+    if name in names:
+        return name
+    if not names:
+        raise TrainError("no NeRF methods are registered (nerf_core/methods/catalog.py registers none)")
+    return names[0]
+
+
+def make_optimizer(model, lr: float) -> torch.optim.Optimizer:
+    groups = model.param_groups(lr)
+    for g in groups:
+        g["base_lr"] = g["lr"]  # the schedule scales each group's own base rate
+    return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15 if getattr(model, "adam_eps", None) is None else model.adam_eps)
+
+
+def rebuild_optimizer(model, old: torch.optim.Optimizer, lr: float) -> torch.optim.Optimizer:
+    """A new optimiser for the model's current parameters; Adam moments are carried over for
+    parameters that are unchanged (same object and shape), grown tensors start fresh."""
+    new = make_optimizer(model, lr)
+    for g in new.param_groups:
+        for p in g["params"]:
+            st = old.state.get(p)
+            if st and all((not torch.is_tensor(v)) or v.dim() == 0 or v.shape == p.shape for v in st.values()):
+                new.state[p] = st
+    return new
+
+
+def schedule_factor(step: int, frac: float, warmup_steps: int, final_ratio: float = 0.1) -> float:
+    """Linear warm-up over ``warmup_steps``, then exponential decay to ``final_ratio`` at the end of the budget."""
+    warm = min(1.0, (step + 1) / warmup_steps) if warmup_steps > 0 else 1.0
+    return warm * final_ratio ** frac
+
+
+def _fmt_option(value: str):
+    for cast in (int, float):
+        try:
+            return cast(value)
+        except ValueError:
+            pass
+    if value.lower() in ("true", "false"):
+        return value.lower() == "true"
+    try:
+        return json.loads(value)
+    except ValueError:
+        return value
+
+
+def parse_options(items: List[str]) -> Dict[str, object]:
+    """``["n_samples=64", "resolution=[64,128]"]`` -> dict (numbers, booleans and JSON are parsed)."""
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise TrainError(f"--set {it!r}: expected KEY=VALUE")
+        k, v = it.split("=", 1)
+        out[k.strip()] = _fmt_option(v.strip())
+    return out
+
+
+class _Batcher:
+    """Random ray batches over every pixel of the train split (images stay uint8 on the CPU)."""
+
+    def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device):
+        self.split, self.gen, self.device = split, gen, device
+        self.background = background
+        self.hw = split.height * split.width
+        self.total = len(split) * self.hw
+        self.fixed_bg = torch.tensor([0.0, 0.0, 0.0] if background == "black" else [1.0, 1.0, 1.0])
+
+    def sample(self, n: int):
+        flat = torch.randint(0, self.total, (n,), generator=self.gen)
+        view = flat // self.hw
+        pix = flat % self.hw
+        j, i = pix // self.split.width, pix % self.split.width
+        if self.background == "random":
+            bg = torch.rand(n, 3, generator=self.gen)
+        else:
+            bg = self.fixed_bg.expand(n, 3)
+        rgb, _ = self.split.pixels(view, j, i, bg)
+        rays_o, rays_d, _ = rays_for_pixels(self.split.cameras, view, i, j)
+        weight = self.split.masks[view, j, i].float() if self.split.masks is not None else None
+        d = self.device
+        return (rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
+                None if weight is None else weight.to(d))
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.run = Path(cfg.out).resolve()
+
+    # The public entry point: never raises for expected problems without first emitting an error event.
+    def fit(self) -> dict:
+        cfg = self.cfg
+        extra_logs = [cfg.progress] if cfg.progress else []
+        early_log = EventLog(extra_logs, stdout=cfg.stdout_events)
+        self.log = early_log
+        try:
+            check_run_folder(self.run, cfg.resume, cfg.overwrite)
+            if cfg.background not in BACKGROUNDS:
+                raise TrainError(f"--background {cfg.background!r}: choose one of {', '.join(BACKGROUNDS)}")
+            for name in ("max_steps", "max_seconds"):
+                v = getattr(cfg, name)
+                if v is not None and v <= 0:
+                    raise TrainError(f"--{name.replace('_', '-')} must be positive, got {v}")
+            if cfg.batch_rays < 1:
+                raise TrainError(f"--batch-rays must be positive, got {cfg.batch_rays}")
+            from .device import pick_device
+
+            self.device = pick_device(cfg.device)
+            ckpt = None
+            if cfg.resume:
+                ckpt = read_checkpoint(self.run / "checkpoints" / "latest.pt")
+                self._merge_resumed_config(ckpt)
+            dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
+        except (TrainError, DatasetError, RunError, ValueError) as exc:
+            early_log.emit("error", message=str(exc))
+            early_log.close()
+            raise
+        self.run.mkdir(parents=True, exist_ok=True)
+        removed = clear_run_folder(self.run) if cfg.overwrite else []
+        early_log.close()
+        self.log = EventLog([self.run / "progress.jsonl"] + extra_logs, stdout=cfg.stdout_events)
+        if removed:
+            print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
+                  + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
+        try:
+            return self._fit(dataset, ckpt)
+        except KeyboardInterrupt:
+            path = self._save_checkpoint(final=True) if hasattr(self, "opt") else None
+            self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}"
+                          + (f"; checkpoint saved, continue with --resume" if path else ""))
+            raise
+        except (TrainError, DatasetError, RunError, ValueError) as exc:
+            self.log.emit("error", message=str(exc))
+            raise
+        except RuntimeError as exc:  # e.g. out of memory inside a model: one clear line, no traceback
+            msg = str(exc).splitlines()[0]
+            self.log.emit("error", message=f"training failed at step {getattr(self, 'step', 0)}: {msg}")
+            raise TrainError(f"training failed at step {getattr(self, 'step', 0)}: {msg}") from exc
+        finally:
+            self.log.close()
+
+    def _merge_resumed_config(self, ckpt: dict) -> None:
+        saved = dict(ckpt.get("config") or {})
+        cli = self.cfg
+        if cli.method and saved.get("method") and cli.method != saved["method"]:
+            raise TrainError(f"--resume: the run was trained with method {saved['method']!r}, not {cli.method!r}")
+        # What the user may change when resuming: budgets, device, output plumbing.
+        keep = {"max_steps", "max_seconds", "device", "progress", "stdout_events", "show_bar", "resume", "out",
+                "eval_views", "eval_seconds", "log_every", "checkpoint_every", "checkpoint_seconds"}
+        merged = asdict(cli)
+        for k, v in saved.items():
+            if k in merged and k not in keep:
+                merged[k] = v
+        if cli.max_steps is None and cli.max_seconds is None:
+            merged["max_steps"], merged["max_seconds"] = saved.get("max_steps"), saved.get("max_seconds")
+        merged["resume"], merged["overwrite"] = True, False
+        self.cfg = TrainConfig(**merged)
+
+    # ------------------------------------------------------------------ setup
+
+    def _build(self, dataset: Dataset, ckpt: Optional[dict]):
+        from .methods import build_model
+
+        cfg = self.cfg
+        train = dataset.split("train")
+        self.method = cfg.method or default_method()
+        self.size_reasons: List[str] = []
+        if ckpt is not None:
+            options = dict(ckpt["options"])
+            self.size_reasons = list(ckpt.get("size_reasons", []))
+            aabb = torch.as_tensor(ckpt["aabb"])
+        else:
+            options = {}
+            if cfg.size == "auto":
+                options, self.size_reasons = self._auto_size(dataset)
+            elif cfg.size not in (None, "", "default"):
+                raise TrainError(f"--size {cfg.size!r}: only 'auto' is supported")
+            options.update(cfg.options)
+            aabb = dataset.aabb
+        seed_everything(cfg.seed)
+        try:
+            model = build_model(self.method, aabb, **options)
+        except TypeError as exc:
+            raise TrainError(f"method {self.method!r} does not accept these options {sorted(options)}: {exc}") from exc
+        if ckpt is not None:
+            load_state_resizing(model, ckpt["model"])
+        self.model = model.to(self.device).train()
+        self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
+        self.warmup = int(getattr(model, "warmup_steps", 0) or min(100, (cfg.max_steps or 2000) // 20))
+        self.train = train
+
+    def _auto_size(self, dataset: Dataset):
+        try:
+            from .sizing import auto_size
+        except ImportError:
+            return {}, ["nerf_core.sizing is not available in this version: using the method's default size"]
+        tr = dataset.split("train")
+        centre = dataset.aabb.mean(0)
+        cam_dist = float((tr.cameras.origins - centre).norm(dim=-1).median())
+        options, reasons = auto_size(self.method, dataset.aabb, float(tr.cameras.fx[0]), tr.width, tr.height, cam_dist, len(tr))
+        return dict(options), list(reasons)
+
+    # ------------------------------------------------------------------ checkpoints
+
+    def _checkpoint_state(self) -> dict:
+        return {
+            "format": 1,
+            "method": self.method,
+            "options": self.model.options,
+            "aabb": self.model.aabb.detach().cpu(),
+            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
+            "optimizer": self.opt.state_dict(),
+            "step": self.step,
+            "elapsed": self.elapsed,
+            "lr_scale": self.lr_scale,
+            "rollbacks": self.rollbacks,
+            "loss_ema": self.loss_ema,
+            "rng": rng_state(self.gen),
+            "config": self.config_record(),
+            "size_reasons": self.size_reasons,
+            "versions": _versions(),
+        }
+
+    def _save_checkpoint(self, final: bool = False) -> Path:
+        ck = self.run / "checkpoints"
+        ck.mkdir(parents=True, exist_ok=True)
+        state = self._checkpoint_state()
+        step_path = ck / f"step_{self.step:07d}.pt"
+        _atomic_torch_save(state, step_path)
+        latest = ck / "latest.pt"
+        _atomic_torch_save(state, latest)
+        olds = sorted(ck.glob("step_*.pt"))
+        for p in olds[: max(0, len(olds) - self.cfg.keep_checkpoints)]:
+            p.unlink()
+        self.log.emit("checkpoint", step=self.step, path=str(latest))
+        self._last_ckpt_wall = time.monotonic()
+        self._last_ckpt_step = self.step
+        return latest
+
+    def _snapshot(self) -> None:
+        self.snap = {
+            "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
+            "opt": _clone_state(self.opt.state_dict()),
+            "step": self.step,
+            "elapsed_at": self.elapsed,
+            "loss_ema": self.loss_ema,
+        }
+
+    def _rollback(self, reason: str) -> None:
+        self.rollbacks += 1
+        self.lr_scale *= 0.5
+        if self.rollbacks > self.cfg.max_rollbacks:
+            raise TrainError(
+                f"training diverged: {self.rollbacks - 1} rollbacks did not help (last: {reason} at step {self.step}); "
+                f"try a lower --lr than {self.base_lr * self.lr_scale * 2:.3g} or another --method"
+            )
+        snap = self.snap
+        load_state_resizing(self.model, snap["model"])
+        self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
+        try:
+            self.opt.load_state_dict(_clone_state(snap["opt"]))
+        except (ValueError, KeyError):
+            pass  # parameter set changed since the snapshot: fresh Adam moments
+        self._rescale_base_lrs()  # load_state_dict restored the pre-rollback rates
+        at = self.step
+        self.step = snap["step"]
+        self.loss_ema = snap["loss_ema"]
+        self.steps_since_rollback = 0
+        self.log.emit("rollback", step=at, reason=f"{reason}; restored step {self.step}",
+                      lr=self.base_lr * self.lr_scale, restored_step=self.step, rollbacks=self.rollbacks)
+
+    def _rescale_base_lrs(self) -> None:
+        groups = self.model.param_groups(self.base_lr * self.lr_scale)
+        for g, fresh in zip(self.opt.param_groups, groups):
+            g["base_lr"] = fresh["lr"]
+
+    # ------------------------------------------------------------------ records
+
+    def config_record(self) -> dict:
+        rec = asdict(self.cfg)
+        rec.update({
+            "dataset": str(Path(self.cfg.dataset).resolve()),
+            "out": str(self.run),
+            "method": self.method,
+            "model": self.model.describe(),
+            "lr": self.base_lr,
+            "warmup_steps": self.warmup,
+            "background_used": self.bg_mode,
+            "eval_background": self.eval_bg,
+            "aabb": self.model.aabb.detach().cpu().tolist(),
+            "aabb_source": self.dataset.aabb_source,
+            "near": self.dataset.near,
+            "far": self.dataset.far,
+            "size_reasons": self.size_reasons,
+            "dataset_notes": self.dataset.notes,
+            "n_train_views": len(self.train),
+            "image_size": [self.train.width, self.train.height],
+            "device_used": str(self.device),
+            "versions": _versions(),
+        })
+        return rec
+
+    # ------------------------------------------------------------------ loop
+
+    def _fit(self, dataset: Dataset, ckpt: Optional[dict]) -> dict:
+        cfg = self.cfg
+        self.dataset = dataset
+        self._build(dataset, ckpt)
+        train = self.train
+        if cfg.background == "auto":
+            self.bg_mode = "random" if train.has_alpha else "white"
+        else:
+            self.bg_mode = cfg.background
+        if self.bg_mode == "random" and not train.has_alpha:
+            raise TrainError(
+                f"{train.frames[0].image}: --background random needs images with an alpha channel (RGBA); "
+                "this dataset's images are RGB"
+            )
+        self.eval_bg = [0.0, 0.0, 0.0] if self.bg_mode == "black" else [1.0, 1.0, 1.0]
+        if cfg.max_steps is None and cfg.max_seconds is None:
+            cfg.max_steps = int(getattr(self.model, "default_max_steps", DEFAULT_MAX_STEPS))
+
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step, self.elapsed, self.lr_scale, self.rollbacks = 0, 0.0, 1.0, 0
+        self.loss_ema: Optional[float] = None
+        self.opt = make_optimizer(self.model, self.base_lr)
+        resumed_from = None
+        if ckpt is not None:
+            self.step, self.elapsed = int(ckpt["step"]), float(ckpt["elapsed"])
+            self.lr_scale, self.rollbacks = float(ckpt.get("lr_scale", 1.0)), int(ckpt.get("rollbacks", 0))
+            self.loss_ema = ckpt.get("loss_ema")
+            self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
+            try:
+                self.opt.load_state_dict(ckpt["optimizer"])
+            except (ValueError, KeyError) as exc:
+                print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh", file=sys.stderr)
+            self._rescale_base_lrs()
+            set_rng_state(ckpt["rng"], self.gen)
+            resumed_from = self.step
+        _atomic_json(self.run / "config.json", self.config_record())
+        n_params = self.model.num_parameters()
+        self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
+                      device=str(self.device), n_params=n_params, model=self.model.describe(),
+                      size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
+                      dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train),
+                      image_size=[train.width, train.height], background=self.bg_mode, notes=dataset.notes)
+        if self.size_reasons:
+            for r in self.size_reasons:
+                print(f"train: size: {r}", file=sys.stderr)
+        for note in dataset.notes:
+            print(f"train: note: {note}", file=sys.stderr)
+
+        self.preview_view = self._preview_source()
+        batcher = _Batcher(train, self.bg_mode, self.gen, self.device)
+        self._snapshot()
+        self.steps_since_rollback = 0
+        self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
+        last_preview_elapsed, last_preview_step = self.elapsed, self.step
+        interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
+        bar = self._make_bar()
+        params_changed = False
+        last_loss = last_psnr = None
+
+        while not cfg.finished(self.step, self.elapsed):
+            t0 = time.perf_counter()
+            frac = cfg.budget_fraction(self.step, self.elapsed)
+            if self.model.training_hook(self.step, cfg.max_steps, self.elapsed, cfg.max_seconds):
+                self.opt = rebuild_optimizer(self.model, self.opt, self.base_lr * self.lr_scale)
+                params_changed = True
+            factor = schedule_factor(self.step, frac, self.warmup)
+            for g in self.opt.param_groups:
+                g["lr"] = g["base_lr"] * factor
+            rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays)
+            near, far = ray_bounds(rays_o, rays_d, self.model.aabb, dataset.near, dataset.far)
+            out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
+            mse = _masked_mse(out["rgb"], gt, weight)
+            loss = mse
+            if "rgb_coarse" in out:
+                loss = loss + _masked_mse(out["rgb_coarse"], gt, weight)
+            if out.get("aux_loss") is not None:
+                loss = loss + out["aux_loss"]
+            loss_value = float(loss.detach())
+            bad = None
+            if not math.isfinite(loss_value):
+                bad = f"loss is {loss_value}"
+            elif (self.loss_ema is not None and self.steps_since_rollback > 200
+                  and loss_value > 10.0 * self.loss_ema and loss_value - self.loss_ema > 0.01):
+                bad = f"loss {loss_value:.4g} jumped above 10x its running average {self.loss_ema:.4g}"
+            if bad is None:
+                self.opt.zero_grad(set_to_none=True)
+                loss.backward()
+                params = [p for g in self.opt.param_groups for p in g["params"] if p.grad is not None]
+                gnorm = torch.nn.utils.clip_grad_norm_(params, float("inf")) if params else torch.tensor(0.0)
+                if not torch.isfinite(gnorm):
+                    bad = "gradient is NaN or inf"
+            self.elapsed += time.perf_counter() - t0
+            if bad is not None:
+                self.opt.zero_grad(set_to_none=True)
+                self._rollback(bad)
+                continue
+            t1 = time.perf_counter()
+            self.opt.step()
+            self.step += 1
+            self.steps_since_rollback += 1
+            self.loss_ema = loss_value if self.loss_ema is None else 0.98 * self.loss_ema + 0.02 * loss_value
+            self.elapsed += time.perf_counter() - t1
+            interval["t"] += time.perf_counter() - t0
+            interval["samples"] += int(out.get("n_samples", cfg.batch_rays))
+            interval["loss"] += loss_value
+            interval["n"] += 1
+            last_loss, last_psnr = loss_value, _psnr(float(mse.detach()))
+            bar.set(self._bar_done(), info=f"step {self.step} loss {loss_value:.4f} psnr {last_psnr:.2f}")
+
+            if params_changed or self.step % 100 == 0:
+                self._snapshot()
+                params_changed = False
+            done = cfg.finished(self.step, self.elapsed)
+            if self.step == 1 or self.step % cfg.log_every == 0 or done:
+                self._emit_step(last_loss, last_psnr, interval)
+                interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
+            if not done and self._preview_due(last_preview_step, last_preview_elapsed):
+                self._preview()
+                last_preview_step, last_preview_elapsed = self.step, self.elapsed
+            if not done and self._checkpoint_due():
+                self._save_checkpoint()
+        bar.close(info=f"step {self.step} loss {last_loss if last_loss is not None else float('nan'):.4f}")
+        self._preview()
+        latest = self._save_checkpoint(final=True)
+        metrics = self._final_eval()
+        self.log.emit("done", step=self.step, elapsed=self.elapsed, checkpoint=str(latest), metrics=metrics)
+        return {"step": self.step, "elapsed": self.elapsed, "checkpoint": str(latest), "metrics": metrics,
+                "loss": last_loss, "rollbacks": self.rollbacks}
+
+    # ------------------------------------------------------------------ reporting
+
+    def _make_bar(self) -> ProgressBar:
+        cfg = self.cfg
+        if cfg.max_steps and not cfg.max_seconds:
+            total, self._bar_unit = cfg.max_steps, "steps"
+        elif cfg.max_seconds and not cfg.max_steps:
+            total, self._bar_unit = round(cfg.max_seconds), "seconds"
+        else:
+            total, self._bar_unit = 100, "percent"
+        bar = ProgressBar(total=total, label="train", enabled=cfg.show_bar)
+        return bar
+
+    def _bar_done(self) -> float:
+        if self._bar_unit == "steps":
+            return self.step
+        if self._bar_unit == "seconds":
+            return round(self.elapsed, 1)
+        return round(100 * self.cfg.budget_fraction(self.step, self.elapsed), 1)
+
+    def _eta(self) -> Optional[float]:
+        cfg, etas = self.cfg, []
+        if cfg.max_steps and self.step > 0:
+            etas.append(self.elapsed / self.step * max(0, cfg.max_steps - self.step))
+        if cfg.max_seconds:
+            etas.append(max(0.0, cfg.max_seconds - self.elapsed))
+        return min(etas) if etas else None
+
+    def _emit_step(self, loss: float, psnr: float, interval: dict) -> None:
+        lr = self.opt.param_groups[-1]["lr"]
+        sps = interval["samples"] / interval["t"] if interval["t"] > 0 else 0.0
+        self.log.emit("step", step=self.step, loss=loss, psnr=psnr, lr=lr, elapsed=self.elapsed, eta=self._eta(),
+                      samples_per_s=sps, loss_avg=interval["loss"] / max(1, interval["n"]),
+                      lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(self.opt.param_groups)})
+
+    def _preview_source(self):
+        for name in ("val", "test", "train"):
+            sp = self.dataset.splits.get(name)
+            if sp is not None and len(sp):
+                cams = sp.cameras[0]
+                scale = min(1.0, self.cfg.preview_size / max(sp.width, sp.height))
+                return cams.scaled(scale) if scale < 1.0 else cams
+        return None
+
+    def _preview_due(self, last_step: int, last_elapsed: float) -> bool:
+        if self.cfg.preview_every:
+            return self.step - last_step >= self.cfg.preview_every
+        return self.elapsed - last_elapsed >= self.cfg.preview_seconds
+
+    def _checkpoint_due(self) -> bool:
+        if self.cfg.checkpoint_every:
+            return self.step - self._last_ckpt_step >= self.cfg.checkpoint_every
+        return time.monotonic() - self._last_ckpt_wall >= self.cfg.checkpoint_seconds
+
+    def _preview(self) -> None:
+        if self.preview_view is None:
+            return
+        from .imageio import write_png
+        from .render import render_view
+
+        self.model.eval()
+        try:
+            res = render_view(self.model, self.preview_view.to("cpu"), 0, background=self.eval_bg,
+                              near=self.dataset.near, far=self.dataset.far, chunk=self.cfg.chunk)
+        finally:
+            self.model.train()
+        pv = self.run / "previews"
+        pv.mkdir(exist_ok=True)
+        path = pv / f"step_{self.step:07d}.png"
+        write_png(path, res["rgb"].numpy())
+        self.log.emit("preview", step=self.step, path=str(path))
+
+    def _final_eval(self) -> dict:
+        from .evaluate import evaluate_split, update_metrics_file
+
+        cfg = self.cfg
+        split_name = self.dataset.held_out_split(("test", "val"))
+        if split_name is None or cfg.eval_views == 0:
+            return {}
+        split = self.dataset.splits[split_name]
+        n = len(split)
+        budget = cfg.eval_seconds if cfg.eval_seconds is not None else max(30.0, 0.25 * self.elapsed)
+        self.model.eval()
+        try:
+            t0 = time.perf_counter()
+            first = evaluate_split(self.model, split, [0], background=self.eval_bg, near=self.dataset.near,
+                                   far=self.dataset.far, chunk=cfg.chunk)
+            per_view_s = time.perf_counter() - t0
+            if cfg.eval_views is not None:
+                k = min(n, cfg.eval_views)
+            else:
+                k = int(min(n, max(1, budget // max(per_view_s, 1e-3))))
+            views = sorted({round(x * (n - 1) / max(1, k - 1)) for x in range(k)}) if k > 1 else [0]
+            rest = [v for v in views if v != 0]
+            result = first
+            if rest:
+                more = evaluate_split(self.model, split, rest, background=self.eval_bg, near=self.dataset.near,
+                                      far=self.dataset.far, chunk=cfg.chunk)
+                per_view = first["per_view"] + more["per_view"]
+                result = dict(first, per_view=per_view, n_views=len(per_view))
+                for key in ("psnr", "ssim", "depth_mae"):
+                    if key in first:
+                        result[key] = _mean([e.get(key) for e in per_view])
+        finally:
+            self.model.train()
+        if result["n_views"] < n:
+            result["note"] = (f"evaluated {result['n_views']} of {n} {split_name} views at full resolution to stay within "
+                              f"{budget:.0f} s; `python -m nerf_core eval {self.run}` evaluates all")
+            print(f"train: {result['note']}", file=sys.stderr)
+        update_metrics_file(self.run / "metrics.json", split_name, result, self.step)
+        self.log.emit("eval", step=self.step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
+                      n_views=result["n_views"], depth_mae=result.get("depth_mae"))
+        return {k: v for k, v in result.items() if k != "per_view"} | {"split": split_name}
+
+
+def _masked_mse(pred: torch.Tensor, gt: torch.Tensor, weight: Optional[torch.Tensor]) -> torch.Tensor:
+    err = ((pred - gt) ** 2).mean(-1)
+    if weight is None:
+        return err.mean()
+    return (err * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def _psnr(mse: float) -> float:
+    return -10.0 * math.log10(mse) if mse > 0 else float("inf")
+
+
+def _clone_state(obj):
+    if torch.is_tensor(obj):
+        return obj.detach().clone()
+    if isinstance(obj, dict):
+        return {k: _clone_state(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_clone_state(v) for v in obj]
+    return obj
+
+
+def _versions() -> dict:
+    return {"nerf_core": __version__, "torch": torch.__version__, "numpy": np.__version__,
+            "python": platform.python_version()}
+
+
+def train(cfg: TrainConfig) -> dict:
+    """Train according to ``cfg``; returns a summary (step, elapsed, checkpoint, metrics)."""
+    return Trainer(cfg).fit()
