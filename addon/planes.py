@@ -343,46 +343,17 @@ def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), 
 
 # -- Blender cameras to a transforms file for ``nerf_core render`` ---------------------------------------
 def _camera_intrinsics(cam_ob, scene, w: int, h: int) -> Dict[str, float]:
-    """Pixel intrinsics of ``cam_ob`` rendered at w x h: the capture helper's function when present
-    (addon/export.py), so capture and comparison can never disagree on lens shift or sensor fit."""
-    try:
-        from . import export
-    except ImportError:
-        export = None
-    fn = getattr(export, "camera_intrinsics", None) if export is not None else None
-    if fn is not None:
-        intr = fn(cam_ob, scene, w, h) if fn.__code__.co_argcount >= 4 else fn(cam_ob, scene)
-        out = {k: float(intr[k]) for k in ("fx", "fy", "cx", "cy")} if "fx" in intr else {
-            "fx": float(intr["fl_x"]), "fy": float(intr["fl_y"]), "cx": float(intr["cx"]), "cy": float(intr["cy"])}
-        out.update(w=float(w), h=float(h))
-        return out
-    return _blender_intrinsics(cam_ob.data, scene, w, h)
+    """Pixel intrinsics of ``cam_ob`` rendered at w x h, from the capture helper's function, so that
+    capture and comparison can never disagree on lens shift or sensor fit."""
+    from .export import intrinsics_from_params
 
-
-def _blender_intrinsics(cam, scene, w: int, h: int) -> Dict[str, float]:
-    # Stand-in until addon/export.py provides camera_intrinsics: Blender's sensor-fit and shift rules
-    # (shift is in units of the fitted image side) for square pixels.
+    cam = cam_ob.data
     if cam.type != "PERSP":
-        raise ValueError(f"camera {cam.name!r} is {cam.type.lower()}; only perspective cameras can be rendered")
-    px_aspect = scene.render.pixel_aspect_y / scene.render.pixel_aspect_x
-    fit = cam.sensor_fit
-    if fit == "AUTO":
-        fit = "HORIZONTAL" if w >= h * px_aspect else "VERTICAL"
-        sensor = cam.sensor_width
-    else:
-        sensor = cam.sensor_width if fit == "HORIZONTAL" else cam.sensor_height
-    side = w if fit == "HORIZONTAL" else h * px_aspect
-    fx = cam.lens / sensor * side
-    fy = fx / px_aspect
-    return {"fx": fx, "fy": fy, "cx": w / 2 - cam.shift_x * side, "cy": h / 2 + cam.shift_y * side / px_aspect,
-            "w": float(w), "h": float(h)}
-
-
-def c2w_rows(matrix_world) -> List[List[float]]:
-    """camera-to-world without scale (docs/CONTRACTS.md), as 4 lists of 4 floats."""
-    loc, rot, _scale = matrix_world.decompose()
-    m = Matrix.LocRotScale(loc, rot, None)
-    return [list(map(float, row)) for row in m]
+        raise ValueError(f"camera {cam_ob.name!r} is {cam.type.lower()}; only perspective cameras can be rendered")
+    r = scene.render
+    intr = intrinsics_from_params(cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit, cam.shift_x,
+                                  cam.shift_y, w, h, r.pixel_aspect_x, r.pixel_aspect_y)
+    return {"fx": intr["fl_x"], "fy": intr["fl_y"], "cx": intr["cx"], "cy": intr["cy"], "w": float(w), "h": float(h)}
 
 
 def cameras_transforms(cameras: Sequence, scene, size: Sequence[int], frames: Optional[Sequence[int]] = None,
@@ -393,6 +364,8 @@ def cameras_transforms(cameras: Sequence, scene, size: Sequence[int], frames: Op
     along its animation). ``base`` supplies near/far/aabb from the run's dataset. Raises ValueError
     when a camera's aspect differs from ``size`` (the run can only render the aspect it trained on).
     """
+    from .export import camera_to_world  # raises (a ValueError) for scaled or sheared cameras
+
     w, h = int(size[0]), int(size[1])
     res_x = scene.render.resolution_x * scene.render.pixel_aspect_x
     res_y = scene.render.resolution_y * scene.render.pixel_aspect_y
@@ -416,7 +389,7 @@ def cameras_transforms(cameras: Sequence, scene, size: Sequence[int], frames: Op
             stem = f"frame_{frame:04d}" if frame is not None else bpy.path.clean_name(cam.name)
             out_frames.append({
                 "file_path": f"./{prefix}/{stem}",
-                "transform_matrix": c2w_rows(cam.matrix_world),
+                "transform_matrix": camera_to_world(cam),
                 "fl_x": intr["fx"], "fl_y": intr["fy"], "cx": intr["cx"], "cy": intr["cy"], "w": w, "h": h,
                 "camera": cam.name,
             })

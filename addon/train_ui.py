@@ -66,11 +66,16 @@ class TrainJob(Job):
 
     kind = "training"
 
-    def __init__(self, scene_name: str, python: str, dataset: str, run: str, command: List[str]):
+    def __init__(self, scene_name: str, python: str, dataset: str, run: str, command: List[str],
+                 check: bool = True):
         super().__init__(scene_name)
         self.python, self.dataset, self.run, self.command = python, dataset, run, command
-        self.stage = "check"
-        self.process = trainer_process.BackgroundProcess([python, "-m", "nerf_core", "check", dataset]).start()
+        if check:
+            self.stage = "check"
+            self.process = trainer_process.BackgroundProcess([python, "-m", "nerf_core", "check", dataset]).start()
+        else:
+            self.stage = "train"
+            self.process = trainer_process.BackgroundProcess(command).start()
 
     def update(self) -> str:
         if self.state != "running":

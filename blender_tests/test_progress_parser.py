@@ -1,0 +1,92 @@
+"""The JSON-line progress parser (addon/progress.py) fed the way a pipe delivers output."""
+from __future__ import annotations
+
+import json
+
+from addon.progress import ProgressParser
+
+STREAM = [
+    {"event": "start", "time": 1.0, "run": "/r", "method": "nerf", "max_steps": 200, "max_seconds": None,
+     "device": "cpu", "n_params": 1234},
+    {"event": "step", "time": 2.0, "step": 50, "loss": 0.05, "psnr": 13.0, "lr": 0.01, "elapsed": 5.0,
+     "eta": 15.0, "samples_per_s": 1000.0},
+    {"event": "preview", "time": 2.5, "step": 50, "path": "/r/previews/step_0000050.png"},
+    {"event": "rollback", "time": 3.0, "step": 40, "reason": "loss is NaN", "lr": 0.005},
+    {"event": "step", "time": 4.0, "step": 100, "loss": 0.02, "psnr": 17.0, "lr": 0.005, "elapsed": 10.0,
+     "eta": None, "samples_per_s": 1000.0},
+    {"event": "shiny_new_event", "time": 4.5, "whatever": [1, 2]},
+    {"event": "checkpoint", "time": 5.0, "step": 100, "path": "/r/checkpoints/latest.pt"},
+    {"event": "done", "time": 6.0, "step": 200, "elapsed": 20.0, "checkpoint": "/r/checkpoints/latest.pt",
+     "metrics": {"psnr": 21.5, "ssim": 0.8}},
+]
+
+
+def _text() -> str:
+    lines = []
+    for i, ev in enumerate(STREAM):
+        lines.append(json.dumps(ev))
+        if i == 1:
+            lines.append("UserWarning: some library warning {not json")
+            lines.append("")
+            lines.append("[1, 2, 3]")  # JSON, but not an event object
+    return "\n".join(lines) + "\n"
+
+
+def test_byte_by_byte_feed_gives_the_same_state_as_one_chunk():
+    whole = ProgressParser()
+    events_whole = whole.feed(_text())
+    split = ProgressParser()
+    events_split = []
+    data = _text().encode("utf-8")
+    for i in range(len(data)):  # worst case: every line arrives in 1-byte pieces
+        events_split += split.feed(data[i : i + 1])
+    assert [e["event"] for e in events_split] == [e["event"] for e in events_whole]
+    assert len(events_whole) == len(STREAM)
+    for p in (whole, split):
+        assert (p.method, p.device, p.max_steps, p.n_params) == ("nerf", "cpu", 200, 1234)
+        assert p.step == 200 and p.done and p.error is None
+        assert p.loss == 0.02 and p.psnr == 17.0 and p.elapsed == 20.0 and p.eta == 0.0
+        assert p.preview_path == "/r/previews/step_0000050.png"
+        assert p.checkpoint_path == "/r/checkpoints/latest.pt"
+        assert [r["reason"] for r in p.rollbacks] == ["loss is NaN"]
+        assert p.metrics == {"psnr": 21.5, "ssim": 0.8}
+        assert p.unknown_events == 1
+        assert "UserWarning: some library warning {not json" in p.log_tail
+        assert p.fraction() == 1.0
+
+
+def test_partial_line_waits_for_its_end_and_null_eta_clears_estimate():
+    p = ProgressParser()
+    p.feed(json.dumps(STREAM[0]) + "\n")
+    first, second = json.dumps(STREAM[1])[:30], json.dumps(STREAM[1])[30:]
+    assert p.feed(first) == [] and p.step is None
+    assert [e["step"] for e in p.feed(second + "\n")] == [50]
+    assert p.eta == 15.0 and p.fraction() == 0.25
+    p.feed(json.dumps(STREAM[4]) + "\n")
+    assert p.eta is None and p.step == 100 and p.fraction() == 0.5
+
+
+def test_split_multibyte_utf8_and_carriage_returns():
+    p = ProgressParser()
+    data = "progress ▕██▏ 50%\rprogress ▕████▏ 100%\n".encode("utf-8")
+    cut = data.index("█".encode("utf-8")) + 1  # in the middle of a 3-byte character
+    p.feed(data[:cut])
+    p.feed(data[cut:])
+    assert list(p.log_tail) == ["progress ▕██▏ 50%", "progress ▕████▏ 100%"]
+
+
+def test_error_event_truncated_json_and_unterminated_last_line():
+    p = ProgressParser()
+    p.feed('{"event": "step", "step": 3, "loss": 0.1, "psnr"\n')  # cut-off JSON: a log line
+    assert p.step is None and p.log_tail[-1].startswith('{"event": "step"')
+    p.feed('{"event": "error", "time": 1, "message": "dataset train/r_3.png is missing"}')
+    assert p.error is None  # no newline yet
+    events = p.finish()
+    assert [e["event"] for e in events] == ["error"]
+    assert p.error == "dataset train/r_3.png is missing" and not p.done
+
+
+def test_log_tail_keeps_only_the_last_lines():
+    p = ProgressParser(tail_lines=30)
+    p.feed("".join(f"line {i}\n" for i in range(100)))
+    assert len(p.log_tail) == 30 and p.log_tail[0] == "line 70" and p.tail_text(2) == "line 98\nline 99"
