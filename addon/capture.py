@@ -211,48 +211,55 @@ class CaptureJob:
 
     # ------------------------------------------------------------------ folder checks
 
-    def _check_folder(self) -> dict | None:
-        """Make sure the folder is usable; returns the existing manifest to resume from (or None)."""
+    def inspect_folder(self) -> tuple[dict | None, str | None]:
+        """(manifest to resume from, conflict message) without touching the disk.
+
+        The conflict message is set when the folder holds something a capture would overwrite:
+        foreign files, or a capture whose frames differ. ``overwrite`` makes it proceed anyway.
+        """
+        if not self.frames:
+            self.plan()
         out = self.out
         if os.path.exists(out) and not os.path.isdir(out):
             raise CaptureError(f"output {out} exists and is not a folder")
-        try:
-            os.makedirs(os.path.join(out, export.MANIFEST_DIR), exist_ok=True)
-            probe = os.path.join(out, export.MANIFEST_DIR, ".write_probe")
-            with open(probe, "w") as fh:
-                fh.write("ok")
-            os.remove(probe)
-        except OSError as exc:
-            raise CaptureError(f"output folder {out} is not writable: {exc.strerror or exc}") from exc
+        if not os.path.isdir(out):
+            return None, None
         entries = sorted(e for e in os.listdir(out) if e != export.MANIFEST_DIR)
         try:
             manifest = export.read_manifest(out)
         except export.ExportError as exc:
-            if not self.s.overwrite:
-                raise CaptureError(str(exc)) from exc
-            manifest = None
+            return None, str(exc)
         if manifest is not None and manifest.get("format") != FORMAT:
             manifest = None
         if manifest is None:
-            if entries and not self.s.overwrite:
+            if entries:
                 shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
-                raise CaptureError(f"output folder {out} is not empty and holds no capture of ours ({shown}); "
-                                   "choose an empty folder or confirm overwrite (--overwrite)")
-            if self.s.overwrite:
-                self._delete_dataset()
-            return None
+                return None, (f"output folder {out} is not empty and holds no capture of ours ({shown}); "
+                              "choose an empty folder or confirm overwrite (--overwrite)")
+            return None, None
         old = manifest.get("frames", {})
         new = {f["key"]: f["hash"] for f in self.frames}
         differing = sorted(k for k, v in old.items() if new.get(k) != v.get("hash"))
         if differing:
-            if not self.s.overwrite:
-                reason = ("render settings changed" if manifest.get("render") != _round(self.render_sig)
-                          else "cameras changed")
-                raise CaptureError(f"output folder {out} holds a different capture ({reason}: {len(differing)} of "
-                                   f"{len(old)} frames differ, e.g. {differing[0]}); choose another folder or "
-                                   "confirm overwrite (--overwrite)")
-            self._delete_dataset()
-            return None
+            reason = "render settings changed" if manifest.get("render") != _round(self.render_sig) else "cameras changed"
+            return manifest, (f"output folder {out} holds a different capture ({reason}: {len(differing)} of "
+                              f"{len(old)} frames differ, e.g. {differing[0]}); choose another folder or "
+                              "confirm overwrite (--overwrite)")
+        return manifest, None
+
+    def _check_folder(self) -> dict | None:
+        """Make the folder usable; returns the existing manifest to resume from (or None)."""
+        manifest, conflict = self.inspect_folder()
+        if conflict and not self.s.overwrite:
+            raise CaptureError(conflict)
+        try:
+            os.makedirs(os.path.join(self.out, export.MANIFEST_DIR), exist_ok=True)
+            probe = os.path.join(self.out, export.MANIFEST_DIR, ".write_probe")
+            with open(probe, "w") as fh:
+                fh.write("ok")
+            os.remove(probe)
+        except OSError as exc:
+            raise CaptureError(f"output folder {self.out} is not writable: {exc.strerror or exc}") from exc
         if self.s.overwrite:
             self._delete_dataset()
             return None

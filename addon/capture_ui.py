@@ -1,0 +1,379 @@
+"""Capture panel (3D viewport > N-panel > NeRF > Capture), its settings and operators.
+
+Settings live in ``Scene.nerf_capture`` (saved with the .blend). Capturing is a modal operator
+driven by a timer: one frame per tick, so Blender stays responsive between frames; Esc or the
+Cancel button stops it, leaving a folder that resumes on the next capture.
+"""
+from __future__ import annotations
+
+
+import bpy
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
+                       StringProperty)
+
+from . import capture, demo_scenes, export, layouts, scene_bounds
+
+# The running capture (one at a time) and the operator instance driving it.
+_ACTIVE = {"job": None}
+
+_LAYOUT_ITEMS = [
+    ("hemisphere", "Hemisphere", "Fibonacci points on the upper hemisphere (elevation range)"),
+    ("sphere", "Sphere", "Fibonacci points on the full sphere"),
+    ("random", "Random", "Random points on the sphere band, reproducible from the seed"),
+    ("rings", "Rings", "Horizontal rings at evenly spaced elevations"),
+    ("spiral", "Spiral", "A spiral climbing from the lowest to the highest elevation"),
+    ("scene-cameras", "Scene Cameras", "Copies of the scene's own cameras"),
+    ("animation", "Animation", "The active camera at every Nth frame of the scene's range"),
+]
+_ENGINE_ITEMS = [
+    ("cycles", "Cycles", "Path tracing: the reference; slowest"),
+    ("eevee", "EEVEE", "Rasterised; needs a GPU"),
+    ("workbench", "Workbench", "Flat studio shading; fastest, no normals"),
+]
+
+
+def _layout_changed(self, _context):
+    # Spheres default to the full elevation range, the others to the upper hemisphere.
+    if self.layout in ("sphere", "random"):
+        self.elevation_min, self.elevation_max = -90.0, 90.0
+    elif self.layout in ("hemisphere", "spiral"):
+        self.elevation_min, self.elevation_max = 0.0, 90.0
+    elif self.layout == "rings":
+        self.elevation_min, self.elevation_max = 10.0, 60.0
+
+
+class NerfCaptureSettings(bpy.types.PropertyGroup):
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//nerf_dataset/",
+                               description="Dataset folder (relative paths start at the .blend's folder)")
+    layout: EnumProperty(name="Layout", items=_LAYOUT_ITEMS, default="hemisphere", update=_layout_changed)
+    target: EnumProperty(name="Target", items=[
+        ("SCENE", "Whole Scene", "Aim at and frame everything visible"),
+        ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
+    train_count: IntProperty(name="Train", default=100, min=1, soft_max=1000)
+    val_count: IntProperty(name="Val", default=10, min=0, soft_max=200)
+    test_count: IntProperty(name="Test", default=20, min=0, soft_max=400)
+    radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
+                          description="Camera distance from the target centre; 0 = auto (target fills the frame)")
+    elevation_min: FloatProperty(name="Min Elevation", default=0.0, min=-90.0, max=90.0)
+    elevation_max: FloatProperty(name="Max Elevation", default=90.0, min=-90.0, max=90.0)
+    seed: IntProperty(name="Seed", default=0, min=0)
+    rings: IntProperty(name="Rings", default=3, min=1, max=32)
+    turns: FloatProperty(name="Turns", default=3.0, min=0.1, max=50.0)
+    frame_step: IntProperty(name="Every Nth Frame", default=10, min=1)
+    focal_length: FloatProperty(name="Focal Length", default=50.0, min=1.0, max=500.0, unit="CAMERA",
+                                description="Lens of generated cameras (36 mm sensor)")
+    engine: EnumProperty(name="Engine", items=_ENGINE_ITEMS, default="cycles")
+    samples: IntProperty(name="Samples", default=16, min=1, soft_max=4096)
+    denoise: BoolProperty(name="Denoise", default=False)
+    resolution_x: IntProperty(name="X", default=200, min=4, soft_max=4096, subtype="PIXEL")
+    resolution_y: IntProperty(name="Y", default=200, min=4, soft_max=4096, subtype="PIXEL")
+    film_transparent: BoolProperty(name="Transparent Film", default=True,
+                                   description="RGBA images with a transparent background (what NeRF loaders expect)")
+    depth: BoolProperty(name="Depth", default=False, description="Planar depth EXRs")
+    normals: BoolProperty(name="Normals", default=False, description="World-space normal EXRs (Cycles/EEVEE)")
+    masks: BoolProperty(name="Masks", default=False, description="Object mask PNGs")
+    points: BoolProperty(name="Point Cloud", default=False, description="points3d.ply from the train views")
+    normalize_camera_scale: BoolProperty(name="Normalise Camera Scale", default=False,
+                                         description="Accept scaled cameras, dropping the scale (recorded)")
+    # Runtime state shown by the panel (not user settings).
+    is_running: BoolProperty(default=False, options={"SKIP_SAVE"})
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
+    status: StringProperty(default="", options={"SKIP_SAVE"})
+    cancel_requested: BoolProperty(default=False, options={"SKIP_SAVE"})
+
+    def layout_spec(self) -> layouts.LayoutSpec:
+        return layouts.LayoutSpec(
+            layout=self.layout, train=self.train_count, val=self.val_count, test=self.test_count,
+            radius=self.radius, elevation_min=self.elevation_min, elevation_max=self.elevation_max,
+            seed=self.seed, rings=self.rings, turns=self.turns, frame_step=self.frame_step,
+            focal_length=self.focal_length, target=self.target)
+
+    def capture_settings(self, overwrite: bool = False) -> capture.CaptureSettings:
+        return capture.CaptureSettings(
+            out_dir=bpy.path.abspath(self.output_dir), engine=self.engine, samples=self.samples,
+            res_x=self.resolution_x, res_y=self.resolution_y, film_transparent=self.film_transparent,
+            denoise=self.denoise, depth=self.depth, normals=self.normals, masks=self.masks, points=self.points,
+            overwrite=overwrite, target=self.target, normalize_camera_scale=self.normalize_camera_scale,
+            layout=self.layout_spec().to_dict(), seed=self.seed)
+
+
+_ERRORS = (capture.CaptureError, layouts.LayoutError, export.ExportError, scene_bounds.BoundsError,
+           demo_scenes.DemoSceneError)
+
+
+class NERF_OT_generate_cameras(bpy.types.Operator):
+    """Create the capture cameras of the chosen layout in the "NeRF Cameras" collection (replacing them)"""
+
+    bl_idname = "nerf.generate_cameras"
+    bl_label = "Generate Cameras"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        s = context.scene.nerf_capture
+        try:
+            made = layouts.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        except _ERRORS as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in layouts.SPLITS}
+        self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
+        return {"FINISHED"}
+
+
+class NERF_OT_clear_cameras(bpy.types.Operator):
+    """Delete the cameras of the "NeRF Cameras" collection (no other object is touched)"""
+
+    bl_idname = "nerf.clear_cameras"
+    bl_label = "Clear Cameras"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        n = layouts.clear_cameras(context.scene)
+        self.report({"INFO"}, f"removed {n} capture cameras")
+        return {"FINISHED"}
+
+
+class NERF_OT_capture(bpy.types.Operator):
+    """Render the capture cameras into a NeRF dataset (Esc cancels; re-running resumes)"""
+
+    bl_idname = "nerf.capture"
+    bl_label = "Capture Dataset"
+
+    overwrite: BoolProperty(name="Overwrite", default=False, options={"SKIP_SAVE"},
+                            description="Replace a different dataset in the output folder")
+    generate: BoolProperty(name="Generate Cameras", default=True, options={"SKIP_SAVE"},
+                           description="Create the layout's cameras first when the collection has none")
+
+    _timer = None
+    _job = None
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and _ACTIVE["job"] is None
+
+    def _make_job(self, context):
+        s = context.scene.nerf_capture
+        if self.generate and not any(layouts.capture_cameras(context.scene).values()):
+            layouts.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        return capture.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
+
+    def _progress(self, context):
+        scene_name = context.scene.name
+
+        def report(done, total, info):
+            scene = bpy.data.scenes.get(scene_name)
+            if scene is not None:
+                scene.nerf_capture.progress = done / total if total else 0.0
+                scene.nerf_capture.status = f"{done}/{total} {info}".strip()
+        return report
+
+    def invoke(self, context, event):
+        try:
+            job = self._make_job(context)
+            _manifest, conflict = job.inspect_folder()
+        except _ERRORS as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if conflict and not self.overwrite:
+            self.overwrite = True  # applies only if the user confirms the dialog
+            return context.window_manager.invoke_confirm(
+                self, event, title="Replace dataset?", message=conflict, confirm_text="Overwrite", icon="WARNING")
+        return self.execute(context)
+
+    def execute(self, context):
+        try:
+            job = self._make_job(context)
+            job.prepare()
+        except _ERRORS as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        s = context.scene.nerf_capture
+        if context.window is None:
+            # Scripts and tests (no window, no event loop): render everything now.
+            try:
+                while job.step():
+                    pass
+            except _ERRORS as exc:
+                job.cancel()
+                self.report({"ERROR"}, str(exc))
+                return {"CANCELLED"}
+            summary = job.finish()
+            self.report({"INFO"}, f"captured {summary['frames']} frames into {summary['out']}")
+            return {"FINISHED"}
+        self._job = job
+        _ACTIVE["job"] = job
+        s.is_running, s.cancel_requested = True, False
+        self._timer = context.window_manager.event_timer_add(0.05, window=context.window)
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        s = context.scene.nerf_capture
+        if event.type == "ESC" or s.cancel_requested:
+            return self._stop(context, cancelled=True)
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        try:
+            more = self._job.step()
+        except Exception as exc:  # a failed frame must not leave the modal handler running
+            self._stop(context, cancelled=True)
+            self.report({"ERROR"}, f"capture stopped: {exc}")
+            return {"CANCELLED"}
+        for area in context.screen.areas if context.screen else ():
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+        if not more:
+            return self._stop(context, cancelled=False)
+        return {"RUNNING_MODAL"}
+
+    def _stop(self, context, cancelled: bool):
+        context.window_manager.event_timer_remove(self._timer)
+        s = context.scene.nerf_capture
+        s.is_running, s.cancel_requested = False, False
+        _ACTIVE["job"] = None
+        if cancelled:
+            summary = self._job.cancel()
+            s.status = f"cancelled: {summary['rendered'] + summary['kept']}/{summary['frames']} frames kept; capture again to resume"
+            self.report({"WARNING"}, s.status)
+            return {"CANCELLED"}
+        summary = self._job.finish()
+        s.status = f"done: {summary['frames']} frames in {summary['out']}"
+        train = getattr(context.scene, "nerf_train", None)
+        if train is not None and hasattr(train, "dataset_dir") and not train.dataset_dir:
+            train.dataset_dir = summary["out"]  # the Train panel picks up the new dataset
+        self.report({"INFO"}, s.status)
+        return {"FINISHED"}
+
+
+class NERF_OT_capture_cancel(bpy.types.Operator):
+    """Stop the running capture after the current frame (the folder stays resumable)"""
+
+    bl_idname = "nerf.capture_cancel"
+    bl_label = "Cancel Capture"
+
+    def execute(self, context):
+        context.scene.nerf_capture.cancel_requested = True
+        return {"FINISHED"}
+
+
+class NERF_OT_add_demo_scene(bpy.types.Operator):
+    """Build a procedural demo scene in a new scene (your scenes are not touched)"""
+
+    bl_idname = "nerf.add_demo_scene"
+    bl_label = "Add Demo Scene"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: EnumProperty(name="Scene", items=[(k, k.title(), v) for k, v in demo_scenes.SCENES.items()])
+
+    def execute(self, context):
+        if context.window is None:
+            self.report({"ERROR"}, "Add Demo Scene needs a window; scripts call addon.demo_scenes.build()")
+            return {"CANCELLED"}
+        scene = bpy.data.scenes.new(f"NeRF demo: {self.name}")
+        context.window.scene = scene
+        try:
+            demo_scenes.build(self.name, scene)
+        except _ERRORS as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+class NERF_PT_capture(bpy.types.Panel):
+    bl_label = "Capture"
+    bl_idname = "NERF_PT_capture"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "NeRF"
+
+    def draw(self, context):
+        layout = self.layout
+        s = context.scene.nerf_capture
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        if s.is_running:
+            if hasattr(layout, "progress"):
+                layout.progress(factor=s.progress, type="BAR", text=s.status)
+            else:
+                layout.label(text=f"{100 * s.progress:.0f}% {s.status}")
+            layout.operator(NERF_OT_capture_cancel.bl_idname, icon="CANCEL")
+            return
+
+        col = layout.column(heading="Cameras")
+        col.prop(s, "layout")
+        if s.layout in layouts.GENERATED_LAYOUTS:
+            col.prop(s, "target")
+            col.prop(s, "radius")
+            sub = col.column(align=True)
+            sub.prop(s, "elevation_min")
+            sub.prop(s, "elevation_max")
+            if s.layout == "rings":
+                col.prop(s, "rings")
+            elif s.layout == "spiral":
+                col.prop(s, "turns")
+            col.prop(s, "focal_length")
+        elif s.layout == "animation":
+            col.prop(s, "frame_step")
+        sub = col.column(align=True)
+        if s.layout in layouts.GENERATED_LAYOUTS:
+            sub.prop(s, "train_count")
+        sub.prop(s, "val_count")
+        sub.prop(s, "test_count")
+        col.prop(s, "seed")
+        row = col.row(align=True)
+        row.operator(NERF_OT_generate_cameras.bl_idname, icon="OUTLINER_OB_CAMERA")
+        row.operator(NERF_OT_clear_cameras.bl_idname, text="", icon="TRASH")
+        cams = layouts.capture_cameras(context.scene)
+        col.label(text=f"{len(cams['train'])} train, {len(cams['val'])} val, {len(cams['test'])} test cameras")
+
+        col = layout.column(heading="Render")
+        col.prop(s, "engine")
+        if s.engine != "workbench":
+            col.prop(s, "samples")
+        if s.engine == "cycles":
+            col.prop(s, "denoise")
+        sub = col.column(align=True)
+        sub.prop(s, "resolution_x", text="Resolution X")
+        sub.prop(s, "resolution_y", text="Y")
+        col.prop(s, "film_transparent")
+        col = layout.column(heading="Extras")
+        col.prop(s, "depth")
+        row = col.row()
+        row.enabled = s.engine != "workbench"
+        row.prop(s, "normals")
+        col.prop(s, "masks")
+        col.prop(s, "points")
+        col.prop(s, "normalize_camera_scale")
+
+        layout.prop(s, "output_dir")
+        layout.operator(NERF_OT_capture.bl_idname, icon="RENDER_ANIMATION")
+        if s.status:
+            layout.label(text=s.status)
+        layout.operator_menu_enum(NERF_OT_add_demo_scene.bl_idname, "name", icon="SCENE_DATA")
+
+
+CLASSES = (
+    NerfCaptureSettings,
+    NERF_OT_generate_cameras,
+    NERF_OT_clear_cameras,
+    NERF_OT_capture,
+    NERF_OT_capture_cancel,
+    NERF_OT_add_demo_scene,
+    NERF_PT_capture,
+)
+
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+
+
+def register():
+    _register_classes()
+    bpy.types.Scene.nerf_capture = PointerProperty(type=NerfCaptureSettings)
+
+
+def unregister():
+    job = _ACTIVE.get("job")
+    if job is not None:  # disabling the add-on mid-capture: keep what is rendered, resumable
+        job.cancel()
+        _ACTIVE["job"] = None
+    del bpy.types.Scene.nerf_capture
+    _unregister_classes()

@@ -1,0 +1,143 @@
+"""Capture a Blender scene as a NeRF dataset, headless.
+
+    blender -b scene.blend --python scripts/capture.py -- --out DATASET [options]
+    python scripts/capture.py --blend scene.blend --out DATASET [options]
+
+Default: a hemisphere of cameras around everything visible, at the distance where the scene fills
+the frame; 100 train, 10 val and 20 test views, 200x200, Cycles. The cameras are created in the
+"NeRF Cameras" collection of the scene in memory (the .blend on disk is not modified; pass
+--save-blend to keep them). --keep-cameras captures the cameras that collection already holds.
+
+Re-running the same command resumes: frames already rendered with the same settings are kept.
+A folder holding something else is refused unless --overwrite. Prints one JSON summary line last.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _bootstrap  # noqa: E402  (puts the repository on sys.path)
+
+
+def parse_resolution(text: str) -> tuple[int, int | None]:
+    try:
+        if "x" in text.lower():
+            w, h = text.lower().split("x")
+            return int(w), int(h)
+        return int(text), None
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--resolution {text!r}: expected R or WxH, e.g. 200 or 320x240")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from addon import layouts
+
+    ap = argparse.ArgumentParser(prog="capture.py", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--blend", help="scene to open (plain Python; under Blender the open file is used)")
+    ap.add_argument("--out", required=True, help="dataset folder to write")
+    ap.add_argument("--layout", default="hemisphere", choices=layouts.LAYOUTS)
+    ap.add_argument("--count", type=int, default=100, help="train views (generated layouts)")
+    ap.add_argument("--val-count", type=int, default=10)
+    ap.add_argument("--test-count", type=int, default=20)
+    ap.add_argument("--resolution", type=parse_resolution, default=(200, None), help="R (square) or WxH")
+    ap.add_argument("--resolution-y", type=int, help="image height when --resolution gives only the width")
+    ap.add_argument("--engine", default="cycles", choices=("cycles", "eevee", "workbench"))
+    ap.add_argument("--samples", type=int, default=16, help="render samples per pixel (Cycles/EEVEE)")
+    ap.add_argument("--denoise", action="store_true", help="Cycles denoising (off by default: it blurs detail)")
+    ap.add_argument("--opaque", action="store_true", help="render the world background instead of a transparent film")
+    ap.add_argument("--seed", type=int, default=0, help="random layout and split assignment")
+    ap.add_argument("--radius", type=float, default=0.0, help="camera distance from the target centre; 0 = auto")
+    ap.add_argument("--elevation-min", type=float, help="degrees (default 0 for hemisphere/rings/spiral, -90 else)")
+    ap.add_argument("--elevation-max", type=float, help="degrees (default 90)")
+    ap.add_argument("--focal-length", type=float, default=50.0, help="mm on a 36 mm sensor")
+    ap.add_argument("--rings", type=int, default=3)
+    ap.add_argument("--turns", type=float, default=3.0, help="spiral turns")
+    ap.add_argument("--frame-step", type=int, default=10, help="animation layout: every Nth frame")
+    ap.add_argument("--target", choices=("scene", "selection"), default="scene",
+                    help="what the cameras aim at and frame (and what masks cover)")
+    ap.add_argument("--keep-cameras", action="store_true", help="capture the existing 'NeRF Cameras' collection")
+    ap.add_argument("--depth", action="store_true", help="planar depth EXRs (depth/<split>/r_i.exr, channel Z)")
+    ap.add_argument("--normals", action="store_true", help="world-space normal EXRs (Cycles/EEVEE)")
+    ap.add_argument("--masks", action="store_true", help="object mask PNGs (masks/<split>/r_i.png)")
+    ap.add_argument("--points", action="store_true", help="points3d.ply back-projected from the train views")
+    ap.add_argument("--n-points", type=int, default=100_000)
+    ap.add_argument("--normalize-camera-scale", action="store_true",
+                    help="accept scaled cameras, dropping their scale (recorded in the manifest)")
+    ap.add_argument("--overwrite", action="store_true", help="replace a different dataset in --out")
+    ap.add_argument("--resume", action="store_true", help="require an existing capture in --out to continue")
+    ap.add_argument("--save-blend", help="also save the scene with its NeRF cameras to this .blend")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
+    _bootstrap.open_blend(args.blend)
+    import bpy
+
+    from addon import capture, export, layouts
+    from nerf_core.progressbar import ProgressBar
+
+    res_x, res_y = args.resolution
+    res_y = res_y or args.resolution_y or res_x
+    scene = bpy.context.scene
+    if args.resume and export.read_manifest(os.path.abspath(args.out)) is None:
+        raise capture.CaptureError(f"--resume: {args.out} holds no capture to continue")
+    spec = layouts.LayoutSpec(
+        layout=args.layout, train=args.count, val=args.val_count, test=args.test_count, radius=args.radius,
+        elevation_min=args.elevation_min, elevation_max=args.elevation_max, seed=args.seed, rings=args.rings,
+        turns=args.turns, frame_step=args.frame_step, focal_length=args.focal_length, target=args.target.upper())
+    if args.keep_cameras:
+        if not any(layouts.capture_cameras(scene).values()):
+            raise capture.CaptureError(f"--keep-cameras: scene has no cameras in {layouts.COLLECTION_NAME!r}")
+        layout_record = {"layout": "existing 'NeRF Cameras' collection"}
+    else:
+        layouts.create_cameras(scene, spec, res_x, res_y)
+        layout_record = spec.to_dict()
+    settings = capture.CaptureSettings(
+        out_dir=args.out, engine=args.engine, samples=args.samples, res_x=res_x, res_y=res_y,
+        film_transparent=not args.opaque, denoise=args.denoise, depth=args.depth, normals=args.normals,
+        masks=args.masks, points=args.points, n_points=args.n_points, overwrite=args.overwrite,
+        target=args.target.upper(), normalize_camera_scale=args.normalize_camera_scale, layout=layout_record,
+        seed=args.seed)
+    bar = ProgressBar(total=None, label="capture", enabled=not args.quiet)
+
+    def progress(done, total, info):
+        bar.total = total
+        bar.set(done, info)
+
+    job = capture.CaptureJob(scene, settings, progress=progress)
+    try:
+        summary = job.run()
+    except KeyboardInterrupt:
+        bar.close("cancelled")
+        print(f"capture: interrupted; {args.out} is consistent and resumes when you run the same command",
+              file=sys.stderr)
+        return 130
+    bar.close("done")
+    if args.save_blend:
+        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save_blend), copy=True)
+    print(json.dumps(summary), flush=True)
+    return 0
+
+
+def run() -> int:
+    from addon import capture, export, layouts, scene_bounds
+
+    from addon import passes
+
+    known = (capture.CaptureError, layouts.LayoutError, export.ExportError, scene_bounds.BoundsError,
+             passes.PassError)
+    try:
+        return main(_bootstrap.script_args())
+    except known as exc:
+        print(f"capture: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    _bootstrap.exit_code(run())
