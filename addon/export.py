@@ -27,8 +27,9 @@ def intrinsics_from_params(lens, sensor_width, sensor_height, sensor_fit, shift_
     """Pinhole intrinsics in pixels matching Blender's viewplane (BKE_camera_params_compute_viewplane).
 
     Sensor fit picks which image side the sensor size spans (AUTO: the longer one, in pixel-aspect
-    units); lens shift moves the principal point by ``shift * that side`` pixels (+x right, +y up, so
-    cy decreases with positive shift_y... in image rows it moves up, i.e. cy = h/2 + shift_y * side).
+    units). Lens shift is in units of that side: shift_x > 0 moves the view right, so the principal
+    point moves left (cx = w/2 - shift_x * side); shift_y > 0 moves the view up, so in top-down pixel
+    rows the principal point moves down (cy = h/2 + shift_y * side).
     """
     ycor = pixel_aspect_y / pixel_aspect_x
     if sensor_fit == "AUTO":

@@ -1,0 +1,249 @@
+"""End-to-end captures checked only through the exported files.
+
+The scene is a 1.5-unit cube at the origin plus a ball off to one side (so a flipped or mirrored
+image cannot pass). Known 3D points are projected with the JSON intrinsics/poses (docs/CONTRACTS.md
+formula) and must land on opaque pixels; points whose line of sight misses both objects must land on
+transparent ones; depth back-projects onto the objects' surfaces.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import OpenEXR
+import pytest
+from PIL import Image
+
+from addon import capture, layouts
+
+PY = sys.executable
+CUBE_HALF = 0.75
+BALL_C, BALL_R = np.array([1.3, 0.4, 0.5]), 0.35
+
+
+def build_test_scene():
+    # Module fixtures run before conftest's per-test reset, so start from an empty file here too.
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.mesh.primitive_cube_add(size=2 * CUBE_HALF)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=BALL_R, location=tuple(BALL_C), segments=48, ring_count=24)
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    bpy.context.scene.collection.objects.link(sun)
+
+
+def do_capture(out, res, engine, spec, tweak=None, **kw):
+    build_test_scene()
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, spec, *res)
+    if tweak:
+        for split in layouts.capture_cameras(scene).values():
+            for cam in split:
+                tweak(cam)
+    settings = capture.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=res[0], res_y=res[1],
+                                       layout=spec.to_dict(), **kw)
+    return capture.CaptureJob(scene, settings).run()
+
+
+def shifted_vertical_fit(cam):
+    cam.data.sensor_fit = "VERTICAL"
+    cam.data.sensor_height = 20.0
+    cam.data.shift_x, cam.data.shift_y = 0.12, -0.08
+
+
+@pytest.fixture(scope="module")
+def cycles_dataset(tmp_path_factory):
+    """Non-square Cycles capture with depth, normals, masks and a point cloud."""
+    out = tmp_path_factory.mktemp("cyc") / "ds"
+    spec = layouts.LayoutSpec(layout="sphere", train=6, val=2, test=3, radius=7.0, seed=4)
+    summary = do_capture(out, (48, 32), "cycles", spec, depth=True, normals=True, masks=True, points=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return out, summary
+
+
+@pytest.fixture(scope="module")
+def shifted_dataset(tmp_path_factory):
+    """Portrait Workbench capture whose cameras have lens shift and a vertical sensor fit."""
+    out = tmp_path_factory.mktemp("shift") / "ds"
+    spec = layouts.LayoutSpec(layout="hemisphere", train=5, val=1, test=2, radius=8.0, elevation_min=10)
+    summary = do_capture(out, (30, 44), "workbench", spec, tweak=shifted_vertical_fit, depth=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return out, summary
+
+
+def frames(out, split):
+    with open(os.path.join(out, f"transforms_{split}.json")) as fh:
+        doc = json.load(fh)
+    for fr in doc["frames"]:
+        intr = {k: fr.get(k, doc.get(k)) for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")}
+        yield doc, fr, intr
+
+
+def project(points, c2w, intr):
+    w2c = np.linalg.inv(np.asarray(c2w))
+    p = (w2c @ np.c_[points, np.ones(len(points))].T)[:3]
+    u = intr["cx"] + intr["fl_x"] * p[0] / -p[2]
+    v = intr["cy"] - intr["fl_y"] * p[1] / -p[2]
+    return u, v, -p[2]
+
+
+def ray_misses(cam_pos, point, centre, radius):
+    """True when the ray from the camera through ``point`` (and beyond) misses the sphere."""
+    d = point - cam_pos
+    t = max(0.0, np.dot(centre - cam_pos, d) / np.dot(d, d))
+    return np.linalg.norm(cam_pos + t * d - centre) > radius
+
+
+INSIDE = np.array([[0, 0, 0], *(0.85 * CUBE_HALF * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1)
+                                                                  for z in (-1, 1)])), BALL_C])
+PROBES = np.array(layouts.fibonacci_positions(200, 2.6, (0.3, 0.1, 0.0)))
+
+
+def check_alpha_geometry(out):
+    n_opaque = n_clear = 0
+    for split in layouts.SPLITS:
+        for doc, fr, intr in frames(out, split):
+            rgba = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))
+            assert rgba.shape == (intr["h"], intr["w"], 4) and rgba.dtype == np.uint8
+            alpha = rgba[..., 3]
+            u, v, _ = project(INSIDE, fr["transform_matrix"], intr)
+            for k, (uu, vv) in enumerate(zip(u, v)):
+                if 0 <= uu < intr["w"] and 0 <= vv < intr["h"]:
+                    assert alpha[int(vv), int(uu)] > 200, f"{fr['file_path']}: inner point {k} at ({uu:.1f},{vv:.1f})"
+                    n_opaque += 1
+            cam_pos = np.asarray(fr["transform_matrix"])[:3, 3]
+            u, v, _ = project(PROBES, fr["transform_matrix"], intr)
+            for p, uu, vv in zip(PROBES, u, v):
+                margin = 1.5  # stay clear of antialiased silhouette pixels
+                if not (margin <= uu < intr["w"] - margin and margin <= vv < intr["h"] - margin):
+                    continue
+                if ray_misses(cam_pos, p, np.zeros(3), CUBE_HALF * np.sqrt(3) * 1.08) and \
+                        ray_misses(cam_pos, p, BALL_C, BALL_R * 1.3):
+                    assert alpha[int(vv), int(uu)] == 0, f"{out}/{fr['file_path']}: empty point at ({uu:.1f},{vv:.1f})"
+                    n_clear += 1
+    return n_opaque, n_clear
+
+
+def on_surface(points, tol):
+    cube = np.abs(np.max(np.abs(points), axis=1) - CUBE_HALF) < tol
+    ball = np.abs(np.linalg.norm(points - BALL_C, axis=1) - BALL_R) < tol
+    return cube | ball
+
+
+def backprojected(out, fr, intr):
+    depth = OpenEXR.File(os.path.join(out, fr["depth_file_path"]), separate_channels=True).parts[0].channels["Z"].pixels
+    assert depth.shape == (intr["h"], intr["w"]) and depth.dtype == np.float32
+    j, i = np.nonzero(np.isfinite(depth))
+    z = depth[j, i]
+    cam = np.stack([(i + 0.5 - intr["cx"]) / intr["fl_x"] * z, -(j + 0.5 - intr["cy"]) / intr["fl_y"] * z, -z,
+                    np.ones_like(z)], 1)
+    return (cam @ np.asarray(fr["transform_matrix"]).T)[:, :3], depth
+
+
+def test_points_land_on_opaque_pixels_and_empty_space_on_transparent(cycles_dataset, shifted_dataset):
+    for out, _ in (cycles_dataset, shifted_dataset):
+        n_opaque, n_clear = check_alpha_geometry(out)
+        assert n_opaque >= 40 and n_clear >= 40, (out, n_opaque, n_clear)
+
+
+def test_shifted_vertical_fit_intrinsics_are_exported(shifted_dataset):
+    out, _ = shifted_dataset
+    doc, fr, intr = next(frames(out, "train"))
+    w, h = 30, 44
+    fy = 50.0 * h / 20.0  # vertical fit: sensor height spans the image height
+    assert doc["w"] == w and doc["h"] == h
+    assert doc["fl_y"] == pytest.approx(fy) and doc["fl_x"] == pytest.approx(fy)
+    assert doc["cx"] == pytest.approx(w / 2 - 0.12 * h)  # shift is in units of the fitted (vertical) side
+    assert doc["cy"] == pytest.approx(h / 2 - 0.08 * h)
+    assert doc["camera_angle_x"] == pytest.approx(2 * np.arctan(w / (2 * fy)))
+
+
+def test_depth_backprojects_onto_the_surfaces(cycles_dataset, shifted_dataset):
+    for out, _ in (cycles_dataset, shifted_dataset):
+        n = 0
+        for split in layouts.SPLITS:
+            for _doc, fr, intr in frames(out, split):
+                pts, depth = backprojected(out, fr, intr)
+                alpha = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))[..., 3]
+                hit = np.isfinite(depth)
+                # Antialiased silhouette pixels are partly covered: compare only the unambiguous ones.
+                assert hit[alpha == 255].all() and not hit[alpha == 0].any(), fr["depth_file_path"]
+                ok = on_surface(pts, 0.03)
+                assert ok.mean() > 0.97, f"{fr['depth_file_path']}: {ok.mean():.3f} of pixels on a surface"
+                n += len(pts)
+        assert n > 200
+
+
+def test_normals_masks_and_point_cloud(cycles_dataset):
+    out, _ = cycles_dataset
+    for _doc, fr, intr in frames(out, "train"):
+        pts, depth = backprojected(out, fr, intr)
+        ch = OpenEXR.File(os.path.join(out, fr["normal_file_path"]), separate_channels=True).parts[0].channels
+        n = np.stack([ch[c].pixels for c in "XYZ"], -1)
+        hit = np.isfinite(depth)
+        np.testing.assert_allclose(np.linalg.norm(n[hit], axis=-1), 1.0, atol=0.02)
+        cam_pos = np.asarray(fr["transform_matrix"])[:3, 3]
+        facing = np.einsum("ij,ij->i", n[hit], cam_pos - pts)
+        assert (facing > 0).mean() > 0.97  # world-space normals face the camera
+        mask = np.asarray(Image.open(os.path.join(out, fr["mask_path"])))
+        assert mask.shape == depth.shape and set(np.unique(mask)) <= {0, 255}
+        assert (mask[hit] == 255).mean() > 0.97 and (mask[~hit] == 0).all()
+    with open(os.path.join(out, "points3d.ply"), "rb") as fh:
+        blob = fh.read()
+    head, body = blob.split(b"end_header\n", 1)
+    count = int(head.split(b"element vertex ")[1].split(b"\n")[0])
+    rec = np.frombuffer(body, dtype=[("p", "<f4", 3), ("c", "u1", 3)], count=count)
+    assert count > 100 and on_surface(rec["p"].astype(float), 0.03).mean() > 0.97
+    with open(os.path.join(out, "transforms.json")) as fh:
+        assert json.load(fh)["ply_file_path"] == "points3d.ply"
+
+
+def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
+    out, summary = cycles_dataset
+    assert summary["status"] == "complete" and summary["frames"] == 11
+    positions = {}
+    for split in layouts.SPLITS:
+        for doc, fr, _ in frames(out, split):
+            assert not fr["file_path"].endswith(".png") and fr["file_path"].startswith(f"./{split}/")
+            assert os.path.isfile(os.path.join(out, fr["file_path"] + ".png"))
+            for key in ("depth_file_path", "normal_file_path", "mask_path"):
+                assert os.path.isfile(os.path.join(out, fr[key]))
+            positions[fr["file_path"]] = np.asarray(fr["transform_matrix"])[:3, 3]
+            assert {"aabb", "near", "far", "camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"} <= set(doc)
+    train = [p for k, p in positions.items() if "/train/" in k]
+    held = [p for k, p in positions.items() if "/train/" not in k]
+    assert len(train) == 6 and len(held) == 5
+    assert min(np.linalg.norm(a - b) for a in train for b in held) > 1e-3
+    with open(os.path.join(out, "transforms.json")) as fh:
+        ns = json.load(fh)
+    assert len(ns["train_filenames"]) == 6 and len(ns["val_filenames"]) == 2 and len(ns["test_filenames"]) == 3
+    assert not set(ns["train_filenames"]) & set(ns["test_filenames"] + ns["val_filenames"])
+    for fr in ns["frames"]:
+        assert fr["file_path"].endswith(".png") and os.path.isfile(os.path.join(out, fr["file_path"]))
+    doc = json.load(open(os.path.join(out, "transforms_train.json")))
+    lo, hi = np.asarray(doc["aabb"])
+    np.testing.assert_allclose(lo, [-CUBE_HALF, -CUBE_HALF, -CUBE_HALF], atol=1e-5)
+    np.testing.assert_allclose(hi, BALL_C + BALL_R, atol=1e-5)
+    assert 0 < doc["near"] < 7 - 1.5 and doc["far"] > 7 + 1.3
+
+
+def test_manifest_records_settings_and_no_normalisation(cycles_dataset):
+    out, _ = cycles_dataset
+    assert not [f for f in os.listdir(out) if f.endswith(".json") and not f.startswith("transforms")]
+    with open(os.path.join(out, "nerf_capture", "manifest.json")) as fh:
+        m = json.load(fh)
+    assert m["status"] == "complete" and m["blender_version"].startswith("5.0")
+    assert m["normalization"]["scale"] == 1.0 and m["normalization"]["offset"] == [0.0, 0.0, 0.0]
+    assert m["render"]["engine"] == "CYCLES" and m["render"]["resolution"] == [48, 32]
+    assert {"view_transform", "look", "exposure", "gamma", "display_device"} <= set(m["render"]["color_management"])
+    assert m["layout"]["layout"] == "sphere" and m["seed"] == 0 and m["layout"]["seed"] == 4
+    assert len(m["frames"]) == 11 and all(f["done"] and len(f["hash"]) == 16 for f in m["frames"].values())
+    assert len({f["hash"] for f in m["frames"].values()}) == 11
+
+
+def test_nerf_core_check_accepts_the_datasets(cycles_dataset, shifted_dataset):
+    for out, _ in (cycles_dataset, shifted_dataset):
+        proc = subprocess.run([PY, "-m", "nerf_core", "check", str(out)], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stdout + proc.stderr

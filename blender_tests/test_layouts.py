@@ -1,0 +1,178 @@
+"""Camera layouts: counts, elevation ranges, split disjointness, framing, and the camera collection."""
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+from mathutils import Matrix
+
+from addon import export, layouts
+from addon.capture import _RenderView
+
+
+def _elevations(points, centre=(0, 0, 0)):
+    p = np.asarray(points) - np.asarray(centre)
+    return np.degrees(np.arcsin(p[:, 2] / np.linalg.norm(p, axis=1)))
+
+
+@pytest.mark.parametrize("gen", ["fib", "random", "rings", "spiral"])
+def test_generators_count_radius_and_elevation_range(gen):
+    centre, radius, elev = (1.0, -2.0, 0.5), 3.0, (10.0, 70.0)
+    pts = {
+        "fib": lambda: layouts.fibonacci_positions(37, radius, centre, elev),
+        "random": lambda: layouts.random_positions(37, radius, centre, elev, seed=3),
+        "rings": lambda: layouts.ring_positions(37, radius, centre, elev, rings=4),
+        "spiral": lambda: layouts.spiral_positions(37, radius, centre, elev, turns=2),
+    }[gen]()
+    p = np.asarray(pts)
+    assert p.shape == (37, 3)
+    np.testing.assert_allclose(np.linalg.norm(p - centre, axis=1), radius, rtol=1e-9)
+    e = _elevations(pts, centre)
+    assert e.min() >= 10.0 - 1e-6 and e.max() <= 70.0 + 1e-6
+    # distinct cameras: no two closer than a small fraction of the radius
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1) + np.eye(37) * 1e9
+    assert d.min() > 1e-3 * radius
+
+
+def test_hemisphere_covers_its_range_evenly():
+    e = _elevations(layouts.fibonacci_positions(200, 1.0, (0, 0, 0), (0.0, 90.0)))
+    assert e.min() < 3 and e.max() > 80  # spans the band
+    # equal-area: half the points lie below 30 degrees (sin 30 = 0.5)
+    assert abs((e < 30).mean() - 0.5) < 0.02
+
+
+def test_random_layout_is_reproducible_from_seed():
+    a = layouts.random_positions(10, 2.0, seed=7)
+    assert a == layouts.random_positions(10, 2.0, seed=7)
+    assert a != layouts.random_positions(10, 2.0, seed=8)
+
+
+def test_rings_use_that_many_elevations():
+    e = np.round(_elevations(layouts.ring_positions(12, 1.0, (0, 0, 0), (0.0, 60.0), rings=3)), 6)
+    assert sorted(set(e)) == [0.0, 30.0, 60.0]
+
+
+def test_spiral_climbs():
+    e = _elevations(layouts.spiral_positions(20, 1.0, (0, 0, 0), (5.0, 80.0), turns=3))
+    assert np.all(np.diff(e) > 0)
+
+
+def test_assign_splits_counts_disjoint_and_spread():
+    s = layouts.assign_splits(130, 10, 20, seed=1)
+    assert (s.count("train"), s.count("val"), s.count("test")) == (100, 10, 20)
+    assert s != layouts.assign_splits(130, 10, 20, seed=2)
+    with pytest.raises(layouts.LayoutError, match="cannot hold"):
+        layouts.assign_splits(5, 3, 2)
+
+
+def test_look_at_points_minus_z_at_target_with_z_up():
+    pos, target = (3.0, -4.0, 2.0), (0.5, 0.5, 0.0)
+    m = np.asarray(layouts.look_at(pos, target))
+    r = m[:3, :3]
+    np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+    fwd = -r[:, 2]
+    want = np.subtract(target, pos) / np.linalg.norm(np.subtract(target, pos))
+    np.testing.assert_allclose(fwd, want, atol=1e-12)
+    assert r[2, 1] > 0  # camera +Y has a world +Z component: image is upright
+    assert abs(r[2, 0]) < 1e-12  # no roll: camera +X is horizontal
+    top = np.asarray(layouts.look_at((0, 0, 5.0), (0, 0, 0)))  # straight down still valid
+    np.testing.assert_allclose(-top[:3, 2], (0, 0, -1), atol=1e-12)
+
+
+def _add_box(size=2.0, location=(0.0, 0.0, 0.0)):
+    bpy.ops.mesh.primitive_cube_add(size=size, location=location)
+    return bpy.context.active_object
+
+
+@pytest.mark.parametrize("res", [(64, 64), (96, 40), (40, 96)])
+def test_auto_radius_frames_the_scene_bounds(res):
+    _add_box(2.0, (0.3, -0.2, 0.4))
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(1.5, 0.0, 0.0))
+    spec = layouts.LayoutSpec(layout="sphere", train=30, val=0, test=0)
+    cams = layouts.create_cameras(bpy.context.scene, spec, *res)
+    lo, hi = np.array([-0.7, -1.2, -0.6]), np.array([2.0, 0.8, 1.4])
+    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    tightest = 1.0
+    for cam in cams:
+        intr = export.camera_intrinsics(cam, _RenderView(bpy.context.scene.render, *res))
+        w2c = np.linalg.inv(np.asarray(cam.matrix_world))
+        x, y, z = (w2c @ corners.T)[:3]
+        u = intr["cx"] + intr["fl_x"] * x / -z
+        v = intr["cy"] - intr["fl_y"] * y / -z
+        assert np.all(z < 0)
+        assert np.all((u >= 0) & (u <= res[0]) & (v >= 0) & (v <= res[1])), cam.name
+        tightest = min(tightest, (u.min() / res[0]), (v.min() / res[1]), 1 - u.max() / res[0], 1 - v.max() / res[1])
+    assert tightest < 0.2  # and not absurdly far away: some view has a corner near the border
+
+
+def test_create_cameras_replaces_only_its_collection():
+    _add_box()
+    user_cam = bpy.data.objects.new("UserCam", bpy.data.cameras.new("UserCam"))
+    bpy.context.scene.collection.objects.link(user_cam)
+    user_cam.matrix_world = Matrix.Translation((0, -10, 0))
+    spec = layouts.LayoutSpec(train=8, val=2, test=3)
+    layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    spec.train = 5
+    made = layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    cams = layouts.capture_cameras(bpy.context.scene)
+    assert [len(cams[s]) for s in layouts.SPLITS] == [5, 2, 3]
+    assert len(made) == 10
+    assert all(o.name in bpy.data.collections[layouts.COLLECTION_NAME].objects for o in made)
+    assert "UserCam" in bpy.data.objects and bpy.data.objects["UserCam"].location.y == -10
+    assert sum(o.type == "CAMERA" for o in bpy.data.objects) == 11  # old layout fully removed
+    assert not any(o.name.startswith("NeRF_") and o.name.endswith(".001") for o in bpy.data.objects)
+    assert layouts.clear_cameras(bpy.context.scene) == 10
+    assert [o.name for o in bpy.data.objects if o.type == "CAMERA"] == ["UserCam"]
+
+
+def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
+    _add_box()
+    for k in range(6):
+        cam = bpy.data.objects.new(f"Cam{k}", bpy.data.cameras.new(f"Cam{k}"))
+        bpy.context.scene.collection.objects.link(cam)
+        cam.matrix_world = Matrix(layouts.look_at((5 * math.cos(k), 5 * math.sin(k), 1.0), (0, 0, 0)))
+    spec = layouts.LayoutSpec(layout="scene-cameras", val=1, test=2)
+    made = layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    assert len(made) == 6
+    assert sorted(o["nerf_source"] for o in made) == [f"Cam{k}" for k in range(6)]
+    for obj in made:
+        src = bpy.data.objects[obj["nerf_source"]]
+        np.testing.assert_allclose(np.asarray(obj.matrix_world), np.asarray(src.matrix_world), atol=1e-6)
+    cams = layouts.capture_cameras(bpy.context.scene)
+    assert [len(cams[s]) for s in layouts.SPLITS] == [3, 1, 2]
+
+
+def test_animation_layout_samples_every_nth_frame():
+    _add_box()
+    cam = bpy.data.objects.new("Anim", bpy.data.cameras.new("Anim"))
+    scene = bpy.context.scene
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.frame_start, scene.frame_end = 1, 40
+    for f, x in ((1, -5.0), (40, 5.0)):
+        cam.location = (x, -6.0, 1.0)
+        cam.keyframe_insert("location", frame=f)
+    scene.frame_set(7)
+    made = layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    assert sorted(o["nerf_frame"] for o in made) == [1, 11, 21, 31]
+    xs = {o["nerf_frame"]: o.matrix_world.translation.x for o in made}
+    assert xs[1] == pytest.approx(-5.0) and xs[31] > xs[21] > xs[11] > xs[1]
+    assert scene.frame_current == 7  # the user's frame is restored
+
+
+def test_layouts_that_need_a_camera_say_so():
+    _add_box()
+    with pytest.raises(layouts.LayoutError, match="scene-cameras.*no camera"):
+        layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="scene-cameras", val=0, test=0), 32, 32)
+    with pytest.raises(layouts.LayoutError, match="animation.*no active camera"):
+        layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="animation", val=0, test=0), 32, 32)
+
+
+def test_bad_elevation_range_is_refused():
+    _add_box()
+    spec = layouts.LayoutSpec(elevation_min=50, elevation_max=10)
+    with pytest.raises(layouts.LayoutError, match="elevation range"):
+        layouts.create_cameras(bpy.context.scene, spec, 32, 32)
