@@ -146,7 +146,8 @@ def _check_intrinsics_consistency(report: CheckReport, fname: str, intr: dict, k
                                 f"but fl_x is {intr['fl_x']:.4f}; loaders that read only camera_angle_x would use another focal length",
                          k, fpath, "camera_angle_x")
     off_x, off_y = intr["cx"] - w / 2.0, intr["cy"] - h / 2.0
-    if abs(off_x) > 0.5 or abs(off_y) > 0.5:
+    # nerfstudio-data reads cx/cy itself; only the split files feed camera_angle_x-only loaders.
+    if fname != NERFSTUDIO_FILE and (abs(off_x) > 0.5 or abs(off_y) > 0.5):
         report.warn(fname, f"principal point ({intr['cx']:g}, {intr['cy']:g}) is off-centre by ({off_x:+.2f}, {off_y:+.2f}) px "
                            "(lens shift): loaders that read only camera_angle_x (original NeRF, blender-data, 3DGS) assume the centre",
                     k, fpath, "cx/cy")

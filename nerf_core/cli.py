@@ -88,7 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--progress", metavar="FILE", help="also append the JSON progress events to FILE")
     t.add_argument("--device", metavar="DEV", help="torch device (cpu, cuda, cuda:1); default: cuda if available else cpu")
     t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")
-    t.add_argument("--batch-rays", type=_positive_int, default=4096, help="rays per step")
+    t.add_argument("--batch-rays", type=_positive_int, metavar="N",
+                   help="rays per step (default: the method's, else 4096 on CUDA and 1024 on CPU)")
     t.add_argument("--background", choices=["auto", "white", "black", "random"], default="auto",
                    help="colour behind transparent pixels while training; auto = random when images have alpha")
     t.add_argument("--downscale", type=_positive_int, default=1, metavar="F", help="train on images downscaled by F")

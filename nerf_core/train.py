@@ -61,7 +61,7 @@ class TrainConfig:
     progress: Optional[str] = None  # extra JSON-lines file
     device: Optional[str] = None
     lr: Optional[float] = None  # base learning rate; default: the method's default_lr
-    batch_rays: int = 4096
+    batch_rays: Optional[int] = None  # None: the method's default_batch_rays, else 4096 on CUDA / 1024 on CPU
     background: str = "auto"  # auto = random when the images have alpha, else white
     downscale: int = 1
     log_every: int = 50
@@ -296,7 +296,7 @@ class Trainer:
                 v = getattr(cfg, name)
                 if v is not None and v <= 0:
                     raise TrainError(f"--{name.replace('_', '-')} must be positive, got {v}")
-            if cfg.batch_rays < 1:
+            if cfg.batch_rays is not None and cfg.batch_rays < 1:
                 raise TrainError(f"--batch-rays must be positive, got {cfg.batch_rays}")
             from .device import pick_device
 
@@ -381,6 +381,8 @@ class Trainer:
             load_state_resizing(model, ckpt["model"])
         self.model = model.to(self.device).train()
         self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
+        if cfg.batch_rays is None:
+            cfg.batch_rays = int(getattr(model, "default_batch_rays", 0) or (4096 if self.device.type == "cuda" else 1024))
         self.warmup = int(getattr(model, "warmup_steps", 0) or min(100, (cfg.max_steps or 2000) // 20))
         self.train = train
 

@@ -193,3 +193,10 @@ def trained_run(tmp_path_factory):
     summary = train(TrainConfig(dataset=str(ds), out=str(run), method="test-grid", max_steps=30, batch_rays=256,
                                 seed=0, stdout_events=False, show_bar=False, log_every=10, eval_views=2))
     return {"dataset": ds, "run": run, "summary": summary}
+
+
+@pytest.fixture
+def dataset_factory():
+    """``make_dataset`` for tests that need a variant (imported through a fixture because
+    ``from conftest import`` is ambiguous when several test folders have a conftest.py)."""
+    return make_dataset

@@ -1,0 +1,215 @@
+"""Dataset loading round trips (both layouts, PNG/EXR, depth, masks) and every bad-input error."""
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from nerf_core.data import DatasetError, load_cameras, load_dataset
+from nerf_core.imageio import read_exr
+
+
+def _meta(ds, split="train"):
+    return json.loads((ds / f"transforms_{split}.json").read_text())
+
+
+def _write_meta(ds, meta, split="train"):
+    (ds / f"transforms_{split}.json").write_text(json.dumps(meta))
+
+
+def test_synthetic_round_trip(sphere_dataset):
+    ds = load_dataset(sphere_dataset)
+    assert ds.layout == "synthetic"
+    assert {k: len(v) for k, v in ds.splits.items()} == {"train": 8, "val": 1, "test": 2}
+    tr = ds.splits["train"]
+    meta = _meta(sphere_dataset)
+    # Stored once, as uint8 RGBA: no float copies of every image.
+    assert tr.images.dtype == torch.uint8 and tr.images.shape == (8, 20, 24, 4)
+    assert float(tr.cameras.cx[0]) == pytest.approx(meta["cx"]) and float(tr.cameras.cy[3]) == pytest.approx(meta["cy"])
+    assert float(tr.cameras.fx[0]) == pytest.approx(meta["fl_x"], rel=1e-6)
+    np.testing.assert_allclose(tr.cameras.c2w[2].numpy(), np.array(meta["frames"][2]["transform_matrix"]), atol=1e-6)
+    assert ds.aabb.tolist() == [[-1, -1, -1], [1, 1, 1]] and (ds.near, ds.far) == (1.0, 5.0)
+    z = read_exr(sphere_dataset / "train" / "r_1_depth.exr")["Z"]
+    np.testing.assert_allclose(tr.depth[1].numpy(), z)
+    png = np.asarray(Image.open(sphere_dataset / "train" / "r_1.png"))
+    rgb, alpha = tr.image(1, (1.0, 1.0, 1.0))
+    np.testing.assert_allclose(alpha.numpy(), png[..., 3] / 255.0)
+    transparent = png[..., 3] == 0
+    assert transparent.any() and (~transparent).any()
+    assert torch.all(rgb[torch.from_numpy(transparent)] == 1.0)  # composited onto white
+    np.testing.assert_allclose(rgb[torch.from_numpy(~transparent)].numpy(), png[~transparent][:, :3] / 255.0, atol=1e-6)
+    # Per-batch compositing onto a random background gives the same answer as the full image.
+    v, j, i = torch.tensor([1, 1]), torch.tensor([0, 10]), torch.tensor([0, 12])
+    bg = torch.tensor([[0.2, 0.3, 0.4], [0.9, 0.1, 0.5]])
+    px, a = tr.pixels(v, j, i, bg)
+    full, _ = tr.image(1, (0.2, 0.3, 0.4))
+    np.testing.assert_allclose(px[0].numpy(), full[0, 0].numpy(), atol=1e-6)
+
+
+def test_nerfstudio_layout_matches_synthetic(tmp_path, dataset_factory):
+    syn = load_dataset(dataset_factory(tmp_path / "a", layouts=("synthetic",)))
+    ns = load_dataset(dataset_factory(tmp_path / "b", layouts=("nerfstudio",)))
+    assert ns.layout == "nerfstudio"
+    for name in ("train", "val", "test"):
+        a, b = syn.splits[name], ns.splits[name]
+        assert len(a) == len(b)
+        np.testing.assert_allclose(a.cameras.c2w.numpy(), b.cameras.c2w.numpy())
+        for f in ("fx", "fy", "cx", "cy"):
+            np.testing.assert_allclose(getattr(a.cameras, f).numpy(), getattr(b.cameras, f).numpy(), rtol=1e-6)
+        assert torch.equal(a.images, b.images) and torch.equal(a.depth, b.depth)
+
+
+def test_nerfstudio_without_split_lists_holds_out_every_eighth(tmp_path, dataset_factory):
+    ds_path = dataset_factory(tmp_path / "ns", n_train=14, n_val=1, n_test=1, layouts=("nerfstudio",))
+    meta = json.loads((ds_path / "transforms.json").read_text())
+    for key in ("train_filenames", "val_filenames", "test_filenames"):
+        del meta[key]
+    # Per-frame intrinsics override the global ones.
+    meta["frames"][3]["fl_x"] = 99.0
+    (ds_path / "transforms.json").write_text(json.dumps(meta))
+    ds = load_dataset(ds_path)
+    names = sorted(f["file_path"] for f in meta["frames"])
+    held = {names[k] for k in range(0, 16, 8)}
+    assert {str(f.file_path) for f in ds.splits["test"].frames} == held
+    assert not held & {f.file_path for f in ds.splits["train"].frames}
+    assert len(ds.splits["train"]) == 14
+    assert any("every 8th" in n for n in ds.notes)
+    by_name = {f.file_path: k for k, f in enumerate(ds.splits["train"].frames)}
+    k = by_name.get(meta["frames"][3]["file_path"])
+    if k is not None:
+        assert float(ds.splits["train"].cameras.fx[k]) == pytest.approx(99.0)
+
+
+def test_exr_images_and_png_depth_in_millimetres(tmp_path, dataset_factory):
+    ds_path = dataset_factory(tmp_path / "exr", exr_images=True, layouts=("nerfstudio",))
+    ds = load_dataset(ds_path)
+    tr = ds.splits["train"]
+    assert tr.images.dtype == torch.float32 and tr.has_alpha
+    # Replace one depth by a 16-bit PNG in millimetres (nerfstudio's convention).
+    meta = json.loads((ds_path / "transforms.json").read_text())
+    fr = meta["frames"][0]
+    z = read_exr(ds_path / fr["depth_file_path"])["Z"]
+    Image.fromarray(np.round(z * 1000).astype(np.uint16)).save(ds_path / "d0.png")
+    fr["depth_file_path"] = "d0.png"
+    (ds_path / "transforms.json").write_text(json.dumps(meta))
+    ds2 = load_dataset(ds_path)
+    np.testing.assert_allclose(ds2.splits["train"].depth[0].numpy(), z, atol=6e-4)
+
+
+def test_masks_black_means_ignore(sphere_dataset):
+    meta = _meta(sphere_dataset)
+    mask = np.full((20, 24), 255, np.uint8)
+    mask[:, :5] = 0
+    Image.fromarray(mask).save(sphere_dataset / "mask0.png")
+    meta["frames"][0]["mask_path"] = "mask0.png"
+    _write_meta(sphere_dataset, meta)
+    tr = load_dataset(sphere_dataset).splits["train"]
+    assert tr.masks.dtype == torch.bool
+    assert not tr.masks[0, :, :5].any() and tr.masks[0, :, 5:].all() and tr.masks[1].all()
+
+
+def test_downscale_halves_images_and_intrinsics(sphere_dataset):
+    full = load_dataset(sphere_dataset).splits["train"]
+    half = load_dataset(sphere_dataset, downscale=2).splits["train"]
+    assert half.images.shape == (8, 10, 12, 4) and half.depth.shape == (8, 10, 12)
+    assert float(half.cameras.cx[0]) == pytest.approx(float(full.cameras.cx[0]) / 2)
+    assert float(half.cameras.fx[0]) == pytest.approx(float(full.cameras.fx[0]) / 2)
+
+
+def test_missing_aabb_is_estimated_with_a_note(tmp_path, dataset_factory):
+    ds = load_dataset(dataset_factory(tmp_path / "noaabb", aabb=False))
+    assert "no 'aabb'" in ds.aabb_source and ds.notes
+    lo, hi = ds.aabb
+    assert torch.all(lo < -0.6) and torch.all(hi > 0.6)  # the sphere (radius 0.6) is inside
+    assert torch.all(hi - lo < 6.0)  # and it does not swallow the cameras (radius 3)
+    cams, frames = load_cameras(tmp_path / "noaabb", "test")
+    assert len(frames) == 2 and int(cams.width[0]) == 24
+
+
+# ---------------------------------------------------------------- bad input
+
+
+def _expect(ds_path, *names, **kw):
+    with pytest.raises(DatasetError) as info:
+        load_dataset(ds_path, **kw)
+    msg = str(info.value)
+    for n in names:
+        assert n in msg, msg
+    return msg
+
+
+def test_missing_image_names_file_and_frame(sphere_dataset):
+    (sphere_dataset / "train" / "r_3.png").unlink()
+    _expect(sphere_dataset, "transforms_train.json", "frame 3", "r_3", "file_path")
+
+
+def test_unreadable_image_is_named(sphere_dataset):
+    (sphere_dataset / "test" / "r_1.png").write_bytes(b"\x89PNG garbage")
+    _expect(sphere_dataset, "transforms_test.json", "frame 1", "r_1.png", "cannot read")
+
+
+def test_images_of_different_sizes_in_one_split(sphere_dataset):
+    Image.new("RGBA", (12, 10)).save(sphere_dataset / "train" / "r_2.png")
+    _expect(sphere_dataset, "frame 2", "r_2.png", "12x10", "24x20")
+
+
+@pytest.mark.parametrize("bad, words", [
+    (float("nan"), ["NaN"]),
+    ("singular", ["singular"]),
+    ("scaled", ["scaled"]),
+])
+def test_bad_pose_is_named(sphere_dataset, bad, words):
+    meta = _meta(sphere_dataset)
+    m = np.array(meta["frames"][4]["transform_matrix"])
+    if bad == "singular":
+        m[:3, 1] = 0
+    elif bad == "scaled":
+        m[:3, :3] *= 1.5
+    else:
+        m[0, 0] = bad
+    meta["frames"][4]["transform_matrix"] = m.tolist()
+    (sphere_dataset / "transforms_train.json").write_text(json.dumps(meta).replace("NaN", "NaN"))
+    _expect(sphere_dataset, "transforms_train.json", "frame 4", "transform_matrix", *words)
+
+
+def test_image_without_alpha_among_rgba_is_named(sphere_dataset):
+    img = Image.open(sphere_dataset / "train" / "r_5.png").convert("RGB")
+    img.save(sphere_dataset / "train" / "r_5.png")
+    _expect(sphere_dataset, "frame 5", "r_5.png", "alpha")
+
+
+def test_random_background_needs_alpha(tmp_path, dataset_factory):
+    from nerf_core.train import TrainConfig, TrainError, train
+
+    ds = dataset_factory(tmp_path / "rgb")
+    for p in (ds / "train").glob("r_*.png"):
+        Image.open(p).convert("RGB").save(p)
+    with pytest.raises(TrainError, match="r_0.png.*alpha"):
+        train(TrainConfig(dataset=str(ds), out=str(tmp_path / "run"), method="test-grid", max_steps=2,
+                          background="random", stdout_events=False, show_bar=False))
+
+
+def test_empty_split_is_named(sphere_dataset):
+    meta = _meta(sphere_dataset, "val")
+    meta["frames"] = []
+    _write_meta(sphere_dataset, meta, "val")
+    _expect(sphere_dataset, "transforms_val.json", "empty")
+
+
+def test_single_view_dataset_is_refused(tmp_path, dataset_factory):
+    _expect(dataset_factory(tmp_path / "one", n_train=1), "train split has 1 view")
+
+
+def test_invalid_json_and_missing_folder(tmp_path, sphere_dataset):
+    (sphere_dataset / "transforms_test.json").write_text("{ not json")
+    _expect(sphere_dataset, "transforms_test.json", "line 1")
+    _expect(tmp_path / "nowhere", "nowhere", "not found")
+
+
+def test_declared_size_must_match_the_images(sphere_dataset):
+    meta = _meta(sphere_dataset)
+    meta["w"] = 48
+    _write_meta(sphere_dataset, meta)
+    _expect(sphere_dataset, "frame 0", "'w'/'h'", "48x20", "24x20")
