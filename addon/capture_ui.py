@@ -188,8 +188,8 @@ class NERF_OT_capture(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         s = context.scene.nerf_capture
-        if context.window is None:
-            # Scripts and tests (no window, no event loop): render everything now.
+        if context.window is None or bpy.app.background:
+            # Scripts and tests (no event loop to deliver timer events): render everything now.
             try:
                 while job.step():
                     pass
@@ -266,7 +266,7 @@ class NERF_OT_add_demo_scene(bpy.types.Operator):
     name: EnumProperty(name="Scene", items=[(k, k.title(), v) for k, v in demo_scenes.SCENES.items()])
 
     def execute(self, context):
-        if context.window is None:
+        if context.window is None or bpy.app.background:
             self.report({"ERROR"}, "Add Demo Scene needs a window; scripts call addon.demo_scenes.build()")
             return {"CANCELLED"}
         scene = bpy.data.scenes.new(f"NeRF demo: {self.name}")

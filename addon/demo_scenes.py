@@ -30,7 +30,8 @@ class DemoSceneError(ValueError):
 def _material(name, color, roughness=0.5, metallic=0.0, texture=None, scale=5.0, color2=(0.05, 0.05, 0.05)):
     """Principled material; ``texture`` in (None, 'checker', 'noise', 'wave') drives the base colour."""
     mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
+    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
+        mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
     bsdf.inputs["Base Color"].default_value = (*color, 1.0)
@@ -73,7 +74,8 @@ def _smooth(obj):
 
 def _lights_and_world(scene, strength=1.0):
     world = bpy.data.worlds.new("NeRF Demo World")
-    world.use_nodes = True
+    if world.node_tree is None:
+        world.use_nodes = True
     bg = world.node_tree.nodes.get("Background")
     bg.inputs["Color"].default_value = (0.35, 0.35, 0.38, 1.0)
     bg.inputs["Strength"].default_value = strength

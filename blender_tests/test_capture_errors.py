@@ -1,0 +1,220 @@
+"""Bad input gets a clear error and never loses data; resume and cancel leave consistent folders."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import bpy
+import pytest
+from mathutils import Matrix
+
+from addon import capture, export, layouts
+
+PY = sys.executable
+SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
+
+
+def scene_with_cameras(train=4, val=1, test=1):
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=train, val=val, test=test), 24, 16)
+    return bpy.context.scene
+
+
+def settings(out, **kw):
+    base = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
+    base.update(kw)
+    return capture.CaptureSettings(**base)
+
+
+def mtimes(folder):
+    return {os.path.join(d, f): os.stat(os.path.join(d, f)).st_mtime_ns
+            for d, _, files in os.walk(folder) for f in files if "nerf_capture" not in d}
+
+
+def manifest(out):
+    with open(os.path.join(out, "nerf_capture", "manifest.json")) as fh:
+        return json.load(fh)
+
+
+def test_no_visible_objects(tmp_path):
+    bpy.ops.object.light_add(type="SUN")
+    with pytest.raises(capture.CaptureError, match="no visible objects"):
+        capture.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
+    hidden = bpy.data.objects.new("Hidden", bpy.data.meshes.new("Hidden"))
+    bpy.context.scene.collection.objects.link(hidden)
+    hidden.hide_render = True
+    with pytest.raises(capture.CaptureError, match="no visible objects"):
+        capture.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
+    assert not (tmp_path / "ds").exists()
+
+
+def test_no_capture_cameras(tmp_path):
+    bpy.ops.mesh.primitive_cube_add()
+    with pytest.raises(capture.CaptureError, match="no train cameras.*generate a camera layout"):
+        capture.CaptureJob(bpy.context.scene, settings(tmp_path / "ds")).run()
+
+
+@pytest.mark.parametrize("kind", ["scale", "shear"])
+def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
+    scene = scene_with_cameras()
+    cam = layouts.capture_cameras(scene)["train"][1]
+    if kind == "scale":
+        cam.scale = (2.0, 2.0, 2.0)
+        pattern = "NeRF_train_001.*has scale"
+    else:
+        parent = bpy.data.objects.new("Squash", None)
+        scene.collection.objects.link(parent)
+        parent.scale = (1.0, 3.0, 1.0)
+        world = cam.matrix_world.copy()
+        cam.parent = parent
+        cam.matrix_world = world @ Matrix.Rotation(math.radians(30), 4, "Z")
+        bpy.context.view_layer.update()
+        pattern = "NeRF_train_001"
+    bpy.context.view_layer.update()
+    with pytest.raises(capture.CaptureError, match=pattern):
+        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    assert not (tmp_path / "ds").exists()
+
+
+def test_scaled_camera_normalised_on_request_and_recorded(tmp_path):
+    scene = scene_with_cameras(train=2, val=0, test=0)
+    cam = layouts.capture_cameras(scene)["train"][0]
+    cam.scale = (0.5, 0.5, 0.5)
+    bpy.context.view_layer.update()
+    capture.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
+    m = manifest(tmp_path / "ds")
+    assert m["frames"]["train/r_0"]["camera_scale_removed"] == [0.5, 0.5, 0.5]
+    with open(tmp_path / "ds" / "transforms_train.json") as fh:
+        c2w = json.load(fh)["frames"][0]["transform_matrix"]
+    assert sum(c2w[i][0] ** 2 for i in range(3)) == pytest.approx(1.0)
+
+
+def test_output_folder_not_writable(tmp_path):
+    scene = scene_with_cameras()
+    blocker = tmp_path / "a_file"
+    blocker.write_text("user data")
+    with pytest.raises(capture.CaptureError, match="not a folder"):
+        capture.CaptureJob(scene, settings(blocker)).run()
+    with pytest.raises(capture.CaptureError, match="not writable"):
+        capture.CaptureJob(scene, settings(blocker / "ds")).run()
+    assert blocker.read_text() == "user data"
+
+
+def test_foreign_folder_refused_then_overwrite_keeps_unrelated_files(tmp_path):
+    scene = scene_with_cameras()
+    out = tmp_path / "ds"
+    (out / "train").mkdir(parents=True)
+    (out / "train" / "holiday.png").write_bytes(b"precious")
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(capture.CaptureError, match="not empty and holds no capture.*notes.txt.*--overwrite"):
+        capture.CaptureJob(scene, settings(out)).run()
+    assert (out / "train" / "holiday.png").read_bytes() == b"precious"
+    assert not (out / "transforms_train.json").exists()
+    capture.CaptureJob(scene, settings(out, overwrite=True)).run()
+    assert (out / "notes.txt").read_text() == "mine"  # only the dataset's own paths are replaced
+    assert not (out / "train" / "holiday.png").exists() and (out / "train" / "r_0.png").exists()
+
+
+def test_different_capture_refused_unless_overwrite(tmp_path):
+    scene = scene_with_cameras()
+    out = tmp_path / "ds"
+    capture.CaptureJob(scene, settings(out)).run()
+    before = mtimes(out)
+    with pytest.raises(capture.CaptureError, match="different capture.*render settings changed.*--overwrite"):
+        capture.CaptureJob(scene, settings(out, res_x=32)).run()
+    layouts.capture_cameras(scene)["train"][0].location.x += 0.5
+    bpy.context.view_layer.update()
+    with pytest.raises(capture.CaptureError, match="cameras changed.*train/r_0"):
+        capture.CaptureJob(scene, settings(out)).run()
+    assert mtimes(out) == before
+    capture.CaptureJob(scene, settings(out, res_x=32, overwrite=True)).run()
+    assert manifest(out)["render"]["resolution"] == [32, 16]
+
+
+def test_resume_keeps_finished_frames(tmp_path):
+    scene = scene_with_cameras()
+    out = tmp_path / "ds"
+    first = capture.CaptureJob(scene, settings(out)).run()
+    assert first["rendered"] == 6
+    before = mtimes(out)
+    again = capture.CaptureJob(scene, settings(out)).run()
+    assert (again["rendered"], again["kept"]) == (0, 6)
+    pngs = {k: v for k, v in mtimes(out).items() if k.endswith(".png")}
+    assert pngs == {k: v for k, v in before.items() if k.endswith(".png")}
+    os.remove(out / "val" / "r_0.png")
+    third = capture.CaptureJob(scene, settings(out)).run()
+    assert (third["rendered"], third["kept"]) == (1, 5) and (out / "val" / "r_0.png").exists()
+
+
+def test_cancel_leaves_consistent_resumable_folder(tmp_path):
+    scene = scene_with_cameras()
+    user_camera = bpy.data.objects.new("Mine", bpy.data.cameras.new("Mine"))
+    scene.collection.objects.link(user_camera)
+    scene.camera = user_camera
+    scene.render.resolution_x, scene.render.engine = 1234, "CYCLES"
+    out = tmp_path / "ds"
+    job = capture.CaptureJob(scene, settings(out, depth=True))
+    job.prepare()
+    for _ in range(3):
+        assert job.step()
+    summary = job.cancel()
+    assert summary["status"] == "incomplete" and summary["pending"] == 3
+    assert scene.camera == user_camera and scene.render.resolution_x == 1234 and scene.render.engine == "CYCLES"
+    m = manifest(out)
+    assert m["status"] == "incomplete" and sum(f["done"] for f in m["frames"].values()) == 3
+    with open(out / "transforms_train.json") as fh:
+        done = json.load(fh)["frames"]
+    assert len(done) == 3
+    for fr in done:
+        assert (out / (fr["file_path"] + ".png")).is_file() and (out / fr["depth_file_path"]).is_file()
+    assert not [p for p in mtimes(out) if ".partial" in p]
+    resumed = capture.CaptureJob(scene, settings(out, depth=True)).run()
+    assert (resumed["kept"], resumed["rendered"], resumed["status"]) == (3, 3, "complete")
+    with open(out / "transforms.json") as fh:
+        assert len(json.load(fh)["frames"]) == 6
+
+
+def test_normals_with_workbench_and_bad_engine(tmp_path):
+    scene = scene_with_cameras()
+    with pytest.raises(capture.CaptureError, match="normals need the Cycles or EEVEE"):
+        capture.CaptureJob(scene, settings(tmp_path, normals=True))
+    with pytest.raises(capture.CaptureError, match="unknown render engine 'povray'"):
+        capture.CaptureJob(scene, settings(tmp_path, engine="povray"))
+
+
+def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
+    bpy.ops.mesh.primitive_monkey_add(location=(0.2, 0.1, 0.0))
+    cam = bpy.data.objects.new("LooksAway", bpy.data.cameras.new("LooksAway"))
+    bpy.context.scene.collection.objects.link(cam)
+    cam.matrix_world = Matrix(layouts.look_at((0, -5, 0), (0, -20, 0)))  # the scene is behind it
+    bpy.context.scene.camera = cam
+    blend = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    blend_bytes = blend.read_bytes()
+    out = tmp_path / "ds"
+    cmd = [PY, SCRIPT, "--blend", str(blend), "--out", str(out), "--count", "3", "--val-count", "1",
+           "--test-count", "1", "--resolution", "24x16", "--engine", "workbench", "--quiet"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["status"] == "complete" and summary["frames"] == 5
+    assert blend.read_bytes() == blend_bytes
+    from PIL import Image
+    import numpy as np
+    alpha = np.asarray(Image.open(out / "train" / "r_0.png"))[..., 3]
+    assert (alpha > 0).mean() > 0.05  # the generated cameras see the monkey
+    # the same command on a folder holding something else: refused, exit 2, one clear line
+    (out / "transforms_train.json").write_text("{}")  # pretend the user edited it, then ask for other settings
+    proc = subprocess.run(cmd + ["--resolution", "32"], capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 2 and "different capture" in proc.stderr and "Traceback" not in proc.stderr
+    assert (out / "transforms_train.json").read_text() == "{}"
+    empty = tmp_path / "empty.blend"
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(empty))
+    proc = subprocess.run([PY, SCRIPT, "--blend", str(empty), "--out", str(tmp_path / "ds2"), "--quiet"],
+                          capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 2 and "no visible objects" in proc.stderr and "Traceback" not in proc.stderr
+    assert export.read_manifest(str(tmp_path / "ds2")) is None

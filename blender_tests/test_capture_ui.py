@@ -1,0 +1,151 @@
+"""The add-on registers and unregisters cleanly; the Capture panel's settings and operators work headless."""
+from __future__ import annotations
+
+import json
+import os
+
+import bpy
+import pytest
+
+import addon
+from addon import capture_ui, layouts
+
+
+@pytest.fixture
+def registered():
+    # Only this module: the panel's tests should not depend on the other panels registering.
+    capture_ui.register()
+    yield
+    capture_ui.unregister()
+
+
+def test_capture_ui_register_unregister_twice():
+    for _ in range(2):
+        capture_ui.register()
+        assert hasattr(bpy.types.Scene, "nerf_capture") and hasattr(bpy.types, "NERF_PT_capture")
+        capture_ui.unregister()
+        assert not hasattr(bpy.types.Scene, "nerf_capture") and not hasattr(bpy.types, "NERF_PT_capture")
+
+
+def test_settings_are_saved_with_the_blend(registered, tmp_path):
+    s = bpy.context.scene.nerf_capture
+    s.train_count, s.resolution_x, s.engine = 42, 320, "workbench"
+    path = tmp_path / "settings.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    s = bpy.context.scene.nerf_capture
+    assert (s.train_count, s.resolution_x, s.engine) == (42, 320, "workbench")
+
+
+def test_layout_choice_sets_elevation_defaults(registered):
+    s = bpy.context.scene.nerf_capture
+    s.layout = "sphere"
+    assert (s.elevation_min, s.elevation_max) == (-90.0, 90.0)
+    s.layout = "hemisphere"
+    assert (s.elevation_min, s.elevation_max) == (0.0, 90.0)
+
+
+def test_generate_and_capture_operators(registered, tmp_path):
+    bpy.ops.mesh.primitive_cube_add()
+    s = bpy.context.scene.nerf_capture
+    s.train_count, s.val_count, s.test_count = 3, 1, 1
+    s.resolution_x, s.resolution_y, s.engine = 24, 16, "workbench"
+    s.output_dir = str(tmp_path / "ds")
+    assert bpy.ops.nerf.generate_cameras() == {"FINISHED"}
+    assert [len(v) for v in layouts.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
+    assert bpy.ops.nerf.capture() == {"FINISHED"}
+    with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
+        assert json.load(fh)["status"] == "complete"
+    assert os.path.isfile(tmp_path / "ds" / "test" / "r_0.png")
+    s.resolution_x = 30  # a different capture into the same folder must be confirmed
+    with pytest.raises(RuntimeError, match="different capture"):
+        bpy.ops.nerf.capture()
+    assert bpy.ops.nerf.capture(overwrite=True) == {"FINISHED"}
+    assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
+    assert not any(layouts.capture_cameras(bpy.context.scene).values())
+
+
+def test_operator_errors_are_reported_not_raised_deep(registered, tmp_path):
+    bpy.context.scene.nerf_capture.layout = "scene-cameras"
+    bpy.ops.mesh.primitive_cube_add()
+    with pytest.raises(RuntimeError, match="no camera of its own"):
+        bpy.ops.nerf.generate_cameras()
+    bpy.context.scene.nerf_capture.output_dir = str(tmp_path / "x")
+    with pytest.raises(RuntimeError, match="no camera of its own"):
+        bpy.ops.nerf.capture()  # generates the layout first, which fails the same way
+
+
+def _fake_modal_operator(job):
+    """The modal operator's methods bound to a stand-in instance (no event loop runs headless)."""
+    from types import SimpleNamespace
+
+    op = SimpleNamespace(_job=job, _timer=None, reports=[])
+    op.report = lambda kind, msg: op.reports.append((kind, msg))
+    op._stop = lambda ctx, cancelled: capture_ui.NERF_OT_capture._stop(op, ctx, cancelled)
+    op.modal = lambda ctx, event: capture_ui.NERF_OT_capture.modal(op, ctx, event)
+    ctx = SimpleNamespace(scene=bpy.context.scene, screen=None,
+                          window_manager=SimpleNamespace(event_timer_remove=lambda timer: None))
+    return op, ctx
+
+
+@pytest.mark.parametrize("how", ["esc", "button", "finish"])
+def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
+    from types import SimpleNamespace
+
+    from addon import capture
+
+    bpy.ops.mesh.primitive_cube_add()
+    s = bpy.context.scene.nerf_capture
+    s.train_count, s.val_count, s.test_count = 3, 1, 0
+    s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
+    bpy.ops.nerf.generate_cameras()
+    job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job.prepare()
+    op, ctx = _fake_modal_operator(job)
+    s.is_running = True
+    assert op.modal(ctx, SimpleNamespace(type="MOUSEMOVE")) == {"PASS_THROUGH"}
+    assert op.modal(ctx, SimpleNamespace(type="TIMER")) == {"RUNNING_MODAL"}
+    assert len(job.done_keys) == 1  # exactly one frame per tick
+    with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
+        assert json.load(fh)["status"] == "incomplete"
+    if how == "finish":
+        results = [op.modal(ctx, SimpleNamespace(type="TIMER")) for _ in range(3)]
+        assert results[-1] == {"FINISHED"} and s.status.startswith("done: 4 frames")
+        expected = "complete"
+    else:
+        if how == "button":
+            bpy.ops.nerf.capture_cancel()
+        assert op.modal(ctx, SimpleNamespace(type="ESC" if how == "esc" else "TIMER")) == {"CANCELLED"}
+        assert "resume" in s.status and op.reports[-1][0] == {"WARNING"}
+        expected = "incomplete"
+    assert not s.is_running and not s.cancel_requested
+    with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
+        assert json.load(fh)["status"] == expected
+    assert os.path.isfile(tmp_path / "ds" / "transforms_train.json")
+
+
+def test_cancel_button_sets_the_flag(registered):
+    assert bpy.ops.nerf.capture_cancel() == {"FINISHED"}
+    assert bpy.context.scene.nerf_capture.cancel_requested
+    assert capture_ui._ACTIVE["job"] is None
+
+
+def test_addon_register_unregister_twice():
+    """The whole add-on (every panel, not only Capture) registers and unregisters cleanly twice."""
+    try:
+        for _ in range(2):
+            addon.register()
+            assert hasattr(bpy.types.Scene, "nerf_capture")
+            assert hasattr(bpy.types, "NERF_PT_capture") and bpy.types.NERF_PT_capture.bl_category == "NeRF"
+            assert hasattr(bpy.ops.nerf, "capture") and hasattr(bpy.ops.nerf, "generate_cameras")
+            addon.unregister()
+            assert not hasattr(bpy.types.Scene, "nerf_capture")
+            assert not hasattr(bpy.types, "NERF_PT_capture")
+    finally:
+        # A failure above must not leave classes registered for the tests that follow.
+        for module in reversed(addon._MODULES):
+            try:
+                module.unregister()
+            except Exception:
+                pass
