@@ -377,6 +377,8 @@ class Trainer:
             model = build_model(self.method, aabb, **options)
         except TypeError as exc:
             raise TrainError(f"method {self.method!r} does not accept these options {sorted(options)}: {exc}") from exc
+        except ValueError as exc:  # unknown method or option values the method rejects
+            raise TrainError(str(exc)) from exc
         if ckpt is not None:
             load_state_resizing(model, ckpt["model"])
         self.model = model.to(self.device).train()
@@ -557,6 +559,7 @@ class Trainer:
         bar = self._make_bar()
         params_changed = False
         last_loss = last_psnr = None
+        first_step = self.step + 1  # always report the first step (also after --resume)
 
         while not cfg.finished(self.step, self.elapsed):
             t0 = time.perf_counter()
@@ -612,7 +615,7 @@ class Trainer:
                 self._snapshot()
                 params_changed = False
             done = cfg.finished(self.step, self.elapsed)
-            if self.step == 1 or self.step % cfg.log_every == 0 or done:
+            if self.step == first_step or self.step % cfg.log_every == 0 or done:
                 self._emit_step(last_loss, last_psnr, interval)
                 interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
             if not done and self._preview_due(last_preview_step, last_preview_elapsed):

@@ -28,8 +28,12 @@ class TinyGrid(RadianceModel):
 
     default_lr = 0.05
 
-    def __init__(self, aabb, res: int = 12, n_samples: int = 24, **options):
-        super().__init__(aabb, res=res, n_samples=n_samples, **options)
+    def __init__(self, aabb, res: int = 12, n_samples: int = 24, **extra):
+        # Like the real methods, reject unknown options (only subclasses' own options pass through).
+        unknown = set(extra) - set(getattr(self, "extra_options", ()))
+        if unknown:
+            raise ValueError(f"{self.method_name}: unknown options {sorted(unknown)}")
+        super().__init__(aabb, res=res, n_samples=n_samples, **extra)
         self.grid = torch.nn.Parameter(torch.zeros(1, 4, res, res, res))
         with torch.no_grad():
             self.grid[:, 1:] = 0.1 * torch.randn(1, 3, res, res, res)
@@ -61,6 +65,8 @@ class TinyGrid(RadianceModel):
 @register("test-nan")
 class NaNOnce(TinyGrid):
     """TinyGrid whose ``nan_at``-th training call returns NaN colours (to exercise rollback)."""
+
+    extra_options = ("nan_at", "nan_times")
 
     def __init__(self, aabb, nan_at: int = 5, nan_times: int = 1, **options):
         super().__init__(aabb, nan_at=nan_at, nan_times=nan_times, **options)

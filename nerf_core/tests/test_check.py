@@ -1,0 +1,125 @@
+"""``check``: a valid dataset passes; each convention violation is reported with its file/frame/field."""
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from nerf_core.check import check_dataset
+from nerf_core.cli import main
+
+
+def _edit(path, fn):
+    meta = json.loads(path.read_text())
+    fn(meta)
+    path.write_text(json.dumps(meta))
+
+
+def _errors(ds):
+    report = check_dataset(ds)
+    return report, [str(p) for p in report.errors]
+
+
+def _has(errors, *words):
+    return any(all(w in e for w in words) for e in errors)
+
+
+def test_valid_dataset_passes_and_exits_zero(sphere_dataset, capsys):
+    report, errors = _errors(sphere_dataset)
+    assert errors == []
+    # The shifted principal point is legal but camera_angle_x-only loaders ignore it: a warning.
+    assert any("cx/cy" in str(w) and "transforms_train.json" in str(w) for w in report.warnings)
+    assert main(["check", str(sphere_dataset)]) == 0
+    assert "valid" in capsys.readouterr().out
+
+
+def _scale(meta):
+    m = np.array(meta["frames"][2]["transform_matrix"])
+    m[:3, :3] *= 2.0
+    meta["frames"][2]["transform_matrix"] = m.tolist()
+
+
+def _ext(meta):
+    meta["frames"][1]["file_path"] = "./train/r_1.png"
+
+
+def _shift_out(meta):
+    meta["cx"] = 500.0
+
+
+def _angle(meta):
+    meta["camera_angle_x"] = 0.5
+
+
+CASES = {
+    "missing camera_angle_x": ("transforms_train.json", lambda m: m.pop("camera_angle_x"), ["transforms_train.json", "camera_angle_x", "missing"]),
+    "missing fl_x": ("transforms_test.json", lambda m: m.pop("fl_x"), ["transforms_test.json", "'fl_x'", "missing"]),
+    "missing h": ("transforms.json", lambda m: m.pop("h"), ["transforms.json", "'h'"]),
+    "scaled matrix": ("transforms_train.json", _scale, ["transforms_train.json", "frame 2", "transform_matrix", "scaled"]),
+    "extension in file_path": ("transforms_train.json", _ext, ["transforms_train.json", "frame 1", "file_path", "extension"]),
+    "cx outside": ("transforms_val.json", _shift_out, ["transforms_val.json", "'cx'", "outside"]),
+    "inconsistent angle": ("transforms_train.json", _angle, ["transforms_train.json", "camera_angle_x", "fl_x"]),
+    "aabb_scale": ("transforms.json", lambda m: m.update(aabb_scale=3), ["transforms.json", "aabb_scale", "power of two"]),
+    "aabb_scale too big": ("transforms_train.json", lambda m: m.update(aabb_scale=256), ["aabb_scale"]),
+    "nerfstudio name without extension": ("transforms.json", lambda m: m["frames"][0].update(file_path="train/r_0"),
+                                          ["transforms.json", "frame 0", "file_path", "extension"]),
+    "split list names unknown file": ("transforms.json", lambda m: m["test_filenames"].append("test/zzz.png"),
+                                      ["transforms.json", "test_filenames", "zzz.png"]),
+    "missing depth file": ("transforms_test.json", lambda m: m["frames"][1].update(depth_file_path="nope.exr"),
+                           ["transforms_test.json", "frame 1", "depth_file_path", "nope.exr"]),
+    "bad aabb": ("transforms_train.json", lambda m: m.update(aabb=[[0, 0, 0], [0, 0, 0]]), ["transforms_train.json", "aabb"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_each_violation_is_named(sphere_dataset, case, capsys):
+    fname, fn, words = CASES[case]
+    _edit(sphere_dataset / fname, fn)
+    report, errors = _errors(sphere_dataset)
+    assert _has(errors, *words), errors
+    assert main(["check", str(sphere_dataset)]) == 1
+    assert "INVALID" in capsys.readouterr().out
+
+
+def test_image_problems_are_named(sphere_dataset):
+    Image.open(sphere_dataset / "train" / "r_3.png").convert("RGB").save(sphere_dataset / "train" / "r_3.png")
+    Image.new("RGBA", (10, 10)).save(sphere_dataset / "train" / "r_4.png")
+    (sphere_dataset / "test" / "r_0.png").unlink()
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "transforms_train.json", "frame 3", "r_3.png", "RGBA")
+    assert _has(errors, "transforms_train.json", "frame 4", "10x10", "24x20")
+    assert _has(errors, "transforms_test.json", "frame 0", "does not exist")
+    assert _has(errors, "transforms.json", "test/r_0.png", "does not exist")
+
+
+def test_held_out_cameras_must_not_be_training_cameras(sphere_dataset):
+    train = json.loads((sphere_dataset / "transforms_train.json").read_text())
+    _edit(sphere_dataset / "transforms_test.json",
+          lambda m: m["frames"][1].update(transform_matrix=train["frames"][5]["transform_matrix"]))
+    _edit(sphere_dataset / "transforms_val.json", lambda m: m["frames"][0].update(file_path="./train/r_2"))
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "transforms_test.json", "frame 1", "train frame 5", "transform_matrix")
+    assert _has(errors, "transforms_val.json", "frame 0", "train frame 2")
+
+
+def test_stray_json_and_missing_files(sphere_dataset):
+    (sphere_dataset / "manifest.json").write_text("{}")
+    (sphere_dataset / "transforms_val.json").unlink()
+    (sphere_dataset / "transforms.json").unlink()
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "manifest.json", "instant-ngp")
+    assert _has(errors, "transforms_val.json", "missing")
+    assert _has(errors, "transforms.json", "missing", "nerfstudio")
+
+
+def test_intrinsics_must_agree_between_layouts(sphere_dataset):
+    _edit(sphere_dataset / "transforms.json", lambda m: m.update(cy=m["cy"] + 2))
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "transforms.json", "frame 0", "cy", "differs")
+
+
+def test_invalid_json_and_json_report(sphere_dataset, capsys):
+    (sphere_dataset / "transforms_test.json").write_text("{oops")
+    assert main(["check", str(sphere_dataset), "--json"]) == 1
+    rep = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert not rep["ok"] and any("transforms_test.json" in e and "invalid JSON" in e for e in rep["errors"])

@@ -1,0 +1,148 @@
+"""Trainer: run folder and events, resume, refusal to overwrite, NaN rollback, determinism, budgets."""
+import json
+import math
+
+import pytest
+import torch
+
+from nerf_core.progress import read_events
+from nerf_core.train import TrainConfig, TrainError, train
+
+
+def _cfg(ds, run, **kw):
+    base = dict(dataset=str(ds), out=str(run), method="test-grid", max_steps=20, batch_rays=128, seed=0,
+                stdout_events=False, show_bar=False, log_every=5, eval_views=1)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _steps(run):
+    return [e for e in read_events(run / "progress.jsonl") if e["event"] == "step"]
+
+
+def test_short_run_writes_the_run_folder_and_events(trained_run):
+    run = trained_run["run"]
+    assert (run / "config.json").is_file() and (run / "metrics.json").is_file()
+    assert (run / "checkpoints" / "latest.pt").is_file() and (run / "checkpoints" / "step_0000030.pt").is_file()
+    assert list((run / "previews").glob("step_*.png"))
+    events = read_events(run / "progress.jsonl")
+    kinds = [e["event"] for e in events]
+    assert kinds[0] == "start" and kinds[-1] == "done"
+    assert {"step", "preview", "checkpoint", "eval"} <= set(kinds)
+    start = events[0]
+    for key in ("run", "method", "max_steps", "max_seconds", "device", "n_params"):
+        assert key in start
+    assert start["method"] == "test-grid" and start["n_params"] == 4 * 12 ** 3
+    step = [e for e in events if e["event"] == "step"][-1]
+    for key in ("step", "loss", "psnr", "lr", "elapsed", "eta", "samples_per_s"):
+        assert key in step, key
+    assert step["step"] == 30 and step["eta"] == 0.0
+    first = [e for e in events if e["event"] == "step"][0]
+    assert step["loss"] < first["loss"]  # it learns
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["method"] == "test-grid" and cfg["seed"] == 0 and cfg["background_used"] == "random"
+    assert cfg["versions"]["torch"] == torch.__version__
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["split"] == "test" and metrics["n_views"] == 2 and 0 < metrics["ssim"] <= 1
+    assert "depth_mae" in metrics
+    done = events[-1]
+    assert done["checkpoint"].endswith("latest.pt") and done["metrics"]["psnr"] == pytest.approx(metrics["psnr"])
+
+
+def test_existing_run_is_refused_and_overwrite_removes_only_trainer_files(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "notes.txt").write_text("mine")
+    with pytest.raises(TrainError, match="not empty.*--resume.*--overwrite"):
+        train(_cfg(sphere_dataset, run))
+    assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]
+    train(_cfg(sphere_dataset, run, max_steps=3, overwrite=True))
+    first_ckpt = torch.load(run / "checkpoints" / "latest.pt", weights_only=False)
+    (run / "previews" / "my_drawing.png").write_bytes(b"x")
+    train(_cfg(sphere_dataset, run, max_steps=2, overwrite=True))
+    assert (run / "notes.txt").read_text() == "mine" and (run / "previews" / "my_drawing.png").exists()
+    assert not (run / "checkpoints" / "step_0000003.pt").exists()  # the old run's files are gone
+    assert torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["step"] == 2 != first_ckpt["step"]
+    starts = [e for e in read_events(run / "progress.jsonl") if e["event"] == "start"]
+    assert len(starts) == 1  # the progress log was restarted, not appended to
+
+
+def test_resume_continues_from_the_checkpoint(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=10))
+    out = train(_cfg(sphere_dataset, run, max_steps=25, resume=True))
+    assert out["step"] == 25
+    events = read_events(run / "progress.jsonl")
+    starts = [e for e in events if e["event"] == "start"]
+    assert starts[-1]["resumed_from"] == 10 and starts[-1]["max_steps"] == 25
+    steps_after = [e["step"] for e in events[events.index(starts[-1]):] if e["event"] == "step"]
+    assert steps_after[0] == 11 and steps_after[-1] == 25
+    ck = torch.load(run / "checkpoints" / "latest.pt", weights_only=False)
+    assert ck["step"] == 25 and ck["elapsed"] > 0 and "batches" in ck["rng"]
+    with pytest.raises(TrainError, match="latest.pt.*nothing to resume"):
+        train(_cfg(sphere_dataset, tmp_path / "fresh", resume=True))
+    with pytest.raises(TrainError, match="method 'test-grid'"):
+        train(_cfg(sphere_dataset, run, method="test-nan", resume=True, max_steps=30))
+
+
+def test_same_seed_gives_identical_losses(sphere_dataset, tmp_path):
+    a = train(_cfg(sphere_dataset, tmp_path / "a", max_steps=12, log_every=1, eval_views=0))
+    b = train(_cfg(sphere_dataset, tmp_path / "b", max_steps=12, log_every=1, eval_views=0))
+    c = train(_cfg(sphere_dataset, tmp_path / "c", max_steps=12, log_every=1, eval_views=0, seed=1))
+    la = [e["loss"] for e in _steps(tmp_path / "a")]
+    lb = [e["loss"] for e in _steps(tmp_path / "b")]
+    lc = [e["loss"] for e in _steps(tmp_path / "c")]
+    assert len(la) == 12 and la == lb and la != lc
+
+
+def test_nan_loss_rolls_back_lowers_lr_and_continues(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    out = train(_cfg(sphere_dataset, run, method="test-nan", options={"nan_at": 150}, max_steps=160,
+                     log_every=10, eval_views=0))
+    events = read_events(run / "progress.jsonl")
+    rb = [e for e in events if e["event"] == "rollback"]
+    assert len(rb) == 1 and "nan" in rb[0]["reason"].lower()
+    assert rb[0]["step"] == 149 and rb[0]["restored_step"] == 100  # last snapshot
+    base_lr = 0.05
+    assert rb[0]["lr"] == pytest.approx(base_lr * 0.5)
+    assert out["step"] == 160 and out["rollbacks"] == 1 and math.isfinite(out["loss"])
+    steps = [e for e in events if e["event"] == "step"]
+    assert all(math.isfinite(e["loss"]) for e in steps)
+    assert events[-1]["event"] == "done"
+
+
+def test_repeated_nan_gives_up_with_an_error_event(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    with pytest.raises(TrainError, match="diverged"):
+        train(_cfg(sphere_dataset, run, method="test-nan", options={"nan_at": 3, "nan_times": 1000},
+                   max_steps=50, max_rollbacks=2))
+    events = read_events(run / "progress.jsonl")
+    assert [e["event"] for e in events].count("rollback") == 2
+    assert events[-1]["event"] == "error" and "diverged" in events[-1]["message"]
+
+
+def test_time_budget_stops_training(sphere_dataset, tmp_path):
+    out = train(_cfg(sphere_dataset, tmp_path / "run", max_steps=None, max_seconds=0.5, eval_views=0))
+    assert out["elapsed"] >= 0.5 and out["elapsed"] < 5.0 and out["step"] > 0
+
+
+def test_progress_file_and_bad_options(sphere_dataset, tmp_path):
+    extra = tmp_path / "events.jsonl"
+    train(_cfg(sphere_dataset, tmp_path / "run", max_steps=3, progress=str(extra)))
+    kinds = [e["event"] for e in read_events(extra)]
+    assert kinds[0] == "start" and kinds[-1] == "done"
+    with pytest.raises(TrainError, match="res_typo"):
+        train(_cfg(sphere_dataset, tmp_path / "run2", options={"res_typo": 3}))
+    with pytest.raises(TrainError, match="contradict"):
+        train(_cfg(sphere_dataset, tmp_path / "run3", resume=True, overwrite=True))
+
+
+def test_default_method_trains_end_to_end(tmp_path, dataset_factory):
+    """The library's real default method runs a few steps through this trainer and evaluates."""
+    from nerf_core.methods import catalog
+
+    ds = dataset_factory(tmp_path / "ds", n_train=4, n_test=1, w=16, h=12)
+    out = train(_cfg(ds, tmp_path / "run", method=None, max_steps=3, batch_rays=256))
+    cfg = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert cfg["method"] == getattr(catalog, "DEFAULT_METHOD", cfg["method"])
+    assert out["step"] == 3 and math.isfinite(out["metrics"]["psnr"])
