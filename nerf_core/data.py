@@ -564,6 +564,9 @@ def load_dataset(
     if int(downscale) != downscale or downscale < 1:
         raise DatasetError(f"downscale must be a positive integer, got {downscale!r}")
     downscale = int(downscale)
+    unknown = [s for s in splits if s not in SPLITS]
+    if unknown:
+        raise DatasetError(f"unknown split {unknown[0]!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, scene = frame_infos(path, SPLITS)
     notes = []
     if "split_note" in scene:
@@ -614,6 +617,8 @@ def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[F
     JSON, or from the image headers when ``w``/``h`` are absent)."""
     from .imageio import png_info
 
+    if split not in SPLITS:
+        raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, _ = frame_infos(path, SPLITS)
     frames = infos.get(split) or []
     if not frames:

@@ -1,0 +1,104 @@
+"""Metrics against hand-computed values, and ``eval`` printing one JSON object last."""
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from nerf_core.cli import main
+from nerf_core.evaluate import depth_mae, gaussian_window, psnr, ssim
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def test_psnr_hand_value():
+    a = torch.zeros(4, 4, 3)
+    b = torch.full((4, 4, 3), 0.1)  # mse 0.01 -> 20 dB
+    assert psnr(a, b) == pytest.approx(20.0)
+    mask = torch.zeros(4, 4, dtype=torch.bool)
+    mask[0, 0] = True
+    b[1:, :] = 0.5
+    assert psnr(a, b, mask) == pytest.approx(20.0)
+    assert psnr(a, a) == math.inf
+
+
+def test_ssim_of_constant_images_matches_the_formula():
+    # Constant images have zero variance, so SSIM = (2ab + C1) / (a^2 + b^2 + C1) with C1 = 0.01^2.
+    a, b = 0.3, 0.6
+    expected = (2 * a * b + 1e-4) / (a * a + b * b + 1e-4)
+    got = ssim(torch.full((16, 20, 3), a), torch.full((16, 20, 3), b))
+    assert got == pytest.approx(expected, abs=1e-6)
+    assert ssim(torch.full((11, 11, 3), a), torch.full((11, 11, 3), a)) == pytest.approx(1.0)
+
+
+def _ssim_reference(x, y):
+    """Direct per-window evaluation of Wang et al.'s SSIM with an 11x11 Gaussian (sigma 1.5) window."""
+    g = gaussian_window().numpy()
+    w2 = np.outer(g, g)
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    vals = []
+    for c in range(x.shape[2]):
+        for r in range(x.shape[0] - 10):
+            for q in range(x.shape[1] - 10):
+                px, py = x[r:r + 11, q:q + 11, c], y[r:r + 11, q:q + 11, c]
+                mx, my = (w2 * px).sum(), (w2 * py).sum()
+                vx = (w2 * (px - mx) ** 2).sum()
+                vy = (w2 * (py - my) ** 2).sum()
+                cov = (w2 * (px - mx) * (py - my)).sum()
+                vals.append((2 * mx * my + c1) * (2 * cov + c2) / ((mx * mx + my * my + c1) * (vx + vy + c2)))
+    return float(np.mean(vals))
+
+
+def test_ssim_matches_direct_window_computation():
+    rng = np.random.default_rng(0)
+    x = rng.random((15, 17, 3))
+    y = np.clip(x + 0.1 * rng.standard_normal(x.shape), 0, 1)
+    assert gaussian_window()[5] == gaussian_window().max() and float(gaussian_window().sum()) == pytest.approx(1.0)
+    got = ssim(torch.tensor(x, dtype=torch.float32), torch.tensor(y, dtype=torch.float32))
+    assert got == pytest.approx(_ssim_reference(x, y), abs=1e-5)
+    assert 0.3 < got < 0.99
+    with pytest.raises(ValueError, match="11x11"):
+        ssim(torch.zeros(5, 5, 3), torch.zeros(5, 5, 3))
+
+
+def test_depth_mae_uses_pixels_with_depth_and_alpha():
+    gt = torch.tensor([[2.0, 0.0], [3.0, 4.0]])
+    pred = torch.tensor([[2.5, 9.0], [2.0, 9.0]])
+    alpha = torch.tensor([[1.0, 1.0], [1.0, 0.0]])
+    assert depth_mae(pred, gt, alpha) == pytest.approx((0.5 + 1.0) / 2)  # (0,1) no depth, (1,1) transparent
+    assert depth_mae(pred, torch.zeros(2, 2)) is None
+
+
+def test_eval_prints_per_view_lines_and_json_last(trained_run, capsys):
+    run = trained_run["run"]
+    assert main(["eval", str(run), "--split", "test", "--no-bar"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("view   0 r_0: psnr")
+    last = json.loads(lines[-1])
+    assert last["split"] == "test" and last["n_views"] == 2 and last["step"] == 30
+    assert math.isfinite(last["psnr"]) and 0 < last["ssim"] <= 1 and last["depth_mae"] >= 0
+    # The same numbers as training's final evaluation (same checkpoint, same views).
+    assert last["psnr"] == pytest.approx(trained_run["summary"]["metrics"]["psnr"], abs=1e-4)
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["splits"]["test"]["n_views"] == 2
+
+
+def test_eval_as_a_subprocess_with_a_plugin_method(trained_run):
+    env = dict(os.environ, PYTHONPATH=REPO_ROOT, NERF_CORE_PLUGINS="nerf_core.tests.conftest")
+    proc = subprocess.run([sys.executable, "-m", "nerf_core", "eval", str(trained_run["run"]), "--split", "val",
+                           "--no-bar"], capture_output=True, text=True, cwd=REPO_ROOT, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    last = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert last["split"] == "val" and last["n_views"] == 1
+
+
+def test_eval_errors_are_one_line(tmp_path, trained_run, capsys):
+    assert main(["eval", str(tmp_path / "nothing")]) == 2
+    err = capsys.readouterr().err
+    assert "nothing" in err and "not found" in err and "Traceback" not in err
+    assert main(["eval", str(trained_run["run"]), "--split", "bogus"]) == 2
+    assert "bogus" in capsys.readouterr().err

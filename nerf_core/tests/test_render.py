@@ -1,0 +1,91 @@
+"""``render``: RGBA PNG + planar-depth EXR per camera with the right sizes, renders.json, no overwrite."""
+import json
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from nerf_core.cameras import Cameras
+from nerf_core.cli import main
+from nerf_core.imageio import read_exr
+from nerf_core.render import cameras_from_file, render_view
+
+
+def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, capsys):
+    ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "renders"
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]) == 0
+    meta = json.loads((out / "renders.json").read_text())
+    assert [f["file_path"] for f in meta["frames"]] == ["r_0.png", "r_1.png"]
+    test_meta = json.loads((ds / "transforms_test.json").read_text())
+    for f, src in zip(meta["frames"], test_meta["frames"]):
+        img = Image.open(out / f["file_path"])
+        assert img.mode == "RGBA" and img.size == (24, 20)
+        z = read_exr(out / f["depth_file_path"])["Z"]
+        assert z.shape == (20, 24) and z.dtype == np.float32
+        np.testing.assert_allclose(f["transform_matrix"], src["transform_matrix"], atol=1e-6)
+        assert (f["w"], f["h"]) == (24, 20) and f["cx"] == pytest.approx(test_meta["cx"])
+    assert meta["step"] == 30 and meta["method"] == "test-grid"
+    # A second render into the same folder is refused, naming the files, and changes nothing.
+    before = (out / "r_0.png").stat().st_mtime_ns
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]) == 2
+    err = capsys.readouterr().err
+    assert "r_0.png" in err and "--overwrite" in err
+    assert (out / "r_0.png").stat().st_mtime_ns == before
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out),
+                 "--overwrite", "--downscale", "2", "--no-bar"]) == 0
+    assert Image.open(out / "r_0.png").size == (12, 10)
+
+
+def test_render_png_alpha_and_depth_agree_with_the_model(trained_run, tmp_path):
+    from nerf_core.render import load_run
+
+    run, ds = trained_run["run"], trained_run["dataset"]
+    model, cfg, _ = load_run(run, torch.device("cpu"))
+    cams, stems = cameras_from_file(ds, "test")
+    res = render_view(model, cams, 0, background=(0.0, 0.0, 0.0), near=cfg["near"], far=cfg["far"])
+    out = tmp_path / "r"
+    assert main(["render", str(run), "--cameras", str(ds), "--split", "test", "--out", str(out), "--no-bar"]) == 0
+    png = np.asarray(Image.open(out / "r_0.png")).astype(np.float32) / 255
+    np.testing.assert_allclose(png[..., 3], res["acc"].numpy(), atol=1 / 255 + 1e-6)
+    z = read_exr(out / "r_0_depth.exr")["Z"]
+    np.testing.assert_allclose(z, res["z_depth"].numpy(), atol=1e-5)
+    # Planar depth = ray distance x cos(angle to the optical axis) where something was hit.
+    hit = res["acc"] >= 0.5
+    if hit.any():
+        assert np.all(z[hit.numpy()] <= res["depth"][hit].numpy() + 1e-5)
+
+
+def test_render_from_a_json_list_of_cameras(trained_run, tmp_path):
+    ds = trained_run["dataset"]
+    train_meta = json.loads((ds / "transforms_train.json").read_text())
+    cams = [{"transform_matrix": f["transform_matrix"], "fl_x": 20.0, "cx": 8.0, "cy": 6.0, "w": 16, "h": 12,
+             "name": f"cam{k}"} for k, f in enumerate(train_meta["frames"][:2])]
+    cams.append(train_meta["frames"][3]["transform_matrix"])  # a bare matrix uses the top-level intrinsics
+    path = tmp_path / "cams.json"
+    path.write_text(json.dumps({"camera_angle_x": 0.8, "w": 10, "h": 8, "cameras": cams}))
+    out = tmp_path / "r"
+    assert main(["render", str(trained_run["run"]), "--cameras", str(path), "--out", str(out), "--no-bar"]) == 0
+    assert Image.open(out / "cam1.png").size == (16, 12)
+    assert Image.open(out / "view_002.png").size == (10, 8)
+    assert read_exr(out / "view_002_depth.exr")["Z"].shape == (8, 10)
+
+
+def test_bad_camera_files_are_named(trained_run, tmp_path, capsys):
+    path = tmp_path / "cams.json"
+    path.write_text(json.dumps([{"transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "fl_x": 10}]))
+    assert main(["render", str(trained_run["run"]), "--cameras", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "cams.json" in err and "camera 0" in err and "'w'" in err and "Traceback" not in err
+
+
+def test_render_view_chunks_give_the_same_image(trained_run):
+    from nerf_core.render import load_run
+
+    model, cfg, _ = load_run(trained_run["run"], torch.device("cpu"))
+    cams = Cameras.create(np.eye(4)[None] @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1.0]]),
+                          15.0, 15.0, 7.0, 5.0, 14, 10)
+    a = render_view(model, cams, 0, chunk=37)
+    b = render_view(model, cams, 0, chunk=100000)
+    assert a["rgb"].shape == (10, 14, 3)
+    torch.testing.assert_close(a["rgb"], b["rgb"])
