@@ -51,6 +51,9 @@ class RunInfo:
             parts.append(f"PSNR {psnr:.2f} dB")
         if ssim is not None:
             parts.append(f"SSIM {ssim:.3f}")
+        split = m.get("split")
+        if parts and isinstance(split, str):
+            parts[-1] += f" ({split})"
         return ", ".join(parts) or "finished"
 
 
@@ -142,10 +145,11 @@ def run_dataset(run: str) -> Optional[str]:
 
 
 def run_background(run: str) -> tuple:
-    """The background colour the run composites onto (config ``background``), white by default."""
+    """The background the run's renders are evaluated on (config ``eval_background``, else
+    ``background``), white by default: ground truth is composited onto the same colour."""
     try:
         cfg = _read_json(os.path.join(run, "config.json"))
-        bg = cfg.get("background") if isinstance(cfg, dict) else None
+        bg = (cfg.get("eval_background") or cfg.get("background")) if isinstance(cfg, dict) else None
     except (OSError, ValueError):
         bg = None
     if isinstance(bg, (list, tuple)) and len(bg) >= 3 and all(isinstance(v, (int, float)) for v in bg[:3]):

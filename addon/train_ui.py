@@ -13,6 +13,7 @@ import os
 from typing import Dict, List, Optional
 
 import bpy
+import bpy.utils.previews
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
@@ -314,10 +315,6 @@ def sync_train_settings(job: TrainJob) -> None:
 
 def _load_preview(path: str) -> None:
     global _PREVIEWS
-    try:
-        import bpy.utils.previews
-    except ImportError:  # pragma: no cover - always present in Blender
-        return
     if _PREVIEWS is None:
         _PREVIEWS = bpy.utils.previews.new()
     _PREVIEWS.clear()  # only the latest preview is shown; dropping old ones bounds memory
@@ -726,8 +723,6 @@ def unregister():
     if _cancel_on_load in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.remove(_cancel_on_load)
     if _PREVIEWS is not None:
-        import bpy.utils.previews
-
         bpy.utils.previews.remove(_PREVIEWS)
         _PREVIEWS = None
     del bpy.types.Scene.nerf_train

@@ -1,0 +1,122 @@
+"""The whole loop on a tiny scene, through the real nerf_core CLI: capture (addon.capture) -> train in
+a background job (check, train, resume) -> render the test cameras -> camera-aligned planes that
+sit exactly where the cameras look -> a gallery .blend from scripts/import_views.py."""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import bpy
+import pytest
+from bpy_extras.object_utils import world_to_camera_view
+
+from addon import capture, layouts, planes, runs, train_ui
+
+RES = 32
+
+
+def drive(job, timeout=240.0):
+    """What the modal timer does, in a loop: update the job until it leaves 'running'."""
+    deadline = time.monotonic() + timeout
+    while job.update() == "running":
+        if isinstance(job, train_ui.TrainJob):
+            train_ui.sync_train_settings(job)
+        assert time.monotonic() < deadline, f"{job.kind} did not finish in {timeout} s:\n{job.process.log_tail()}"
+        time.sleep(0.1)
+    if isinstance(job, train_ui.TrainJob):
+        train_ui.sync_train_settings(job)
+    assert job.state == "done", job.message
+    return job
+
+
+@pytest.fixture
+def registered():
+    train_ui.register()
+    yield
+    train_ui.unregister()
+
+
+def tiny_capture(root: str):
+    scene = bpy.context.scene
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    mat = bpy.data.materials.new("red")
+    mat.diffuse_color = (0.8, 0.2, 0.1, 1.0)
+    bpy.context.object.data.materials.append(mat)
+    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
+    settings = capture.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
+    summary = capture.CaptureJob(scene, settings).run()
+    assert summary["status"] == "complete"
+    return settings.out_dir
+
+
+def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root):
+    root = str(tmp_path)
+    dataset = tiny_capture(root)
+    scene = bpy.context.scene
+    s = scene.nerf_train
+    s.dataset_dir, s.run_dir = dataset, os.path.join(root, "run")
+    s.max_seconds, s.max_steps = 0.0, 6
+
+    job = drive(train_ui.start_training(bpy.context))
+    assert s.step == 6 and not s.running and s.error == ""
+    assert s.psnr > 0 and os.path.isfile(s.preview_path) and s.preview_path.startswith(s.run_dir)
+    assert job.process.progress.done and job.process.progress.method
+
+    s.max_steps = 9  # Resume continues from checkpoints/latest.pt up to the new budget
+    job = drive(train_ui.start_training(bpy.context, resume=True))
+    assert s.step == 9 and job.process.progress.step == 9
+    events = [json.loads(x) for x in open(os.path.join(s.run_dir, "progress.jsonl")) if x.startswith("{")]
+    steps = [e["step"] for e in events if e["event"] == "step"]
+    assert steps == sorted(steps) and steps[-1] == 9  # a restart from scratch would count from 1 again
+    listed = runs.list_runs(root)
+    assert [r.name for r in listed] == ["run"] and listed[0].method == job.process.progress.method
+    assert "PSNR" in listed[0].metrics_summary() and listed[0].has_checkpoint
+    train_ui.refresh_runs(s)
+    assert [r.name for r in s.runs] == ["run"] and "PSNR" in s.runs[0].metrics
+
+    # Novel views of the test cameras, camera-aligned.
+    s.view_source, s.layout = "TEST", "CAMERA"
+    job = drive(train_ui.start_render(bpy.context))
+    views = job.views
+    assert [v.name for v in views] == ["r_0", "r_1"]
+    test_cams = layouts.capture_cameras(scene)["test"]
+    scene.render.resolution_x = scene.render.resolution_y = RES  # the capture's resolution
+    scene.render.resolution_percentage = 100
+    coll = bpy.data.collections[planes.VIEWS_COLLECTION]
+    assert len(coll.objects) == 2 and len(s.view_metrics) == 2
+    for view, cam in zip(views, test_cams):
+        ob = bpy.data.objects[f"NeRF {view.name}"]
+        assert planes.plane_image_path(ob) == os.path.join(job.out, f"{view.name}.png")
+        uv = ob.data.uv_layers.active.data
+        for loop in ob.data.loops:
+            ndc = world_to_camera_view(scene, cam, ob.matrix_world @ ob.data.vertices[loop.vertex_index].co)
+            want = uv[loop.index].uv
+            assert (ndc.x, ndc.y) == pytest.approx((want.x, want.y), abs=0.5 / RES / 10), (view.name, cam.name)
+            assert ndc.z > 0  # in front of the camera
+
+    # The gallery, headless, into a new .blend; the scene file is never touched.
+    scene_blend = os.path.join(root, "scene.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=scene_blend, copy=True)
+    digest = hashlib.sha256(open(scene_blend, "rb").read()).hexdigest()
+    out = os.path.join(root, "compare.blend")
+    cmd = [sys.executable, os.path.join(repo_root, "scripts", "import_views.py"), "--blend", scene_blend,
+           "--run", s.run_dir, "--out", out, "--layout", "gallery"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["n_views"] == 2 and math.isfinite(summary["psnr"]) and 0 < summary["ssim"] <= 1
+    assert "render views" in proc.stderr  # the progress bar
+    assert os.path.isfile(out) and hashlib.sha256(open(scene_blend, "rb").read()).hexdigest() == digest
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 2 and "already exists" in again.stderr and "--overwrite" in again.stderr
+
+    bpy.ops.wm.open_mainfile(filepath=out)
+    gallery = bpy.data.collections[planes.GALLERY_COLLECTION]
+    names = {o.name for o in gallery.objects}
+    assert {"Gallery NeRF r_0", "Gallery Blender r_0", "Gallery Error r_0", "Label r_1"} <= names
+    assert f"PSNR {summary['views'][0]['psnr']:.2f} dB" in bpy.data.objects["Label r_0"].data.body

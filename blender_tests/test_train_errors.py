@@ -1,0 +1,171 @@
+"""Every bad input to Train / Compare gets a clear message, and nothing the user made is lost."""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import stat
+import sys
+import time
+
+import bpy
+import numpy as np
+import pytest
+
+from addon import image_metrics, prefs, train_ui, trainer_process
+from addon.trainer_process import SetupError
+
+
+@pytest.fixture
+def s(tmp_path):
+    train_ui.register()
+    settings = bpy.context.scene.nerf_train
+    settings.dataset_dir = str(tmp_path / "dataset")
+    settings.run_dir = str(tmp_path / "run")
+    yield settings
+    train_ui.unregister()
+
+
+@pytest.fixture
+def no_torch_python(tmp_path):
+    fake = tmp_path / "python-without-torch"
+    fake.write_text("#!/bin/sh\necho \"ModuleNotFoundError: No module named 'torch'\" >&2\nexit 1\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    return str(fake)
+
+
+def finish(job, timeout=120.0):
+    deadline = time.monotonic() + timeout
+    while job.update() == "running":
+        assert time.monotonic() < deadline, job.process.log_tail()
+        time.sleep(0.05)
+    if isinstance(job, train_ui.TrainJob):
+        train_ui.sync_train_settings(job)
+    return job
+
+
+def test_no_dataset(s, tmp_path):
+    s.dataset_dir = ""
+    # Called from a script, an operator's ERROR report surfaces as a RuntimeError with the message.
+    with pytest.raises(RuntimeError, match="No dataset folder is set"):
+        bpy.ops.nerf.train()
+    assert "No dataset folder is set" in s.error
+    s.dataset_dir = str(tmp_path / "nowhere")
+    with pytest.raises(SetupError, match=r"nowhere does not exist: capture a dataset first"):
+        train_ui.start_training(bpy.context)
+
+
+def test_broken_dataset_shows_the_checkers_message(s, tmp_path):
+    os.makedirs(s.dataset_dir)
+    with open(os.path.join(s.dataset_dir, "transforms_train.json"), "w") as fh:
+        fh.write('{"frames": [')  # truncated JSON
+    job = finish(train_ui.start_training(bpy.context))
+    assert job.state == "failed" and job.stage == "check"
+    assert s.error.startswith(f"Dataset {s.dataset_dir} is not usable")
+    assert "transforms_train.json" in s.error
+    assert not os.path.exists(s.run_dir) and not s.running
+
+
+def test_interpreter_without_torch(s, tmp_path, no_torch_python, monkeypatch):
+    os.makedirs(s.dataset_dir)
+    with pytest.raises(SetupError) as exc:
+        trainer_process.resolve_interpreter(no_torch_python)
+    assert "Python with torch" in str(exc.value) and "No module named 'torch'" in str(exc.value)
+    monkeypatch.setattr(prefs, "python_preference", lambda context=None: no_torch_python)
+    with pytest.raises(RuntimeError, match="cannot run NeRF training"):
+        bpy.ops.nerf.train()
+    assert "cannot run NeRF training" in s.error
+    # No preference set and Blender's own Python lacks torch: say where to set one.
+    monkeypatch.setattr(trainer_process.sys, "executable", no_torch_python)
+    with pytest.raises(SetupError, match=r"Blender's Python .* cannot import torch .*Preferences > Add-ons > NeRF Bridge"):
+        trainer_process.resolve_interpreter("")
+    assert not trainer_process.probe_interpreter(str(tmp_path / "missing")).ok
+
+
+def test_existing_run_folder_is_never_overwritten(s, tmp_path):
+    os.makedirs(s.dataset_dir)
+    os.makedirs(os.path.join(s.run_dir, "checkpoints"))
+    for name, data in (("config.json", "{}"), ("checkpoints/latest.pt", "weights")):
+        with open(os.path.join(s.run_dir, name), "w") as fh:
+            fh.write(data)
+    with pytest.raises(SetupError, match=r"already holds a training run: press Resume.*New Name.*run_2"):
+        train_ui.start_training(bpy.context)
+    os.remove(os.path.join(s.run_dir, "checkpoints", "latest.pt"))
+    with pytest.raises(SetupError, match=r"is not empty, or press New Name"):
+        train_ui.start_training(bpy.context)
+    with pytest.raises(SetupError, match=r"no checkpoint to resume"):
+        train_ui.start_training(bpy.context, resume=True)
+    assert open(os.path.join(s.run_dir, "config.json")).read() == "{}"
+    assert bpy.ops.nerf.run_new_name() == {"FINISHED"} and s.run_dir == str(tmp_path / "run_2")
+
+
+def test_trainer_that_dies_is_reported_with_its_log_tail(s, tmp_path):
+    script = tmp_path / "dies.py"
+    script.write_text("import sys\nprint('{\"event\": \"start\", \"time\": 0}', flush=True)\n"
+                      "for i in range(50): print(f'log line {i}', file=sys.stderr)\n"
+                      "raise MemoryError('out of memory in the trainer')\n")
+    job = train_ui.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
+                            [sys.executable, str(script)], check=False)
+    finish(job)
+    assert job.state == "failed"
+    assert s.error.startswith("Training stopped: ") and "exited with code 1" in s.error
+    assert "MemoryError: out of memory in the trainer" in s.error and "log line 49" in s.error
+    assert "log line 5\n" not in s.error  # the tail, not the whole log
+    assert not s.running
+
+
+def test_disk_full_is_named(s, tmp_path, monkeypatch):
+    target = str(tmp_path / "views" / "cameras.json")
+
+    def no_space(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(trainer_process.json, "dump", no_space)
+    with pytest.raises(trainer_process.DiskFullError, match=r"Disk full while writing .*cameras.json"):
+        trainer_process.write_json_atomic(target, {"frames": []})
+    assert os.listdir(tmp_path / "views") == []  # no truncated or temporary file left behind
+    monkeypatch.undo()
+
+    png = str(tmp_path / "heat.png")
+    with open(png, "wb") as fh:
+        fh.write(b"earlier heat-map")
+    real_open = open
+    monkeypatch.setattr(image_metrics, "open", lambda p, *a, **k: no_space() if ".tmp" in p else real_open(p, *a, **k),
+                        raising=False)
+    with pytest.raises(OSError, match=r"Disk full while writing .*heat.png"):
+        image_metrics.write_png(png, np.zeros((4, 4, 3)))
+    assert open(png, "rb").read() == b"earlier heat-map"
+
+
+def _fake_run(tmp_path, w=100, h=100):
+    data = tmp_path / "dataset"
+    data.mkdir(exist_ok=True)
+    (data / "transforms_test.json").write_text(json.dumps({"w": w, "h": h, "fl_x": 80.0, "frames": []}))
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+    (run / "checkpoints" / "latest.pt").write_bytes(b"x")
+    (run / "config.json").write_text(json.dumps({"dataset": str(data)}))
+    return str(run)
+
+
+def test_camera_with_another_aspect_is_refused(s, tmp_path):
+    run = _fake_run(tmp_path)
+    scene = bpy.context.scene
+    scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
+    cam = bpy.data.objects.new("Wide Cam", bpy.data.cameras.new("Wide Cam"))
+    scene.collection.objects.link(cam)
+    with pytest.raises(SetupError, match=r"No camera is selected"):
+        train_ui.write_cameras_file(bpy.context, run, "SELECTED")
+    bpy.context.view_layer.objects.active = cam
+    cam.select_set(True)
+    with pytest.raises(SetupError, match=r"'Wide Cam' renders at 1920x1080 .*trained on 100x100"):
+        train_ui.write_cameras_file(bpy.context, run, "SELECTED")
+    scene.render.resolution_x = scene.render.resolution_y = 400  # same aspect, other size: fine
+    path, n, label = train_ui.write_cameras_file(bpy.context, run, "SELECTED")
+    assert n == 1 and label == "selected" and json.load(open(path))["frames"][0]["w"] == 100
+
+
+def test_render_without_a_trained_run(s, tmp_path):
+    with pytest.raises(RuntimeError, match="no trained checkpoint"):
+        bpy.ops.nerf.render_views()
+    assert "has no trained checkpoint yet: train first" in s.error
