@@ -112,9 +112,12 @@ class CaptureJob:
         self.scene = scene
         self.s = settings
         self.progress = progress or (lambda done, total, info: None)
-        self.out = os.path.abspath(bpy.path.abspath(settings.out_dir)) if settings.out_dir else ""
-        if not self.out:
+        if not settings.out_dir:
             raise CaptureError("no output folder given")
+        if settings.out_dir.startswith("//") and not bpy.data.filepath:
+            raise CaptureError(f"output folder {settings.out_dir!r} is relative to the .blend, which is not saved yet; "
+                               "save the file or choose an absolute folder")
+        self.out = os.path.abspath(bpy.path.abspath(settings.out_dir))
         self.engine = resolve_engine(settings.engine)
         if settings.normals and self.engine == "BLENDER_WORKBENCH":
             raise CaptureError("normals need the Cycles or EEVEE engine (Workbench has no normal pass)")
@@ -506,6 +509,8 @@ class CaptureJob:
         self.near, self.far = near, far
         common = {"aabb": [list(map(float, self.bounds[0])), list(map(float, self.bounds[1]))],
                   "near": near, "far": far}
+        if self.s.depth:
+            common["depth_unit_scale_factor"] = 1.0  # EXR depth is already in scene units, not millimetres
         if self.s.points and complete:
             pts, cols = [], []
             for fr in done:
@@ -547,7 +552,8 @@ class CaptureJob:
             "near": getattr(self, "near", None), "far": getattr(self, "far", None),
             "conventions": {
                 "camera": "OpenGL (+X right, +Y up, looks along -Z); transform_matrix = matrix_world without scale",
-                "depth": "planar z-depth along -Z in scene units, float32 EXR channel Z, inf = no surface",
+                "depth": "planar z-depth along -Z in scene units, float32 EXR channel Z, inf = no surface "
+                         "(nerfstudio: set its depth-unit-scale-factor to 1, it assumes millimetres)",
                 "normals": "world-space unit normals, float32 EXR channels X, Y, Z; 0 = no surface",
                 "mask": "8-bit PNG, 255 = pixel of the target objects, 0 = elsewhere",
             },

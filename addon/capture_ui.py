@@ -42,8 +42,17 @@ def _layout_changed(self, _context):
         self.elevation_min, self.elevation_max = 10.0, 60.0
 
 
+def _path_options() -> set:
+    # Blender 4.5+ warns about "//" paths unless the property says it supports them; older versions lack the flag.
+    try:
+        StringProperty(options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    except TypeError:
+        return set()
+    return {"PATH_SUPPORTS_BLEND_RELATIVE"}
+
+
 class NerfCaptureSettings(bpy.types.PropertyGroup):
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//nerf_dataset/",
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//nerf_dataset/", options=_path_options(),
                                description="Dataset folder (relative paths start at the .blend's folder)")
     layout: EnumProperty(name="Layout", items=_LAYOUT_ITEMS, default="hemisphere", update=_layout_changed)
     target: EnumProperty(name="Target", items=[
@@ -90,7 +99,7 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
 
     def capture_settings(self, overwrite: bool = False) -> capture.CaptureSettings:
         return capture.CaptureSettings(
-            out_dir=bpy.path.abspath(self.output_dir), engine=self.engine, samples=self.samples,
+            out_dir=self.output_dir, engine=self.engine, samples=self.samples,
             res_x=self.resolution_x, res_y=self.resolution_y, film_transparent=self.film_transparent,
             denoise=self.denoise, depth=self.depth, normals=self.normals, masks=self.masks, points=self.points,
             overwrite=overwrite, target=self.target, normalize_camera_scale=self.normalize_camera_scale,

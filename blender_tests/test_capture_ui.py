@@ -149,3 +149,72 @@ def test_addon_register_unregister_twice():
                 module.unregister()
             except Exception:
                 pass
+
+
+class _RecordingLayout:
+    """Stands in for UILayout in Panel.draw: records props and operators, checks the props exist."""
+
+    def __init__(self, log):
+        self.log = log
+        self.use_property_split = self.use_property_decorate = self.enabled = False
+
+    def _child(self, *args, **kwargs):
+        return _RecordingLayout(self.log)
+
+    column = row = box = split = _child
+
+    def prop(self, data, name, **kwargs):
+        assert name in data.bl_rna.properties, f"panel draws unknown property {name!r}"
+        self.log.append(("prop", name))
+
+    def operator(self, idname, **kwargs):
+        module, op = idname.split(".")
+        assert hasattr(getattr(bpy.ops, module), op), f"panel draws unknown operator {idname}"
+        self.log.append(("operator", idname))
+        return type("Props", (), {})()
+
+    def operator_menu_enum(self, idname, prop, **kwargs):
+        self.operator(idname)
+
+    def label(self, text="", **kwargs):
+        self.log.append(("label", text))
+
+    def progress(self, factor=0.0, type="BAR", text=""):
+        self.log.append(("progress", factor, text))
+
+
+@pytest.mark.parametrize("layout_name", ["hemisphere", "rings", "spiral", "animation", "scene-cameras"])
+def test_panel_draws_every_layout_and_the_running_state(registered, layout_name):
+    from types import SimpleNamespace
+
+    s = bpy.context.scene.nerf_capture
+    s.layout = layout_name
+    log = []
+    panel = SimpleNamespace(layout=_RecordingLayout(log))
+    capture_ui.NERF_PT_capture.draw(panel, bpy.context)
+    props = {entry[1] for entry in log if entry[0] == "prop"}
+    assert {"layout", "engine", "resolution_x", "resolution_y", "output_dir", "depth", "masks"} <= props
+    assert ("operator", "nerf.capture") in log and ("operator", "nerf.generate_cameras") in log
+    assert ("rings" in props) == (layout_name == "rings") and ("frame_step" in props) == (layout_name == "animation")
+    s.is_running, s.progress, s.status = True, 0.25, "3/12 train/r_2"
+    log.clear()
+    capture_ui.NERF_PT_capture.draw(panel, bpy.context)
+    assert ("progress", 0.25, "3/12 train/r_2") in log and ("operator", "nerf.capture_cancel") in log
+
+
+def test_relative_output_of_an_unsaved_file_is_refused(registered):
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.context.scene.nerf_capture.output_dir = "//nerf_dataset/"
+    with pytest.raises(RuntimeError, match="not saved yet"):
+        bpy.ops.nerf.capture()
+
+
+def test_relative_output_resolves_next_to_the_saved_blend(registered, tmp_path):
+    bpy.ops.mesh.primitive_cube_add()
+    s = bpy.context.scene.nerf_capture
+    s.train_count, s.val_count, s.test_count, s.engine = 2, 0, 0, "workbench"
+    s.resolution_x = s.resolution_y = 8
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    s.output_dir = "//nerf_dataset/"
+    assert bpy.ops.nerf.capture() == {"FINISHED"}
+    assert (tmp_path / "nerf_dataset" / "train" / "r_1.png").is_file()
