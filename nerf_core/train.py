@@ -396,7 +396,12 @@ class Trainer:
         tr = dataset.split("train")
         centre = dataset.aabb.mean(0)
         cam_dist = float((tr.cameras.origins - centre).norm(dim=-1).median())
-        options, reasons = auto_size(self.method, dataset.aabb, float(tr.cameras.fx[0]), tr.width, tr.height, cam_dist, len(tr))
+        # The content probe looks at a few images only: hand it 8 evenly spaced views as float
+        # (composited onto the evaluation background) instead of a float copy of the whole split.
+        pick = torch.linspace(0, len(tr) - 1, min(len(tr), 8)).round().long().tolist()
+        bg = [0.0, 0.0, 0.0] if self.cfg.background == "black" else [1.0, 1.0, 1.0]
+        probe = torch.stack([tr.image(v, bg)[0] for v in pick])
+        options, reasons = auto_size(self.method, dataset.aabb, float(tr.cameras.fx[0]), tr.width, tr.height, cam_dist, probe)
         return dict(options), list(reasons)
 
     # ------------------------------------------------------------------ checkpoints

@@ -146,3 +146,13 @@ def test_default_method_trains_end_to_end(tmp_path, dataset_factory):
     cfg = json.loads((tmp_path / "run" / "config.json").read_text())
     assert cfg["method"] == getattr(catalog, "DEFAULT_METHOD", cfg["method"])
     assert out["step"] == 3 and math.isfinite(out["metrics"]["psnr"])
+
+
+def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
+    """``--size auto`` asks nerf_core.sizing (real default method) and records why in config and start event."""
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, method=None, size="auto", max_steps=1, batch_rays=64, eval_views=0))
+    cfg = json.loads((run / "config.json").read_text())
+    start = read_events(run / "progress.jsonl")[0]
+    assert cfg["size_reasons"] and start["size_reasons"] == cfg["size_reasons"]
+    assert all(isinstance(r, str) and r for r in cfg["size_reasons"])
