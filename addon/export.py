@@ -121,7 +121,7 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
                 if f.get(key):
                     entry[key] = ns[key] = f[key]
             if f.get("frame") is not None:
-                entry["time"] = ns["time"] = f["frame"]
+                entry["blender_frame"] = ns["blender_frame"] = f["frame"]  # not "time": nerfstudio reads that as dynamic-scene time
             out_frames.append(entry)
             ns_frames.append(ns)
             per_split_files[split].append(ns["file_path"])

@@ -247,3 +247,51 @@ def test_nerf_core_check_accepts_the_datasets(cycles_dataset, shifted_dataset):
     for out, _ in (cycles_dataset, shifted_dataset):
         proc = subprocess.run([PY, "-m", "nerf_core", "check", str(out)], capture_output=True, text=True, timeout=120)
         assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
+    build_test_scene()
+    scene = bpy.context.scene
+    from mathutils import Matrix
+
+    for k, (lens, pos) in enumerate([(35.0, (6, -6, 3)), (50.0, (-7, -5, 2)), (80.0, (0, 9, 4))]):
+        cam = bpy.data.objects.new(f"User{k}", bpy.data.cameras.new(f"User{k}"))
+        cam.data.lens = lens
+        scene.collection.objects.link(cam)
+        cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
+    spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
+    layouts.create_cameras(scene, spec, 40, 30)
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+                                                      res_y=30, layout=spec.to_dict())).run()
+    lenses = set()
+    for split in ("train", "test"):
+        for doc, fr, intr in frames(tmp_path, split):
+            assert "fl_x" in fr and "camera_angle_x" in fr  # per frame, since they differ
+            lenses.add(round(fr["fl_x"] * 36.0 / 40, 3))
+    assert lenses == {35.0, 50.0, 80.0}
+    for split in ("train", "test"):  # centres are deep inside the silhouettes even at this tiny size
+        for _doc, fr, intr in frames(tmp_path, split):
+            alpha = np.asarray(Image.open(os.path.join(tmp_path, fr["file_path"] + ".png")))[..., 3]
+            u, v, _ = project(np.array([[0.0, 0.0, 0.0], BALL_C]), fr["transform_matrix"], intr)
+            assert all(alpha[int(vv), int(uu)] == 255 for uu, vv in zip(u, v)), fr["file_path"]
+
+
+def test_masks_of_a_selection_cover_only_it(tmp_path):
+    build_test_scene()
+    scene = bpy.context.scene
+    for obj in scene.objects:
+        obj.select_set(obj.name == "Sphere")
+    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=1, radius=7.0, elevation_min=20)
+    layouts.create_cameras(scene, spec, 40, 30)
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="cycles", samples=1, res_x=40,
+                                                      res_y=30, masks=True, target="SELECTION")).run()
+    assert bpy.data.objects["Cube"].pass_index == 0 and bpy.data.objects["Sphere"].pass_index == 0  # restored
+    for split in ("train", "test"):
+        for _doc, fr, intr in frames(tmp_path, split):
+            mask = np.asarray(Image.open(os.path.join(tmp_path, fr["mask_path"]))) > 0
+            alpha = np.asarray(Image.open(os.path.join(tmp_path, fr["file_path"] + ".png")))[..., 3]
+            u, v, _ = project(np.array([[0.0, 0.0, 0.0], BALL_C]), fr["transform_matrix"], intr)
+            cube_px, ball_px = (int(v[0]), int(u[0])), (int(v[1]), int(u[1]))
+            assert mask[ball_px] or not alpha[ball_px]  # the ball, unless hidden behind the cube
+            assert alpha[cube_px] == 255
+            assert mask.sum() < (alpha > 0).sum() * 0.6  # the cube is not in the mask
