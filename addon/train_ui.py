@@ -52,10 +52,36 @@ class Job:
     def scene(self):
         return bpy.data.scenes.get(self.scene_name)
 
-    def cancel(self) -> None:
-        if self.process is not None:
+    def cancel(self, wait: bool = True) -> None:
+        """Stop the child. ``wait=False`` (the Cancel button) only asks it to stop, so Blender never
+        waits; ``update()`` then finishes the cancel, killing the group if it does not exit in time."""
+        if self.process is None or self.state != "running":
+            return
+        if wait:
             self.process.cancel()
-        self.state, self.message = "cancelled", f"{self.kind} cancelled"
+            self._cancelled()
+        else:
+            self.process.request_stop()
+
+    def _cancelled(self) -> str:
+        p = self.process.progress
+        self.state = "cancelled"
+        self.message = f"{self.kind.capitalize()} cancelled"
+        if p.step is not None:
+            self.message += f" at step {p.step}"
+        if p.error and "checkpoint saved" in p.error:
+            self.message += "; checkpoint saved: Resume continues from it"
+        return self.state
+
+    def _check_cancel(self) -> Optional[str]:
+        """While a requested stop is under way: None to keep going, else the final state."""
+        if self.process.stop_requested_at is None:
+            return None
+        self.process.poll()
+        if self.process.finished():
+            return self._cancelled()
+        self.process.kill_if_overdue()
+        return self.state
 
     def fail(self, message: str) -> str:
         self.state, self.message = "failed", message
@@ -81,6 +107,9 @@ class TrainJob(Job):
     def update(self) -> str:
         if self.state != "running":
             return self.state
+        stopping = self._check_cancel()
+        if stopping is not None:
+            return stopping
         self.process.poll()
         if self.stage == "check":
             if not self.process.finished():
@@ -124,6 +153,9 @@ class RenderJob(Job):
     def update(self) -> str:
         if self.state != "running":
             return self.state
+        stopping = self._check_cancel()
+        if stopping is not None:
+            return stopping
         self.process.poll()
         if not self.process.finished():
             return self.state
@@ -321,11 +353,12 @@ def _load_preview(path: str) -> None:
     _PREVIEWS.load("latest", path, "IMAGE")
 
 
-def cancel_jobs() -> None:
-    """Stop every running child (used by Cancel, file loads and unregister: no orphans)."""
+def cancel_jobs(wait: bool = True) -> None:
+    """Stop every running child. The Cancel button passes ``wait=False`` (the modal timer finishes the
+    cancel); file loads and unregister wait, since nothing polls afterwards: no orphans either way."""
     for job in list(_JOBS.values()):
         if job.state == "running":
-            job.cancel()
+            job.cancel(wait=wait)
 
 
 def refresh_runs(settings) -> None:
@@ -516,13 +549,18 @@ class NERF_OT_train_cancel(bpy.types.Operator):
         if not running:
             self.report({"WARNING"}, "Nothing is running")
             return {"CANCELLED"}
-        cancel_jobs()
+        # The modal operator that follows the job sees it stop and reports; when none is polling
+        # (a script, or the modal was lost), finish the cancel right here.
+        cancel_jobs(wait=not self.background)
+        s = settings_of(context)
+        s.status = "Stopping: the trainer saves a checkpoint first..." if self.background else "Cancelled"
         for job in running:
-            if isinstance(job, TrainJob):
+            if isinstance(job, TrainJob) and job.state != "running":
                 sync_train_settings(job)
-        settings_of(context).running = False
-        self.report({"INFO"}, "Cancelled; resume continues from the last checkpoint")
         return {"FINISHED"}
+
+    background: BoolProperty(default=True, options={"SKIP_SAVE", "HIDDEN"},
+                             description="Return at once; the panel's timer finishes the cancel")
 
 
 class NERF_OT_run_new_name(bpy.types.Operator):

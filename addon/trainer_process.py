@@ -257,6 +257,7 @@ class BackgroundProcess:
         self._open_streams = 0
         self.proc: Optional[subprocess.Popen] = None
         self.cancelled = False
+        self.stop_requested_at: Optional[float] = None
         self.started_at: Optional[float] = None
 
     # lifecycle
@@ -345,17 +346,33 @@ class BackgroundProcess:
             on_events(events)
         return self.returncode
 
-    def cancel(self, grace: float = 5.0) -> None:
-        """Stop the child and everything it started: SIGTERM to its group, SIGKILL after ``grace`` s."""
-        if self.proc is None:
+    def request_stop(self) -> None:
+        """Ask the child to stop without waiting: SIGINT to its group, which nerf_core's trainer turns
+        into "save a checkpoint, then exit" so Resume can continue. ``kill_if_overdue`` escalates."""
+        if self.proc is None or self.stop_requested_at is not None:
             return
         self.cancelled = True
+        self.stop_requested_at = time.monotonic()
         if self.proc.poll() is None:
-            self._signal_group(signal.SIGTERM if os.name == "posix" else None)
-            try:
-                self.proc.wait(timeout=grace)
-            except subprocess.TimeoutExpired:
-                pass
+            self._signal_group(signal.SIGINT if os.name == "posix" else None)
+
+    def kill_if_overdue(self, grace: float = 15.0) -> bool:
+        """After ``request_stop``: kill the group once ``grace`` s have passed; True if it killed."""
+        if self.stop_requested_at is None or time.monotonic() - self.stop_requested_at < grace:
+            return False
+        self._signal_group(getattr(signal, "SIGKILL", None))
+        return True
+
+    def cancel(self, grace: float = 5.0) -> None:
+        """Stop the child and everything it started, blocking: SIGINT (graceful: the trainer saves a
+        checkpoint), then SIGKILL to the whole group after ``grace`` s."""
+        if self.proc is None:
+            return
+        self.request_stop()
+        try:
+            self.proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            pass
         # The leader may be gone while its children linger in the group: kill the group regardless.
         self._signal_group(getattr(signal, "SIGKILL", None))
         try:
@@ -369,7 +386,7 @@ class BackgroundProcess:
             try:
                 os.killpg(self.proc.pid, sig)
             except (ProcessLookupError, PermissionError):
-                pass
+                pass  # the group is already gone
         else:  # Windows: no process groups to signal; taskkill /T walks the tree.
             subprocess.run(["taskkill", "/F", "/T", "/PID", str(self.proc.pid)], capture_output=True)
 

@@ -15,7 +15,7 @@ import bpy
 import pytest
 from bpy_extras.object_utils import world_to_camera_view
 
-from addon import capture, layouts, planes, runs, train_ui
+from addon import capture, layouts, planes, runs, train_ui, trainer_process
 
 RES = 32
 
@@ -120,3 +120,30 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     names = {o.name for o in gallery.objects}
     assert {"Gallery NeRF r_0", "Gallery Blender r_0", "Gallery Error r_0", "Label r_1"} <= names
     assert f"PSNR {summary['views'][0]['psnr']:.2f} dB" in bpy.data.objects["Label r_0"].data.body
+
+
+def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path, registered):
+    root = str(tmp_path)
+    s = bpy.context.scene.nerf_train
+    s.dataset_dir, s.run_dir = tiny_capture(root), os.path.join(root, "run")
+    # The job the Train button starts, minus the dataset check (the loop test above covers it).
+    cmd = trainer_process.train_command(sys.executable, s.dataset_dir, s.run_dir, max_seconds=600)
+    job = train_ui.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
+    train_ui._JOBS["train"] = job
+    deadline = time.monotonic() + 180
+    while job.stage != "train" or job.process.progress.step is None:  # the first step event
+        assert job.update() == "running", job.message
+        assert time.monotonic() < deadline, job.process.log_tail()
+        time.sleep(0.1)
+    pid = job.process.pid
+    assert trainer_process.pid_alive(pid)
+    assert bpy.ops.nerf.train_cancel() == {"FINISHED"}  # returns at once; the timer finishes the cancel
+    deadline = time.monotonic() + 60
+    while job.update() == "running":
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    train_ui.sync_train_settings(job)
+    assert job.state == "cancelled" and not s.running and s.status.startswith("Training cancelled at step")
+    assert not trainer_process.pid_alive(pid) and trainer_process.group_pids(pid) == []
+    assert "checkpoint saved" in job.message
+    assert trainer_process.run_folder_state(s.run_dir) == "resumable"
