@@ -92,7 +92,8 @@ class TrainConfig:
         )
 
 
-DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
+DEFAULT_MAX_STEPS = 5000
+STEP_EVENT_SECONDS = 5.0  # used only when neither budget is given
 
 
 # ----------------------------------------------------------------------------------------------
@@ -216,9 +217,16 @@ def rebuild_optimizer(model, old: torch.optim.Optimizer, lr: float) -> torch.opt
     return new
 
 
+WARMUP_MAX_FRACTION = 0.02  # warm-up never takes more than this share of the budget
+
+
 def schedule_factor(step: int, frac: float, warmup_steps: int, final_ratio: float = 0.1) -> float:
-    """Linear warm-up over ``warmup_steps``, then exponential decay to ``final_ratio`` at the end of the budget."""
-    warm = min(1.0, (step + 1) / warmup_steps) if warmup_steps > 0 else 1.0
+    """Learning-rate multiplier: linear warm-up over ``warmup_steps`` (cut short once 2 % of the budget
+    is spent, so that slow steps under a time budget do not spend the run warming up), then
+    exponential decay to ``final_ratio`` at the end of the budget (``frac`` in [0, 1])."""
+    warm = 1.0
+    if warmup_steps > 0:
+        warm = min(1.0, max((step + 1) / warmup_steps, frac / WARMUP_MAX_FRACTION))
     return warm * final_ratio ** frac
 
 
@@ -565,6 +573,7 @@ class Trainer:
         params_changed = False
         last_loss = last_psnr = None
         first_step = self.step + 1  # always report the first step (also after --resume)
+        last_event_wall = time.monotonic()
 
         while not cfg.finished(self.step, self.elapsed):
             t0 = time.perf_counter()
@@ -620,7 +629,10 @@ class Trainer:
                 self._snapshot()
                 params_changed = False
             done = cfg.finished(self.step, self.elapsed)
-            if self.step == first_step or self.step % cfg.log_every == 0 or done:
+            # Slow steps (big models on a CPU) still report at least every few seconds.
+            if (self.step == first_step or self.step % cfg.log_every == 0 or done
+                    or time.monotonic() - last_event_wall >= STEP_EVENT_SECONDS):
+                last_event_wall = time.monotonic()
                 self._emit_step(last_loss, last_psnr, interval)
                 interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
             if not done and self._preview_due(last_preview_step, last_preview_elapsed):
