@@ -324,13 +324,15 @@ class CaptureJob:
         self._set(r, "use_border", False)
         self._set(r, "use_compositing", False)  # a user's compositor must not alter the dataset
         self._set(r, "use_sequencer", False)
+        self._set(r, "use_motion_blur", False)  # a NeRF needs a static instant per view
+        self._set(r, "use_single_layer", True)  # one view layer: the one whose passes we enable
         if self.engine == "CYCLES":
             self._set(sc.cycles, "samples", self.s.samples)
             self._set(sc.cycles, "use_denoising", self.s.denoise)
             self._set(sc.cycles, "use_adaptive_sampling", False)
         elif self.engine.startswith("BLENDER_EEVEE"):
             self._set(sc.eevee, "taa_render_samples", self.s.samples)
-        vl = sc.view_layers[0]
+        vl = bpy.context.view_layer if bpy.context.scene == sc else sc.view_layers[0]
         self.view_layer = vl
         want_passes = self.s.depth or self.s.points
         self._set(vl, "use_pass_z", bool(want_passes) or vl.use_pass_z)
@@ -387,7 +389,8 @@ class CaptureJob:
 
     def _save_png(self, result, path: str) -> None:
         img = self.scene.render.image_settings
-        img.media_type = "IMAGE"
+        if hasattr(img, "media_type"):  # Blender 5.0 split the format into media type + file format
+            img.media_type = "IMAGE"
         img.file_format = "PNG"
         img.color_mode = "RGBA"
         img.color_depth = "8"
@@ -397,8 +400,10 @@ class CaptureJob:
 
     def _save_passes(self, result, fr) -> None:
         img = self.scene.render.image_settings
-        img.media_type = "MULTI_LAYER_IMAGE"
-        img.file_format = "OPEN_EXR_MULTILAYER" if "OPEN_EXR_MULTILAYER" in _enum(img, "file_format") else "OPEN_EXR"
+        if hasattr(img, "media_type"):
+            img.media_type = "MULTI_LAYER_IMAGE"
+        else:
+            img.file_format = "OPEN_EXR_MULTILAYER"
         img.color_depth = "32"
         img.exr_codec = "NONE"  # passes.read_exr_channels reads uncompressed, single-part files
         if hasattr(img, "use_exr_interleave"):
@@ -570,7 +575,3 @@ class _RenderView:
         self.resolution_x, self.resolution_y = res_x, res_y
         self.resolution_percentage = 100
         self.pixel_aspect_x, self.pixel_aspect_y = render.pixel_aspect_x, render.pixel_aspect_y
-
-
-def _enum(owner, prop) -> set:
-    return {i.identifier for i in owner.bl_rna.properties[prop].enum_items}

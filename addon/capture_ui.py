@@ -231,12 +231,14 @@ class NERF_OT_capture(bpy.types.Operator):
         for area in context.screen.areas if context.screen else ():
             if area.type == "VIEW_3D":
                 area.tag_redraw()
+        _status_bar(context, f"NeRF capture {s.status} ({100 * s.progress:.0f}%) - Esc to cancel")
         if not more:
             return self._stop(context, cancelled=False)
         return {"RUNNING_MODAL"}
 
     def _stop(self, context, cancelled: bool):
         context.window_manager.event_timer_remove(self._timer)
+        _status_bar(context, None)
         s = context.scene.nerf_capture
         s.is_running, s.cancel_requested = False, False
         _ACTIVE["job"] = None
@@ -252,6 +254,13 @@ class NERF_OT_capture(bpy.types.Operator):
             train.dataset_dir = summary["out"]  # the Train panel picks up the new dataset
         self.report({"INFO"}, s.status)
         return {"FINISHED"}
+
+
+def _status_bar(context, text):
+    """Show (or with None, clear) a line in Blender's status bar, where users look for long jobs."""
+    workspace = getattr(context, "workspace", None)
+    if workspace is not None:
+        workspace.status_text_set(text)
 
 
 class NERF_OT_capture_cancel(bpy.types.Operator):
