@@ -199,13 +199,16 @@ def nerf_collection(scene, create: bool = True):
 
 
 def clear_cameras(scene) -> int:
-    """Delete the cameras of the "NeRF Cameras" collection (never any other object); return how many."""
+    """Delete the cameras a layout made in the "NeRF Cameras" collection; return how many.
+
+    Only camera objects tagged ``nerf_split`` go: anything else a user put in the collection stays.
+    """
     import bpy
 
     coll = nerf_collection(scene, create=False)
     if coll is None:
         return 0
-    objs = list(coll.objects)
+    objs = [o for o in coll.objects if o.type == "CAMERA" and "nerf_split" in o]
     for obj in objs:
         data = obj.data
         bpy.data.objects.remove(obj, do_unlink=True)

@@ -124,8 +124,11 @@ def test_create_cameras_replaces_only_its_collection():
     assert "UserCam" in bpy.data.objects and bpy.data.objects["UserCam"].location.y == -10
     assert sum(o.type == "CAMERA" for o in bpy.data.objects) == 11  # old layout fully removed
     assert not any(o.name.startswith("NeRF_") and o.name.endswith(".001") for o in bpy.data.objects)
+    mine = bpy.data.objects.new("MovedIntoCollection", None)  # a user's object put in our collection
+    bpy.data.collections[layouts.COLLECTION_NAME].objects.link(mine)
     assert layouts.clear_cameras(bpy.context.scene) == 10
     assert [o.name for o in bpy.data.objects if o.type == "CAMERA"] == ["UserCam"]
+    assert "MovedIntoCollection" in bpy.data.objects
 
 
 def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
