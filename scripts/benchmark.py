@@ -19,7 +19,7 @@ What it does, through the same command lines users run:
     the charts DIR/psnr_vs_time.png and DIR/psnr_vs_size.png.
 
 Defaults are the issue-3 setup: 200x200 images, 100 train and 20 test views, 5 minutes per run, on
-the diffuse, high_frequency, glossy, thin and multi scenes. ``--quick`` shrinks everything to finish in
+the diffuse, highfreq, glossy, thin and multi scenes. ``--quick`` shrinks everything to finish in
 under 10 minutes on 2 CPU cores. A progress bar with an ETA covers the whole plan.
 """
 from __future__ import annotations
@@ -38,7 +38,7 @@ import bench_common as bc  # noqa: E402
 
 from nerf_core.progressbar import ProgressBar  # noqa: E402
 
-FULL_SCENES = ["diffuse", "high_frequency", "glossy", "thin", "multi"]
+FULL_SCENES = ["diffuse", "highfreq", "glossy", "thin", "multi"]
 QUICK_SCENES = ["diffuse", "thin"]
 BASE_METHODS = ["nerf", "nerf-nope"]
 
@@ -81,20 +81,31 @@ def default_fast_method() -> str:
         return ""
 
 
-def size_series(fast: str, train_help: str) -> list[Series]:
-    """Fixed sizes of the fast method plus ``--size auto``, from what ``train --help`` offers.
+# Fixed sizes of the fast method, from its options (nerf_core/methods/vmgrid.py): the final plane
+# resolution and the density/appearance ranks set the parameter count (~ res^2 x ranks). The method's
+# own default (res_final 160, ranks 16/32) is the largest and runs as the plain method series.
+SIZE_PRESETS = {
+    "vmgrid": {
+        "small": {"res_final": 64, "density_rank": 6, "app_rank": 12},
+        "medium": {"res_final": 100, "density_rank": 10, "app_rank": 20},
+    },
+}
 
-    ``--size`` choices named small/medium/large (or similar) are used as they are; ``auto`` is always
-    its own series. Returns [] when the trainer has no ``--size`` flag at all.
+
+def size_series(fast: str, train_help: str, names=("small", "medium")) -> list[Series]:
+    """Fixed sizes of the fast method (``--set`` options) plus ``--size auto``, as separate series.
+
+    Returns [] when the trainer has no ``--size`` flag; presets exist only for methods listed in
+    SIZE_PRESETS (others get just the auto series next to their default size).
     """
     if not fast or "--size" not in train_help:
         return []
     out = []
-    match = re.search(r"--size\s+\{([^}]*)\}", train_help)
-    choices = [c.strip() for c in match.group(1).split(",")] if match else []
-    for name in ("small", "medium", "large"):
-        if name in choices:
-            out.append(Series(f"{fast} {name}", fast, ["--size", name], size_study=True))
+    for name in names:
+        preset = SIZE_PRESETS.get(fast, {}).get(name)
+        if preset:
+            flags = [x for k, v in preset.items() for x in ("--set", f"{k}={v}")]
+            out.append(Series(f"{fast} {name}", fast, flags, size_study=True))
     out.append(Series(f"{fast} auto", fast, ["--size", "auto"], size_study=True))
     return out
 
@@ -111,12 +122,13 @@ def make_plan(args, train_help: str) -> Plan:
         scenes = QUICK_SCENES if args.quick else FULL_SCENES
     series = [Series(m, m) for m in methods]
     if not args.no_sizes and fast:
-        series += size_series(fast, train_help)
+        series += size_series(fast, train_help, ("small",) if args.quick else ("small", "medium"))
     total = args.minutes * 60.0
     if args.checkpoints:
         checkpoints = sorted(float(x) * 60.0 for x in args.checkpoints.split(","))
     elif args.quick:
-        checkpoints = [total / 4, total / 2, total]
+        # Two points per curve: each checkpoint costs a process start and an evaluation.
+        checkpoints = [total / 2, total]
     else:
         checkpoints = [total * f for f in (0.2, 0.4, 1.0)]
     capture = {
@@ -138,37 +150,48 @@ def make_plan(args, train_help: str) -> Plan:
 
 
 def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoints: list[float], seed: int,
-                           log_path: str, on_progress) -> dict:
-    """Train in ``--resume --max-seconds T`` segments, evaluating on test after each.
+                           log_path: str, on_progress, n_test: int, independent: bool = False) -> dict:
+    """Test PSNR/SSIM of ``series`` at each budget in ``checkpoints`` (seconds of training time).
 
-    ``on_progress(seconds_of_training_done)`` is called as step events arrive. Returns a dict with
-    ``points`` [{seconds, step, psnr, ssim}], the training summary of all segments and ``error``.
+    Default: one run trained in ``--resume --max-seconds T`` segments; the trainer's own final
+    evaluation on all ``n_test`` test views after each segment gives the point (evaluation time is not
+    training time). Caveat: schedules that depend on the budget fraction (learning-rate decay, grid
+    growth) see each segment's T as the budget, so later segments restart from a higher learning rate.
+    ``independent=True`` trains a fresh run per budget instead (exact "budget T" numbers, costs the
+    sum of the budgets). ``on_progress(seconds)`` follows the step events.
+    Returns ``points`` [{seconds, budget, step, psnr, ssim}], a training summary, ``error`` and paths.
     """
     events_all: list[dict] = []
     points: list[dict] = []
     error = None
+    done_before = 0.0
     for k, budget in enumerate(checkpoints):
-        cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", series.method,
-                               "--max-seconds", f"{budget:g}", "--seed", str(seed), *series.extra)
-        if k > 0:
-            cmd.append("--resume")
-        elif os.path.isdir(run_dir) and os.listdir(run_dir):
-            cmd.append("--overwrite")  # a run folder of this benchmark's own earlier attempt
+        this_run = os.path.join(run_dir, f"budget_{budget:g}s") if independent else run_dir
+        cmd = bc.nerf_core_cmd("train", dataset, "--out", this_run, "--method", series.method,
+                               "--max-seconds", f"{budget:g}", "--seed", str(seed), "--eval-views", str(n_test),
+                               "--no-bar", *series.extra)
+        if k > 0 and not independent:
+            cmd = [c for c in cmd if c != "--size" and c != "auto"] + ["--resume"]  # size is in the checkpoint
+        elif os.path.isdir(this_run) and os.listdir(this_run):
+            cmd.append("--overwrite")  # a run folder this benchmark wrote in an earlier attempt
 
-        def on_event(ev, base=events_all):
+        def on_event(ev, offset=done_before):
             if ev.get("event") == "step" and ev.get("elapsed") is not None:
-                on_progress(float(ev["elapsed"]))
+                on_progress(offset + float(ev["elapsed"]))
 
         res = bc.run_cli(cmd, on_event=on_event, log_path=log_path)
         events_all.extend(res.events)
         if not res.ok:
-            error = f"train segment to {budget:g}s: {res.error_message()}"
+            error = f"train to {budget:g}s: {res.error_message()}"
             break
-        ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test"), log_path=log_path)
-        metrics = ev.last_json() if ev.ok else None
-        if not metrics or "psnr" not in metrics:
-            error = f"eval after {budget:g}s: {ev.error_message()}"
-            break
+        evals = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test"]
+        metrics = evals[-1] if evals else None
+        if metrics is None:
+            ev = bc.run_cli(bc.nerf_core_cmd("eval", this_run, "--split", "test", "--no-bar"), log_path=log_path)
+            metrics = ev.last_json() if ev.ok else None
+            if not metrics or "psnr" not in metrics:
+                error = f"eval after {budget:g}s: {ev.error_message()}"
+                break
         done = [e for e in res.events if e.get("event") == "done"]
         points.append({
             "seconds": float(done[-1].get("elapsed", budget)) if done else budget,
@@ -177,10 +200,34 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
             "psnr": metrics.get("psnr"),
             "ssim": metrics.get("ssim"),
         })
+        if independent:
+            done_before += budget
     summary = bc.summarize_training(events_all)
-    ckpt = os.path.join(run_dir, "checkpoints", "latest.pt")
+    last_run = os.path.join(run_dir, f"budget_{checkpoints[-1]:g}s") if independent else run_dir
+    ckpt = os.path.join(last_run, "checkpoints", "latest.pt")
     return {"points": points, "train": summary, "error": error or summary.get("error"),
-            "checkpoint_bytes": bc.checkpoint_size(ckpt)}
+            "checkpoint": ckpt, "checkpoint_bytes": bc.checkpoint_size(ckpt)}
+
+
+def model_size(checkpoint: str) -> tuple[Optional[int], Optional[int]]:
+    """(parameters, bytes of parameters and buffers) of the model in ``checkpoint`` at its final size.
+
+    Grid methods grow during training, so the ``start`` event's count is the initial size only.
+    """
+    if not os.path.isfile(checkpoint):
+        return None, None
+    import torch
+
+    from nerf_core.render import model_from_checkpoint, read_checkpoint
+
+    from pathlib import Path
+
+    try:
+        model = model_from_checkpoint(read_checkpoint(Path(checkpoint)), torch.device("cpu"), checkpoint)
+    except Exception as exc:  # noqa: BLE001 (a size we cannot read is reported as missing, not fatal)
+        print(f"benchmark: {checkpoint}: cannot read the model size ({exc})", file=sys.stderr)
+        return None, None
+    return model.num_parameters(), model.num_bytes()
 
 
 # --------------------------------------------------------------------------------------------
@@ -488,25 +535,29 @@ def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 102
 def parse_args(argv):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True, help="output folder (datasets are cached in OUT/datasets)")
-    ap.add_argument("--quick", action="store_true", help="2 scenes, 64 px, 20 views, 40 s per run: under 10 min")
+    ap.add_argument("--quick", action="store_true", help="2 scenes, 48 px, 20 views, 40 s per run: under 10 min")
     ap.add_argument("--methods", help="comma-separated methods (default: nerf, nerf-nope and the fast method)")
     ap.add_argument("--scenes", help=f"comma-separated demo scenes (default: {','.join(FULL_SCENES)})")
     ap.add_argument("--minutes", type=float, help="training budget per run in minutes (default 5; quick 0.67)")
-    ap.add_argument("--checkpoints", help="comma-separated minutes at which to evaluate (default 20%%, 40%%, 100%%)")
-    ap.add_argument("--resolution", type=int, help="capture resolution in pixels (default 200; quick 64)")
+    ap.add_argument("--checkpoints", help="comma-separated minutes at which to evaluate (default 20%%, 40%%, 100%%; "
+                                          "quick 50%%, 100%%)")
+    ap.add_argument("--resolution", type=int, help="capture resolution in pixels (default 200; quick 48)")
     ap.add_argument("--views", type=int, help="train views (default 100; quick 20)")
-    ap.add_argument("--test-views", type=int, help="held-out test views (default 20; quick 4)")
+    ap.add_argument("--test-views", type=int, help="held-out test views (default 20; quick 3)")
     ap.add_argument("--engine", default="cycles", help="capture render engine (default cycles)")
     ap.add_argument("--samples", type=int, default=16, help="render samples per pixel for the capture")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-sizes", action="store_true", help="skip the fixed-size and --size auto series")
     ap.add_argument("--no-profile", action="store_true", help="skip the per-stage time profile")
+    ap.add_argument("--independent", action="store_true",
+                    help="a fresh run per checkpoint budget instead of resumed segments (exact per-budget schedules, "
+                         "costs the sum of the budgets)")
     args = ap.parse_args(argv)
     quick = args.quick
     args.minutes = args.minutes if args.minutes is not None else (40 / 60 if quick else 5.0)
-    args.resolution = args.resolution or (64 if quick else 200)
+    args.resolution = args.resolution or (48 if quick else 200)
     args.views = args.views or (20 if quick else 100)
-    args.test_views = args.test_views or (4 if quick else 20)
+    args.test_views = args.test_views or (3 if quick else 20)
     if args.minutes <= 0:
         ap.error("--minutes must be positive")
     return args
@@ -532,7 +583,8 @@ def main(argv=None) -> int:
           f"checkpoints {', '.join(f'{c:g}s' for c in plan.checkpoints)}; output {out}", file=sys.stderr)
     # The bar counts seconds of planned work: a capture ~ one run's budget / 2, a run its budget.
     capture_cost = budget / 2
-    bar = ProgressBar(total=len(plan.scenes) * capture_cost + len(runs) * budget, label="benchmark")
+    per_run = sum(plan.checkpoints) if args.independent else budget
+    bar = ProgressBar(total=len(plan.scenes) * capture_cost + len(runs) * per_run, label="benchmark")
     t0 = time.monotonic()
     datasets, results = {}, []
     failures = 0
@@ -548,22 +600,23 @@ def main(argv=None) -> int:
         bar.update(capture_cost)
     for scene, series in runs:
         if scene not in datasets:
-            bar.update(budget)
+            bar.update(per_run)
             continue
         start_done = bar.done
         run_dir = os.path.join(out, "runs", scene, series.label.replace(" ", "_"))
         label = f"{scene}/{series.label}"
 
         def on_progress(elapsed, start_done=start_done, label=label):
-            bar.set(start_done + min(elapsed, budget), info=label)
+            bar.set(start_done + min(elapsed, per_run), info=label)
 
         r = train_with_checkpoints(datasets[scene], run_dir, series, plan.checkpoints, args.seed,
                                    os.path.join(logs, f"train_{scene}_{series.label.replace(' ', '_')}.log"),
-                                   on_progress)
+                                   on_progress, n_test=bc.count_frames(datasets[scene], "test"),
+                                   independent=args.independent)
         tr = r["train"]
+        n_params, n_bytes = model_size(r["checkpoint"])
         result = {"scene": scene, "series": series.label, "method": series.method, "flags": series.extra,
-                  "points": r["points"], "n_params": tr["n_params"],
-                  "model_bytes": tr["n_params"] * 4 if tr["n_params"] else None,
+                  "points": r["points"], "n_params": n_params or tr["n_params"], "model_bytes": n_bytes,
                   "checkpoint_bytes": r["checkpoint_bytes"], "samples_per_s": tr["samples_per_s"],
                   "steps": tr["steps"], "rollbacks": tr["rollbacks"], "nan": tr["nan"], "error": r["error"],
                   "stage_times": tr.get("stage_times")}
@@ -571,7 +624,7 @@ def main(argv=None) -> int:
         if r["error"]:
             failures += 1
             print(f"\nbenchmark: {label}: {r['error']}", file=sys.stderr)
-        bar.set(start_done + budget, info=f"{label} {bc.fmt(r['points'][-1]['psnr']) if r['points'] else 'failed'} dB")
+        bar.set(start_done + per_run, info=f"{label} {bc.fmt(r['points'][-1]['psnr']) if r['points'] else 'failed'} dB")
     bar.close(info="runs done")
     profile = None
     if plan.profile and datasets and fast:

@@ -113,16 +113,21 @@ def test_size_analysis_reads_final_rows():
     assert row["front"] == "grid small, grid auto, grid large"
 
 
-def test_size_series_from_help_text():
-    help_text = "usage: ... [--size {auto,small,medium,large}] [--max-seconds S]"
-    labels = [s.label for s in benchmark.size_series("grid", help_text)]
-    assert labels == ["grid small", "grid medium", "grid large", "grid auto"]
-    assert benchmark.size_series("grid", "usage: [--max-seconds S]") == []
+def test_size_series_use_presets_and_auto():
+    help_text = "usage: ... [--size {auto}] [--set KEY=VALUE] [--max-seconds S]"
+    series = benchmark.size_series("vmgrid", help_text)
+    assert [s.label for s in series] == ["vmgrid small", "vmgrid medium", "vmgrid auto"]
+    small = series[0].extra
+    assert small[0] == "--set" and all(small[i] == "--set" for i in range(0, len(small), 2))
+    assert series[-1].extra == ["--size", "auto"]
+    # A method without presets still gets its auto series; a trainer without --size gets none.
+    assert [s.label for s in benchmark.size_series("grid", help_text)] == ["grid auto"]
+    assert benchmark.size_series("vmgrid", "usage: [--max-seconds S]") == []
 
 
 def test_plan_quick_runs_size_series_on_first_scene_only():
     args = benchmark.parse_args(["--quick", "--out", "x", "--methods", "nerf,grid"])
-    help_text = "--max-seconds --size {auto,small,large}"
+    help_text = "--max-seconds --size {auto}"
     orig = benchmark.default_fast_method
     benchmark.default_fast_method = lambda: "grid"
     try:
@@ -132,7 +137,7 @@ def test_plan_quick_runs_size_series_on_first_scene_only():
     runs = [(scene, s.label) for scene, s in plan.runs()]
     assert ("diffuse", "grid auto") in runs and ("thin", "grid auto") not in runs
     assert ("thin", "nerf") in runs
-    assert plan.checkpoints == pytest.approx([10.0, 20.0, 40.0])
+    assert plan.checkpoints == pytest.approx([20.0, 40.0])
 
 
 # ---------------------------------------------------------------- tables
