@@ -66,10 +66,10 @@ class TinyGrid(RadianceModel):
 class NaNOnce(TinyGrid):
     """TinyGrid whose ``nan_at``-th training call returns NaN colours (to exercise rollback)."""
 
-    extra_options = ("nan_at", "nan_times")
+    extra_options = ("nan_at", "nan_times", "nan_in")
 
-    def __init__(self, aabb, nan_at: int = 5, nan_times: int = 1, **options):
-        super().__init__(aabb, nan_at=nan_at, nan_times=nan_times, **options)
+    def __init__(self, aabb, nan_at: int = 5, nan_times: int = 1, nan_in: str = "loss", **options):
+        super().__init__(aabb, nan_at=nan_at, nan_times=nan_times, nan_in=nan_in, **options)
         self.training_calls = 0
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
@@ -78,7 +78,12 @@ class NaNOnce(TinyGrid):
             self.training_calls += 1
             start = self.options["nan_at"]
             if start <= self.training_calls < start + self.options["nan_times"]:
-                out["rgb"] = out["rgb"] * float("nan")
+                if self.options["nan_in"] == "loss":
+                    out["rgb"] = out["rgb"] * float("nan")
+                else:
+                    # Finite forward, NaN backward: the gradient of sqrt at 0 times 0.
+                    zero = (self.grid.sum() * 0.0).clamp_min(0.0) * 0.0
+                    out["aux_loss"] = torch.sqrt(zero)
         return out
 
 

@@ -156,3 +156,37 @@ def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
     start = read_events(run / "progress.jsonl")[0]
     assert cfg["size_reasons"] and start["size_reasons"] == cfg["size_reasons"]
     assert all(isinstance(r, str) and r for r in cfg["size_reasons"])
+
+
+def test_nan_gradient_with_finite_loss_also_rolls_back(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    out = train(_cfg(sphere_dataset, run, method="test-nan", options={"nan_at": 8, "nan_in": "grad"},
+                     max_steps=12, eval_views=0))
+    rb = [e for e in read_events(run / "progress.jsonl") if e["event"] == "rollback"]
+    assert len(rb) == 1 and "gradient" in rb[0]["reason"] and rb[0]["restored_step"] == 0
+    assert out["step"] == 12
+    # The model that finished has finite weights (the NaN step was never applied).
+    state = torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["model"]
+    assert all(torch.isfinite(v).all() for v in state.values())
+
+
+def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkeypatch):
+    from nerf_core.methods.base import _REGISTRY
+
+    cls = _REGISTRY["test-grid"]
+
+    def hook(self, step, max_steps, elapsed, max_seconds):
+        if step == 7 and not getattr(self, "_interrupted", False):
+            self._interrupted = True
+            raise KeyboardInterrupt
+        return False
+
+    monkeypatch.setattr(cls, "training_hook", hook)
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(_cfg(sphere_dataset, run, max_steps=15))
+    events = read_events(run / "progress.jsonl")
+    assert events[-1]["event"] == "error" and "interrupted at step 7" in events[-1]["message"]
+    assert torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["step"] == 7
+    monkeypatch.undo()
+    assert train(_cfg(sphere_dataset, run, max_steps=15, resume=True))["step"] == 15
