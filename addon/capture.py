@@ -513,7 +513,7 @@ class CaptureJob:
         near, far = export.near_far([[m[0][3], m[1][3], m[2][3]] for m in cams], *self.bounds)
         self.near, self.far = near, far
         common = {"aabb": [list(map(float, self.bounds[0])), list(map(float, self.bounds[1]))],
-                  "near": near, "far": far}
+                  "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(*self.bounds)}
         if self.s.depth:
             common["depth_unit_scale_factor"] = 1.0  # EXR depth is already in scene units, not millimetres
         if self.s.points and complete:

@@ -139,6 +139,19 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
     return written
 
 
+def ngp_aabb_scale(lo, hi, ngp_scale: float = 0.33) -> int:
+    """instant-ngp's ``aabb_scale``: the smallest power of two (1..128) whose box holds the bounds.
+
+    instant-ngp maps a point p to p * 0.33 + 0.5 and samples the box 0.5 +- aabb_scale / 2.
+    """
+    extent = max(abs(float(v)) for v in list(lo) + list(hi))
+    need = 2.0 * ngp_scale * extent
+    scale = 1
+    while scale < need and scale < 128:
+        scale *= 2
+    return scale
+
+
 def near_far(camera_positions, lo, hi) -> tuple[float, float]:
     """Near/far that bracket the box (lo, hi) from every camera: nearest box point, farthest corner."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)

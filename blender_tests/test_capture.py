@@ -227,6 +227,16 @@ def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
     np.testing.assert_allclose(lo, [-CUBE_HALF, -CUBE_HALF, -CUBE_HALF], atol=1e-5)
     np.testing.assert_allclose(hi, BALL_C + BALL_R, atol=1e-5)
     assert 0 < doc["near"] < 7 - 1.5 and doc["far"] > 7 + 1.3
+    assert doc["aabb_scale"] == 2  # 1.65 * 0.33 * 2 = 1.09: instant-ngp's unit box is too small
+
+
+def test_ngp_aabb_scale_is_the_smallest_power_of_two_holding_the_bounds():
+    from addon.export import ngp_aabb_scale
+
+    assert ngp_aabb_scale((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5)) == 1
+    assert ngp_aabb_scale((-1.6, 0, 0), (0, 0, 0)) == 2
+    assert ngp_aabb_scale((0, 0, 0), (0, 0, 20.0)) == 16
+    assert ngp_aabb_scale((0, 0, 0), (0, 0, 1e6)) == 128
 
 
 def test_manifest_records_settings_and_no_normalisation(cycles_dataset):
