@@ -240,3 +240,30 @@ def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
     proc = subprocess.run(base[:5] + [str(tmp_path / "new"), "--resume", "--quiet"], capture_output=True, text=True,
                           timeout=180)
     assert proc.returncode == 2 and "no capture to continue" in proc.stderr
+
+
+def test_pass_files_round_trip_and_unreadable_ones_are_named(tmp_path):
+    import numpy as np
+    import OpenEXR
+    from PIL import Image
+
+    from addon import passes
+
+    z = np.arange(12, dtype=np.float32).reshape(3, 4) / 7
+    z[0, 0] = np.inf
+    path = str(tmp_path / "d.exr")
+    passes.write_exr(path, {"Z": z, "A": -z})
+    ch = OpenEXR.File(path, separate_channels=True).parts[0].channels
+    assert np.array_equal(ch["Z"].pixels, z) and np.array_equal(ch["A"].pixels, -z)
+    assert np.array_equal(passes.read_exr_channels(path)["Z"], z)
+    zipped = str(tmp_path / "zip.exr")
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {"Z": z}).write(zipped)
+    with pytest.raises(passes.PassError, match="zip.exr: compressed EXR"):
+        passes.read_exr_channels(zipped)
+    (tmp_path / "junk.exr").write_bytes(b"not an image")
+    with pytest.raises(passes.PassError, match="junk.exr: not an OpenEXR"):
+        passes.read_exr_channels(str(tmp_path / "junk.exr"))
+    mask = (np.arange(20).reshape(4, 5) % 3 == 0).astype(np.uint8) * 255
+    passes.write_png_gray(str(tmp_path / "m.png"), mask)
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "m.png")), mask)
