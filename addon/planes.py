@@ -240,17 +240,19 @@ def _resize_plane(ob: bpy.types.Object, width: float, height: float) -> None:
     ob.data.update()
 
 
-def import_camera_aligned(views: Sequence[View], distance: float, collection_name: str = VIEWS_COLLECTION,
+def import_camera_aligned(views: Sequence[View], distance, collection_name: str = VIEWS_COLLECTION,
                           scene=None) -> List[bpy.types.Object]:
-    """Replace the planes in ``collection_name`` with one plane per view inside its camera's frustum."""
-    if distance <= 0:
-        raise ValueError(f"plane distance must be positive, got {distance}")
+    """Replace the planes in ``collection_name`` with one plane per view inside its camera's frustum,
+    ``distance`` in front of it (one number for all views, or one per view)."""
+    distances = list(distance) if isinstance(distance, (list, tuple)) else [distance] * len(views)
+    if len(distances) != len(views) or any(d <= 0 for d in distances):
+        raise ValueError(f"plane distances must be positive, one per view; got {distance}")
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
     made = []
-    for view in views:
+    for view, dist in zip(views, distances):
         ob = import_image_plane(view.image, coll, f"NeRF {view.name}")
-        matrix, width, height = frustum_plane(view.c2w, view.intrinsics, distance)
+        matrix, width, height = frustum_plane(view.c2w, view.intrinsics, dist)
         _resize_plane(ob, width, height)
         ob.matrix_world = matrix
         ob["nerf_view"] = view.name

@@ -181,7 +181,7 @@ def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run
         planes.import_gallery(views, out_dir, origin=tuple(scene.cursor.location),
                               background=runs.run_background(run), scene=scene)
     else:
-        planes.import_camera_aligned(views, distance or auto_distance(views, run), scene=scene)
+        planes.import_camera_aligned(views, distance or auto_distances(views, run), scene=scene)
     settings = getattr(scene, "nerf_train", None)
     if settings is not None:
         settings.view_metrics.clear()
@@ -193,20 +193,29 @@ def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run
             item.has_metrics = bool(view.metrics)
 
 
-def auto_distance(views: List[planes.View], run: str) -> float:
-    """Where camera-aligned planes go when no distance is set: at the scene centre's depth (the middle
-    of the dataset's aabb), so the image sits among the objects it shows; else 1 scene unit."""
-    meta = _dataset_meta(run)
-    aabb = meta.get("aabb") if meta else None
-    if not views or not (isinstance(aabb, list) and len(aabb) == 2):
-        return 1.0
+def auto_distances(views: List[planes.View], run: str) -> List[float]:
+    """Per view, where a camera-aligned plane goes when no distance is set: at the depth of the scene
+    centre (middle of the run's aabb, else the dataset's), so the image sits among the objects it
+    shows; just beyond ``near`` when the centre is behind that; 1 scene unit when nothing is known."""
     import mathutils
 
-    centre = (mathutils.Vector(aabb[0]) + mathutils.Vector(aabb[1])) / 2
-    c2w = mathutils.Matrix(views[0].c2w)
-    depth = -(c2w.inverted() @ centre).z
-    near = float(meta.get("near", 0.0) or 0.0)
-    return depth if depth > near > 0 or (near == 0 and depth > 0) else max(near * 1.05, 1.0)
+    meta = _dataset_meta(run)
+    try:
+        with open(os.path.join(run, "config.json"), encoding="utf-8") as fh:
+            config = json.load(fh)
+    except (OSError, ValueError):
+        config = {}
+    aabb = config.get("aabb") or meta.get("aabb")
+    near = config.get("near", meta.get("near")) or 0.0
+    out = []
+    for view in views:
+        if not (isinstance(aabb, list) and len(aabb) == 2):
+            out.append(near * 1.05 if near > 0 else 1.0)
+            continue
+        centre = (mathutils.Vector(aabb[0]) + mathutils.Vector(aabb[1])) / 2
+        depth = -(mathutils.Matrix(view.c2w).inverted() @ centre).z
+        out.append(depth if depth > max(near, 1e-6) else (near * 1.05 if near > 0 else 1.0))
+    return out
 
 
 def _dataset_meta(run: str) -> dict:
@@ -277,6 +286,7 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
     plane_distance: FloatProperty(name="Plane Distance", default=0.0, min=0.0, unit="LENGTH",
                                   description="Distance of camera-aligned planes from their camera (0: at the scene centre)")
     view_metrics: CollectionProperty(type=NerfViewMetric)
+    view_metrics_index: IntProperty(default=0)
 
 
 def settings_of(context) -> NerfTrainSettings:
@@ -293,6 +303,10 @@ def start_training(context, resume: bool = False) -> TrainJob:
     if "train" in _JOBS and _JOBS["train"].state == "running":
         raise SetupError("A training run is already in progress: cancel it first.")
     s = settings_of(context)
+    capture = getattr(context.scene, "nerf_capture", None)
+    if not s.dataset_dir and capture is not None and getattr(capture, "output_dir", ""):
+        # Nothing chosen yet: train on what the Capture panel writes, the usual next step.
+        s.dataset_dir = capture.output_dir
     dataset, run = _abs(s.dataset_dir), _abs(s.run_dir)
     if not dataset:
         raise SetupError("No dataset folder is set: capture a dataset (Capture panel) or choose its folder.")
@@ -728,7 +742,7 @@ class NERF_PT_compare(bpy.types.Panel):
         row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
         if len(s.view_metrics):
-            layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "runs_index", rows=4)
+            layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)
 
 
 # -- registration -------------------------------------------------------------------------------------

@@ -87,11 +87,14 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     test_cams = layouts.capture_cameras(scene)["test"]
     scene.render.resolution_x = scene.render.resolution_y = RES  # the capture's resolution
     scene.render.resolution_percentage = 100
+    config = json.load(open(os.path.join(s.run_dir, "config.json")))
     coll = bpy.data.collections[planes.VIEWS_COLLECTION]
     assert len(coll.objects) == 2 and len(s.view_metrics) == 2
     for view, cam in zip(views, test_cams):
         ob = bpy.data.objects[f"NeRF {view.name}"]
         assert planes.plane_image_path(ob) == os.path.join(job.out, f"{view.name}.png")
+        depth = -(cam.matrix_world.inverted() @ ob.matrix_world.translation).z  # auto: at the scene centre
+        assert config["near"] < depth < config["far"]
         uv = ob.data.uv_layers.active.data
         for loop in ob.data.loops:
             ndc = world_to_camera_view(scene, cam, ob.matrix_world @ ob.data.vertices[loop.vertex_index].co)

@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 import sys
+import types
 import zipfile
 
 import bpy
@@ -69,3 +70,66 @@ def test_built_zip_carries_nerf_core_for_the_trainer(tmp_path, use_bundled):
                          capture_output=True, text=True, timeout=60, cwd=str(tmp_path))
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().startswith(str(installed / "vendor"))
+
+
+class RecordingLayout:
+    """Stands in for UILayout (there is no window in background mode): records calls and checks that
+    every property, operator and list the panels name really exists."""
+
+    def __init__(self, calls):
+        self.__dict__["calls"] = calls
+
+    def __setattr__(self, name, value):  # use_property_split etc.
+        self.calls.append(("set", name, value))
+
+    def __getattr__(self, name):
+        def method(*args, **kwargs):
+            self.calls.append((name, args, kwargs))
+            if name == "prop":
+                assert args[1] in args[0].bl_rna.properties, f"no property {args[1]!r}"
+            elif name == "operator":
+                module, op = args[0].split(".")
+                assert op in dir(getattr(bpy.ops, module)), f"no operator {args[0]}"
+                return types.SimpleNamespace()
+            elif name == "template_list":
+                assert hasattr(bpy.types, args[0]), f"UIList {args[0]} is not registered"
+                assert args[3] in args[2].bl_rna.properties and args[5] in args[4].bl_rna.properties
+            return RecordingLayout(self.calls)
+        return method
+
+
+def _draw(panel):
+    calls = []
+    panel.draw(types.SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    return calls
+
+
+def _labels(calls):
+    return " | ".join(str(c[2].get("text", "")) for c in calls if c[0] in ("label", "progress"))
+
+
+def test_panels_draw_in_every_state(tmp_path):
+    from addon import train_ui
+
+    addon.register()
+    try:
+        s = bpy.context.scene.nerf_train
+        assert "Runs" in _labels(_draw(train_ui.NERF_PT_train))
+        s.running, s.step, s.loss, s.psnr, s.elapsed, s.eta, s.fraction, s.rollbacks = True, 120, 0.01, 21.5, 65, 30, .5, 1
+        s.status = "Step 120 (50%)"
+        labels = _labels(_draw(train_ui.NERF_PT_train))
+        for text in ("Step 120 (50%)", "PSNR 21.50 dB", "Elapsed 1:05", "ETA 0:30", "1 rollback(s)"):
+            assert text in labels
+        s.running, s.error = False, "Training stopped: boom\n--- last lines of the log ---\nTraceback"
+        assert "Training stopped: boom" in _labels(_draw(train_ui.NERF_PT_train))
+        item = s.runs.add()
+        item.name, item.method, item.metrics, item.settings = "run", "nerf", "PSNR 20.00 dB", "max 60 s"
+        assert "nerf: max 60 s" in _labels(_draw(train_ui.NERF_PT_train))
+        s.layout = "CAMERA"
+        m = s.view_metrics.add()
+        m.name, m.psnr, m.ssim, m.has_metrics = "r_0", 20.0, 0.9, True
+        calls = _draw(train_ui.NERF_PT_compare)
+        assert any(c[0] == "prop" and c[1][1] == "plane_distance" for c in calls)
+        assert any(c[0] == "template_list" and c[1][0] == "NERF_UL_view_metrics" for c in calls)
+    finally:
+        addon.unregister()

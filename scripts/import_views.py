@@ -72,14 +72,17 @@ def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> N
 
 def main(argv) -> int:
     args = parse(argv)
-    import bpy
-
-    from addon import planes, runs, trainer_process
-    from addon.train_ui import auto_distance
+    # Flags are checked before the scene is opened or anything is rendered.
+    from addon import runs, trainer_process
 
     out = os.path.abspath(args.out)
     run = os.path.abspath(args.run)
-    scene_file = os.path.abspath(args.blend) if args.blend else bpy.data.filepath
+    if args.blend:
+        scene_file = os.path.abspath(args.blend)
+    else:
+        import bpy
+
+        scene_file = bpy.data.filepath
     if scene_file and os.path.abspath(scene_file) == out:
         fail(f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
     if os.path.exists(out) and not args.overwrite:
@@ -107,6 +110,11 @@ def main(argv) -> int:
     except trainer_process.SetupError as exc:
         fail(f"{exc} (or pass --python / set NERF_PYTHON)")
 
+    import bpy
+
+    from addon import planes
+    from addon.train_ui import auto_distances
+
     open_blend(args.blend)
     label = os.path.splitext(os.path.basename(cameras))[0].replace("transforms_", "")
     if args.render_dir:
@@ -130,7 +138,7 @@ def main(argv) -> int:
         if args.layout == "gallery":
             planes.import_gallery(views, render_dir, background=runs.run_background(run), scene=scene)
         else:
-            distance = args.distance or auto_distance(views, run)
+            distance = args.distance or auto_distances(views, run)
             planes.import_camera_aligned(views, distance, scene=scene)
             for view in views:  # metrics are worth printing for the camera layout too
                 planes.compare_view(view, render_dir, runs.run_background(run))
