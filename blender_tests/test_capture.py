@@ -305,3 +305,37 @@ def test_masks_of_a_selection_cover_only_it(tmp_path):
             assert mask[ball_px] or not alpha[ball_px]  # the ball, unless hidden behind the cube
             assert alpha[cube_px] == 255
             assert mask.sum() < (alpha > 0).sum() * 0.6  # the cube is not in the mask
+
+
+def test_animation_layout_renders_each_sampled_frame(tmp_path):
+    build_test_scene()
+    scene = bpy.context.scene
+    cam = bpy.data.objects.new("Anim", bpy.data.cameras.new("Anim"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.frame_start, scene.frame_end = 1, 41
+    ball = bpy.data.objects["Sphere"]
+    for f, x in ((1, -6.0), (41, 6.0)):
+        cam.location = (x, -8.0, 2.0)
+        cam.keyframe_insert("location", frame=f)
+        ball.location = (x, 0.0, 1.2)  # the ball follows the camera: a view of the wrong frame misses it
+        ball.keyframe_insert("location", frame=f)
+    cam.rotation_euler = (np.radians(80), 0, 0)
+    scene.frame_set(5)
+    spec = layouts.LayoutSpec(layout="animation", frame_step=20, val=0, test=1, seed=0)
+    layouts.create_cameras(scene, spec, 40, 30)
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+                                                      res_y=30)).run()
+    assert scene.frame_current == 5 and scene.camera == cam
+    seen = {}
+    for split in ("train", "test"):
+        for _doc, fr, intr in frames(tmp_path, split):
+            x = {1: -6.0, 21: 0.0, 41: 6.0}[fr["blender_frame"]]
+            assert fr["transform_matrix"][0][3] == pytest.approx(x, abs=1e-4)
+            alpha = np.asarray(Image.open(os.path.join(tmp_path, fr["file_path"] + ".png")))[..., 3]
+            ball_at = np.array([[x, 0.0, 1.2]])
+            u, v, _ = project(ball_at, fr["transform_matrix"], intr)
+            assert 0 <= u[0] < 40 and 0 <= v[0] < 30
+            assert alpha[int(v[0]), int(u[0])] == 255, f"ball of frame {fr['blender_frame']} not where expected"
+            seen[fr["blender_frame"]] = True
+    assert sorted(seen) == [1, 21, 41]
