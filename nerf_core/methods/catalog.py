@@ -1,1 +1,9 @@
-"""The built-in methods. Importing this module registers them with ``base.register``."""
+"""The built-in methods. Importing this module registers them with ``base.register``.
+
+- ``vmgrid`` (DEFAULT_METHOD): VM-factorised grid, coarse-to-fine, occupancy-skipped; minutes on a CPU.
+- ``nerf``: the classic MLP NeRF with positional encoding and hierarchical sampling (CPU-sized).
+- ``nerf-nope``: ``nerf`` without positional encoding, the blurry baseline.
+"""
+from . import nerf, vmgrid  # noqa: F401  (the @register decorators run on import)
+
+DEFAULT_METHOD = "vmgrid"

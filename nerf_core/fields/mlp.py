@@ -1,0 +1,67 @@
+"""The classic NeRF MLP: (x, d) -> (sigma, rgb) with a skip connection and a view-dependent head."""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..encodings import IdentityEncoding, PositionalEncoding
+
+Tensor = torch.Tensor
+
+
+class NeRFMLP(nn.Module):
+    """Mildenhall et al.'s network, with configurable width/depth.
+
+    Args:
+        pos_freqs, dir_freqs: positional-encoding frequencies for positions and directions; 0 with
+            ``use_pe=False`` gives the no-encoding baseline (raw coordinates).
+        width, depth: hidden width and number of trunk layers; ``skip`` re-injects the encoded input
+            after that layer (the original uses 8 x 256 with the skip after layer 4).
+        aabb: (2, 3) box; positions are mapped to [-1, 1] inside it before encoding, so the encoding's
+            frequencies mean the same thing for every scene scale.
+    """
+
+    def __init__(self, aabb: Tensor, use_pe: bool = True, pos_freqs: int = 10, dir_freqs: int = 4,
+                 width: int = 128, depth: int = 4, skip: int = 2):
+        super().__init__()
+        self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
+        if use_pe:
+            self.pos_enc, self.dir_enc = PositionalEncoding(3, pos_freqs), PositionalEncoding(3, dir_freqs)
+        else:
+            self.pos_enc, self.dir_enc = IdentityEncoding(3), IdentityEncoding(3)
+        self.skip = skip
+        layers, d_in = [], self.pos_enc.out_dim
+        for i in range(depth):
+            if i == skip and i > 0:
+                d_in += self.pos_enc.out_dim
+            layers.append(nn.Linear(d_in, width))
+            d_in = width
+        self.trunk = nn.ModuleList(layers)
+        self.sigma_head = nn.Linear(width, 1)
+        self.feature = nn.Linear(width, width)
+        self.rgb_head = nn.Sequential(nn.Linear(width + self.dir_enc.out_dim, width // 2), nn.ReLU(), nn.Linear(width // 2, 3))
+
+    def normalize(self, x: Tensor) -> Tensor:
+        return (x - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1
+
+    def _trunk(self, x: Tensor) -> Tensor:
+        ex = self.pos_enc(self.normalize(x))
+        h = ex
+        for i, layer in enumerate(self.trunk):
+            if i == self.skip and i > 0:
+                h = torch.cat([h, ex], dim=-1)
+            h = F.relu(layer(h))
+        return h
+
+    def density(self, x: Tensor) -> Tensor:
+        """(m, 3) positions -> (m,) densities >= 0."""
+        return F.softplus(self.sigma_head(self._trunk(x)).squeeze(-1) - 1.0)
+
+    def forward(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
+        """(m, 3) positions and unit directions -> sigma (m,), rgb (m, 3) in [0, 1]."""
+        h = self._trunk(x)
+        # softplus rather than ReLU: a ReLU density that starts negative everywhere never recovers.
+        sigma = F.softplus(self.sigma_head(h).squeeze(-1) - 1.0)
+        rgb = torch.sigmoid(self.rgb_head(torch.cat([self.feature(h), self.dir_enc(d)], dim=-1)))
+        return sigma, rgb

@@ -1,0 +1,186 @@
+"""``vmgrid``: the fast method. A TensoRF-style VM-factorised grid (``fields.tensorf``) trained
+coarse-to-fine, with an occupancy grid skipping empty space from the first few steps and rays
+terminated once they are opaque.
+
+Per batch of rays:
+1. march each ray at half a voxel, keep only samples in occupied cells (``sampling.occupied_samples``);
+2. without grad, evaluate density at those samples and drop everything behind transmittance < 1e-4
+   (early ray termination: inside objects and behind surfaces costs nothing more);
+3. with grad, recompute density on the survivors, compositing weights (packed ``volrend``), and evaluate
+   the colour MLP only where a sample's weight exceeds 1e-4.
+
+Coarse-to-fine: the planes start at ``res_init`` and are resampled up to ``res_final`` at fixed fractions
+of the training budget; ``training_hook`` returns True then so the trainer rebuilds its optimiser.
+``options["resolution"]`` always holds the current size, so ``build_model(name, aabb, **options)``
+rebuilds a model whose shapes match a checkpoint saved after growth.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .. import sampling, volrend
+from ..fields.tensorf import TensorVMField
+from ..occupancy import OccupancyGrid
+from .base import RadianceModel, register
+
+Tensor = torch.Tensor
+
+
+@register("vmgrid")
+class VMGrid(RadianceModel):
+    """Options (JSON-able):
+        res_init, res_final: plane size at the start and at the end of growth (cells per axis).
+        resolution: current plane size (kept up to date by growth; defaults to res_init).
+        upsample_at: fractions of the training budget at which to grow (log-spaced sizes).
+        density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
+        occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
+        step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss).
+        grid_lr_scale: grids learn at ``lr * grid_lr_scale`` (TensoRF uses 0.02 vs 1e-3 for networks).
+        budget_steps: steps assumed for the schedule when the trainer gives neither max_steps nor max_seconds.
+    """
+
+    default_lr = 1e-3
+    defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
+                    density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
+                    occ_res=64, occ_every=16, step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
+                    grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, seed=0)
+
+    def __init__(self, aabb: Tensor, **options):
+        unknown = set(options) - set(self.defaults)
+        if unknown:
+            raise ValueError(f"vmgrid: unknown options {sorted(unknown)}; known: {sorted(self.defaults)}")
+        opts = {**self.defaults, **options}
+        if opts["resolution"] is None:
+            opts["resolution"] = opts["res_init"]
+        opts["upsample_at"] = [float(f) for f in opts["upsample_at"]]
+        super().__init__(aabb, **opts)
+        self.field = TensorVMField(self.aabb, resolution=opts["resolution"], density_rank=opts["density_rank"],
+                                   app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
+                                   view_freqs=opts["view_freqs"], seed=opts["seed"])
+        self.occupancy = OccupancyGrid(self.aabb, opts["occ_res"])
+        self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
+        self._last_growth_step = 0
+
+    # ------------------------------------------------------------------ schedule
+
+    def resolution_schedule(self) -> list[int]:
+        """Plane sizes after each growth, log-spaced from res_init to res_final."""
+        o = self.options
+        k = len(o["upsample_at"])
+        if k == 0:
+            return []
+        a, b = math.log(o["res_init"]), math.log(o["res_final"])
+        return [int(round(math.exp(a + (b - a) * (i + 1) / k))) for i in range(k)]
+
+    def _budget_fraction(self, step, max_steps, elapsed, max_seconds) -> float:
+        fracs = []
+        if max_seconds:
+            fracs.append(elapsed / max_seconds)
+        if max_steps:
+            fracs.append(step / max_steps)
+        if not fracs:
+            fracs.append(step / self.options["budget_steps"])
+        return max(fracs)  # whichever budget runs out first drives the schedule
+
+    def pruned(self) -> bool:
+        """True once the occupancy grid has started skipping space (it starts fully occupied)."""
+        return self.occupancy.occupied_fraction < 0.95
+
+    def step_size(self) -> float:
+        """Marching step in scene units: ``step_ratio`` voxels, coarser until the occupancy grid prunes.
+
+        Before the first prune every ray crosses the whole box (~100+ samples each); a coarser step
+        then makes the first few dozen steps cheap while the field finds the coarse geometry. Density
+        is per unit length, so nothing learnt is invalidated when the step refines.
+        """
+        s = self.options["step_ratio"] * self.field.voxel_size()
+        return s if self.pruned() else s * self.options["warmup_step_scale"]
+
+    def training_hook(self, step, max_steps, elapsed, max_seconds) -> bool:
+        o = self.options
+        # Frequent occupancy updates early (geometry appears fast and must not be pruned for long),
+        # sparser later when the grid is stable.
+        every = o["occ_every"] if step < 50 * o["occ_every"] else 2 * o["occ_every"]
+        if step > 0 and step % every == 0:
+            self.update_occupancy()
+        frac = self._budget_fraction(step, max_steps, elapsed, max_seconds)
+        target = o["res_init"]
+        for f, r in zip(o["upsample_at"], self.resolution_schedule()):
+            if frac >= f:
+                target = r
+        # Growing multiplies the cost of every sample's backward pass: wait until empty space is being
+        # skipped and each stage has had some steps to fit, even when the time budget says go.
+        ready = self.pruned() and step - self._last_growth_step >= self.options["min_stage_steps"]
+        if target > self.field.resolution and ready:
+            self._last_growth_step = step
+            self.field.upsample(self._next_resolution())
+            self.options["resolution"] = self.field.resolution
+            return True
+        return False
+
+    def _next_resolution(self) -> int:
+        """Grow one stage at a time (a late stage jumping straight to res_final would be too costly at once)."""
+        for r in self.resolution_schedule():
+            if r > self.field.resolution:
+                return r
+        return self.field.resolution
+
+    @torch.no_grad()
+    def update_occupancy(self) -> None:
+        self.occupancy.update(self.field.density, self.step_size())
+
+    # ------------------------------------------------------------------ optimisation
+
+    def param_groups(self, lr: float) -> list[dict]:
+        return [
+            {"params": self.field.grid_parameters(), "lr": lr * self.options["grid_lr_scale"], "name": "grids"},
+            {"params": self.field.network_parameters(), "lr": lr, "name": "networks"},
+        ]
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        # A checkpoint saved after growth has bigger planes than options["resolution"] may say (older
+        # option dicts, or options passed by hand): grow to the stored size before loading.
+        key = "field.density_planes"
+        if key in state_dict and state_dict[key].shape[-1] != self.field.resolution:
+            self.field.upsample(int(state_dict[key].shape[-1]))
+            self.options["resolution"] = self.field.resolution
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
+    # ------------------------------------------------------------------ rendering
+
+    def render_rays(self, rays_o, rays_d, near, far, background, training):
+        n_rays = rays_o.shape[0]
+        step = self.step_size()
+        t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
+                                                 jitter=training, max_samples=4096)
+        # Early ray termination: find, without grad, the samples still visible (T > 1e-4).
+        with torch.no_grad():
+            mids = 0.5 * (t0 + t1)
+            pts = rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1)
+            sig = torch.cat([self.field.density(pts[i:i + self.render_step_chunk])
+                             for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
+            trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
+            keep = trans > 1e-4
+        t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
+        sigma = self.field.density(pts)
+        weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
+        # Colour only where it can matter: most surviving samples are transparent space before a surface.
+        vis = (weights > 1e-4).detach()
+        rgb_s = self.field.color(pts[vis], rays_d[ridx[vis]])
+        rgb = volrend.accumulate_along_rays_packed(weights[vis], ridx[vis], n_rays, rgb_s)
+        acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
+        depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, (0.5 * (t0 + t1)).unsqueeze(-1)).squeeze(-1)
+        depth = depth / acc.clamp_min(1e-6)
+        out = {"rgb": volrend.composite_background(rgb, acc, background.to(rgb.dtype)), "depth": depth, "acc": acc,
+               "n_samples": int(ridx.shape[0])}
+        if training:
+            aux = 0.0
+            if self.options["l1_weight"] > 0:
+                aux = aux + self.options["l1_weight"] * self.field.density_l1()
+            if self.options["tv_weight"] > 0:
+                aux = aux + self.options["tv_weight"] * self.field.density_tv()
+            if torch.is_tensor(aux):
+                out["aux_loss"] = aux
+        return out

@@ -1,0 +1,127 @@
+"""Where to put samples along rays: box clipping, stratified, importance and occupancy-guided sampling.
+
+All functions work on whatever device their inputs are on.
+"""
+from __future__ import annotations
+
+from typing import Optional, Tuple
+
+import torch
+
+Tensor = torch.Tensor
+
+
+def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor, eps: float = 1e-9) -> Tuple[Tensor, Tensor, Tensor]:
+    """Slab-method intersection of rays with an axis-aligned box.
+
+    Args:
+        rays_o, rays_d: (n_rays, 3); directions need not be unit (distances are then in units of |d|).
+        aabb: (2, 3) = [min corner, max corner].
+
+    Returns:
+        t_near (n_rays,), t_far (n_rays,), hit (n_rays,) bool. ``t_near`` is clamped at 0 so that a ray
+        starting inside the box begins at its origin. Where ``hit`` is False the values are meaningless
+        (``t_near == t_far``). A ray parallel to a slab hits only if its origin lies between the planes.
+    """
+    aabb = aabb.to(rays_o)
+    d = rays_d
+    # Replace exact zeros by a tiny signed value: the slab then spans (-inf, inf) when the origin is
+    # between its planes and is empty otherwise, which is the right answer for a parallel ray.
+    d = torch.where(d.abs() < eps, torch.full_like(d, eps), d)
+    inv = 1.0 / d
+    t0 = (aabb[0] - rays_o) * inv
+    t1 = (aabb[1] - rays_o) * inv
+    t_near = torch.minimum(t0, t1).amax(dim=-1).clamp_min(0.0)
+    t_far = torch.maximum(t0, t1).amin(dim=-1)
+    hit = t_far > t_near
+    t_far = torch.where(hit, t_far, t_near)
+    return t_near, t_far, hit
+
+
+def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool, generator: Optional[torch.Generator] = None) -> Tensor:
+    """Interval edges for ``n_samples`` stratified samples between near and far.
+
+    Args:
+        near, far: (n_rays,).
+        jitter: if True each interior edge moves uniformly inside its stratum (training); else uniform.
+
+    Returns:
+        edges (n_rays, n_samples + 1): interval i is [edges[:, i], edges[:, i+1]].
+    """
+    u = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device, dtype=near.dtype).expand(near.shape[0], -1)
+    if jitter:
+        # Jitter the midpoints between bin edges so that intervals stay ordered and still tile [near, far].
+        noise = torch.rand(near.shape[0], n_samples + 1, device=near.device, dtype=near.dtype, generator=generator)
+        step = 1.0 / n_samples
+        u = u + (noise - 0.5) * step
+        u = torch.cat([torch.zeros_like(u[:, :1]), u[:, 1:-1].clamp(0, 1), torch.ones_like(u[:, :1])], dim=-1)
+    return near.unsqueeze(-1) + (far - near).unsqueeze(-1) * u
+
+
+def importance_samples(edges: Tensor, weights: Tensor, n_samples: int, deterministic: bool,
+                       generator: Optional[torch.Generator] = None, eps: float = 1e-5) -> Tensor:
+    """Inverse-CDF sampling of new distances from a piecewise-constant pdf (hierarchical sampling).
+
+    Args:
+        edges: (n_rays, n_bins + 1) bin edges; weights: (n_rays, n_bins) non-negative bin weights.
+        n_samples: how many distances to draw per ray.
+        deterministic: use evenly spaced quantiles instead of random ones (evaluation).
+
+    Returns:
+        (n_rays, n_samples) sorted distances, detached (no gradient flows through sample placement).
+    """
+    edges = edges.detach()
+    weights = weights.detach().float() + eps  # eps keeps a pdf on rays whose weights are all zero
+    pdf = weights / weights.sum(dim=-1, keepdim=True)
+    cdf = torch.cat([torch.zeros_like(pdf[:, :1]), torch.cumsum(pdf, dim=-1)], dim=-1).clamp_max(1.0)
+    n_rays = edges.shape[0]
+    if deterministic:
+        u = (torch.arange(n_samples, device=edges.device, dtype=cdf.dtype) + 0.5) / n_samples
+        u = u.expand(n_rays, n_samples).contiguous()
+    else:
+        u = torch.rand(n_rays, n_samples, device=edges.device, dtype=cdf.dtype, generator=generator).sort(dim=-1).values
+    idx = torch.searchsorted(cdf, u, right=True).clamp(1, cdf.shape[-1] - 1)
+    cdf_lo, cdf_hi = cdf.gather(-1, idx - 1), cdf.gather(-1, idx)
+    e = edges.to(cdf.dtype)
+    e_lo, e_hi = e.gather(-1, idx - 1), e.gather(-1, idx)
+    frac = ((u - cdf_lo) / (cdf_hi - cdf_lo).clamp_min(1e-12)).clamp(0, 1)
+    return (e_lo + frac * (e_hi - e_lo)).to(edges.dtype)
+
+
+def merge_edges(edges: Tensor, new_t: Tensor) -> Tensor:
+    """Sorted union of existing interval edges (n_rays, a) and new distances (n_rays, b) -> (n_rays, a + b)."""
+    return torch.sort(torch.cat([edges, new_t], dim=-1), dim=-1).values
+
+
+def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, step_size: float,
+                     occupied_fn, jitter: bool, max_samples: int = 1024,
+                     generator: Optional[torch.Generator] = None) -> Tuple[Tensor, Tensor, Tensor]:
+    """March every ray at a fixed step and keep only samples whose midpoint is in an occupied cell.
+
+    Args:
+        rays_o, rays_d: (n_rays, 3); near, far: (n_rays,) interval (rays with far <= near get nothing).
+        step_size: distance between samples in scene units.
+        occupied_fn: maps points (m, 3) -> (m,) bool, e.g. ``OccupancyGrid.query``.
+        jitter: shift each ray's samples by a random fraction of a step (training).
+        max_samples: cap on the number of steps per ray.
+
+    Returns:
+        packed ``t_starts`` (k,), ``t_ends`` (k,), ``ray_indices`` (k,) long, sorted by ray then distance.
+    """
+    n_rays = rays_o.shape[0]
+    span = (far - near).clamp_min(0)
+    n_steps = int(min(max_samples, max(1, int(torch.ceil(span.max() / step_size).item()) if n_rays else 1)))
+    offs = torch.arange(n_steps, device=rays_o.device, dtype=rays_o.dtype)
+    if jitter:
+        shift = torch.rand(n_rays, 1, device=rays_o.device, dtype=rays_o.dtype, generator=generator)
+    else:
+        shift = torch.full((n_rays, 1), 0.5, device=rays_o.device, dtype=rays_o.dtype)
+    t_mid = near.unsqueeze(-1) + (offs + shift) * step_size  # (n_rays, n_steps)
+    inside = t_mid < far.unsqueeze(-1)
+    ray_idx, step_idx = inside.nonzero(as_tuple=True)
+    t = t_mid[ray_idx, step_idx]
+    pts = rays_o[ray_idx] + rays_d[ray_idx] * t.unsqueeze(-1)
+    keep = occupied_fn(pts)
+    ray_idx, t = ray_idx[keep], t[keep]
+    half = 0.5 * step_size
+    return (t - half).clamp_min(near[ray_idx]), (t + half).clamp_max(far[ray_idx]), ray_idx

@@ -1,0 +1,161 @@
+"""Volume rendering, as flat functions (in the style of nerfacc's ``volrend.py``).
+
+Quadrature of the emission-absorption model along a ray:
+    alpha_i = 1 - exp(-sigma_i * delta_i),   T_i = prod_{j<i} (1 - alpha_j),   w_i = T_i * alpha_i,
+    C = sum_i w_i c_i + (1 - sum_i w_i) * background.
+
+Two layouts:
+- *dense*: every ray has the same number of samples, tensors shaped (n_rays, n_samples).
+- *packed*: ragged samples concatenated in ray order, with ``ray_indices`` (n_samples_total,) saying
+  which ray each sample belongs to (samples of one ray are contiguous and sorted by distance). This is
+  what empty-space skipping produces.
+
+Weights are always computed in float32 (float64 for the packed prefix sums) whatever the input dtype:
+transmittance is a product of many numbers close to 1 and half precision loses it.
+"""
+from __future__ import annotations
+
+from typing import Optional, Tuple
+
+import torch
+
+Tensor = torch.Tensor
+
+
+def _as_float(x: Tensor) -> Tensor:
+    return x.float() if x.dtype in (torch.float16, torch.bfloat16) else x
+
+
+# --------------------------------------------------------------------------------------- dense
+
+
+def render_transmittance_from_density(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor) -> Tuple[Tensor, Tensor]:
+    """Transmittance before each sample and each sample's alpha.
+
+    Args:
+        t_starts, t_ends: (n_rays, n_samples) interval bounds along each ray.
+        sigmas: (n_rays, n_samples) non-negative densities.
+
+    Returns:
+        transmittance (n_rays, n_samples) = T_i, alphas (n_rays, n_samples), both float32.
+    """
+    sigma_delta = _as_float(sigmas) * (_as_float(t_ends) - _as_float(t_starts))
+    alphas = 1.0 - torch.exp(-sigma_delta)
+    # Exclusive cumsum in log space: exact T_i = exp(-sum_{j<i} sigma_j delta_j), no product underflow.
+    excl = torch.cumsum(sigma_delta, dim=-1) - sigma_delta
+    transmittance = torch.exp(-excl)
+    return transmittance, alphas
+
+
+def render_weight_from_density(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+    """Compositing weights of a dense batch of samples.
+
+    Args:
+        t_starts, t_ends, sigmas: (n_rays, n_samples).
+
+    Returns:
+        weights (n_rays, n_samples), transmittance (n_rays, n_samples), alphas (n_rays, n_samples), float32.
+    """
+    transmittance, alphas = render_transmittance_from_density(t_starts, t_ends, sigmas)
+    return transmittance * alphas, transmittance, alphas
+
+
+def accumulate_along_rays(weights: Tensor, values: Optional[Tensor] = None) -> Tensor:
+    """Sum ``weights * values`` over the samples of each ray.
+
+    Args:
+        weights: (n_rays, n_samples).
+        values: (n_rays, n_samples, d), or None to accumulate the weights themselves (opacity).
+
+    Returns:
+        (n_rays, d), or (n_rays,) when ``values`` is None.
+    """
+    if values is None:
+        return weights.sum(dim=-1)
+    return (weights.unsqueeze(-1) * _as_float(values)).sum(dim=-2)
+
+
+def composite_background(rgb: Tensor, acc: Tensor, background: Tensor) -> Tensor:
+    """Put ``background`` (n_rays, 3) behind premultiplied ``rgb`` (n_rays, 3) with opacity ``acc`` (n_rays,)."""
+    return rgb + (1.0 - acc).unsqueeze(-1) * background
+
+
+def render_rays_dense(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor, rgbs: Tensor, background: Tensor) -> dict:
+    """Render dense samples into colour, expected depth and opacity.
+
+    Args:
+        t_starts, t_ends, sigmas: (n_rays, n_samples); rgbs: (n_rays, n_samples, 3); background: (n_rays, 3).
+
+    Returns:
+        dict with ``rgb`` (n_rays, 3) composited on the background, ``depth`` (n_rays,) expected distance
+        of the visible surface (weighted mean of interval midpoints, normalised by opacity so that it
+        stays a distance on partly transparent rays), ``acc`` (n_rays,) and ``weights`` (n_rays, n_samples).
+    """
+    weights, _, _ = render_weight_from_density(t_starts, t_ends, sigmas)
+    acc = accumulate_along_rays(weights)
+    rgb = composite_background(accumulate_along_rays(weights, rgbs), acc, background.to(weights.dtype))
+    mids = 0.5 * (_as_float(t_starts) + _as_float(t_ends))
+    depth = accumulate_along_rays(weights, mids.unsqueeze(-1)).squeeze(-1) / acc.clamp_min(1e-6)
+    return {"rgb": rgb, "depth": depth, "acc": acc, "weights": weights}
+
+
+# -------------------------------------------------------------------------------------- packed
+
+
+def packed_info_from_ray_indices(ray_indices: Tensor, n_rays: int) -> Tuple[Tensor, Tensor]:
+    """(first sample index, sample count) of each ray, both (n_rays,) long, from sorted ``ray_indices``."""
+    counts = torch.bincount(ray_indices, minlength=n_rays)
+    starts = torch.cumsum(counts, 0) - counts
+    return starts, counts
+
+
+def render_transmittance_from_density_packed(
+    t_starts: Tensor, t_ends: Tensor, sigmas: Tensor, ray_indices: Tensor, n_rays: int
+) -> Tuple[Tensor, Tensor]:
+    """Packed version of :func:`render_transmittance_from_density`.
+
+    Args:
+        t_starts, t_ends, sigmas: (n_samples_total,); ray_indices: (n_samples_total,) long, sorted.
+
+    Returns:
+        transmittance, alphas: (n_samples_total,) float32.
+    """
+    sigma_delta = _as_float(sigmas) * (_as_float(t_ends) - _as_float(t_starts))
+    alphas = 1.0 - torch.exp(-sigma_delta)
+    if sigma_delta.numel() == 0:
+        return torch.ones_like(sigma_delta), alphas
+    # One global prefix sum instead of a Python loop over rays; float64 because the running total over
+    # every ray in the batch is large and float32 would lose the small per-ray differences.
+    cs = torch.cumsum(sigma_delta.double(), 0)
+    excl = cs - sigma_delta.double()
+    starts, counts = packed_info_from_ray_indices(ray_indices, n_rays)
+    # Exclusive sum at the first sample of each ray = offset to subtract for all samples of that ray.
+    ray_offset = excl[starts.clamp_max(excl.numel() - 1)]
+    per_sample = excl - ray_offset[ray_indices]
+    transmittance = torch.exp(-per_sample).to(sigma_delta.dtype)
+    return transmittance, alphas
+
+
+def render_weight_from_density_packed(
+    t_starts: Tensor, t_ends: Tensor, sigmas: Tensor, ray_indices: Tensor, n_rays: int
+) -> Tuple[Tensor, Tensor, Tensor]:
+    """Packed compositing weights: returns weights, transmittance, alphas, each (n_samples_total,) float32."""
+    transmittance, alphas = render_transmittance_from_density_packed(t_starts, t_ends, sigmas, ray_indices, n_rays)
+    return transmittance * alphas, transmittance, alphas
+
+
+def accumulate_along_rays_packed(weights: Tensor, ray_indices: Tensor, n_rays: int, values: Optional[Tensor] = None) -> Tensor:
+    """Sum ``weights * values`` per ray in the packed layout.
+
+    Args:
+        weights: (n_samples_total,); ray_indices: (n_samples_total,) long;
+        values: (n_samples_total, d) or None for opacity.
+
+    Returns:
+        (n_rays, d), or (n_rays,) when ``values`` is None.
+    """
+    if values is None:
+        return torch.zeros(n_rays, dtype=weights.dtype, device=weights.device).index_add(0, ray_indices, weights)
+    src = weights.unsqueeze(-1) * _as_float(values)
+    out = torch.zeros(n_rays, src.shape[-1], dtype=src.dtype, device=src.device)
+    return out.index_add(0, ray_indices, src)
