@@ -26,6 +26,7 @@ DIR/stability.png.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import sys
@@ -103,9 +104,14 @@ def lr_flag(train_help: str) -> str | None:
 
 def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: float, extra: list[str],
                 log_path: str, on_progress, render: bool = True) -> dict:
-    """Train, evaluate and render one configuration; never raises for a failed run (that is data)."""
+    """Train, evaluate and render one configuration; never raises for a failed run (that is data).
+
+    The trainer's own final evaluation on every test view gives PSNR/SSIM (one process fewer than a
+    separate ``eval``); ``render`` of the test cameras gives the alpha compared for floaters.
+    """
+    n_test = bc.count_frames(dataset, "test")
     cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", method, "--max-seconds", f"{seconds:g}",
-                           "--seed", str(seed), "--overwrite", *extra)
+                           "--seed", str(seed), "--overwrite", "--eval-views", str(n_test), "--no-bar", *extra)
 
     def on_event(ev):
         if ev.get("event") == "step" and ev.get("elapsed") is not None:
@@ -115,28 +121,39 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
     summary = bc.summarize_training(res.events)
     row = {"psnr": None, "ssim": None, "rollbacks": summary["rollbacks"], "nan": summary["nan"],
            "steps": summary["steps"], "train_psnr": summary["train_psnr"], "n_params": summary["n_params"],
-           "lr": summary["first_lr"],
-           "floater_alpha": None, "floater_pixels": None, "error": None}
+           "lr": _base_lr(run_dir), "floater_alpha": None, "floater_pixels": None, "error": None}
     if not res.ok:
         row["error"] = res.error_message()
         return row
-    ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test"), log_path=log_path)
-    metrics = ev.last_json() if ev.ok else None
-    if not metrics or "psnr" not in metrics:
-        row["error"] = f"eval: {ev.error_message()}"
-        return row
+    evals = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test"]
+    metrics = evals[-1] if evals else None
+    if metrics is None:
+        ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path)
+        metrics = ev.last_json() if ev.ok else None
+        if not metrics or "psnr" not in metrics:
+            row["error"] = f"eval: {ev.error_message()}"
+            return row
     row["psnr"], row["ssim"] = metrics.get("psnr"), metrics.get("ssim")
     if row["psnr"] is None:
         row["nan"] = True  # NaN metrics come out as null
     if render:
         out = os.path.join(run_dir, "test_renders")
         rr = bc.run_cli(bc.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset, "transforms_test.json"),
-                                         "--out", out, "--split", "test"), log_path=log_path)
+                                         "--out", out, "--split", "test", "--overwrite", "--no-bar"), log_path=log_path)
         if rr.ok:
             row.update({k: v for k, v in bc.floater_stats(out, dataset).items() if k != "n_views"})
         else:
             row["render_error"] = rr.error_message()
     return row
+
+
+def _base_lr(run_dir: str):
+    """The base learning rate the trainer used (RUN/config.json ``lr``; step events carry the scheduled one)."""
+    try:
+        with open(os.path.join(run_dir, "config.json"), encoding="utf-8") as fh:
+            return float(json.load(fh).get("lr"))
+    except (OSError, ValueError, TypeError):
+        return None
 
 
 def parse_args(argv):
