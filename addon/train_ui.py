@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from typing import Dict, List, Optional
 
 import bpy
@@ -515,7 +516,8 @@ class _JobOperator:
             return {"PASS_THROUGH"}
         context.window_manager.event_timer_remove(self._timer)
         if state == "failed":
-            self.report({"ERROR"}, job.message)
+            print(f"NeRF Bridge: {job.message}", file=sys.stderr)  # the whole log tail, for the console
+            self.report({"ERROR"}, job.message.splitlines()[0])
             return {"CANCELLED"}
         if job is not None:
             self.report({"INFO"}, job.message)
@@ -663,8 +665,12 @@ class NERF_UL_view_metrics(bpy.types.UIList):
 
 
 def _draw_error(layout, text: str) -> None:
+    """The headline and the END of the log (where the cause is); the full text is in the console."""
+    lines = text.splitlines()
+    if len(lines) > 12:
+        lines = lines[:2] + ["..."] + lines[-9:]
     box = layout.box()
-    for i, line in enumerate(text.splitlines()[:12]):
+    for i, line in enumerate(lines):
         box.label(text=line[:120], icon="ERROR" if i == 0 else "BLANK1")
 
 

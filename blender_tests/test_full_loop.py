@@ -102,6 +102,30 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
             assert (ndc.x, ndc.y) == pytest.approx((want.x, want.y), abs=0.5 / RES / 10), (view.name, cam.name)
             assert ndc.z > 0  # in front of the camera
 
+    # A fly-through: the first test camera animated over two frames, one view per frame, through the
+    # real renderer; each plane lines up with the camera as it is at that frame.
+    cam = test_cams[0]
+    start = cam.matrix_world.copy()
+    cam.keyframe_insert("location", frame=1)
+    cam.location.z += 0.3
+    cam.keyframe_insert("location", frame=2)
+    scene.frame_start, scene.frame_end = 1, 2
+    bpy.context.view_layer.objects.active = cam
+    s.view_source = "ANIMATION"
+    job = drive(train_ui.start_render(bpy.context))
+    assert [v.name for v in job.views] == ["frame_0001", "frame_0002"]
+    for frame, view in ((1, job.views[0]), (2, job.views[1])):
+        scene.frame_set(frame)
+        ob = bpy.data.objects[f"NeRF {view.name}"]
+        uv = ob.data.uv_layers.active.data
+        for loop in ob.data.loops:
+            ndc = world_to_camera_view(scene, cam, ob.matrix_world @ ob.data.vertices[loop.vertex_index].co)
+            assert (ndc.x, ndc.y) == pytest.approx(tuple(uv[loop.index].uv), abs=0.5 / RES / 10)
+    assert sum(job.views[0].c2w, []) == pytest.approx([x for row in start for x in row], abs=1e-5)
+    assert len(bpy.data.collections[planes.VIEWS_COLLECTION].objects) == 2  # replaced the test views
+    cam.animation_data_clear()
+    cam.matrix_world = start
+
     # The gallery, headless, into a new .blend; the scene file is never touched.
     scene_blend = os.path.join(root, "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=scene_blend, copy=True)

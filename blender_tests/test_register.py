@@ -120,8 +120,10 @@ def test_panels_draw_in_every_state(tmp_path):
         labels = _labels(_draw(train_ui.NERF_PT_train))
         for text in ("Step 120 (50%)", "PSNR 21.50 dB", "Elapsed 1:05", "ETA 0:30", "1 rollback(s)"):
             assert text in labels
-        s.running, s.error = False, "Training stopped: boom\n--- last lines of the log ---\nTraceback"
-        assert "Training stopped: boom" in _labels(_draw(train_ui.NERF_PT_train))
+        s.running = False
+        s.error = "Training stopped: boom\n--- last lines of the log ---\n" + "\n".join(f"l{i}" for i in range(30))
+        labels = _labels(_draw(train_ui.NERF_PT_train))
+        assert "Training stopped: boom" in labels and "l29" in labels and "l5 " not in labels + " "
         item = s.runs.add()
         item.name, item.method, item.metrics, item.settings = "run", "nerf", "PSNR 20.00 dB", "max 60 s"
         assert "nerf: max 60 s" in _labels(_draw(train_ui.NERF_PT_train))

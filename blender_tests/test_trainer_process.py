@@ -2,7 +2,6 @@
 speaks the JSON-line protocol of docs/CONTRACTS.md: this tests the plumbing, not NeRF training."""
 from __future__ import annotations
 
-import json
 import os
 import signal
 import sys
