@@ -29,6 +29,7 @@ from . import image_metrics
 VIEWS_COLLECTION = "NeRF Views"
 GALLERY_COLLECTION = "NeRF Gallery"
 TAG = "nerf_bridge"
+HEATMAP_VMAX = 0.25  # mean absolute error drawn at full brightness; fixed so views are comparable
 
 
 @dataclass
@@ -290,7 +291,7 @@ def compare_view(view: View, out_dir: str, background=(1.0, 1.0, 1.0)) -> Option
                          f"{view.ground_truth} {gt.shape[1]}x{gt.shape[0]} differ in size")
     view.metrics = {"psnr": image_metrics.psnr(nerf, gt), "ssim": image_metrics.ssim(nerf, gt)}
     path = os.path.join(out_dir, f"{view.name}_error.png")
-    image_metrics.write_png(path, image_metrics.error_heatmap(nerf, gt))
+    image_metrics.write_png(path, image_metrics.error_heatmap(nerf, gt, vmax=HEATMAP_VMAX))
     return path
 
 
@@ -320,8 +321,9 @@ def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), 
     if views:
         aspect = views[0].intrinsics["w"] / views[0].intrinsics["h"]
         col_w = aspect * row_height
-        for col, title in enumerate(("NeRF", "Blender", "|error|")):
-            _text(coll, f"Gallery {title}", title, origin + Vector((col * (col_w + gap), 0, gap)), label)
+        headers = ("NeRF", "Blender", f"|error| (bright = {HEATMAP_VMAX:g}+)")
+        for col, title in enumerate(headers):
+            _text(coll, f"Gallery {title.split()[0]}", title, origin + Vector((col * (col_w + gap), 0, gap)), label)
     for row, view in enumerate(views):
         heat = compare_view(view, out_dir, background)
         z = -row * (row_height + 2 * label + 2 * gap)
