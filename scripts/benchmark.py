@@ -349,7 +349,15 @@ def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, mach
 # --------------------------------------------------------------------------------------------
 
 STAGE_MODULES = {"sampling": ("nerf_core.sampling", "nerf_core.occupancy"), "rendering": ("nerf_core.volrend",)}
-FIELD_MODULES = ("nerf_core.fields", "nerf_core.encodings")
+# Submodules whose classes come from these modules have their public methods timed as the stage.
+CLASS_STAGES = {"nerf_core.fields": "field", "nerf_core.encodings": "field", "nerf_core.occupancy": "sampling"}
+
+
+def _class_stage(module_name: str):
+    for prefix, stage in CLASS_STAGES.items():
+        if module_name == prefix or module_name.startswith(prefix + "."):
+            return stage
+    return None
 
 
 class StageTimer:
@@ -385,7 +393,7 @@ class StageTimer:
 
 
 def _instrument(model, timer: StageTimer):
-    """Wrap the sampling/rendering functions wherever nerf_core modules hold them, and hook field modules.
+    """Wrap the sampling/rendering functions wherever nerf_core modules hold them, and the field modules' methods.
 
     Returns an undo callable. Functions are matched by identity so ``from .sampling import f`` copies
     in method modules are wrapped too.
@@ -408,19 +416,25 @@ def _instrument(model, timer: StageTimer):
             if inspect.isfunction(value) and value in targets:
                 setattr(mod, attr, timer.wrap(value, targets[value]))
                 undo.append(lambda m=mod, a=attr, v=value: setattr(m, a, v))
-    handles = []
+    # Field (and occupancy-grid) modules: wrap every public method their classes define (forward,
+    # density, color, update, ...), since methods call ``field.density(pts)`` directly rather than
+    # through forward. Nested calls (an encoding inside a field, field density inside a grid update)
+    # are charged to the innermost stage.
     for sub in model.modules():
-        if sub is model or not type(sub).__module__.startswith(FIELD_MODULES):
+        stage = _class_stage(type(sub).__module__)
+        if sub is model or stage is None:
             continue
-        # Nested field modules (an encoding inside a field) push nested entries; all are "field".
-        handles.append(sub.register_forward_pre_hook(lambda m, inp: timer.enter("field")))
-        handles.append(sub.register_forward_hook(lambda m, inp, out: timer.exit()))
+        names = set()
+        for cls in type(sub).__mro__:
+            if _class_stage(cls.__module__) == stage:
+                names.update(n for n, v in vars(cls).items() if inspect.isfunction(v) and not n.startswith("_"))
+        for name in sorted(names):
+            sub.__dict__[name] = timer.wrap(getattr(sub, name), stage)
+            undo.append(lambda m=sub, n=name: m.__dict__.pop(n, None))
 
     def restore():
         for fn in undo:
             fn()
-        for h in handles:
-            h.remove()
 
     return restore
 

@@ -313,3 +313,29 @@ def test_breakdown_table_finds_first_failing_setting():
     assert table[("nerf", "views")] == "4: PSNR < 18; 8: PSNR < 18"
     assert table[("grid", "views")] == "no breakdown"
     assert table[("grid", "pose_noise")] == "2deg: PSNR < 18"
+
+
+# ---------------------------------------------------------------- stage profile accounting
+
+
+def test_stage_timer_charges_nested_time_to_the_inner_stage(monkeypatch):
+    clock = {"t": 0.0}
+    monkeypatch.setattr(benchmark.time, "perf_counter", lambda: clock["t"])
+    timer = benchmark.StageTimer(sync=lambda: None)
+
+    def field(pts):
+        clock["t"] += 2.0  # 2 s inside the field
+        return pts
+
+    def sampling(x):
+        clock["t"] += 1.0  # 1 s of sampling's own work ...
+        field_w(x)  # ... plus a nested field call
+        clock["t"] += 0.5
+        return x
+
+    field_w = timer.wrap(field, "field")
+    sampling_w = timer.wrap(sampling, "sampling")
+    assert sampling_w(3) == 3
+    field_w(1)
+    assert timer.totals == {"field": 4.0, "sampling": 1.5}
+    assert timer.stack == []
