@@ -325,6 +325,7 @@ class Trainer:
         if removed:
             print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
                   + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
+        restore = _terminate_as_interrupt()
         try:
             return self._fit(dataset, ckpt)
         except KeyboardInterrupt:
@@ -340,6 +341,7 @@ class Trainer:
             self.log.emit("error", message=f"training failed at step {getattr(self, 'step', 0)}: {msg}")
             raise TrainError(f"training failed at step {getattr(self, 'step', 0)}: {msg}") from exc
         finally:
+            restore()
             self.log.close()
 
     def _merge_resumed_config(self, ckpt: dict) -> None:
@@ -761,6 +763,22 @@ class Trainer:
         self.log.emit("eval", step=self.step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
                       n_views=result["n_views"], depth_mae=result.get("depth_mae"))
         return {k: v for k, v in result.items() if k != "per_view"} | {"split": split_name}
+
+
+def _terminate_as_interrupt():
+    """Treat SIGTERM (what the add-on's Cancel and most job schedulers send) like Ctrl-C, so the run
+    stops with a checkpoint it can resume from. Returns a function restoring the previous handler."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "SIGTERM"):
+        return lambda: None
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    return lambda: signal.signal(signal.SIGTERM, previous)
 
 
 def _masked_mse(pred: torch.Tensor, gt: torch.Tensor, weight: Optional[torch.Tensor]) -> torch.Tensor:
