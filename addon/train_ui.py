@@ -8,6 +8,7 @@ live in scene properties); the scene's ``nerf_train`` settings mirror their stat
 """
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import sys
@@ -772,12 +773,15 @@ def register():
     bpy.types.Scene.nerf_train = PointerProperty(type=NerfTrainSettings)
     if _cancel_on_load not in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.append(_cancel_on_load)
+    # The children live in their own session, so quitting Blender would not take them down by itself.
+    atexit.register(cancel_jobs)
 
 
 def unregister():
     global _PREVIEWS
     cancel_jobs()
     _JOBS.clear()
+    atexit.unregister(cancel_jobs)
     if _cancel_on_load in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.remove(_cancel_on_load)
     if _PREVIEWS is not None:

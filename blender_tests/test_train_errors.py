@@ -5,6 +5,7 @@ import errno
 import json
 import os
 import stat
+import subprocess
 import sys
 import time
 
@@ -169,3 +170,27 @@ def test_render_without_a_trained_run(s, tmp_path):
     with pytest.raises(RuntimeError, match="no trained checkpoint"):
         bpy.ops.nerf.render_views()
     assert "has no trained checkpoint yet: train first" in s.error
+
+
+def test_quitting_blender_leaves_no_orphan_trainer(tmp_path, repo_root):
+    """The trainer runs in its own session; the add-on stops it when Blender's Python exits."""
+    script = tmp_path / "session.py"
+    script.write_text(f"""
+import sys, time
+sys.path.insert(0, {repo_root!r})
+import bpy
+from addon import train_ui
+train_ui.register()
+cmd = [sys.executable, "-c", "import time\\nwhile True: time.sleep(0.1)"]
+job = train_ui.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
+train_ui._JOBS["train"] = job
+print(job.process.pid, flush=True)
+time.sleep(0.5)
+""")  # ...and exits without cancelling, as a user quitting Blender would
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    pid = int(proc.stdout.strip().splitlines()[-1])
+    deadline = time.monotonic() + 10
+    while trainer_process.pid_alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not trainer_process.pid_alive(pid), "the trainer outlived Blender"
