@@ -67,7 +67,7 @@ def test_nerfstudio_without_split_lists_holds_out_every_eighth(tmp_path, dataset
     for key in ("train_filenames", "val_filenames", "test_filenames"):
         del meta[key]
     # Per-frame intrinsics override the global ones.
-    meta["frames"][3]["fl_x"] = 99.0
+    meta["frames"][5]["fl_x"] = 99.0  # train/r_5.png: sorted position 10, not held out
     (ds_path / "transforms.json").write_text(json.dumps(meta))
     ds = load_dataset(ds_path)
     names = sorted(f["file_path"] for f in meta["frames"])
@@ -77,9 +77,9 @@ def test_nerfstudio_without_split_lists_holds_out_every_eighth(tmp_path, dataset
     assert len(ds.splits["train"]) == 14
     assert any("every 8th" in n for n in ds.notes)
     by_name = {f.file_path: k for k, f in enumerate(ds.splits["train"].frames)}
-    k = by_name.get(meta["frames"][3]["file_path"])
-    if k is not None:
-        assert float(ds.splits["train"].cameras.fx[k]) == pytest.approx(99.0)
+    k = by_name[meta["frames"][5]["file_path"]]
+    assert float(ds.splits["train"].cameras.fx[k]) == pytest.approx(99.0)
+    assert float(ds.splits["train"].cameras.fx[(k + 1) % 14]) == pytest.approx(meta["fl_x"])
 
 
 def test_exr_images_and_png_depth_in_millimetres(tmp_path, dataset_factory):
