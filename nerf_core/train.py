@@ -62,7 +62,7 @@ class TrainConfig:
     device: Optional[str] = None
     lr: Optional[float] = None  # base learning rate; default: the method's default_lr
     batch_rays: Optional[int] = None  # None: the method's default_batch_rays, else 4096 on CUDA / 1024 on CPU
-    background: str = "auto"  # auto = random when the images have alpha, else white
+    background: str = "auto"  # auto: images with alpha -> white for the first 20 % of the budget, then random
     downscale: int = 1
     log_every: int = 50
     preview_every: Optional[int] = None  # steps; None: every preview_seconds of training time
@@ -93,7 +93,8 @@ class TrainConfig:
 
 
 DEFAULT_MAX_STEPS = 5000
-STEP_EVENT_SECONDS = 5.0  # used only when neither budget is given
+STEP_EVENT_SECONDS = 5.0
+AUTO_WHITE_FRACTION = 0.2  # --background auto: white for this share of the budget, then random  # used only when neither budget is given
 
 
 # ----------------------------------------------------------------------------------------------
@@ -265,12 +266,13 @@ class _Batcher:
         self.total = len(split) * self.hw
         self.fixed_bg = torch.tensor([0.0, 0.0, 0.0] if background == "black" else [1.0, 1.0, 1.0])
 
-    def sample(self, n: int):
+    def sample(self, n: int, frac: float = 1.0):
         flat = torch.randint(0, self.total, (n,), generator=self.gen)
         view = flat // self.hw
         pix = flat % self.hw
         j, i = pix // self.split.width, pix % self.split.width
-        if self.background == "random":
+        random_bg = self.background == "random" or (self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION)
+        if random_bg:
             bg = torch.rand(n, 3, generator=self.gen)
         else:
             bg = self.fixed_bg.expand(n, 3)
@@ -522,7 +524,10 @@ class Trainer:
         self._build(dataset, ckpt)
         train = self.train
         if cfg.background == "auto":
-            self.bg_mode = "random" if train.has_alpha else "white"
+            # Random backgrounds stop a model from explaining the background with semi-transparent
+            # geometry, but their gradient towards opacity is weak and noisy: a grid initialised
+            # nearly empty (vmgrid) never becomes opaque. White first bootstraps the geometry.
+            self.bg_mode = "white-then-random" if train.has_alpha else "white"
         else:
             self.bg_mode = cfg.background
         if self.bg_mode == "random" and not train.has_alpha:
@@ -586,7 +591,7 @@ class Trainer:
             factor = schedule_factor(self.step, frac, self.warmup)
             for g in self.opt.param_groups:
                 g["lr"] = g["base_lr"] * factor
-            rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays)
+            rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
             near, far = ray_bounds(rays_o, rays_d, self.model.aabb, dataset.near, dataset.far)
             out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
             mse = _masked_mse(out["rgb"], gt, weight)

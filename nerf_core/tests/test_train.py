@@ -40,7 +40,7 @@ def test_short_run_writes_the_run_folder_and_events(trained_run):
     first = [e for e in events if e["event"] == "step"][0]
     assert step["loss"] < first["loss"]  # it learns
     cfg = json.loads((run / "config.json").read_text())
-    assert cfg["method"] == "test-grid" and cfg["seed"] == 0 and cfg["background_used"] == "random"
+    assert cfg["method"] == "test-grid" and cfg["seed"] == 0 and cfg["background_used"] == "white-then-random"
     assert cfg["versions"]["torch"] == torch.__version__
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["split"] == "test" and metrics["n_views"] == 2 and 0 < metrics["ssim"] <= 1
@@ -195,3 +195,18 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkey
     assert torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["step"] == 7
     monkeypatch.undo()
     assert train(_cfg(sphere_dataset, run, max_steps=15, resume=True))["step"] == 15
+
+
+def test_auto_background_is_white_first_then_random(sphere_dataset):
+    from nerf_core.data import load_dataset
+    from nerf_core.train import AUTO_WHITE_FRACTION, _Batcher
+
+    split = load_dataset(sphere_dataset).splits["train"]
+    b = _Batcher(split, "white-then-random", torch.Generator().manual_seed(0), torch.device("cpu"))
+    _, _, bg_early, gt_early, _ = b.sample(512, frac=AUTO_WHITE_FRACTION / 2)
+    _, _, bg_late, gt_late, _ = b.sample(512, frac=AUTO_WHITE_FRACTION)
+    assert torch.all(bg_early == 1.0)
+    assert bg_late.std() > 0.2  # one random colour per ray
+    # Transparent pixels show exactly the background they were composited onto.
+    _, _, bg_rand, gt_rand, _ = _Batcher(split, "random", torch.Generator().manual_seed(1), torch.device("cpu")).sample(4096)
+    assert ((gt_rand - bg_rand).abs().amax(-1) < 1e-6).float().mean() > 0.3
