@@ -25,6 +25,7 @@ class NeRF(RadianceModel):
     density while training, a regulariser from the paper; 0 disables it)."""
 
     default_lr = 5e-4
+    default_batch_rays = 1024
     defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, n_coarse=32, n_fine=64, use_pe=True)
 
     def __init__(self, aabb: Tensor, **options):

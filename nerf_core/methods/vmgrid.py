@@ -42,6 +42,10 @@ class VMGrid(RadianceModel):
     """
 
     default_lr = 1e-3
+    # Read by the trainer: 2048 rays keep a step short enough for frequent occupancy updates and
+    # growth decisions, while amortising the per-step Python overhead; grids need little LR warm-up.
+    default_batch_rays = 2048
+    warmup_steps = 20
     defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
                     occ_res=64, occ_every=16, step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,

@@ -1,0 +1,52 @@
+"""Occupancy grid: updates mark occupied cells, marching skips the rest, an emptied grid recovers."""
+import torch
+
+from nerf_core import sampling
+from nerf_core.occupancy import OccupancyGrid
+
+BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+def ball(p):
+    return 50.0 * (p.norm(dim=-1) < 0.4).float()
+
+
+def test_update_marks_cells_near_density_and_queries_agree():
+    g = OccupancyGrid(BOX, resolution=16)
+    assert g.binary.all()  # nothing known yet: everything may be occupied
+    g.update(ball, step_size=0.02, decay=0.0)
+    assert bool(g.query(torch.zeros(1, 3)))
+    far_pts = torch.tensor([[0.9, 0.9, 0.9], [-0.9, 0.1, 0.0], [0.0, 0.0, 0.95]])
+    assert not g.query(far_pts).any()
+    # Points outside the box are never occupied.
+    assert not g.query(torch.tensor([[2.0, 0.0, 0.0]])).any()
+    # Ball volume fraction ~3.4%, one-cell dilation makes it larger but still a small part of the box.
+    assert 0.02 < g.occupied_fraction < 0.3
+
+
+def test_marching_through_the_grid_only_samples_occupied_cells():
+    g = OccupancyGrid(BOX, resolution=16)
+    g.update(ball, step_size=0.02, decay=0.0)
+    o = torch.tensor([[0.0, 0.0, 3.0], [0.9, 0.9, 3.0]])
+    d = torch.tensor([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    near, far, _ = sampling.ray_aabb_intersect(o, d, BOX)
+    t0, t1, ridx = sampling.occupied_samples(o, d, near, far, 0.02, g.query, jitter=False)
+    assert (ridx == 1).sum() == 0  # the corner ray misses the ball: no samples at all
+    n0 = (ridx == 0).sum().item()
+    assert 0 < n0 < 100 * 0.6  # the central ray samples only around the ball, not the whole 2-unit box
+    z = 3.0 - 0.5 * (t0 + t1)
+    assert z.abs().max() < 0.4 + 2 * 2 / 16  # within the ball plus the dilation margin
+
+
+def test_emptied_grid_recovers_and_ema_remembers():
+    g = OccupancyGrid(BOX, resolution=8)
+    g.update(ball, step_size=0.02, decay=0.95)
+    frac = g.occupied_fraction
+    # A collapsed density does not make the grid forget the ball at once (the EMA decays slowly)...
+    g.update(lambda p: torch.zeros(p.shape[0]), step_size=0.02, decay=0.95)
+    assert g.occupied_fraction == frac
+    # ...and a grid whose every cell is below threshold reopens instead of staying empty.
+    g.reset()
+    g.binary.fill_(False)
+    g.update(lambda p: torch.zeros(p.shape[0]), step_size=0.02)
+    assert g.binary.all() and g.n_resets == 1
