@@ -122,7 +122,8 @@ def make_plan(args, train_help: str) -> Plan:
         scenes = QUICK_SCENES if args.quick else FULL_SCENES
     series = [Series(m, m) for m in methods]
     if not args.no_sizes and fast:
-        series += size_series(fast, train_help, ("small",) if args.quick else ("small", "medium"))
+        names = tuple(args.sizes.split(",")) if args.sizes else (("small",) if args.quick else ("small", "medium"))
+        series += size_series(fast, train_help, tuple(n for n in names if n != "auto"))
     total = args.minutes * 60.0
     if args.checkpoints:
         checkpoints = sorted(float(x) * 60.0 for x in args.checkpoints.split(","))
@@ -562,6 +563,8 @@ def parse_args(argv):
     ap.add_argument("--samples", type=int, default=16, help="render samples per pixel for the capture")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-sizes", action="store_true", help="skip the fixed-size and --size auto series")
+    ap.add_argument("--sizes", help="fixed sizes of the fast method to run beside --size auto "
+                                    "(default small,medium; quick: small)")
     ap.add_argument("--no-profile", action="store_true", help="skip the per-stage time profile")
     ap.add_argument("--independent", action="store_true",
                     help="a fresh run per checkpoint budget instead of resumed segments (exact per-budget schedules, "
