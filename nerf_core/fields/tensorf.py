@@ -39,9 +39,8 @@ class TensorVMField(nn.Module):
         app_dim: width of the appearance feature after the basis matrix.
         mlp_width: hidden width of the colour MLP (two hidden layers).
         view_freqs: positional-encoding frequencies of the view direction (0: diffuse only).
-        density_shift, density_scale: sigma = density_scale * softplus(raw + density_shift). The shift
-            makes the initial field almost transparent (alpha ~ 1e-5 per sample), so the
-            occupancy grid starts with nothing confidently occupied and prunes as geometry appears.
+        density_shift, density_scale: sigma = density_scale * softplus(raw + density_shift); the raw
+            features start near 0, so the shift sets the initial density (see ``vmgrid``'s alpha_init).
     """
 
     def __init__(self, aabb: Tensor, resolution: int = 64, density_rank: int = 16, app_rank: int = 48,

@@ -37,6 +37,9 @@ class VMGrid(RadianceModel):
         density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
         occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
         step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss).
+        alpha_init: opacity of one marching step of the initial grid at initialisation (nearly
+            transparent, like TensoRF's shift of -10: space starts empty and the occupancy grid prunes
+            whatever never gains density, including space no camera sees).
         grid_lr_scale: grids learn at ``lr * grid_lr_scale`` (TensoRF uses 0.02 vs 1e-3 for networks).
         budget_steps: steps assumed for the schedule when the trainer gives neither max_steps nor max_seconds.
     """
@@ -49,7 +52,7 @@ class VMGrid(RadianceModel):
     defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
                     occ_res=64, occ_every=16, step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
-                    grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, seed=0)
+                    grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0)
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
@@ -60,9 +63,16 @@ class VMGrid(RadianceModel):
             opts["resolution"] = opts["res_init"]
         opts["upsample_at"] = [float(f) for f in opts["upsample_at"]]
         super().__init__(aabb, **opts)
+        # Density shift from alpha_init at the *initial* grid's step, so a rebuilt model gets the same one.
+        extent = (self.aabb[1] - self.aabb[0]).double()
+        step0 = opts["step_ratio"] * float((extent / (opts["res_init"] - 1)).mean())
+        sigma0 = -math.log1p(-opts["alpha_init"]) / step0
+        density_scale = 25.0
+        shift = math.log(math.expm1(sigma0 / density_scale))  # softplus^-1
         self.field = TensorVMField(self.aabb, resolution=opts["resolution"], density_rank=opts["density_rank"],
                                    app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
-                                   view_freqs=opts["view_freqs"], seed=opts["seed"])
+                                   view_freqs=opts["view_freqs"], seed=opts["seed"], density_shift=shift,
+                                   density_scale=density_scale)
         self.occupancy = OccupancyGrid(self.aabb, opts["occ_res"])
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self._last_growth_step = 0
@@ -116,7 +126,8 @@ class VMGrid(RadianceModel):
                 target = r
         # Growing multiplies the cost of every sample's backward pass: wait until empty space is being
         # skipped and each stage has had some steps to fit, even when the time budget says go.
-        ready = self.pruned() and step - self._last_growth_step >= self.options["min_stage_steps"]
+        since = step - self._last_growth_step
+        ready = since >= self.options["min_stage_steps"] and (self.pruned() or since >= 4 * self.options["min_stage_steps"])
         if target > self.field.resolution and ready:
             self._last_growth_step = step
             self.field.upsample(self._next_resolution())
@@ -171,7 +182,11 @@ class VMGrid(RadianceModel):
         sigma = self.field.density(pts)
         weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
         # Colour only where it can matter: most surviving samples are transparent space before a surface.
-        vis = (weights > 1e-4).detach()
+        # Rays that are still almost transparent (all of them at initialisation) get colour at every
+        # sample: treating unevaluated samples as black would teach the density only to darken rays,
+        # and a field on a random background would then never become opaque.
+        acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
+        vis = (weights.detach() > 1e-4) | (acc_ray[ridx] < 0.05)
         rgb_s = self.field.color(pts[vis], rays_d[ridx[vis]])
         rgb = volrend.accumulate_along_rays_packed(weights[vis], ridx[vis], n_rays, rgb_s)
         acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
