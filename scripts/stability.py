@@ -111,7 +111,8 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
     """
     n_test = bc.count_frames(dataset, "test")
     cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", method, "--max-seconds", f"{seconds:g}",
-                           "--seed", str(seed), "--overwrite", "--eval-views", str(n_test), "--no-bar", *extra)
+                           "--seed", str(seed), "--overwrite", "--eval-views", str(n_test), "--log-every", "10", "--no-bar",
+                           *extra)
 
     def on_event(ev):
         if ev.get("event") == "step" and ev.get("elapsed") is not None:
