@@ -132,6 +132,7 @@ def run_cli(
                 for line in proc.stdout:
                     if log:
                         log.write(line)
+                        log.flush()  # the log is what one reads while a long run is still going
                     ev = parse_event(line)
                     if ev is not None:
                         result.events.append(ev)

@@ -643,7 +643,7 @@ def main(argv=None) -> int:
         if r["error"]:
             failures += 1
             print(f"\nbenchmark: {label}: {r['error']}", file=sys.stderr)
-        bar.set(start_done + per_run, info=f"{label} {bc.fmt(r['points'][-1]['psnr']) if r['points'] else 'failed'} dB")
+        bar.set(start_done + per_run, info=f"{label} " + (f"{bc.fmt(r['points'][-1]['psnr'])} dB" if r["points"] else "failed"))
     bar.close(info="runs done")
     profile = None
     if plan.profile and datasets and fast:
