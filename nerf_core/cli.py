@@ -101,9 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")
     t.add_argument("--batch-rays", type=_positive_int, metavar="N",
                    help="rays per step (default: the method's, else 4096 on CUDA and 1024 on CPU)")
-    t.add_argument("--background", choices=["auto", "white", "black", "random"], default="auto",
-                   help="colour behind transparent pixels while training; auto = white for the first 20%% of the budget, "
-                        "then a random colour per ray (images with alpha)")
+    t.add_argument("--background", choices=["auto", "white", "black", "random", "white-then-random"], default="auto",
+                   help="colour behind transparent pixels while training; auto = a random colour per ray when the "
+                        "images have alpha; white-then-random = white for the first 20%% of the budget, then random")
     t.add_argument("--downscale", type=_positive_int, default=1, metavar="F", help="train on images downscaled by F")
     t.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="options",
                    help="method option, repeatable (e.g. --set n_samples=64)")

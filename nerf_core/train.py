@@ -37,7 +37,7 @@ from .evaluate import _mean
 from .progressbar import ProgressBar
 from .render import RunError, load_state_resizing, read_checkpoint
 
-BACKGROUNDS = ("auto", "white", "black", "random")
+BACKGROUNDS = ("auto", "white", "black", "random", "white-then-random")
 
 
 class TrainError(Exception):
@@ -62,7 +62,7 @@ class TrainConfig:
     device: Optional[str] = None
     lr: Optional[float] = None  # base learning rate; default: the method's default_lr
     batch_rays: Optional[int] = None  # None: the method's default_batch_rays, else 4096 on CUDA / 1024 on CPU
-    background: str = "auto"  # auto: images with alpha -> white for the first 20 % of the budget, then random
+    background: str = "auto"  # auto: random per ray when the images have alpha, else white
     downscale: int = 1
     log_every: int = 50
     preview_every: Optional[int] = None  # steps; None: every preview_seconds of training time
@@ -92,9 +92,9 @@ class TrainConfig:
         )
 
 
-DEFAULT_MAX_STEPS = 5000
-STEP_EVENT_SECONDS = 5.0
-AUTO_WHITE_FRACTION = 0.2  # --background auto: white for this share of the budget, then random  # used only when neither budget is given
+DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
+STEP_EVENT_SECONDS = 5.0  # slow steps still produce a step event this often
+AUTO_WHITE_FRACTION = 0.2  # --background white-then-random: white for this share of the budget
 
 
 # ----------------------------------------------------------------------------------------------
@@ -525,9 +525,9 @@ class Trainer:
         train = self.train
         if cfg.background == "auto":
             # Random backgrounds stop a model from explaining the background with semi-transparent
-            # geometry, but their gradient towards opacity is weak and noisy: a grid initialised
-            # nearly empty (vmgrid) never becomes opaque. White first bootstraps the geometry.
-            self.bg_mode = "white-then-random" if train.has_alpha else "white"
+            # geometry. (A method whose density starts too empty to feel their weak pull towards
+            # opacity can use "white-then-random", which bootstraps geometry on white first.)
+            self.bg_mode = "random" if train.has_alpha else "white"
         else:
             self.bg_mode = cfg.background
         if self.bg_mode == "random" and not train.has_alpha:

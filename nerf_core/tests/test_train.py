@@ -40,7 +40,7 @@ def test_short_run_writes_the_run_folder_and_events(trained_run):
     first = [e for e in events if e["event"] == "step"][0]
     assert step["loss"] < first["loss"]  # it learns
     cfg = json.loads((run / "config.json").read_text())
-    assert cfg["method"] == "test-grid" and cfg["seed"] == 0 and cfg["background_used"] == "white-then-random"
+    assert cfg["method"] == "test-grid" and cfg["seed"] == 0 and cfg["background_used"] == "random"
     assert cfg["versions"]["torch"] == torch.__version__
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["split"] == "test" and metrics["n_views"] == 2 and 0 < metrics["ssim"] <= 1
@@ -197,7 +197,7 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkey
     assert train(_cfg(sphere_dataset, run, max_steps=15, resume=True))["step"] == 15
 
 
-def test_auto_background_is_white_first_then_random(sphere_dataset):
+def test_white_then_random_background(sphere_dataset):
     from nerf_core.data import load_dataset
     from nerf_core.train import AUTO_WHITE_FRACTION, _Batcher
 
