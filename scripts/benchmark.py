@@ -215,22 +215,38 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
 def model_size(checkpoint: str) -> tuple[Optional[int], Optional[int]]:
     """(parameters, bytes of parameters and buffers) of the model in ``checkpoint`` at its final size.
 
-    Grid methods grow during training, so the ``start`` event's count is the initial size only.
+    Grid methods grow during training, so the ``start`` event's count is the initial size only. When
+    the checkpoint no longer builds with the installed method (its options changed since it was
+    written), the count comes from the saved tensors, minus the buffers a default build declares.
     """
     if not os.path.isfile(checkpoint):
         return None, None
-    import torch
-
-    from nerf_core.render import model_from_checkpoint, read_checkpoint
-
     from pathlib import Path
 
+    import torch
+
+    from nerf_core.methods import build_model
+    from nerf_core.render import model_from_checkpoint, read_checkpoint
+
     try:
-        model = model_from_checkpoint(read_checkpoint(Path(checkpoint)), torch.device("cpu"), checkpoint)
+        ckpt = read_checkpoint(Path(checkpoint))
     except Exception as exc:  # noqa: BLE001 (a size we cannot read is reported as missing, not fatal)
         print(f"benchmark: {checkpoint}: cannot read the model size ({exc})", file=sys.stderr)
         return None, None
-    return model.num_parameters(), model.num_bytes()
+    try:
+        model = model_from_checkpoint(ckpt, torch.device("cpu"), checkpoint)
+        return model.num_parameters(), model.num_bytes()
+    except Exception as exc:  # noqa: BLE001
+        state = ckpt.get("model") or {}
+        try:
+            buffers = {name for name, _ in build_model(ckpt["method"], torch.as_tensor(ckpt["aabb"])).named_buffers()}
+        except Exception:  # noqa: BLE001
+            print(f"benchmark: {checkpoint}: cannot read the model size ({exc})", file=sys.stderr)
+            return None, None
+        n_params = sum(t.numel() for k, t in state.items() if k not in buffers)
+        n_bytes = sum(t.numel() * t.element_size() for t in state.values())
+        print(f"benchmark: {checkpoint}: counted parameters from the saved tensors ({exc})", file=sys.stderr)
+        return n_params, n_bytes
 
 
 # --------------------------------------------------------------------------------------------
