@@ -265,8 +265,8 @@ def ensure_dataset(
 ) -> tuple[str, bool]:
     """Capture demo scene ``scene`` into ``root/<scene>-<key>`` unless a matching capture is there.
 
-    ``settings`` (resolution, view counts, ...) are written to ``bench_settings.json`` beside the
-    dataset (outside it, so instant-ngp-style loaders never read it). A cached dataset is reused only
+    ``settings`` (resolution, view counts, ...) are written to ``<dataset>.settings.json`` beside the
+    dataset folder (outside it, so instant-ngp-style loaders never read it). A cached dataset is reused only
     when that file matches exactly; a half-written one (no transforms) is captured again into a fresh
     folder, never over the user's data. Returns (dataset path, reused?).
     """
