@@ -7,9 +7,8 @@ cells are kept too (one-cell dilation): a cell that is never sampled gets no gra
 eager to prune would freeze geometry that is still forming.
 
 If the threshold would empty the grid (density collapsed, or training just started with tiny
-densities) the grid does not go blank: every cell is marked occupied again, so rendering never gets
-stuck returning background. (A relative threshold such as "above the mean" would instead keep a random
-half of the cells while densities are still noise, and with the dilation that prunes nothing.)
+densities) the grid does not go blank: the threshold drops to the mean EMA, and if that still keeps
+nothing every cell is marked occupied again, so rendering never gets stuck returning background.
 """
 from __future__ import annotations
 
@@ -83,7 +82,8 @@ class OccupancyGrid(nn.Module):
         ema = torch.maximum(self.density_ema.reshape(-1) * decay, sig)
         self.density_ema.copy_(ema.reshape(self.density_ema.shape))
         sigma_thr = -torch.log1p(torch.tensor(-alpha_threshold)).item() / step_size
-        occ = (self.density_ema > sigma_thr).float()
+        thr = min(sigma_thr, float(ema.mean()))  # never demand more than the average cell
+        occ = (self.density_ema > thr).float()
         if occ.sum() == 0:
             # Collapsed (all-zero density): reopen everything rather than render nothing forever.
             self.n_resets += 1
