@@ -26,6 +26,16 @@ def _load_plugins() -> None:
             raise ValueError(f"NERF_CORE_PLUGINS: cannot import {name!r} ({exc})") from exc
 
 
+def _seconds_list(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated seconds like 60,120,300, got {text!r}") from None
+    if any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"times must be positive, got {text}")
+    return sorted(values)
+
+
 def _positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -112,6 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--checkpoint-every", type=_positive_int, metavar="N", help="checkpoint every N steps (default: every 5 min)")
     t.add_argument("--eval-views", type=_nonneg_int, metavar="N",
                    help="held-out views to evaluate at the end (0 = none; default: as many as fit in 25%% of the training time)")
+    t.add_argument("--eval-at", metavar="S1,S2,...", type=_seconds_list, default=[],
+                   help="also evaluate held-out views at these training times (seconds), e.g. 60,120,300")
     t.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
 
     r = sub.add_parser("render", help="render novel views of a trained run", formatter_class=fmt,
@@ -156,7 +168,7 @@ def _cmd_train(a) -> int:
         resume=a.resume, overwrite=a.overwrite, size=a.size, options=parse_options(a.options), progress=a.progress,
         device=a.device, lr=a.lr, batch_rays=a.batch_rays, background=a.background, downscale=a.downscale,
         log_every=a.log_every, preview_every=a.preview_every, checkpoint_every=a.checkpoint_every,
-        eval_views=a.eval_views, show_bar=not a.no_bar,
+        eval_views=a.eval_views, eval_at=a.eval_at, show_bar=not a.no_bar,
     )
     train(cfg)
     return 0

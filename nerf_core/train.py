@@ -74,6 +74,7 @@ class TrainConfig:
     max_rollbacks: int = 8
     eval_views: Optional[int] = None  # None: as many as fit in eval_seconds; 0: skip evaluation
     eval_seconds: Optional[float] = None  # None: max(30 s, 25 % of the training time)
+    eval_at: List[float] = field(default_factory=list)  # training seconds at which to evaluate held-out views
     chunk: int = 8192
     stdout_events: bool = True
     show_bar: bool = True
@@ -570,6 +571,8 @@ class Trainer:
             print(f"train: note: {note}", file=sys.stderr)
 
         self.preview_view = self._preview_source()
+        self._preview_cost = 0.0
+        self._eval_marks = sorted(t for t in cfg.eval_at if t > self.elapsed)
         batcher = _Batcher(train, self.bg_mode, self.gen, self.device)
         self._snapshot()
         self.steps_since_rollback = 0
@@ -636,6 +639,11 @@ class Trainer:
                 self._snapshot()
                 params_changed = False
             done = cfg.finished(self.step, self.elapsed)
+            while self._eval_marks and self.elapsed >= self._eval_marks[0]:
+                # Speed-against-accuracy curves: evaluate at fixed training times inside one run, so the
+                # learning-rate and growth schedules are the real ones. Evaluation time is not training time.
+                self._eval_marks.pop(0)
+                self._held_out_eval(at_seconds=self.elapsed)
             # Slow steps (big models on a CPU) still report at least every few seconds.
             if (self.step == first_step or self.step % cfg.log_every == 0 or done
                     or time.monotonic() - last_event_wall >= STEP_EVENT_SECONDS):
@@ -702,7 +710,9 @@ class Trainer:
     def _preview_due(self, last_step: int, last_elapsed: float) -> bool:
         if self.cfg.preview_every:
             return self.step - last_step >= self.cfg.preview_every
-        return self.elapsed - last_elapsed >= self.cfg.preview_seconds
+        # A slow method (the classic MLP renders a 200x200 view in ~1 min on 2 cores) would otherwise spend
+        # more time on previews than on training: keep previews under ~20% of the training time.
+        return self.elapsed - last_elapsed >= max(self.cfg.preview_seconds, 4.0 * self._preview_cost)
 
     def _checkpoint_due(self) -> bool:
         if self.cfg.checkpoint_every:
@@ -715,6 +725,7 @@ class Trainer:
         from .imageio import write_png
         from .render import render_view
 
+        started = time.monotonic()
         self.model.eval()
         try:
             res = render_view(self.model, self.preview_view.to("cpu"), 0, background=self.eval_bg,
@@ -725,7 +736,31 @@ class Trainer:
         pv.mkdir(exist_ok=True)
         path = pv / f"step_{self.step:07d}.png"
         write_png(path, res["rgb"].numpy())
+        self._preview_cost = time.monotonic() - started
         self.log.emit("preview", step=self.step, path=str(path))
+
+    def _held_out_eval(self, at_seconds: float) -> None:
+        """Evaluate ``eval_views`` evenly spaced held-out views (all when unset) and emit an ``eval`` event."""
+        from .evaluate import evaluate_split
+
+        split_name = self.dataset.held_out_split(("test", "val"))
+        if split_name is None:
+            return
+        split = self.dataset.splits[split_name]
+        n = len(split)
+        k = min(n, self.cfg.eval_views or n)
+        views = sorted({round(x * (n - 1) / max(1, k - 1)) for x in range(k)}) if k > 1 else [0]
+        self.model.eval()
+        try:
+            started = time.perf_counter()
+            result = evaluate_split(self.model, split, views, background=self.eval_bg, near=self.dataset.near,
+                                    far=self.dataset.far, chunk=self.cfg.chunk)
+        finally:
+            self.model.train()
+        self.log.emit("eval", step=self.step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
+                      n_views=result["n_views"], depth_mae=result.get("depth_mae"), elapsed=at_seconds,
+                      eval_wall=time.perf_counter() - started, n_params=self.model.num_parameters(),
+                      n_bytes=self.model.num_bytes())
 
     def _final_eval(self) -> dict:
         from .evaluate import evaluate_split, update_metrics_file

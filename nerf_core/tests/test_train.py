@@ -210,3 +210,15 @@ def test_white_then_random_background(sphere_dataset):
     # Transparent pixels show exactly the background they were composited onto.
     _, _, bg_rand, gt_rand, _ = _Batcher(split, "random", torch.Generator().manual_seed(1), torch.device("cpu")).sample(4096)
     assert ((gt_rand - bg_rand).abs().amax(-1) < 1e-6).float().mean() > 0.3
+
+
+def test_eval_at_evaluates_at_training_times_inside_one_run(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    # Marks beyond what the budget reaches are simply not evaluated; reached ones fire once each.
+    train(_cfg(sphere_dataset, run, max_steps=None, max_seconds=1.5, eval_at=[0.2, 0.6, 1000.0]))
+    evals = [e for e in read_events(run / "progress.jsonl") if e["event"] == "eval" and "eval_wall" in e]
+    assert len(evals) == 2
+    assert evals[0]["elapsed"] >= 0.2 and evals[1]["elapsed"] >= 0.6
+    assert evals[0]["step"] < evals[1]["step"]
+    for e in evals:
+        assert e["split"] == "test" and e["n_views"] == 1 and math.isfinite(e["psnr"]) and e["n_params"] > 0
