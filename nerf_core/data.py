@@ -615,14 +615,19 @@ def load_dataset(
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:
     """Cameras of one split of a transforms file without reading pixels (image sizes come from the
     JSON, or from the image headers when ``w``/``h`` are absent)."""
-    from .imageio import png_info
-
     if split not in SPLITS:
         raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, _ = frame_infos(path, SPLITS)
     frames = infos.get(split) or []
     if not frames:
         raise DatasetError(f"{path}: no frames in split {split!r}")
+    return cameras_of_frames(frames), frames
+
+
+def cameras_of_frames(frames: List[FrameInfo]) -> Cameras:
+    """Cameras of parsed frames without reading pixels: sizes from ``w``/``h``, else the image headers."""
+    from .imageio import png_info
+
     params, sizes = [], []
     for fr in frames:
         w, h = fr.intrinsics.get("w"), fr.intrinsics.get("h")
@@ -638,5 +643,4 @@ def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[F
         sizes.append((w, h))
     p = np.asarray(params, dtype=np.float64)
     s = np.asarray(sizes)
-    cams = Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1])
-    return cams, frames
+    return Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1])

@@ -192,25 +192,12 @@ def _camera_list(data, src: Path):
 
 def _all_frames(path: Path) -> tuple[Cameras, List[str]]:
     """Every frame of one transforms file (image sizes from ``w``/``h`` or the image headers)."""
-    from .data import DatasetError, _camera_params, _frames_of, _read_json
-    from .imageio import ImageReadError, png_info
+    from .data import DatasetError, _frames_of, _read_json, cameras_of_frames
 
     frames = _frames_of(_read_json(path), path, add_png=True)
     if not frames:
         raise DatasetError(f"{path}: field 'frames' has no entries")
-    params, sizes = [], []
-    for fr in frames:
-        w, h = fr.intrinsics.get("w"), fr.intrinsics.get("h")
-        if w is None or h is None:
-            try:
-                w, h, _, _ = png_info(fr.image)
-            except ImageReadError as exc:
-                raise DatasetError(f"{fr.where}: fields 'w'/'h' are missing and the image size is unreadable: {exc}") from exc
-        params.append(_camera_params(fr, int(w), int(h), 1))
-        sizes.append((int(w), int(h)))
-    p, s = np.asarray(params), np.asarray(sizes)
-    cams = Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1])
-    return cams, [f.stem for f in frames]
+    return cameras_of_frames(frames), [f.stem for f in frames]
 
 
 def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, List[str]]:
