@@ -74,7 +74,8 @@ class ProgressBar:
             frac = min(1.0, self.done / self.total)
             filled = int(round(frac * self.width))
             bar = "#" * filled + "-" * (self.width - filled)
-            count = f"{self.done:g}/{self.total:g}"
+            # Whole units for long bars (seconds of work, frames); fractions only where they say something.
+            count = f"{self.done:.0f}/{self.total:.0f}" if self.total >= 20 else f"{self.done:g}/{self.total:g}"
             head = f"{self.label} [{bar}] {100 * frac:5.1f}% {count}"
             tail = f"elapsed {format_seconds(elapsed)} eta {format_seconds(self.eta())}"
         else:

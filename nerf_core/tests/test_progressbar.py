@@ -40,3 +40,12 @@ def test_open_ended_and_disabled():
     with ProgressBar(total=5, stream=quiet, enabled=False) as b:
         b.update(5)
     assert quiet.getvalue() == ""
+
+
+def test_long_bars_count_whole_units():
+    bar = ProgressBar(total=750, label="benchmark", stream=io.StringIO())
+    bar.set(241.179)
+    assert "241/750" in bar.line()
+    short = ProgressBar(total=4, stream=io.StringIO())
+    short.set(2.5)
+    assert "2.5/4" in short.line()
