@@ -632,14 +632,39 @@ def _plt():
     return plt
 
 
+def _panel_grid(plt, n_panels: int, width: float = 4.6):
+    """(fig, axes, cols): up to 3 panels a row, one per scene or study."""
+    n = max(1, n_panels)
+    cols = min(3, n)
+    rows = int(math.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, 3.6 * rows), squeeze=False)
+    return fig, axes, cols
+
+
+def _finish_figure(plt, fig, axes, n_used: int, title: str, path: str, legend_space: float = 0.1) -> str:
+    """Hide unused panels, add one legend shared by all panels (each label once), save and close."""
+    for ax in list(axes.flat)[n_used:]:
+        ax.axis("off")
+    handles, labels = [], []
+    for ax in axes.flat:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, legend_space if handles else 0, 1, 0.95))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def chart_psnr_vs_time(curves: dict, path: str, title: str) -> str:
     """``curves``: {(scene, series): [(seconds, psnr), ...]} -> one line per series, one panel per scene."""
     plt = _plt()
     scenes = sorted({scene for scene, _ in curves})
-    n = max(1, len(scenes))
-    cols = min(3, n)
-    rows = int(math.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.6 * rows), squeeze=False)
+    fig, axes, cols = _panel_grid(plt, len(scenes))
     series_names = sorted({s for _, s in curves})
     colours = {s: plt.cm.tab10(i % 10) for i, s in enumerate(series_names)}
     for k, scene in enumerate(scenes):
@@ -654,21 +679,7 @@ def chart_psnr_vs_time(curves: dict, path: str, title: str) -> str:
         ax.set_xlabel("training time (s)")
         ax.set_ylabel("test PSNR (dB)")
         ax.grid(alpha=0.3)
-    for k in range(len(scenes), rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    handles, labels = [], []
-    for ax in axes.flat:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    if handles:
-        fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.08 if handles else 0, 1, 0.95))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish_figure(plt, fig, axes, len(scenes), title, path, legend_space=0.08)
 
 
 def chart_psnr_vs_size(points: Sequence[dict], path: str, title: str) -> str:
@@ -676,10 +687,7 @@ def chart_psnr_vs_size(points: Sequence[dict], path: str, title: str) -> str:
     dashed step line and its members ringed."""
     plt = _plt()
     scenes = sorted({p["scene"] for p in points})
-    n = max(1, len(scenes))
-    cols = min(3, n)
-    rows = int(math.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.6 * rows), squeeze=False)
+    fig, axes, cols = _panel_grid(plt, len(scenes))
     series_names = sorted({p["series"] for p in points})
     colours = {s: plt.cm.tab10(i % 10) for i, s in enumerate(series_names)}
     for k, scene in enumerate(scenes):
@@ -701,31 +709,14 @@ def chart_psnr_vs_size(points: Sequence[dict], path: str, title: str) -> str:
         ax.set_xlabel("parameters")
         ax.set_ylabel("final test PSNR (dB)")
         ax.grid(alpha=0.3, which="both")
-    for k in range(len(scenes), rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    handles, labels = [], []
-    for ax in axes.flat:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    if handles:
-        fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.1 if handles else 0, 1, 0.95))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish_figure(plt, fig, axes, len(scenes), title, path)
 
 
 def chart_bars(groups: dict, path: str, title: str, ylabel: str, threshold: Optional[float] = None) -> str:
     """``groups``: {panel: {series: [(x_label, mean, spread), ...]}} -> grouped bars with error bars."""
     plt = _plt()
     panels = list(groups)
-    n = max(1, len(panels))
-    cols = min(3, n)
-    rows = int(math.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 3.6 * rows), squeeze=False)
+    fig, axes, cols = _panel_grid(plt, len(panels), width=4.8)
     all_series = sorted({s for g in groups.values() for s in g})
     colours = {s: plt.cm.tab10(i % 10) for i, s in enumerate(all_series)}
     for k, panel in enumerate(panels):
@@ -751,21 +742,7 @@ def chart_bars(groups: dict, path: str, title: str, ylabel: str, threshold: Opti
         ax.set_title(panel)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3, axis="y")
-    for k in range(len(panels), rows * cols):
-        axes[k // cols][k % cols].axis("off")
-    handles, labs = [], []
-    for ax in axes.flat:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            if lab not in labs:
-                handles.append(h)
-                labs.append(lab)
-    if handles:
-        fig.legend(handles, labs, loc="lower center", ncol=min(4, len(labs)), fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0.1 if handles else 0, 1, 0.95))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish_figure(plt, fig, axes, len(panels), title, path)
 
 
 # --------------------------------------------------------------------------------------------
