@@ -24,7 +24,9 @@ import platform
 import shutil
 import subprocess
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Optional, Sequence
 
@@ -94,6 +96,60 @@ def nerf_core_cmd(*args: str) -> list[str]:
     return [PYTHON, "-m", "nerf_core", *[str(a) for a in args]]
 
 
+def thread_env(jobs: int) -> dict:
+    """Environment that gives each of ``jobs`` parallel children an equal share of the CPU cores.
+
+    torch (and numpy's BLAS) start one thread per core by default; ``jobs`` runs that each start
+    ``cpu_count`` threads would fight over the cores and every timing would measure the contention.
+    With ``jobs`` <= 1 nothing is set, so a single run uses the machine as a user's run does.
+    """
+    if jobs <= 1:
+        return {}
+    threads = str(max(1, (os.cpu_count() or 1) // jobs))
+    return {"OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads}
+
+
+def run_parallel(tasks: Sequence[Callable[[], object]], jobs: int) -> list:
+    """Run the zero-argument callables ``tasks``, ``jobs`` at a time; results in the order given.
+
+    The tasks start subprocesses and wait on them, so threads are enough. A task that raises
+    re-raises here after the others have finished: a study never loses the runs that worked.
+    """
+    if jobs <= 1 or len(tasks) <= 1:
+        return [t() for t in tasks]
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(t) for t in tasks]
+        return [f.result() for f in futures]
+
+
+class SharedProgress:
+    """One progress bar fed by several parallel runs: the bar shows finished work plus each live run's.
+
+    ``advance(key, seconds)`` records how far run ``key`` is; ``finish(key, cost, info)`` books its
+    full planned cost. Thread-safe, so parallel runs' event callbacks can call it directly.
+    """
+
+    def __init__(self, bar):
+        self.bar = bar
+        self.finished = bar.done
+        self.live: dict = {}
+        self.lock = threading.Lock()
+
+    def _draw(self, info: str) -> None:
+        self.bar.set(self.finished + sum(self.live.values()), info=info)
+
+    def advance(self, key, seconds: float, info: str = "") -> None:
+        with self.lock:
+            self.live[key] = seconds
+            self._draw(info)
+
+    def finish(self, key, cost: float, info: str = "") -> None:
+        with self.lock:
+            self.live.pop(key, None)
+            self.finished += cost
+            self._draw(info)
+
+
 def script_cmd(script: str, *args: str) -> list[str]:
     return [PYTHON, os.path.join(REPO_ROOT, "scripts", script), *[str(a) for a in args]]
 
@@ -104,15 +160,18 @@ def run_cli(
     log_path: Optional[str] = None,
     timeout: Optional[float] = None,
     tail: int = 40,
+    env_extra: Optional[dict] = None,
 ) -> CliResult:
     """Run ``cmd``, streaming stdout so ``on_event`` sees progress events as they happen.
 
     stderr goes to a temporary file (not a pipe) so a chatty child can never block on a full pipe.
     ``log_path`` receives both streams for post-mortems. A timeout kills the child and is reported as
-    return code 124, like coreutils' ``timeout``.
+    return code 124, like coreutils' ``timeout``. ``env_extra`` is merged into the child's
+    environment (``thread_env`` for parallel jobs).
     """
     start = time.monotonic()
     env = dict(os.environ)
+    env.update(env_extra or {})
     env.setdefault("PYTHONUNBUFFERED", "1")
     env["PYTHONPATH"] = REPO_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     log = open(log_path, "a", encoding="utf-8") if log_path else None

@@ -141,7 +141,10 @@ def make_plan(args, train_help: str) -> Plan:
         "samples": args.samples,
     }
     # Size series on every scene in a full run; only the first scene in --quick keeps it short.
-    size_scenes = scenes[:1] if args.quick else scenes
+    if args.size_scenes:
+        size_scenes = [x.strip() for x in args.size_scenes.split(",") if x.strip()]
+    else:
+        size_scenes = scenes[:1] if args.quick else scenes
     return Plan(scenes, series, size_scenes, checkpoints, capture, not args.no_profile)
 
 
@@ -151,7 +154,8 @@ def make_plan(args, train_help: str) -> Plan:
 
 
 def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoints: list[float], seed: int,
-                           log_path: str, on_progress, n_test: int, independent: bool = False) -> dict:
+                           log_path: str, on_progress, n_test: int, independent: bool = False,
+                           env_extra: Optional[dict] = None) -> dict:
     """Test PSNR/SSIM of ``series`` at each budget in ``checkpoints`` (seconds of training time).
 
     Default: ONE run with the last checkpoint as its budget and ``--eval-at`` the earlier ones: the
@@ -159,7 +163,8 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
     training time, so every point comes from the real schedules (learning-rate decay, grid growth) of
     one run and evaluation time is never training time. The trainer's final evaluation gives the last
     point. ``independent=True`` trains a fresh run per budget instead ("what budget T gives", costs
-    the sum of the budgets). ``on_progress(seconds)`` follows the step events.
+    the sum of the budgets). ``on_progress(seconds)`` follows the step events. ``env_extra`` goes to
+    every child (``bc.thread_env`` when runs share the machine).
     Returns ``points`` [{seconds, budget, step, psnr, ssim}], a training summary, ``error`` and paths.
     """
     events_all: list[dict] = []
@@ -183,7 +188,7 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
             if ev.get("event") == "step" and ev.get("elapsed") is not None:
                 on_progress(offset + float(ev["elapsed"]))
 
-        res = bc.run_cli(cmd, on_event=on_event, log_path=log_path)
+        res = bc.run_cli(cmd, on_event=on_event, log_path=log_path, env_extra=env_extra)
         events_all.extend(res.events)
         if not res.ok:
             error = f"train to {budget:g}s: {res.error_message()}"
@@ -196,7 +201,8 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
         final = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test" and "eval_wall" not in e]
         metrics = final[-1] if final else None
         if metrics is None:
-            ev = bc.run_cli(bc.nerf_core_cmd("eval", this_run, "--split", "test", "--no-bar"), log_path=log_path)
+            ev = bc.run_cli(bc.nerf_core_cmd("eval", this_run, "--split", "test", "--no-bar"), log_path=log_path,
+                            env_extra=env_extra)
             metrics = ev.last_json() if ev.ok else None
             if not metrics or "psnr" not in metrics:
                 error = f"eval after {budget:g}s: {ev.error_message()}"
@@ -343,7 +349,9 @@ def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, mach
         "",
         f"Machine: {machine.get('cpu', '?')}, {machine.get('cpus', '?')} logical CPUs, torch "
         f"{machine.get('torch', '?')}, load average at start {machine.get('load_avg', '?')}; "
-        f"total wall time {wall / 60:.1f} min.",
+        f"total wall time {wall / 60:.1f} min. "
+        + (f"{machine['jobs']} runs at a time, {machine.get('threads_per_run')} thread(s) each."
+           if machine.get("jobs", 1) > 1 else "One run at a time, all cores."),
         f"Capture: {plan.capture['resolution']}x{plan.capture['resolution']} px, {plan.capture['count']} train / "
         f"{plan.capture['test_count']} test views. Checkpoints at {', '.join(f'{c:g}' for c in plan.checkpoints)} "
         "seconds of training time (evaluation time excluded).",
@@ -592,6 +600,10 @@ def parse_args(argv):
     ap.add_argument("--no-sizes", action="store_true", help="skip the fixed-size and --size auto series")
     ap.add_argument("--sizes", help="fixed sizes of the fast method to run beside --size auto "
                                     "(default small,medium; quick: small)")
+    ap.add_argument("--size-scenes", help="scenes on which the size series run (default: all; quick: the first)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="training runs at a time, each given cores/jobs threads (default 1: one run uses the whole "
+                         "machine). With 2 jobs on 2 cores every run gets one core: 'minutes of CPU' per run")
     ap.add_argument("--no-profile", action="store_true", help="skip the per-stage time profile")
     ap.add_argument("--independent", action="store_true",
                     help="a fresh run per checkpoint budget instead of one run with --eval-at (exact per-budget schedules, "
@@ -604,6 +616,8 @@ def parse_args(argv):
     args.test_views = args.test_views or (3 if quick else 20)
     if args.minutes <= 0:
         ap.error("--minutes must be positive")
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
     return args
 
 
@@ -614,6 +628,8 @@ def main(argv=None) -> int:
     logs = os.path.join(out, "logs")
     os.makedirs(logs, exist_ok=True)
     machine = bc.machine_info()
+    machine["jobs"] = args.jobs
+    machine["threads_per_run"] = bc.thread_env(args.jobs).get("OMP_NUM_THREADS", os.cpu_count())
     train_help = bc.cli_help(*bc.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
         print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is nerf_core/train.py built?\n"
@@ -642,34 +658,36 @@ def main(argv=None) -> int:
             print(f"\nbenchmark: {exc} (log: {os.path.join(logs, f'capture_{scene}.log')})", file=sys.stderr)
             failures += 1
         bar.update(capture_cost)
-    for scene, series in runs:
+    env_extra = bc.thread_env(args.jobs)
+    progress = bc.SharedProgress(bar)
+    failed: list[str] = []
+
+    def one_run(scene: str, series: Series):
         if scene not in datasets:
-            bar.update(per_run)
-            continue
-        start_done = bar.done
-        run_dir = os.path.join(out, "runs", scene, series.label.replace(" ", "_"))
+            progress.finish((scene, series.label), per_run)
+            return None
         label = f"{scene}/{series.label}"
-
-        def on_progress(elapsed, start_done=start_done, label=label):
-            bar.set(start_done + min(elapsed, per_run), info=label)
-
-        r = train_with_checkpoints(datasets[scene], run_dir, series, plan.checkpoints, args.seed,
-                                   os.path.join(logs, f"train_{scene}_{series.label.replace(' ', '_')}.log"),
-                                   on_progress, n_test=min(bc.count_frames(datasets[scene], "test"),
-                                                           args.eval_views or 10 ** 9),
-                                   independent=args.independent)
+        r = train_with_checkpoints(
+            datasets[scene], os.path.join(out, "runs", scene, series.label.replace(" ", "_")), series,
+            plan.checkpoints, args.seed, os.path.join(logs, f"train_{scene}_{series.label.replace(' ', '_')}.log"),
+            lambda elapsed: progress.advance(label, min(elapsed, per_run), info=label),
+            n_test=min(bc.count_frames(datasets[scene], "test"), args.eval_views or 10 ** 9),
+            independent=args.independent, env_extra=env_extra)
         tr = r["train"]
         n_params, n_bytes = model_size(r["checkpoint"])
-        result = {"scene": scene, "series": series.label, "method": series.method, "flags": series.extra,
-                  "points": r["points"], "n_params": n_params or tr["n_params"], "model_bytes": n_bytes,
-                  "checkpoint_bytes": r["checkpoint_bytes"], "samples_per_s": tr["samples_per_s"],
-                  "steps": tr["steps"], "rollbacks": tr["rollbacks"], "nan": tr["nan"], "error": r["error"],
-                  "stage_times": tr.get("stage_times")}
-        results.append(result)
         if r["error"]:
-            failures += 1
+            failed.append(label)
             print(f"\nbenchmark: {label}: {r['error']}", file=sys.stderr)
-        bar.set(start_done + per_run, info=f"{label} " + (f"{bc.fmt(r['points'][-1]['psnr'])} dB" if r["points"] else "failed"))
+        progress.finish(label, per_run,
+                        info=f"{label} " + (f"{bc.fmt(r['points'][-1]['psnr'])} dB" if r["points"] else "failed"))
+        return {"scene": scene, "series": series.label, "method": series.method, "flags": series.extra,
+                "points": r["points"], "n_params": n_params or tr["n_params"], "model_bytes": n_bytes,
+                "checkpoint_bytes": r["checkpoint_bytes"], "samples_per_s": tr["samples_per_s"],
+                "steps": tr["steps"], "rollbacks": tr["rollbacks"], "nan": tr["nan"], "error": r["error"],
+                "stage_times": tr.get("stage_times"), "threads": env_extra.get("OMP_NUM_THREADS")}
+
+    results = [r for r in bc.run_parallel([lambda sc=sc, se=se: one_run(sc, se) for sc, se in runs], args.jobs) if r]
+    failures += len(failed)
     bar.close(info="runs done")
     profile = None
     if plan.profile and datasets and fast:

@@ -103,11 +103,12 @@ def lr_flag(train_help: str) -> str | None:
 
 
 def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: float, extra: list[str],
-                log_path: str, on_progress, render: bool = True) -> dict:
+                log_path: str, on_progress, render: bool = True, env_extra: dict | None = None) -> dict:
     """Train, evaluate and render one configuration; never raises for a failed run (that is data).
 
     The trainer's own final evaluation on every test view gives PSNR/SSIM (one process fewer than a
     separate ``eval``); ``render`` of the test cameras gives the alpha compared for floaters.
+    ``env_extra`` goes to every child (``bc.thread_env`` when runs share the machine).
     """
     n_test = bc.count_frames(dataset, "test")
     cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", method, "--max-seconds", f"{seconds:g}",
@@ -118,7 +119,7 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
         if ev.get("event") == "step" and ev.get("elapsed") is not None:
             on_progress(float(ev["elapsed"]))
 
-    res = bc.run_cli(cmd, on_event=on_event, log_path=log_path)
+    res = bc.run_cli(cmd, on_event=on_event, log_path=log_path, env_extra=env_extra)
     summary = bc.summarize_training(res.events)
     row = {"psnr": None, "ssim": None, "rollbacks": summary["rollbacks"], "nan": summary["nan"],
            "steps": summary["steps"], "train_psnr": summary["train_psnr"], "n_params": summary["n_params"],
@@ -129,7 +130,8 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
     evals = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test"]
     metrics = evals[-1] if evals else None
     if metrics is None:
-        ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path)
+        ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path,
+                        env_extra=env_extra)
         metrics = ev.last_json() if ev.ok else None
         if not metrics or "psnr" not in metrics:
             row["error"] = f"eval: {ev.error_message()}"
@@ -140,7 +142,8 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
     if render:
         out = os.path.join(run_dir, "test_renders")
         rr = bc.run_cli(bc.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset, "transforms_test.json"),
-                                         "--out", out, "--split", "test", "--overwrite", "--no-bar"), log_path=log_path)
+                                         "--out", out, "--split", "test", "--overwrite", "--no-bar"), log_path=log_path,
+                        env_extra=env_extra)
         if rr.ok:
             row.update({k: v for k, v in bc.floater_stats(out, dataset).items() if k != "n_views"})
         else:
@@ -164,6 +167,9 @@ def parse_args(argv):
     ap.add_argument("--methods", help="comma-separated methods (default: nerf, nerf-nope and the fast method)")
     ap.add_argument("--scene", default="diffuse", help="demo scene (default diffuse)")
     ap.add_argument("--seeds", type=int, help="seeds per setting (default 3; quick: 3 on base, 1 elsewhere)")
+    ap.add_argument("--other-seeds", type=int, help="seeds for the settings other than base (default: --seeds)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="runs at a time, each given cores/jobs threads (default 1)")
     ap.add_argument("--views", help="train view counts (default 4,8,16,32,64; quick 4,8,24)")
     ap.add_argument("--pose-noise", help="DEG:FRAC items (default 0.5:0.005,1:0.01,2:0.02,5:0.05; quick 2:0.02)")
     ap.add_argument("--lr-scales", help="learning-rate multipliers (default 0.1,0.3,3,10; quick 0.1,10)")
@@ -184,12 +190,16 @@ def parse_args(argv):
     args.test_views = args.test_views or (4 if q else 8)
     args.threshold = args.threshold if args.threshold is not None else (14.0 if q else 18.0)
     args.base_seeds = args.seeds or 3
-    args.other_seeds = args.seeds or (1 if q else 3)
+    args.other_seeds = args.other_seeds or args.seeds or (1 if q else 3)
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
     return args
 
 
 def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    machine = bc.machine_info()  # the load average before this study adds its own
+    machine["jobs"] = args.jobs
     sys.path.insert(0, bc.REPO_ROOT)
     import benchmark  # noqa: WPS433 (shares the method defaults)
 
@@ -251,30 +261,41 @@ def main(argv=None) -> int:
                 derived[spec] = bc.perturb_poses(base_ds, dst, spec[1], spec[2], seed=0)
         return derived[spec]
 
-    runs = []
+    env_extra = bc.thread_env(args.jobs)
+    progress = bc.SharedProgress(bar)
+
+    def one_run(method, study, setting, ds, extra, seed):
+        label = f"{method} {study}={setting} seed={seed}"
+        run_dir = os.path.join(out, "runs", method, f"{study}_{setting}".replace("/", "_"), f"seed{seed}")
+        row = run_setting(ds, run_dir, method, seed, args.seconds, list(extra),
+                          os.path.join(logs, f"{method}_{study}_{setting}_{seed}.log".replace("/", "_")),
+                          lambda elapsed: progress.advance(label, min(elapsed, args.seconds), info=label),
+                          env_extra=env_extra)
+        row.update({"method": method, "study": study, "setting": setting, "seed": seed})
+        progress.finish(label, per_run, info=f"{label}: {bc.fmt(row['psnr'])} dB")
+        return row
+
+    # Derived datasets are made up front so parallel runs never race to create one.
+    for _study, _setting, spec, _extra, _seeds in plan:
+        dataset_for(spec)
+    # Phase 1: every run whose flags are known. Phase 2: learning rates given as a plain --lr,
+    # which are multiples of the lr each method's base run reported.
+    runs = bc.run_parallel([
+        lambda m=method, p=p, seed=seed: one_run(m, p[0], p[1], dataset_for(p[2]), p[3], seed)
+        for method in methods for p in plan if p[3] is not None for seed in p[4]], args.jobs)
+    later = []
     for method in methods:
         for study, setting, spec, extra, seeds in plan:
-            if extra is None:
-                # A plain --lr needs the method's base value: the lr its base run reported first.
-                base_lr = next((r["lr"] for r in runs if r["method"] == method and r["study"] == "base" and r["lr"]), None)
-                if base_lr is None:
-                    notes.append(f"{method}: lr study skipped (its base run reported no lr)")
-                    continue
-                extra = ["--lr", f"{base_lr * float(str(setting)[1:]):g}"]
-            ds = dataset_for(spec)
-            for seed in seeds:
-                start = bar.done
-                label = f"{method} {study}={setting} seed={seed}"
-                run_dir = os.path.join(out, "runs", method, f"{study}_{setting}".replace("/", "_"), f"seed{seed}")
-
-                def prog(elapsed, start=start, label=label):
-                    bar.set(start + min(elapsed, args.seconds), info=label)
-
-                row = run_setting(ds, run_dir, method, seed, args.seconds, list(extra),
-                                  os.path.join(logs, f"{method}_{study}_{setting}_{seed}.log".replace("/", "_")), prog)
-                row.update({"method": method, "study": study, "setting": setting, "seed": seed})
-                runs.append(row)
-                bar.set(start + per_run, info=f"{label}: {bc.fmt(row['psnr'])} dB")
+            if extra is not None:
+                continue
+            base_lr = next((r["lr"] for r in runs if r["method"] == method and r["study"] == "base" and r["lr"]), None)
+            if base_lr is None:
+                notes.append(f"{method}: lr study skipped (its base run reported no lr)")
+                continue
+            flags = ["--lr", f"{base_lr * float(str(setting)[1:]):g}"]
+            later += [lambda m=method, st=study, se=setting, sp=spec, f=flags, seed=seed:
+                      one_run(m, st, se, dataset_for(sp), f, seed) for seed in seeds]
+    runs += bc.run_parallel(later, args.jobs)
     bar.close()
 
     # Per-setting mean and spread, then the verdicts (relative to each method's own base).
@@ -305,7 +326,6 @@ def main(argv=None) -> int:
     bc.write_csv(os.path.join(out, "stability.csv"), runs)
     bc.write_csv(os.path.join(out, "settings.csv"), settings)
     wall = time.monotonic() - t0
-    machine = bc.machine_info()
     bc.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
                                                         "seconds_per_run": args.seconds, "threshold_db": args.threshold,
                                                         "drop_db": args.drop, "runs": runs, "settings": settings,
@@ -320,7 +340,9 @@ def main(argv=None) -> int:
         "# Stability: where each method breaks down", "",
         f"Scene `{args.scene}`, {args.resolution} px, {n_train} train / {args.test_views} test views, "
         f"{args.seconds:g} s of training per run; machine: {machine.get('cpu', '?')}, {machine.get('cpus')} CPUs, "
-        f"load {machine.get('load_avg')}; wall time {wall / 60:.1f} min.",
+        f"load {machine.get('load_avg')}; wall time {wall / 60:.1f} min; "
+        + (f"{args.jobs} runs at a time, {env_extra['OMP_NUM_THREADS']} thread(s) each." if env_extra
+           else "one run at a time, all cores."),
         f"Broken = error, NaN, >= {ROLLBACK_LIMIT} rollbacks, PSNR < {args.threshold:g} dB or > {args.drop:g} dB "
         f"below the method's base, or floaters on > {100 * FLOATER_LIMIT:.0f}% of background pixels.", "",
         *[f"Note: {n}" for n in notes], "",

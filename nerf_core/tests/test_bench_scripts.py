@@ -69,6 +69,47 @@ def test_run_cli_streams_events_and_reports_errors(tmp_path):
     assert "traceback text" in (tmp_path / "log.txt").read_text()
 
 
+def test_run_cli_passes_env_extra_to_the_child(tmp_path):
+    script = tmp_path / "child.py"
+    script.write_text("import json, os\nprint(json.dumps({'event': 'env', 'omp': os.environ.get('OMP_NUM_THREADS')}))\n")
+    res = bc.run_cli([sys.executable, str(script)], env_extra={"OMP_NUM_THREADS": "1"})
+    assert res.ok and res.events == [{"event": "env", "omp": "1"}]
+
+
+def test_thread_env_splits_the_cores_between_jobs(monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    assert bc.thread_env(1) == {}
+    assert bc.thread_env(2)["OMP_NUM_THREADS"] == "4"
+    assert bc.thread_env(16)["OMP_NUM_THREADS"] == "1"  # never zero threads
+
+
+def test_run_parallel_overlaps_tasks_and_keeps_their_order():
+    import threading
+
+    barrier = threading.Barrier(2, timeout=10)  # both tasks must be running at once to pass it
+
+    def task(x):
+        barrier.wait()
+        return x * 10
+
+    assert bc.run_parallel([lambda: task(1), lambda: task(2)], jobs=2) == [10, 20]
+    assert bc.run_parallel([lambda: 1, lambda: 2, lambda: 3], jobs=1) == [1, 2, 3]
+
+
+def test_shared_progress_adds_live_runs_to_finished_work():
+    from nerf_core.progressbar import ProgressBar
+
+    bar = ProgressBar(total=100, enabled=False)
+    p = bc.SharedProgress(bar)
+    p.advance("a", 10)
+    p.advance("b", 5)
+    assert bar.done == 15
+    p.finish("a", 40)  # a run books its planned cost, whatever its last step event said
+    assert bar.done == 45
+    p.advance("b", 20)
+    assert bar.done == 60
+
+
 # ---------------------------------------------------------------- Pareto and auto size
 
 
@@ -138,6 +179,22 @@ def test_plan_quick_runs_size_series_on_first_scene_only():
     assert ("diffuse", "grid auto") in runs and ("thin", "grid auto") not in runs
     assert ("thin", "nerf") in runs
     assert plan.checkpoints == pytest.approx([20.0, 40.0])
+
+
+def test_plan_size_scenes_and_jobs_flags():
+    args = benchmark.parse_args(["--out", "x", "--methods", "nerf", "--scenes", "a,b,c", "--size-scenes", "b",
+                                 "--jobs", "2"])
+    orig = benchmark.default_fast_method
+    benchmark.default_fast_method = lambda: "grid"
+    try:
+        plan = benchmark.make_plan(args, "--max-seconds --size {auto}")
+    finally:
+        benchmark.default_fast_method = orig
+    runs = [(scene, s.label) for scene, s in plan.runs()]
+    assert ("b", "grid auto") in runs and ("a", "grid auto") not in runs and ("c", "nerf") in runs
+    assert args.jobs == 2
+    with pytest.raises(SystemExit):
+        benchmark.parse_args(["--out", "x", "--jobs", "0"])
 
 
 # ---------------------------------------------------------------- tables
@@ -339,3 +396,10 @@ def test_stage_timer_charges_nested_time_to_the_inner_stage(monkeypatch):
     field_w(1)
     assert timer.totals == {"field": 4.0, "sampling": 1.5}
     assert timer.stack == []
+
+
+def test_stability_seed_and_job_flags():
+    args = stability.parse_args(["--out", "x", "--seeds", "3", "--other-seeds", "1", "--jobs", "2"])
+    assert (args.base_seeds, args.other_seeds, args.jobs) == (3, 1, 2)
+    args = stability.parse_args(["--out", "x", "--seeds", "2"])
+    assert (args.base_seeds, args.other_seeds) == (2, 2)
