@@ -36,7 +36,8 @@ class VMGrid(RadianceModel):
         upsample_at: fractions of the training budget at which to grow (log-spaced sizes).
         density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
         occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
-        step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss).
+        step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss); the
+            density L1 starts once the occupancy grid prunes (see ``render_rays``).
         alpha_init: opacity of one marching step of the initial grid at initialisation (nearly
             transparent, like TensoRF's shift of -10: space starts empty and the occupancy grid prunes
             whatever never gains density, including space no camera sees).
@@ -196,7 +197,12 @@ class VMGrid(RadianceModel):
                "n_samples": int(ridx.shape[0])}
         if training:
             aux = 0.0
-            if self.options["l1_weight"] > 0:
+            # The L1 prior waits until the occupancy grid prunes, i.e. until some geometry exists. Before
+            # that the rendering gradient on the nearly transparent field is tiny, and Adam scales every
+            # parameter's step to the same size whatever its gradient, so L1 alone would drive both
+            # factors of the VM products to zero: a saddle (d(plane*line) = 0 there) that training
+            # never leaves, seen as a run stuck at its initial PSNR for its whole budget.
+            if self.options["l1_weight"] > 0 and self.pruned():
                 aux = aux + self.options["l1_weight"] * self.field.density_l1()
             if self.options["tv_weight"] > 0:
                 aux = aux + self.options["tv_weight"] * self.field.density_tv()
