@@ -31,7 +31,7 @@ import re
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, Sequence
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_common as bc  # noqa: E402
@@ -261,6 +261,37 @@ def model_size(checkpoint: str) -> tuple[Optional[int], Optional[int]]:
         return n_params, n_bytes
 
 
+def reusable_results(out: str, plan: Plan, series_names: set[str], run_settings: dict) -> dict:
+    """Finished runs of ``series_names`` in OUT/results.json that this plan would repeat unchanged.
+
+    For re-running only the series whose code changed (``--reuse nerf,nerf-nope`` after editing the
+    fast method): a stored run counts only when the capture, the checkpoints, the seed, the number of
+    scored views and the series' method and flags all match, and it had no error. Returns
+    {(scene, series label): result}, each marked ``"reused": True``; the caller says so in the summary.
+    """
+    path = os.path.join(out, "results.json")
+    if not series_names or not os.path.isfile(path):
+        return {}
+    with open(path, encoding="utf-8") as fh:
+        old = json.load(fh)
+    if old.get("capture") != plan.capture or [float(c) for c in old.get("checkpoints_seconds", [])] != plan.checkpoints:
+        print(f"benchmark: {path}: other capture settings or checkpoints, nothing reused", file=sys.stderr)
+        return {}
+    for key, value in run_settings.items():
+        if key not in old:  # written before the key was recorded
+            print(f"benchmark: {path} does not record {key}; assuming {value!r}", file=sys.stderr)
+        elif old.get(key) != value:
+            print(f"benchmark: {path}: {key} was {old.get(key)!r}, now {value!r}; nothing reused", file=sys.stderr)
+            return {}
+    wanted = {(scene, s.label): s for scene, s in plan.runs() if s.label in series_names}
+    found = {}
+    for r in old.get("runs", []):
+        s = wanted.get((r.get("scene"), r.get("series")))
+        if s and not r.get("error") and r.get("method") == s.method and list(r.get("flags") or []) == s.extra:
+            found[(r["scene"], r["series"])] = {**r, "reused": True}
+    return found
+
+
 # --------------------------------------------------------------------------------------------
 # Analysis and output
 # --------------------------------------------------------------------------------------------
@@ -303,7 +334,7 @@ def size_analysis(finals: list[dict], fast: str) -> list[dict]:
 
 
 def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile: Optional[dict],
-                  wall: float, machine: dict) -> dict:
+                  wall: float, machine: dict, run_settings: Optional[dict] = None) -> dict:
     rows, finals = rows_from_results(results)
     bc.write_csv(os.path.join(out, "results.csv"), rows)
     bc.write_csv(os.path.join(out, "final.csv"), finals)
@@ -311,6 +342,7 @@ def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile:
     bc.write_json(os.path.join(out, "results.json"), {
         "machine": machine, "wall_seconds": wall, "checkpoints_seconds": plan.checkpoints,
         "capture": plan.capture, "runs": results, "size_study": sizes, "profile": profile,
+        **(run_settings or {}),
     })
     curves = {}
     for r in results:
@@ -324,7 +356,8 @@ def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile:
     if pts:
         charts.append(bc.chart_psnr_vs_size(pts, os.path.join(out, "psnr_vs_size.png"),
                                             "Final test PSNR against model size"))
-    md = summary_markdown(rows, finals, sizes, profile, plan, wall, machine)
+    md = summary_markdown(rows, finals, sizes, profile, plan, wall, machine,
+                          reused=[f"{r['scene']}/{r['series']}" for r in results if r.get("reused")])
     with open(os.path.join(out, "summary.md"), "w", encoding="utf-8") as fh:
         fh.write(md)
     return {"rows": rows, "finals": finals, "sizes": sizes, "charts": charts, "markdown": md}
@@ -342,7 +375,8 @@ def psnr_at_table(rows: list[dict], checkpoints: list[float]) -> list[dict]:
     return [table[k] for k in sorted(table)]
 
 
-def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, machine: dict) -> str:
+def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, machine: dict,
+                     reused: Sequence[str] = ()) -> str:
     cols = ["scene", "series"] + [f"psnr@{c:g}s" for c in plan.checkpoints] + ["ssim", "n_params", "samples_per_s"]
     lines = [
         "# Benchmark results",
@@ -355,6 +389,8 @@ def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, mach
         f"Capture: {plan.capture['resolution']}x{plan.capture['resolution']} px, {plan.capture['count']} train / "
         f"{plan.capture['test_count']} test views. Checkpoints at {', '.join(f'{c:g}' for c in plan.checkpoints)} "
         "seconds of training time (evaluation time excluded).",
+        *([f"Reused from this folder's previous results.json (`--reuse`, settings matched): {', '.join(reused)}. "
+           "Their wall time is not in the total."] if reused else []),
         "",
         "## Test PSNR (dB) at each checkpoint",
         "",
@@ -605,6 +641,8 @@ def parse_args(argv):
                     help="training runs at a time, each given cores/jobs threads (default 1: one run uses the whole "
                          "machine). With 2 jobs on 2 cores every run gets one core: 'minutes of CPU' per run")
     ap.add_argument("--no-profile", action="store_true", help="skip the per-stage time profile")
+    ap.add_argument("--reuse", help="comma-separated series to take from OUT/results.json instead of training again, "
+                                    "where their settings match (after a code change that does not touch them)")
     ap.add_argument("--independent", action="store_true",
                     help="a fresh run per checkpoint budget instead of one run with --eval-at (exact per-budget schedules, "
                          "costs the sum of the budgets)")
@@ -661,8 +699,16 @@ def main(argv=None) -> int:
     env_extra = bc.thread_env(args.jobs)
     progress = bc.SharedProgress(bar)
     failed: list[str] = []
+    run_settings = {"seed": args.seed, "eval_views": args.eval_views, "jobs": args.jobs}
+    reused = reusable_results(out, plan, set((args.reuse or "").split(",")) - {""}, run_settings)
+    if reused:
+        print(f"benchmark: reusing {len(reused)} runs from {out}/results.json: "
+              + ", ".join(f"{sc}/{se}" for sc, se in reused), file=sys.stderr)
 
     def one_run(scene: str, series: Series):
+        if (scene, series.label) in reused:
+            progress.finish((scene, series.label), per_run)
+            return reused[(scene, series.label)]
         if scene not in datasets:
             progress.finish((scene, series.label), per_run)
             return None
@@ -697,7 +743,7 @@ def main(argv=None) -> int:
             profile = {"error": f"{type(exc).__name__}: {exc}"}
             print(f"benchmark: profile of {fast} failed: {profile['error']}", file=sys.stderr)
     wall = time.monotonic() - t0
-    written = write_outputs(out, results, plan, fast, profile, wall, machine)
+    written = write_outputs(out, results, plan, fast, profile, wall, machine, run_settings)
     print(written["markdown"])
     print(f"benchmark: wrote {out}/results.csv, final.csv, results.json, summary.md"
           + "".join(f", {os.path.basename(c)}" for c in written["charts"]) + f" in {wall / 60:.1f} min", file=sys.stderr)

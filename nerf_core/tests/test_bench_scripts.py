@@ -403,3 +403,22 @@ def test_stability_seed_and_job_flags():
     assert (args.base_seeds, args.other_seeds, args.jobs) == (3, 1, 2)
     args = stability.parse_args(["--out", "x", "--seeds", "2"])
     assert (args.base_seeds, args.other_seeds) == (2, 2)
+
+
+def test_reuse_takes_only_matching_finished_runs_of_named_series(tmp_path, capsys):
+    args = benchmark.parse_args(["--out", str(tmp_path), "--methods", "nerf,grid", "--scenes", "a,b", "--no-sizes"])
+    plan = benchmark.make_plan(args, "--max-seconds")
+    settings = {"seed": 0, "eval_views": None, "jobs": 1}
+    run = {"method": "nerf", "flags": [], "points": [], "error": None}
+    stored = {"capture": plan.capture, "checkpoints_seconds": plan.checkpoints, **settings,
+              "runs": [{**run, "scene": "a", "series": "nerf"},
+                       {**run, "scene": "b", "series": "nerf", "error": "boom"},  # failed: trained again
+                       {**run, "scene": "a", "series": "grid", "method": "grid"}]}  # not named in --reuse
+    (tmp_path / "results.json").write_text(json.dumps(stored))
+    found = benchmark.reusable_results(str(tmp_path), plan, {"nerf"}, settings)
+    assert list(found) == [("a", "nerf")] and found[("a", "nerf")]["reused"] is True
+    # Other capture settings or another seed: nothing is reused, and the reason is printed.
+    assert benchmark.reusable_results(str(tmp_path), plan, {"nerf"}, {**settings, "seed": 1}) == {}
+    assert "seed" in capsys.readouterr().err
+    (tmp_path / "results.json").write_text(json.dumps({**stored, "capture": {**plan.capture, "resolution": 1}}))
+    assert benchmark.reusable_results(str(tmp_path), plan, {"nerf"}, settings) == {}
