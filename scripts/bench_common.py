@@ -764,6 +764,9 @@ def chart_psnr_vs_size(points: Sequence[dict], path: str, title: str) -> str:
             ax.step(fx, fy, where="post", ls="--", color="k", lw=1, label="Pareto front")
             ax.scatter(fx, fy, s=160, facecolors="none", edgecolors="k", zorder=4)
         ax.set_xscale("log")
+        # Only decade labels: minor-tick labels on a one-decade span overlap into an unreadable row.
+        from matplotlib.ticker import NullFormatter
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_title(scene)
         ax.set_xlabel("parameters")
         ax.set_ylabel("final test PSNR (dB)")
