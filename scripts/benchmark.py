@@ -684,7 +684,7 @@ def main(argv=None) -> int:
     per_run = sum(plan.checkpoints) if args.independent else budget
     bar = ProgressBar(total=len(plan.scenes) * capture_cost + len(runs) * per_run, label="benchmark")
     t0 = time.monotonic()
-    datasets, results = {}, []
+    datasets: dict = {}
     failures = 0
     for scene in plan.scenes:
         bar.set(bar.done, info=f"capture {scene}")
