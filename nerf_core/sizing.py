@@ -1,37 +1,59 @@
-"""``--size auto``: pick a model size from the capture geometry and a cheap probe of image content.
+"""``--size auto``: pick a model size from the capture geometry and a cheap probe of the images.
 
 Two questions decide the size:
-1. *How fine can detail be?* A pixel seen from ``cam_dist`` covers about ``cam_dist / fx`` scene units,
+1. *How fine can detail be?* A pixel seen from distance ``d`` covers about ``d / fx`` scene units.
+   The finest footprint anywhere in the box is the one at the box's nearest point to the cameras,
    so a grid finer than ``extent / footprint`` cells (or encoding frequencies above that Nyquist
    limit) cannot be supervised by these images and only adds cost and floaters.
-2. *How much detail is there?* The high-frequency energy of the images (what a 3x3 box blur removes,
-   relative to the image's own variance) separates flat-coloured objects, whose only detail is their
-   silhouette, from textured ones. It scales feature ranks / widths between a small and a full model.
+2. *How much texture is there?* The high-frequency energy of the images (what a 3x3 box blur
+   removes) inside the objects' silhouettes separates flat-coloured objects, whose only detail is
+   their outline, from textured ones. It scales the appearance rank (VM grids) or MLP width.
 
-Empty space is not a sizing concern: the occupancy grid of the grid methods skips it at run time.
+Calibration (``docs/benchmarks/full``, 100 px captures, 5 minutes of one CPU core): on the
+fine-checker scene an appearance rank of 16 at 72 cells scored as well as rank 32 or 48 and within
+0.2 dB of the 160-cell default, so a full texture budget is rank 16, not more: a bigger model makes
+fewer steps in the same time. A density rank above 8 bought nothing even on thin rods (see
+``_DENSITY_RANK``). Empty space is not a sizing concern: the occupancy grid skips it at run time.
 """
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Optional, Tuple
 
 import torch
 import torch.nn.functional as F
 
 Tensor = torch.Tensor
 
-# Detail score at which the full-size model is used: about a third of the object's interior pixels
-# carrying texture. A flat-shaded cube scores a few percent (its face edges only).
+# Detail score at which the full texture budget is used: about a third of the object's interior
+# pixels carrying texture. A flat-shaded cube scores a few percent (its face edges only).
 _FULL_DETAIL = 0.3
+# Density rank of every auto-sized grid. Geometry did not call for more in the calibration: on the
+# thin-rods scene, rank 16 scored 33.94 dB against 33.96 dB for rank 8 (5 min of one core).
+_DENSITY_RANK = 8
 
 
-def detail_score(images: Tensor, max_images: int = 8, threshold: float = 0.01) -> float:
+def _foreground(rgb: Tensor, alpha: Optional[Tensor]) -> Tensor:
+    """(k, 1, h, w) float mask of object pixels for (k, h, w, 3) images and optional (k, h, w) alpha.
+
+    With alpha, the object is alpha > 0.5. Without, it is whatever differs from the background (the
+    median of the image border) by more than 0.02 in some channel.
+    """
+    if alpha is not None:
+        return (alpha > 0.5).float().unsqueeze(1)
+    border = torch.cat([rgb[:, 0], rgb[:, -1], rgb[:, :, 0], rgb[:, :, -1]], dim=1)  # (k, 2h+2w, 3)
+    bg = border.median(dim=1).values  # (k, 3)
+    return ((rgb - bg[:, None, None]).abs().amax(-1) > 0.02).float().unsqueeze(1)
+
+
+def detail_score(images: Tensor, max_images: int = 8, threshold: float = 0.01,
+                 alphas: Optional[Tensor] = None) -> float:
     """Fraction of object-interior pixels with high-frequency content, for (n, h, w, 3) images in [0, 1].
 
-    Residual = grey level minus its 3x3 box blur. Only pixels that differ from the background (the
-    median of the image border) by more than 0.02, and that stay so after a 2-pixel erosion, count,
-    so silhouettes against the background do not pass for texture. Averaged over up to
-    ``max_images`` evenly spaced images; 0 when no image shows any object.
+    Residual = grey level minus its 3x3 box blur. Only object pixels (see ``_foreground``) that stay
+    so after a 2-pixel erosion count, so silhouettes against the background do not pass for texture.
+    Averaged over up to ``max_images`` evenly spaced images; 0 when no image shows any object.
+    ``alphas``: optional (n, h, w) opacity in [0, 1], a better object mask than the background test.
     """
     if images.ndim != 4 or images.shape[-1] < 3:
         raise ValueError(f"images must be (n, h, w, 3), got {tuple(images.shape)}")
@@ -41,9 +63,7 @@ def detail_score(images: Tensor, max_images: int = 8, threshold: float = 0.01) -
     gray = rgb.mean(-1, keepdim=True).permute(0, 3, 1, 2)  # (k, 1, h, w)
     blur = F.avg_pool2d(F.pad(gray, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
     resid = (gray - blur).abs()
-    border = torch.cat([rgb[:, 0], rgb[:, -1], rgb[:, :, 0], rgb[:, :, -1]], dim=1)  # (k, 2h+2w, 3)
-    bg = border.median(dim=1).values  # (k, 3)
-    fg = ((rgb - bg[:, None, None]).abs().amax(-1) > 0.02).float().unsqueeze(1)
+    fg = _foreground(rgb, None if alphas is None else alphas[pick].float())
     interior = -F.max_pool2d(-fg, 5, stride=1, padding=2)  # erosion by 2 pixels
     n_int = interior.sum()
     if n_int < 1:
@@ -52,15 +72,17 @@ def detail_score(images: Tensor, max_images: int = 8, threshold: float = 0.01) -
 
 
 def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam_dist: float,
-              images: Tensor | int | None) -> Tuple[dict, list[str]]:
+              images: Tensor | int | None, alphas: Optional[Tensor] = None) -> Tuple[dict, list[str]]:
     """Choose build options for ``method``.
 
     Args:
         method: method name ("vmgrid", "nerf", "nerf-nope"; others get no options).
         aabb: (2, 3) scene box. fx: focal length in pixels. width, height: image size in pixels.
-        cam_dist: typical camera distance to the box centre (scene units).
+        cam_dist: typical distance from a camera to the *nearest point of the box* (scene units):
+            where the images resolve the finest detail (see ``nearest_box_distance``).
         images: (n, h, w, 3) float images in [0, 1] for the content probe. An int (image count) or None
             skips the probe and assumes full detail (a reason says so).
+        alphas: optional (n, h, w) opacity of ``images``: the object mask of the probe.
 
     Returns:
         (options for ``build_model``, human-readable reasons, one per decision).
@@ -71,26 +93,27 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
         raise ValueError(f"auto_size needs fx > 0, cam_dist > 0 and a non-empty aabb (fx={fx}, cam_dist={cam_dist}, extent={extent})")
     footprint = cam_dist / fx
     nyquist = extent / footprint  # cells per axis that one pixel per cell would resolve
-    reasons = [f"a pixel covers ~{footprint:.4g} scene units at distance {cam_dist:.3g} (fx {fx:.1f} px); "
-               f"the box spans {extent:.3g} units = {nyquist:.0f} pixel footprints"]
+    reasons = [f"a pixel covers ~{footprint:.4g} scene units at the box's nearest point ({cam_dist:.3g} units "
+               f"from the cameras, fx {fx:.1f} px); the box spans {extent:.3g} units = {nyquist:.0f} pixel footprints"]
     if torch.is_tensor(images) and images.ndim == 4 and images.shape[0] > 0:
-        score = detail_score(images)
+        score = detail_score(images, alphas=alphas)
         s = min(1.0, score / _FULL_DETAIL)
-        reasons.append(f"image detail score {score:.3f} (high-frequency energy / variance; full model at "
-                       f"{_FULL_DETAIL}): using {100 * s:.0f}% of the full feature budget")
+        reasons.append(f"texture: image detail score {score:.3f} (share of object pixels with high-frequency "
+                       f"content; full budget at {_FULL_DETAIL}): {100 * s:.0f}% of the full texture budget")
     else:
         s = 1.0
-        reasons.append("no images given for the content probe: assuming full detail")
+        reasons.append("no images given for the content probe: assuming full texture")
 
     if method == "vmgrid":
         res_final = int(max(32, min(320, round(nyquist * (0.5 + 0.5 * s) / 8) * 8)))
-        res_init = int(max(16, min(48, res_final // 3)))
-        app_rank = int(max(8, min(48, round((8 + 40 * s) / 4) * 4)))
-        density_rank = 8 if s < 0.35 else 16
-        opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=density_rank)
+        # Start at two thirds of the final size but no finer than 48: coarser starts lose the first
+        # minute (24 dB at 18 cells vs 29 dB at 48 on the fine checker), finer ones prune later.
+        res_init = int(max(16, min(48, round(res_final * 2 / 3 / 8) * 8)))
+        app_rank = int(round((8 + 8 * s) / 4) * 4)
+        opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=_DENSITY_RANK)
         reasons.append(f"grid grows {res_init} -> {res_final} cells per axis (no finer than the pixel footprint"
-                       + (", halved towards flat content" if s < 1 else "") + ")")
-        reasons.append(f"appearance rank {app_rank}, density rank {density_rank} from the detail score")
+                       + (", reduced towards flat content" if s < 1 else "") + ")")
+        reasons.append(f"appearance rank {app_rank} (8-16) from the texture probe, density rank {_DENSITY_RANK}")
         return opts, reasons
     if method in ("nerf", "nerf-nope"):
         # Highest frequency 2^(L-1) pi on [-1, 1]: period 2^(2-L) of the box half-size; stop at ~2 cells.
@@ -100,7 +123,20 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
         if method == "nerf":
             opts["pos_freqs"] = pos_freqs
             reasons.append(f"{pos_freqs} positional-encoding frequencies: the finest period matches ~2 pixel footprints")
-        reasons.append(f"MLP width {width} from the detail score")
+        reasons.append(f"MLP width {width} from the texture probe")
         return opts, reasons
     reasons.append(f"no sizing rule for method {method!r}: using its defaults")
     return {}, reasons
+
+
+def nearest_box_distance(origins: Tensor, aabb: Tensor) -> float:
+    """Median distance from camera ``origins`` (n, 3) to the nearest point of ``aabb`` (2, 3).
+
+    A camera inside the box counts as 5% of the box's extent away, so the footprint stays finite
+    (the resolution cap in ``auto_size`` then applies).
+    """
+    aabb = torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3)
+    o = torch.as_tensor(origins, dtype=torch.float32).reshape(-1, 3)
+    gap = torch.maximum(aabb[0] - o, o - aabb[1]).clamp_min(0.0)  # (n, 3), 0 along axes inside the slab
+    floor = 0.05 * float((aabb[1] - aabb[0]).max())
+    return float(gap.norm(dim=-1).clamp_min(floor).median())

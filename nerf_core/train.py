@@ -402,19 +402,19 @@ class Trainer:
         self.train = train
 
     def _auto_size(self, dataset: Dataset):
-        try:
-            from .sizing import auto_size
-        except ImportError:
-            return {}, ["nerf_core.sizing is not available in this version: using the method's default size"]
+        from .sizing import auto_size, nearest_box_distance
+
         tr = dataset.split("train")
-        centre = dataset.aabb.mean(0)
-        cam_dist = float((tr.cameras.origins - centre).norm(dim=-1).median())
-        # The content probe looks at a few images only: hand it 8 evenly spaced views as float
-        # (composited onto the evaluation background) instead of a float copy of the whole split.
+        near = nearest_box_distance(tr.cameras.origins, dataset.aabb)
+        # The probes look at a few images only: hand them 8 evenly spaced views as float (composited
+        # onto the evaluation background, with their alpha) instead of a float copy of the whole split.
         pick = torch.linspace(0, len(tr) - 1, min(len(tr), 8)).round().long().tolist()
         bg = [0.0, 0.0, 0.0] if self.cfg.background == "black" else [1.0, 1.0, 1.0]
-        probe = torch.stack([tr.image(v, bg)[0] for v in pick])
-        options, reasons = auto_size(self.method, dataset.aabb, float(tr.cameras.fx[0]), tr.width, tr.height, cam_dist, probe)
+        views = [tr.image(v, bg) for v in pick]
+        probe = torch.stack([rgb for rgb, _ in views])
+        alphas = torch.stack([a for _, a in views]) if tr.has_alpha else None
+        options, reasons = auto_size(self.method, dataset.aabb, float(tr.cameras.fx[0]), tr.width, tr.height, near,
+                                     probe, alphas=alphas)
         return dict(options), list(reasons)
 
     # ------------------------------------------------------------------ checkpoints

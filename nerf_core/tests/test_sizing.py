@@ -1,9 +1,10 @@
-"""--size auto: a flat-coloured cube gets a smaller model than a high-frequency texture."""
+"""--size auto: a flat-coloured cube gets a smaller model than a high-frequency texture, and the
+pixel footprint is taken at the box's nearest point to the cameras."""
 import pytest
 import torch
 
 from nerf_core.methods import build_model
-from nerf_core.sizing import auto_size, detail_score
+from nerf_core.sizing import auto_size, detail_score, nearest_box_distance
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -53,7 +54,27 @@ def test_resolution_follows_the_pixel_footprint():
 
 def test_without_images_full_detail_is_assumed_and_said():
     opts, why = auto_size("vmgrid", BOX, 300.0, 96, 96, 4.0, 12)
-    assert opts["app_rank"] == 48 and any("no images" in r for r in why)
+    assert (opts["app_rank"], opts["density_rank"]) == (16, 8) and any("no images" in r for r in why)
     with pytest.raises(ValueError, match="fx"):
         auto_size("vmgrid", BOX, 0.0, 96, 96, 4.0, None)
     assert auto_size("something-else", BOX, 300.0, 96, 96, 4.0, None)[0] == {}
+
+
+def test_alpha_gives_the_object_mask():
+    """With alpha, only the pixels it marks as object are probed, whatever the border looks like."""
+    im = _images(True)
+    square = (im != 1.0).any(-1).float()  # the textured square
+    flat = torch.zeros_like(square)
+    flat[:, :20, :] = 1.0  # a band of plain white
+    assert detail_score(im, alphas=square) == pytest.approx(detail_score(im), abs=0.02)
+    assert detail_score(im, alphas=square) > 0.5
+    assert detail_score(im, alphas=flat) == 0.0
+    assert detail_score(im, alphas=torch.zeros_like(square)) == 0.0
+
+
+def test_nearest_box_distance_hand_computed():
+    origins = torch.tensor([[4.0, 0.0, 0.0], [0.0, 0.0, -6.0], [3.0, 4.0, 1.0], [0.0, 0.5, 0.0]])
+    # Distances to the box [-1, 1]^3: 3, 5, |(2, 3, 0)| = sqrt(13), and 0 (inside: floored to 0.05 * 2).
+    assert nearest_box_distance(origins, BOX) == pytest.approx(3.0)  # torch's median of 0.1, 3, 3.606, 5: the lower middle
+    assert nearest_box_distance(origins[:3], BOX) == pytest.approx(13 ** 0.5)
+    assert nearest_box_distance(origins[3:], BOX) == pytest.approx(0.1)
