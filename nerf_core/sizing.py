@@ -1,6 +1,6 @@
 """``--size auto``: pick a model size from the capture geometry and a cheap probe of the images.
 
-Two questions decide the size:
+Three questions decide the size:
 1. *How fine can detail be?* A pixel seen from distance ``d`` covers about ``d / fx`` scene units.
    The finest footprint anywhere in the box is the one at the box's nearest point to the cameras,
    so a grid finer than ``extent / footprint`` cells (or encoding frequencies above that Nyquist
@@ -8,6 +8,8 @@ Two questions decide the size:
 2. *How much texture is there?* The high-frequency energy of the images (what a 3x3 box blur
    removes) inside the objects' silhouettes separates flat-coloured objects, whose only detail is
    their outline, from textured ones. It scales the appearance rank (VM grids) or MLP width.
+3. *How fine is the texture?* The share of the images' detail at the pixel scale rather than one
+   octave coarser (a Laplacian pyramid) scales the grid between half and all of question 1's limit.
 
 Calibration (``docs/benchmarks/full``, 100 px captures, 5 minutes of one CPU core): on the
 fine-checker scene an appearance rank of 16 at 72 cells scored as well as rank 32 or 48 and within
@@ -31,6 +33,11 @@ _FULL_DETAIL = 0.3
 # Density rank of every auto-sized grid. Geometry did not call for more in the calibration: on the
 # thin-rods scene, rank 16 scored 33.94 dB against 33.96 dB for rank 8 (5 min of one core).
 _DENSITY_RANK = 8
+# Share of the detail at the pixel scale (``fine_detail_share``) below which a grid at half the
+# footprint resolution suffices, and above which it needs the full footprint resolution. Calibrated
+# on 100 px captures: the fine checker (share 0.65) kept gaining up to 72 cells (30.9 dB at 48,
+# 31.4 at 72); the glossy scene (0.36) lost from 48 cells up (37.6 dB at 48, 36.8 at 72).
+_COARSE_SHARE, _FINE_SHARE = 0.3, 0.6
 
 
 def _foreground(rgb: Tensor, alpha: Optional[Tensor]) -> Tensor:
@@ -46,6 +53,22 @@ def _foreground(rgb: Tensor, alpha: Optional[Tensor]) -> Tensor:
     return ((rgb - bg[:, None, None]).abs().amax(-1) > 0.02).float().unsqueeze(1)
 
 
+def _probe_views(images: Tensor, alphas: Optional[Tensor], max_images: int) -> Tuple[Tensor, Tensor]:
+    """Grey levels (k, 1, h, w) and object masks (k, 1, h, w) of up to ``max_images`` evenly spaced views."""
+    if images.ndim != 4 or images.shape[-1] < 3:
+        raise ValueError(f"images must be (n, h, w, 3), got {tuple(images.shape)}")
+    n = images.shape[0]
+    pick = torch.linspace(0, n - 1, min(n, max_images)).round().long()
+    rgb = images[pick, ..., :3].float()
+    gray = rgb.mean(-1, keepdim=True).permute(0, 3, 1, 2)
+    return gray, _foreground(rgb, None if alphas is None else alphas[pick].float())
+
+
+def _interior(mask: Tensor) -> Tensor:
+    """Erosion by 2 pixels: object pixels whose 5x5 neighbourhood is all object (no silhouette edge)."""
+    return -F.max_pool2d(-mask, 5, stride=1, padding=2)
+
+
 def detail_score(images: Tensor, max_images: int = 8, threshold: float = 0.01,
                  alphas: Optional[Tensor] = None) -> float:
     """Fraction of object-interior pixels with high-frequency content, for (n, h, w, 3) images in [0, 1].
@@ -55,20 +78,42 @@ def detail_score(images: Tensor, max_images: int = 8, threshold: float = 0.01,
     Averaged over up to ``max_images`` evenly spaced images; 0 when no image shows any object.
     ``alphas``: optional (n, h, w) opacity in [0, 1], a better object mask than the background test.
     """
-    if images.ndim != 4 or images.shape[-1] < 3:
-        raise ValueError(f"images must be (n, h, w, 3), got {tuple(images.shape)}")
-    n = images.shape[0]
-    pick = torch.linspace(0, n - 1, min(n, max_images)).round().long()
-    rgb = images[pick, ..., :3].float()
-    gray = rgb.mean(-1, keepdim=True).permute(0, 3, 1, 2)  # (k, 1, h, w)
+    gray, fg = _probe_views(images, alphas, max_images)
     blur = F.avg_pool2d(F.pad(gray, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
     resid = (gray - blur).abs()
-    fg = _foreground(rgb, None if alphas is None else alphas[pick].float())
-    interior = -F.max_pool2d(-fg, 5, stride=1, padding=2)  # erosion by 2 pixels
+    interior = _interior(fg)
     n_int = interior.sum()
     if n_int < 1:
         return 0.0
     return float(((resid > threshold).float() * interior).sum() / n_int)
+
+
+def fine_detail_share(images: Tensor, max_images: int = 8, alphas: Optional[Tensor] = None) -> float:
+    """How much of the texture sits at the pixel scale rather than one octave coarser, in [0, 1].
+
+    Two Laplacian-pyramid levels of the grey image: L0 = image - upsampled 2x2 average (detail of
+    1-2 pixels) and L1, the same one level down (2-4 pixels). Returns mean |L0| / (mean |L0| + mean
+    |L1|) over object-interior pixels: ~0.65 for a checker finer than the pixels, ~0.4 for texture
+    spots several pixels wide, 0.36 for smooth glossy shading, 0 without texture (flat colours), and
+    1 for objects too thin to have an interior two levels down (rods, wires).
+    A grid only needs the pixel footprint's resolution where the detail is at the pixel scale.
+    """
+    gray, fg = _probe_views(images, alphas, max_images)
+    h, w = gray.shape[-2:]
+    gray, fg = gray[..., : h // 4 * 4, : w // 4 * 4], fg[..., : h // 4 * 4, : w // 4 * 4]
+    energy = []
+    for _ in range(2):
+        down = F.avg_pool2d(gray, 2)
+        lap = (gray - F.interpolate(down, scale_factor=2.0, mode="bilinear", align_corners=False)).abs()
+        inner = _interior(fg)
+        if inner.sum() < 1:
+            # Objects without an interior at this scale are structures a few pixels wide: their
+            # geometry is at the pixel scale (thin rods, wires). No objects at all: nothing to resolve.
+            return 1.0 if fg.sum() > 0 else 0.0
+        energy.append(float((lap * inner).sum() / inner.sum()))
+        gray, fg = down, (F.avg_pool2d(fg, 2) > 0.99).float()
+    total = energy[0] + energy[1]
+    return energy[0] / total if total > 1e-4 else 0.0
 
 
 def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam_dist: float,
@@ -98,26 +143,32 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
     if torch.is_tensor(images) and images.ndim == 4 and images.shape[0] > 0:
         score = detail_score(images, alphas=alphas)
         s = min(1.0, score / _FULL_DETAIL)
-        reasons.append(f"texture: image detail score {score:.3f} (share of object pixels with high-frequency "
-                       f"content; full budget at {_FULL_DETAIL}): {100 * s:.0f}% of the full texture budget")
+        reasons.append(f"texture amount: image detail score {score:.3f} (share of object pixels with "
+                       f"high-frequency content; full budget at {_FULL_DETAIL}): {100 * s:.0f}% of the full rank")
+        share = fine_detail_share(images, alphas=alphas)
+        f = min(1.0, max(0.0, (share - _COARSE_SHARE) / (_FINE_SHARE - _COARSE_SHARE)))
+        reasons.append(f"texture scale: {100 * share:.0f}% of the detail at the pixel scale (coarse at "
+                       f"{100 * _COARSE_SHARE:.0f}%, pixel-fine at {100 * _FINE_SHARE:.0f}%)")
     else:
-        s = 1.0
-        reasons.append("no images given for the content probe: assuming full texture")
+        s = f = 1.0
+        reasons.append("no images given for the content probes: assuming full, pixel-fine texture")
+    # Cells per axis: the footprint's resolution for pixel-fine texture, half of it for coarse or none.
+    fine_res = nyquist * (0.5 + 0.5 * f)
 
     if method == "vmgrid":
-        res_final = int(max(32, min(320, round(nyquist * (0.5 + 0.5 * s) / 8) * 8)))
+        res_final = int(max(32, min(320, round(fine_res / 8) * 8)))
         # Start at two thirds of the final size but no finer than 48: coarser starts lose the first
         # minute (24 dB at 18 cells vs 29 dB at 48 on the fine checker), finer ones prune later.
         res_init = int(max(16, min(48, round(res_final * 2 / 3 / 8) * 8)))
         app_rank = int(round((8 + 8 * s) / 4) * 4)
         opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=_DENSITY_RANK)
         reasons.append(f"grid grows {res_init} -> {res_final} cells per axis (no finer than the pixel footprint"
-                       + (", reduced towards flat content" if s < 1 else "") + ")")
+                       + (", coarser for coarse texture" if f < 1 else "") + ")")
         reasons.append(f"appearance rank {app_rank} (8-16) from the texture probe, density rank {_DENSITY_RANK}")
         return opts, reasons
     if method in ("nerf", "nerf-nope"):
         # Highest frequency 2^(L-1) pi on [-1, 1]: period 2^(2-L) of the box half-size; stop at ~2 cells.
-        pos_freqs = int(max(4, min(12, math.ceil(math.log2(max(2.0, nyquist * (0.5 + 0.5 * s)))))))
+        pos_freqs = int(max(4, min(12, math.ceil(math.log2(max(2.0, fine_res))))))
         width = 64 if s < 0.35 else 128
         opts = dict(width=width)
         if method == "nerf":

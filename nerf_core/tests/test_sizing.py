@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from nerf_core.methods import build_model
-from nerf_core.sizing import auto_size, detail_score, nearest_box_distance
+from nerf_core.sizing import auto_size, detail_score, fine_detail_share, nearest_box_distance
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -70,6 +70,40 @@ def test_alpha_gives_the_object_mask():
     assert detail_score(im, alphas=square) > 0.5
     assert detail_score(im, alphas=flat) == 0.0
     assert detail_score(im, alphas=torch.zeros_like(square)) == 0.0
+
+
+def _checker(period: int, size=96, n=3):
+    """A grey square (rows/cols 16..80) carrying a checker of ``period`` pixels, on white, with alpha."""
+    yy, xx = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    check = (((yy // (period // 2)) + (xx // (period // 2))) % 2).float() * 0.5 + 0.25
+    alpha = torch.zeros(size, size)
+    alpha[16:80, 16:80] = 1.0
+    im = torch.where(alpha.bool(), check, torch.ones(())).unsqueeze(-1).expand(size, size, 3)
+    return im.expand(n, -1, -1, -1).clone(), alpha.expand(n, -1, -1).clone()
+
+
+def test_fine_detail_share_tells_pixel_fine_from_coarse_texture():
+    share = lambda im_alpha: fine_detail_share(im_alpha[0], alphas=im_alpha[1])  # noqa: E731
+    fine, coarse = share(_checker(2)), share(_checker(16))
+    # A 1-pixel checker is all L0 detail (its 2x2 averages are flat grey); 8-pixel squares leave only
+    # their edges, about as strong in L1 as in L0.
+    assert fine == pytest.approx(1.0, abs=1e-6)
+    assert 0.2 < coarse < 0.6
+    flat_im, flat_alpha = _checker(2)
+    flat_im[:] = 0.5
+    assert fine_detail_share(flat_im, alphas=flat_alpha) == 0.0  # no texture at all
+    rods = torch.ones(2, 96, 96, 3)
+    rods[:, 8:88, 20] = 0.3  # a one-pixel rod: object without interior
+    assert fine_detail_share(rods) == 1.0
+    assert fine_detail_share(torch.ones(2, 32, 32, 3)) == 0.0  # no object
+
+
+def test_grid_resolution_follows_the_texture_scale():
+    fine_opts, why = auto_size("vmgrid", BOX, 300.0, 96, 96, 8.0, *_checker(2))  # footprint 8/300: 75 cells
+    coarse_opts, _ = auto_size("vmgrid", BOX, 300.0, 96, 96, 8.0, *_checker(16))
+    assert fine_opts["res_final"] == 72 and coarse_opts["res_final"] < fine_opts["res_final"]
+    assert coarse_opts["res_final"] >= 40  # never below half the footprint's resolution (37.5 -> 40)
+    assert any("pixel scale" in r for r in why)
 
 
 def test_nearest_box_distance_hand_computed():
