@@ -3,7 +3,7 @@
     python scripts/stability.py [--quick] --out DIR [--methods a,b] [--scene NAME] [--seeds N]
                                 [--views 4,8,16,32,64] [--pose-noise 0.5:0.005,2:0.02]
                                 [--lr-scales 0.1,0.3,1,3,10] [--seconds S] [--resolution R]
-                                [--threshold DB] [--drop DB]
+                                [--threshold DB] [--drop DB] [--report-only]
 
 Every run goes through the user-facing tools: the scene is captured once (scripts/make_demo_scene.py,
 scripts/capture.py, cached in DIR/datasets), derived datasets (fewer train views, perturbed train
@@ -21,7 +21,8 @@ A setting is *broken* when a run errors, produces NaN, diverges (3 or more rollb
 with low PSNR), scores below ``--threshold`` dB or more than ``--drop`` dB below the method's own base
 PSNR, or shows floaters on more than 5% of the background pixels. Writes DIR/stability.csv (every
 run), DIR/settings.csv (mean/spread per setting), DIR/stability.md (the breakdown table) and
-DIR/stability.png.
+DIR/stability.png. ``--report-only`` re-judges a finished study's runs (say with another
+``--threshold``) and redraws its chart without training anything.
 """
 from __future__ import annotations
 
@@ -160,6 +161,134 @@ def _base_lr(run_dir: str):
         return None
 
 
+def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dict], list[dict]]:
+    """Per-setting mean and spread, then the verdicts (relative to each method's own base).
+
+    ``runs``: one dict per training run (method, study, setting, seed, psnr, ...), in plan order;
+    sets each run's ``broken``. Returns (settings, breakdown table), both in first-seen order.
+    """
+    keys: list = []
+    for r in runs:
+        key = (r["method"], r["study"], r["setting"])
+        if key not in keys:
+            keys.append(key)
+    methods = list(dict.fromkeys(k[0] for k in keys))
+    keys.sort(key=lambda k: methods.index(k[0]))  # stable: plan order within a method
+    settings = []
+    for method, study, setting in keys:
+        rs = [r for r in runs if (r["method"], r["study"], r["setting"]) == (method, study, setting)]
+        m, sd, n = bc.mean_std([r["psnr"] for r in rs])
+        fm, _, _ = bc.mean_std([r["floater_pixels"] for r in rs])
+        settings.append({"method": method, "study": study, "setting": setting, "psnr_mean": m, "psnr_std": sd,
+                         "n_ok": n, "n_runs": len(rs), "ssim_mean": bc.mean_std([r["ssim"] for r in rs])[0],
+                         "floater_pixels": fm, "rollbacks": sum(r["rollbacks"] or 0 for r in rs),
+                         "nan": any(r["nan"] for r in rs),
+                         "error": next((r["error"] for r in rs if r["error"]), None)})
+    base_psnr = {s["method"]: s["psnr_mean"] for s in settings if s["study"] == "base"}
+    for r in runs:
+        r["broken"] = breakdown_reason(r, threshold, base_psnr.get(r["method"]) if r["study"] != "base" else None, drop)
+    for s in settings:
+        # A setting is broken when any of its seeds broke: users get one seed, not the mean.
+        reasons = [r["broken"] for r in runs if r["method"] == s["method"] and r["study"] == s["study"]
+                   and r["setting"] == s["setting"] and r["broken"]]
+        s["broken"] = reasons[0] + (f" ({len(reasons)}/{s['n_runs']} seeds)" if s["n_runs"] > 1 else "") if reasons else ""
+    return settings, breakdown_table(settings)
+
+
+def chart_groups(settings: list[dict], n_train: int | None) -> dict:
+    """{study: {method: [(label, mean, std), ...]}} for ``bc.chart_bars``.
+
+    Each method's base run is drawn inside every study, at the place it belongs in that sweep
+    (``64`` views, ``x1`` learning rate, ``0deg/0`` pose noise), so a panel reads as a sweep; the
+    base panel itself is then left out.
+    """
+    base_label = {"views": str(n_train) if n_train else "all", "lr": "x1", "pose_noise": "0deg/0"}
+    groups: dict = {}
+    for s in settings:
+        groups.setdefault(s["study"], {}).setdefault(s["method"], []).append((str(s["setting"]), s["psnr_mean"],
+                                                                               s["psnr_std"]))
+    base = groups.get("base", {})
+    for study, per_method in groups.items():
+        if study not in base_label:
+            continue
+        for method, pts in per_method.items():
+            if method not in base:
+                continue
+            _, m, sd = base[method][0]
+            pts.append((base_label[study], m, sd))
+            pts.sort(key=lambda p: _sweep_key(study, p[0]))
+    if len(groups) > 1:
+        groups.pop("base", None)  # shown inside every other panel already
+    return groups
+
+
+def _sweep_key(study: str, label: str) -> float:
+    """Where a setting label sits on its sweep's axis: '16' -> 16, 'x0.3' -> 0.3, '2deg/0.02' -> 2."""
+    m = re.match(r"x?([0-9.]+)", label)
+    return float(m.group(1)) if m else float("inf")
+
+
+def write_report(out: str, runs: list[dict], *, machine: dict, capture: dict, scene: str, seconds: float,
+                 threshold: float, drop: float, jobs: int, env_extra: dict | None, notes: list[str],
+                 wall: float) -> str:
+    """Judge ``runs`` and write OUT/stability.{csv,json,md,png} and OUT/settings.csv; returns the markdown."""
+    settings, table = summarise(runs, threshold, drop)
+    bc.write_csv(os.path.join(out, "stability.csv"), runs)
+    bc.write_csv(os.path.join(out, "settings.csv"), settings)
+    bc.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
+                                                        "scene": scene, "seconds_per_run": seconds, "jobs": jobs,
+                                                        "threads_per_run": (env_extra or {}).get("OMP_NUM_THREADS"),
+                                                        "threshold_db": threshold, "drop_db": drop, "runs": runs,
+                                                        "settings": settings, "breakdown": table, "notes": notes})
+    n_train = capture.get("count")
+    chart = bc.chart_bars(chart_groups(settings, n_train), os.path.join(out, "stability.png"),
+                          f"Test PSNR per setting ({scene}, {seconds:g} s runs; bars: mean, whiskers: std)",
+                          "test PSNR (dB)", threshold=threshold)
+    threads = (env_extra or {}).get("OMP_NUM_THREADS")
+    md = "\n".join([
+        "# Stability: where each method breaks down", "",
+        f"Scene `{scene}`, {capture.get('resolution')} px, {n_train} train / {capture.get('test_count')} test views, "
+        f"{seconds:g} s of training per run; machine: {machine.get('cpu', '?')}, {machine.get('cpus')} CPUs, "
+        f"load {machine.get('load_avg')}; wall time {wall / 60:.1f} min; "
+        + (f"{jobs} runs at a time, {threads} thread(s) each." if threads else "one run at a time, all cores."),
+        f"Broken = error, NaN, >= {ROLLBACK_LIMIT} rollbacks, PSNR < {threshold:g} dB or > {drop:g} dB "
+        f"below the method's base, or floaters on > {100 * FLOATER_LIMIT:.0f}% of background pixels.", "",
+        *[f"Note: {n}" for n in notes], "",
+        "## Breakdown", "", bc.markdown_table(table, ["method", "study", "breaks_at", "settings_tried"]), "",
+        "## Every setting (mean and std over seeds)", "",
+        bc.markdown_table(settings, ["method", "study", "setting", "psnr_mean", "psnr_std", "n_ok", "n_runs",
+                                     "floater_pixels", "rollbacks", "broken"]), "",
+        f"![stability]({os.path.basename(chart)})", "",
+    ])
+    with open(os.path.join(out, "stability.md"), "w", encoding="utf-8") as fh:
+        fh.write(md)
+    print(f"stability: wrote {out}/stability.csv, settings.csv, stability.json, stability.md, stability.png",
+          file=sys.stderr)
+    return md
+
+
+def report_only(args) -> int:
+    """Re-judge the runs stored in OUT/stability.json with this call's --threshold/--drop; no training."""
+    out = os.path.abspath(args.out)
+    path = os.path.join(out, "stability.json")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            stored = json.load(fh)
+        runs = stored["runs"]
+    except (OSError, ValueError, KeyError) as exc:
+        print(f"stability: --report-only needs the runs of an earlier study in {path}: {exc}", file=sys.stderr)
+        return 1
+    threshold = args.threshold_given if args.threshold_given is not None else stored.get("threshold_db", args.threshold)
+    drop = args.drop_given if args.drop_given is not None else stored.get("drop_db", args.drop)
+    threads = stored.get("threads_per_run")
+    print(write_report(out, runs, machine=stored.get("machine", {}), capture=stored.get("capture", {}),
+                       scene=stored.get("scene", args.scene), seconds=stored.get("seconds_per_run", args.seconds),
+                       threshold=threshold, drop=drop, jobs=stored.get("jobs", args.jobs),
+                       env_extra={"OMP_NUM_THREADS": threads} if threads else None,
+                       notes=stored.get("notes", []), wall=stored.get("wall_seconds", 0.0)))
+    return 0
+
+
 def parse_args(argv):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True)
@@ -177,7 +306,9 @@ def parse_args(argv):
     ap.add_argument("--resolution", type=int, help="capture resolution (default 64; quick 48)")
     ap.add_argument("--test-views", type=int, help="held-out views (default 8; quick 4)")
     ap.add_argument("--threshold", type=float, help="absolute PSNR floor in dB (default 18; quick 14)")
-    ap.add_argument("--drop", type=float, default=3.0, help="dB below the method's own base PSNR that counts as broken")
+    ap.add_argument("--drop", type=float, help="dB below the method's own base PSNR that counts as broken (default 3)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="train nothing: re-judge the runs in OUT/stability.json with --threshold/--drop and redraw")
     ap.add_argument("--engine", default="cycles")
     ap.add_argument("--samples", type=int, default=16)
     args = ap.parse_args(argv)
@@ -188,7 +319,9 @@ def parse_args(argv):
     args.seconds = args.seconds or (15.0 if q else 60.0)
     args.resolution = args.resolution or (48 if q else 64)
     args.test_views = args.test_views or (4 if q else 8)
+    args.threshold_given, args.drop_given = args.threshold, args.drop
     args.threshold = args.threshold if args.threshold is not None else (14.0 if q else 18.0)
+    args.drop = args.drop if args.drop is not None else 3.0
     args.base_seeds = args.seeds or 3
     args.other_seeds = args.other_seeds or args.seeds or (1 if q else 3)
     if args.jobs < 1:
@@ -198,6 +331,8 @@ def parse_args(argv):
 
 def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    if args.report_only:
+        return report_only(args)
     machine = bc.machine_info()  # the load average before this study adds its own
     machine["jobs"] = args.jobs
     sys.path.insert(0, bc.REPO_ROOT)
@@ -298,65 +433,10 @@ def main(argv=None) -> int:
     runs += bc.run_parallel(later, args.jobs)
     bar.close()
 
-    # Per-setting mean and spread, then the verdicts (relative to each method's own base).
-    settings = []
-    for method in methods:
-        for study, setting, *_ in plan:
-            rs = [r for r in runs if r["method"] == method and r["study"] == study and r["setting"] == setting]
-            if not rs:
-                continue
-            m, sd, n = bc.mean_std([r["psnr"] for r in rs])
-            fm, _, _ = bc.mean_std([r["floater_pixels"] for r in rs])
-            settings.append({"method": method, "study": study, "setting": setting, "psnr_mean": m, "psnr_std": sd,
-                             "n_ok": n, "n_runs": len(rs), "ssim_mean": bc.mean_std([r["ssim"] for r in rs])[0],
-                             "floater_pixels": fm, "rollbacks": sum(r["rollbacks"] or 0 for r in rs),
-                             "nan": any(r["nan"] for r in rs),
-                             "error": next((r["error"] for r in rs if r["error"]), None)})
-    base_psnr = {s["method"]: s["psnr_mean"] for s in settings if s["study"] == "base"}
-    for r in runs:
-        r["broken"] = breakdown_reason(r, args.threshold, base_psnr.get(r["method"]) if r["study"] != "base" else None,
-                                       args.drop)
-    for s in settings:
-        # A setting is broken when any of its seeds broke: users get one seed, not the mean.
-        reasons = [r["broken"] for r in runs if r["method"] == s["method"] and r["study"] == s["study"]
-                   and r["setting"] == s["setting"] and r["broken"]]
-        s["broken"] = reasons[0] + (f" ({len(reasons)}/{s['n_runs']} seeds)" if s["n_runs"] > 1 else "") if reasons else ""
-    table = breakdown_table(settings)
-
-    bc.write_csv(os.path.join(out, "stability.csv"), runs)
-    bc.write_csv(os.path.join(out, "settings.csv"), settings)
-    wall = time.monotonic() - t0
-    bc.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
-                                                        "seconds_per_run": args.seconds, "threshold_db": args.threshold,
-                                                        "drop_db": args.drop, "runs": runs, "settings": settings,
-                                                        "breakdown": table, "notes": notes})
-    groups: dict = {}
-    for s in settings:
-        groups.setdefault(s["study"], {}).setdefault(s["method"], []).append((str(s["setting"]), s["psnr_mean"], s["psnr_std"]))
-    chart = bc.chart_bars(groups, os.path.join(out, "stability.png"),
-                          f"Test PSNR per setting ({args.scene}, {args.seconds:g} s runs; bars: mean, whiskers: std)",
-                          "test PSNR (dB)", threshold=args.threshold)
-    md = "\n".join([
-        "# Stability: where each method breaks down", "",
-        f"Scene `{args.scene}`, {args.resolution} px, {n_train} train / {args.test_views} test views, "
-        f"{args.seconds:g} s of training per run; machine: {machine.get('cpu', '?')}, {machine.get('cpus')} CPUs, "
-        f"load {machine.get('load_avg')}; wall time {wall / 60:.1f} min; "
-        + (f"{args.jobs} runs at a time, {env_extra['OMP_NUM_THREADS']} thread(s) each." if env_extra
-           else "one run at a time, all cores."),
-        f"Broken = error, NaN, >= {ROLLBACK_LIMIT} rollbacks, PSNR < {args.threshold:g} dB or > {args.drop:g} dB "
-        f"below the method's base, or floaters on > {100 * FLOATER_LIMIT:.0f}% of background pixels.", "",
-        *[f"Note: {n}" for n in notes], "",
-        "## Breakdown", "", bc.markdown_table(table, ["method", "study", "breaks_at", "settings_tried"]), "",
-        "## Every setting (mean and std over seeds)", "",
-        bc.markdown_table(settings, ["method", "study", "setting", "psnr_mean", "psnr_std", "n_ok", "n_runs",
-                                     "floater_pixels", "rollbacks", "broken"]), "",
-        f"![stability]({os.path.basename(chart)})", "",
-    ])
-    with open(os.path.join(out, "stability.md"), "w", encoding="utf-8") as fh:
-        fh.write(md)
-    print(md)
-    print(f"stability: wrote {out}/stability.csv, settings.csv, stability.json, stability.md, stability.png "
-          f"in {wall / 60:.1f} min", file=sys.stderr)
+    report = write_report(out, runs, machine=machine, capture=capture, scene=args.scene, seconds=args.seconds,
+                          threshold=args.threshold, drop=args.drop, jobs=args.jobs, env_extra=env_extra,
+                          notes=notes, wall=time.monotonic() - t0)
+    print(report)
     return 0
 
 
