@@ -756,19 +756,11 @@ def _draw_size_points(ax, pts: Sequence[dict], colours: dict, legend: bool) -> N
     ax.set_xscale("log")
     # Labels at 1, 2 and 5 per decade: decades alone leave a panel spanning less than one unlabelled,
     # and every minor tick overlaps into an unreadable row.
-    from matplotlib.ticker import FuncFormatter, LogLocator
+    from matplotlib.ticker import EngFormatter, LogLocator, NullFormatter
     ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: format_count(x)))
-    ax.xaxis.set_minor_formatter(FuncFormatter(lambda _x, _pos: ""))
+    ax.xaxis.set_major_formatter(EngFormatter(sep=""))  # 200k, 1M
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.grid(alpha=0.3, which="both")
-
-
-def format_count(n: float) -> str:
-    """A parameter count for an axis: 200 -> '200', 150000 -> '150k', 3720000 -> '3.7M'."""
-    for div, unit in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
-        if abs(n) >= div:
-            return f"{n / div:.3g}{unit}"
-    return f"{n:.3g}"
 
 
 def chart_psnr_vs_size(points: Sequence[dict], path: str, title: str, zoom_db: float = 2.0) -> str:

@@ -167,16 +167,12 @@ def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dic
     ``runs``: one dict per training run (method, study, setting, seed, psnr, ...), in plan order;
     sets each run's ``broken``. Returns (settings, breakdown table), both in first-seen order.
     """
-    keys: list = []
+    groups: dict = {}  # (method, study, setting) -> runs, in first-seen order
     for r in runs:
-        key = (r["method"], r["study"], r["setting"])
-        if key not in keys:
-            keys.append(key)
-    methods = list(dict.fromkeys(k[0] for k in keys))
-    keys.sort(key=lambda k: methods.index(k[0]))  # stable: plan order within a method
+        groups.setdefault((r["method"], r["study"], r["setting"]), []).append(r)
+    methods = list(dict.fromkeys(k[0] for k in groups))
     settings = []
-    for method, study, setting in keys:
-        rs = [r for r in runs if (r["method"], r["study"], r["setting"]) == (method, study, setting)]
+    for (method, study, setting), rs in sorted(groups.items(), key=lambda kv: methods.index(kv[0][0])):
         m, sd, n = bc.mean_std([r["psnr"] for r in rs])
         fm, _, _ = bc.mean_std([r["floater_pixels"] for r in rs])
         settings.append({"method": method, "study": study, "setting": setting, "psnr_mean": m, "psnr_std": sd,
@@ -189,8 +185,7 @@ def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dic
         r["broken"] = breakdown_reason(r, threshold, base_psnr.get(r["method"]) if r["study"] != "base" else None, drop)
     for s in settings:
         # A setting is broken when any of its seeds broke: users get one seed, not the mean.
-        reasons = [r["broken"] for r in runs if r["method"] == s["method"] and r["study"] == s["study"]
-                   and r["setting"] == s["setting"] and r["broken"]]
+        reasons = [r["broken"] for r in groups[(s["method"], s["study"], s["setting"])] if r["broken"]]
         s["broken"] = reasons[0] + (f" ({len(reasons)}/{s['n_runs']} seeds)" if s["n_runs"] > 1 else "") if reasons else ""
     return settings, breakdown_table(settings)
 
@@ -216,13 +211,13 @@ def chart_groups(settings: list[dict], n_train: int | None) -> dict:
                 continue
             _, m, sd = base[method][0]
             pts.append((base_label[study], m, sd))
-            pts.sort(key=lambda p: _sweep_key(study, p[0]))
+            pts.sort(key=lambda p: _sweep_key(p[0]))
     if len(groups) > 1:
         groups.pop("base", None)  # shown inside every other panel already
     return groups
 
 
-def _sweep_key(study: str, label: str) -> float:
+def _sweep_key(label: str) -> float:
     """Where a setting label sits on its sweep's axis: '16' -> 16, 'x0.3' -> 0.3, '2deg/0.02' -> 2."""
     m = re.match(r"x?([0-9.]+)", label)
     return float(m.group(1)) if m else float("inf")

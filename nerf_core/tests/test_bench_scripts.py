@@ -372,10 +372,6 @@ def test_breakdown_table_finds_first_failing_setting():
     assert table[("grid", "pose_noise")] == "2deg: PSNR < 18"
 
 
-def test_format_count_for_size_axes():
-    assert [bc.format_count(x) for x in (200, 150_000, 3_719_139, 2e9)] == ["200", "150k", "3.72M", "2G"]
-
-
 def _run(method, study, setting, seed, psnr, **kw):
     return {"method": method, "study": study, "setting": setting, "seed": seed, "psnr": psnr, "ssim": None,
             "rollbacks": 0, "nan": False, "error": None, "floater_pixels": 0.0, **kw}
