@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import math
+import pickle
+import re
 import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional
@@ -49,13 +51,77 @@ def load_state_resizing(model: torch.nn.Module, state: Dict[str, torch.Tensor]) 
     model.load_state_dict(state)
 
 
+def _legacy_checkpoint_globals() -> list:
+    """The only non-tensor globals a checkpoint written before checkpoints became weights-only may hold.
+
+    Older trainers saved ``np.random.get_state()`` (a numpy array) and ``torch.__version__`` (a
+    ``TorchVersion``, a ``str`` subclass). Unpickling those needs numpy's array and dtype
+    reconstruction and that string class: data-only constructors that run no user code, so
+    allowing them keeps old runs resumable without opening the door to arbitrary pickles.
+    """
+    from torch.torch_version import TorchVersion
+
+    try:
+        from numpy._core.multiarray import _reconstruct as reconstruct  # numpy 2 (and the alias in 1.26)
+    except ImportError:
+        from numpy.core.multiarray import _reconstruct as reconstruct
+    allowed = [np.ndarray, np.dtype, TorchVersion,
+               # numpy 1.x writes numpy.core..., numpy 2.x numpy._core...: one function under either name
+               (reconstruct, "numpy.core.multiarray._reconstruct"),
+               (reconstruct, "numpy._core.multiarray._reconstruct")]
+    dtypes = getattr(np, "dtypes", None)  # numpy >= 1.25 pickles a dtype through its class (UInt32DType...)
+    if dtypes is not None:
+        allowed += [c for c in vars(dtypes).values() if isinstance(c, type) and issubclass(c, np.dtype)]
+    return allowed
+
+
+# What torch's weights-only unpickler says when a file needs something it will not build; any other
+# unpickling error is a damaged file rather than a refused one.
+_REFUSED = re.compile(r"GLOBAL (\S+) was not an allowed global|unsupported GLOBAL (\S+) whose module|"
+                      r"reduce for unrecognized function (.+)|Can only create new object.* but got (.+)")
+
+
 def read_checkpoint(path: Path) -> dict:
+    """The checkpoint at ``path``, loaded so that it cannot run code (raises RunError naming the file).
+
+    A ``.pt`` file is a pickle, and an unrestricted unpickle executes whatever the file asks for, so
+    a crafted ``latest.pt`` would run code on ``eval``, ``render`` or ``train --resume``. The trainer
+    writes only tensors and plain Python data, which ``torch.load(weights_only=True)`` accepts; the
+    numpy state of older checkpoints is admitted through ``_legacy_checkpoint_globals`` and nothing else.
+    """
     if not path.is_file():
         raise RunError(f"{path}: checkpoint not found")
     try:
-        return torch.load(path, map_location="cpu", weights_only=False)
+        with torch.serialization.safe_globals(_legacy_checkpoint_globals()):
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = _REFUSED.search(str(exc))
+        if found is None:
+            raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
+        what = next((g.strip() for g in found.groups() if g), "")
+        raise RunError(
+            f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"
+            + (f" ({what})" if what else "")
+            + "; it will not be loaded, because loading it could run that code. "
+            "Use a checkpoint written by `python -m nerf_core train`."
+        ) from None  # the unpickler's long advice to reload with weights_only=False must not reach the user
     except Exception as exc:  # truncated or foreign file
-        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {exc})") from exc
+        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {_first_line(exc)})") from exc
+    if not isinstance(ckpt, dict):
+        raise RunError(f"{path}: not a nerf_core checkpoint (holds a {type(ckpt).__name__}, not a dict)")
+    return ckpt
+
+
+def _unpickler_detail(exc: BaseException) -> str:
+    """The unpickler's own complaint, without torch's advice around it (which suggests weights_only=False)."""
+    text = str(exc).split("\n\nCheck the documentation")[0]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1] if lines else type(exc).__name__
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
 
 
 def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):

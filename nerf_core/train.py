@@ -12,6 +12,8 @@ What the loop guarantees (docs/CONTRACTS.md has the file layout and the event vo
   (``rollback`` event); after too many rollbacks training stops with an ``error`` event.
 * Never destroys data: an existing non-empty run folder is refused unless ``--resume`` or
   ``--overwrite``; ``--overwrite`` removes only files the trainer writes and lists them.
+* Checkpoints hold only tensors and plain Python data, so they load with ``weights_only=True``
+  (``nerf_core.render.read_checkpoint`` refuses anything that could run code).
 """
 from __future__ import annotations
 
@@ -171,8 +173,13 @@ def seed_everything(seed: int) -> None:
 
 
 def rng_state(gen: torch.Generator) -> dict:
-    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
-             "batches": gen.get_state()}
+    """Every RNG's state as tensors and plain Python data, so that a checkpoint holding it loads with
+    ``torch.load(weights_only=True)`` (a numpy array would need numpy's unpickling globals)."""
+    kind, key, pos, has_gauss, gauss = np.random.get_state()
+    state = {"python": random.getstate(),  # (version, tuple of ints, float or None): plain data already
+             "numpy": {"bit_generator": str(kind), "key": torch.from_numpy(key.astype(np.int64)), "pos": int(pos),
+                       "has_gauss": int(has_gauss), "cached_gaussian": float(gauss)},
+             "torch": torch.get_rng_state(), "batches": gen.get_state()}
     if torch.cuda.is_available():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
@@ -180,7 +187,12 @@ def rng_state(gen: torch.Generator) -> dict:
 
 def set_rng_state(state: dict, gen: torch.Generator) -> None:
     random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    nps = state["numpy"]
+    if isinstance(nps, dict):
+        key = np.asarray(torch.as_tensor(nps["key"]).numpy(), dtype=np.uint32)
+        np.random.set_state((nps["bit_generator"], key, nps["pos"], nps["has_gauss"], nps["cached_gaussian"]))
+    else:  # checkpoints from before the weights-only format stored np.random.get_state() as it is
+        np.random.set_state(nps)
     torch.set_rng_state(state["torch"])
     gen.set_state(state["batches"])
     if "cuda" in state and torch.cuda.is_available():
@@ -843,7 +855,8 @@ def _clone_state(obj):
 
 
 def _versions() -> dict:
-    return {"nerf_core": __version__, "torch": torch.__version__, "numpy": np.__version__,
+    # str(): torch.__version__ is a TorchVersion, a class the weights-only checkpoint loader refuses.
+    return {"nerf_core": str(__version__), "torch": str(torch.__version__), "numpy": str(np.__version__),
             "python": platform.python_version()}
 
 
