@@ -12,6 +12,8 @@ What the loop guarantees (docs/CONTRACTS.md has the file layout and the event vo
   (``rollback`` event); after too many rollbacks training stops with an ``error`` event.
 * Never destroys data: an existing non-empty run folder is refused unless ``--resume`` or
   ``--overwrite``; ``--overwrite`` removes only files the trainer writes and lists them.
+* One writer per run folder: a trainer holds an exclusive lock on ``RUN/.lock`` while it runs, and
+  a second trainer into the same folder stops at once, naming the PID of the first.
 * Checkpoints hold only tensors and plain Python data, so they load with ``weights_only=True``
   (``nerf_core.render.read_checkpoint`` refuses anything that could run code).
 """
@@ -26,10 +28,15 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, Optional
 
 import numpy as np
 import torch
+
+try:
+    import fcntl
+except ImportError:  # Windows
+    fcntl = None
 
 from . import __version__
 from .cameras import ray_bounds, rays_for_pixels
@@ -128,13 +135,86 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
         if not (run / "checkpoints" / "latest.pt").is_file():
             raise TrainError(f"{run / 'checkpoints' / 'latest.pt'}: not found; nothing to resume (drop --resume to start a new run)")
         return
-    if run.is_dir() and any(run.iterdir()) and not overwrite:
-        names = sorted(p.name for p in run.iterdir())
+    # The writer lock (RUN_LOCK) is not content: a trainer starting a new run creates it before it
+    # re-checks the folder, and a trainer killed with SIGKILL may leave it behind, unlocked.
+    names = sorted(p.name for p in run.iterdir() if p.name != RUN_LOCK) if run.is_dir() else []
+    if names and not overwrite:
         shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
         raise TrainError(
             f"{run}: run folder exists and is not empty ({shown}); pass --resume to continue it, "
             "--overwrite to start again (removes only files the trainer wrote), or choose another --out"
         )
+
+
+RUN_LOCK = ".lock"  # RUN/.lock: held (flock) by the one trainer writing RUN; holds its PID
+
+
+def lock_run_folder(run: Path) -> Callable[[], None]:
+    """Make this process the only trainer writing ``run``; returns the function that lets go.
+
+    Two trainers started into one folder would both pass ``check_run_folder`` and then interleave
+    their events and checkpoints. An exclusive, non-blocking ``flock`` on ``RUN/.lock`` settles it:
+    the kernel drops the lock when the process dies however it dies, so a crash never leaves the
+    run locked. The holder writes its PID into the file so that the refusal can say who holds it.
+    Raises TrainError naming the folder and that PID when another process holds the lock.
+
+    Releasing unlinks the file while still holding the lock, so a finished run leaves no lock file;
+    that is why a winner checks that the file it locked is still the one at ``RUN/.lock``: it may
+    have opened the file just before the previous holder unlinked it.
+    """
+    if fcntl is None:
+        # Windows has no flock. msvcrt.locking (mandatory byte-range locks) could stand in, but it
+        # behaves differently enough (reads of the locked range fail, unlinking an open file fails)
+        # to need its own tests on Windows; until then nothing is locked there.
+        return lambda: None
+    path = run / RUN_LOCK
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:  # a folder we may not write to: training could not write there either
+            raise TrainError(f"{path}: cannot create the run folder's lock file ({exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _lock_holder_pid(fd)
+            os.close(fd)
+            raise TrainError(
+                f"{run}: another trainer (PID {holder or 'unknown'}) is writing to this run folder (it holds "
+                f"{path}); wait for it to end or stop it, or choose another --out"
+            ) from None
+        except OSError as exc:  # a filesystem without locks (some network mounts): train unprotected
+            os.close(fd)
+            print(f"train: cannot lock {path} ({exc.strerror}); nothing stops a second trainer from writing "
+                  "to this run folder at the same time", file=sys.stderr)
+            return lambda: None
+        try:
+            current = os.stat(path)
+        except FileNotFoundError:
+            current = None
+        if current is not None and os.path.samestat(os.fstat(fd), current):
+            break
+        os.close(fd)  # we locked a file the previous holder had just unlinked: lock the new one
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+
+    def release() -> None:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        os.close(fd)
+
+    return release
+
+
+def _lock_holder_pid(fd: int) -> Optional[int]:
+    """The PID in a lock file held by someone else; waits briefly, as the holder writes it just after locking."""
+    for _ in range(20):
+        try:
+            return int(os.pread(fd, 32, 0).decode("ascii").strip())
+        except (OSError, ValueError, UnicodeDecodeError):
+            time.sleep(0.05)
+    return None
 
 
 def clear_run_folder(run: Path) -> List[str]:
@@ -307,11 +387,23 @@ class Trainer:
 
     # The public entry point: never raises for expected problems without first emitting an error event.
     def fit(self) -> dict:
+        self._unlock: Optional[Callable[[], None]] = None
+        try:
+            return self._fit_run_folder()
+        finally:
+            if self._unlock is not None:
+                self._unlock()
+
+    def _fit_run_folder(self) -> dict:
         cfg = self.cfg
         extra_logs = [cfg.progress] if cfg.progress else []
         early_log = EventLog(extra_logs, stdout=cfg.stdout_events)
         self.log = early_log
         try:
+            if self.run.is_dir():
+                # Before anything else, so that a second trainer into a busy run learns who holds it
+                # (rather than that the folder is not empty) and never reads a half-written checkpoint.
+                self._unlock = lock_run_folder(self.run)
             check_run_folder(self.run, cfg.resume, cfg.overwrite)
             if cfg.background not in BACKGROUNDS:
                 raise TrainError(f"--background {cfg.background!r}: choose one of {', '.join(BACKGROUNDS)}")
@@ -329,11 +421,16 @@ class Trainer:
                 ckpt = read_checkpoint(self.run / "checkpoints" / "latest.pt")
                 self._merge_resumed_config(ckpt)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
+            if self._unlock is None:
+                # A new folder is made only now, so that a run that never starts leaves nothing behind.
+                self.run.mkdir(parents=True, exist_ok=True)
+                self._unlock = lock_run_folder(self.run)
+                # Another trainer may have made and filled the folder since the first check.
+                check_run_folder(self.run, cfg.resume, cfg.overwrite)
         except (TrainError, DatasetError, RunError, ValueError) as exc:
             early_log.emit("error", message=str(exc))
             early_log.close()
             raise
-        self.run.mkdir(parents=True, exist_ok=True)
         removed = clear_run_folder(self.run) if cfg.overwrite else []
         early_log.close()
         self.log = EventLog([self.run / "progress.jsonl"] + extra_logs, stdout=cfg.stdout_events)
