@@ -139,6 +139,8 @@ class Dataset:
     near: Optional[float] = None
     far: Optional[float] = None
     notes: List[str] = field(default_factory=list)
+    film_transparent: Optional[bool] = None  # what the transforms files declare; None when they do not
+    world: Optional[dict] = None  # the capture's description of the Blender world, when recorded
 
     def split(self, name: str) -> Split:
         if name not in self.splits or len(self.splits[name]) == 0:
@@ -271,7 +273,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             out[name] = _frames_of(meta, jf, add_png=True)
             if name in ("train", "val", "test") and not out[name]:
                 raise DatasetError(f"{jf}: split {name!r} is empty (field 'frames' has no entries)")
-            for key in ("aabb", "near", "far"):
+            for key in ("aabb", "near", "far", "film_transparent", "world"):
                 if key in meta and key not in scene:
                     scene[key] = meta[key]
                     scene[key + "_file"] = jf
@@ -281,7 +283,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
         frames = _frames_of(meta, jf, add_png=False)
         if not frames:
             raise DatasetError(f"{jf}: field 'frames' has no entries")
-        for key in ("aabb", "near", "far", "depth_unit_scale_factor"):
+        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world"):
             if key in meta:
                 scene[key] = meta[key]
                 scene[key + "_file"] = jf
@@ -601,6 +603,12 @@ def load_dataset(
             near, far = (v, far) if key == "near" else (near, v)
     if near is not None and far is not None and far <= near:
         raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
+    film = scene.get("film_transparent")
+    if film is not None and not isinstance(film, bool):
+        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
+    world = scene.get("world")
+    if world is not None and not isinstance(world, dict):
+        raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
     if "aabb" in scene:
         aabb = _parse_aabb(scene["aabb"], str(scene["aabb_file"]))
         source = f"dataset ({Path(scene['aabb_file']).name})"
@@ -609,7 +617,7 @@ def load_dataset(
         cams = Cameras(*(torch.cat([getattr(c, f) for c in all_cams]) for f in ("c2w", "fx", "fy", "cx", "cy", "width", "height")))
         aabb, source = estimate_aabb(cams, far)
         notes.append(source)
-    return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes)
+    return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world)
 
 
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:
