@@ -127,7 +127,7 @@ def world_description(world) -> dict:
     if world is None:
         return out
     tree = world.node_tree
-    if tree is None or not getattr(world, "use_nodes", True):
+    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):  # 5.0 worlds always use nodes
         out.update(kind="color", color=_round_color(world.color), strength=1.0)
         return out
     outputs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
