@@ -550,6 +550,30 @@ def estimate_aabb(cameras: Cameras, far: Optional[float] = None) -> tuple[torch.
     return torch.tensor(box, dtype=torch.float32), note
 
 
+INSIDE_PAD = 0.05  # share of the box's extent added on each side when the cameras stand inside it
+
+
+def pad_box_for_interior(aabb: torch.Tensor, origins: torch.Tensor) -> tuple[torch.Tensor, Optional[str]]:
+    """Grow ``aabb`` (2, 3) by ``INSIDE_PAD`` per side when most camera ``origins`` (n, 3) are inside it.
+
+    Cameras inside the box mean an interior: the box is the room's bounds, so its walls, floor and
+    ceiling lie exactly on the box's faces, where a grid has half a cell of support and rays end. The
+    surfaces the images show most then sit where the model is weakest, and the transmittance that the
+    walls fail to stop leaks into the background. A margin puts them inside. Returns the box and a
+    note (None when unchanged).
+    """
+    if origins.numel() == 0:
+        return aabb, None
+    inside = ((origins >= aabb[0]) & (origins <= aabb[1])).all(dim=-1)
+    if float(inside.float().mean()) < 0.5:
+        return aabb, None
+    pad = INSIDE_PAD * (aabb[1] - aabb[0])
+    note = (f"{int(inside.sum())} of {len(origins)} train cameras stand inside the scene box (an interior): "
+            f"grew the box by {100 * INSIDE_PAD:.0f} % of its size on each side so that walls, floor and ceiling "
+            "on its faces lie inside it")
+    return torch.stack([aabb[0] - pad, aabb[1] + pad]), note
+
+
 # ----------------------------------------------------------------------------------------------
 
 
@@ -617,6 +641,11 @@ def load_dataset(
         cams = Cameras(*(torch.cat([getattr(c, f) for c in all_cams]) for f in ("c2w", "fx", "fy", "cx", "cy", "width", "height")))
         aabb, source = estimate_aabb(cams, far)
         notes.append(source)
+    if len(loaded["train"]):
+        aabb, inside_note = pad_box_for_interior(aabb, loaded["train"].cameras.origins)
+        if inside_note:
+            notes.append(inside_note)
+            source += "; padded around the cameras standing inside it"
     return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world)
 
 
