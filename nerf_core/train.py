@@ -652,7 +652,11 @@ class Trainer:
         cfg = self.cfg
         self.dataset = dataset
         train = dataset.split("train")
-        if cfg.background == "auto":
+        recorded = (ckpt.get("config") or {}).get("background_used") if ckpt is not None else None
+        if cfg.background == "auto" and recorded in BACKGROUNDS:
+            # A resumed run keeps the background it started with (also runs from before the environment).
+            self.bg_mode, self.bg_reason = recorded, "as recorded when the run started"
+        elif cfg.background == "auto":
             self.bg_mode, self.bg_reason = backgrounds.choose(train.images, dataset.film_transparent,
                                                               where=f"{dataset.root}")
         else:
