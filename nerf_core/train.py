@@ -660,7 +660,8 @@ class Trainer:
             self.bg_mode, self.bg_reason = backgrounds.choose(train.images, dataset.film_transparent,
                                                               where=f"{dataset.root}")
         else:
-            self.bg_mode, self.bg_reason = cfg.background, "--background given"
+            self.bg_mode = cfg.background
+            self.bg_reason = "as recorded when the run started" if recorded == cfg.background else "--background given"
         if self.bg_mode == "random" and not train.has_alpha:
             raise TrainError(
                 f"{train.frames[0].image}: --background {self.bg_mode} needs images with an alpha channel (RGBA); "
