@@ -342,6 +342,10 @@ def _load_pixels(fr: FrameInfo, downscale: int) -> np.ndarray:
     if img.shape[-1] not in (3, 4):
         raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} has {img.shape[-1]} channels, expected RGB or RGBA")
     if downscale > 1:
+        if img.shape[0] < downscale or img.shape[1] < downscale:
+            raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} is {img.shape[1]}x{img.shape[0]} px; "
+                               f"downscaled by {downscale} it would have no pixels (--downscale must be at most "
+                               f"{min(img.shape[:2])})")
         img = _downscale(img, downscale)
     return img
 

@@ -217,3 +217,48 @@ def test_run_folder_and_dataset_must_be_apart(dataset_factory, tmp_path, where):
     proc = _cli("train", ds, "--out", out, "--method", "test-grid", "--max-steps", "2", "--no-bar")
     _clear_error(proc, "--out", str(out.resolve()))
     assert sorted(p.name for p in ds.rglob("*")) == before  # not even a lock file
+
+
+# ---------------------------------------------------------------------------------------------- 5. render names
+
+
+def _camera_list(names, w=8, h=6):
+    from nerf_core.tests.conftest import look_at
+
+    return [{"name": n, "transform_matrix": look_at((3.0, 0.2 * k, 1.0)).tolist(), "w": w, "h": h,
+             "camera_angle_x": 0.8} for k, n in enumerate(names)]
+
+
+@pytest.mark.parametrize("names", [["a", "a", "a_1"], ["a_1", "a", "a"], ["x", "X", "x_1", "x"], ["", "view_000", ""]])
+def test_render_names_are_unique_for_any_collision(trained_run, tmp_path, names):
+    from nerf_core.render import unique_stems
+
+    stems = unique_stems(names)
+    assert len({s.lower() for s in stems}) == len(names)
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps(_camera_list(names)))
+    proc = _cli("render", trained_run["run"], "--cameras", cams, "--out", tmp_path / "out", "--no-bar")
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((tmp_path / "out" / "renders.json").read_text())
+    files = [f["file_path"] for f in meta["frames"]]
+    assert len(files) == len(set(files)) == len(names)
+    assert len(list((tmp_path / "out").glob("*.png"))) == len(names)
+
+
+# ---------------------------------------------------------------------------------------------- 7. huge requests
+
+
+def test_render_refuses_a_huge_view_with_its_memory_estimate(trained_run, tmp_path):
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps(_camera_list(["small", "huge"])[:1] + _camera_list(["huge"], w=60000, h=60000)))
+    proc = _cli("render", trained_run["run"], "--cameras", cams, "--out", tmp_path / "out", "--no-bar")
+    _clear_error(proc, "60000x60000", "GB", "--downscale")
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+    proc = _cli("render", trained_run["run"], "--cameras", trained_run["dataset"], "--out", tmp_path / "o2",
+                "--downscale", "0.0001", "--no-bar")
+    _clear_error(proc, "GB")
+
+
+def test_eval_refuses_a_downscale_that_leaves_no_pixels(trained_run):
+    proc = _cli("eval", trained_run["run"], "--downscale", "100000", "--no-bar")
+    _clear_error(proc, "r_0.png", "--downscale")
