@@ -11,6 +11,9 @@ Safety rules it enforces:
 - Resume: a frame whose settings hash (render settings + camera pose + intrinsics) is in the
   manifest and whose files exist is kept, not re-rendered.
 - Cancel (or an error) writes the JSON of the frames done so far; the manifest says "incomplete".
+- The background is recorded: ``film_transparent`` and ``world`` (``world_description``) at the top
+  of the manifest and of every transforms file. With an opaque film the world is part of the
+  picture, so it joins the render signature (and the frame hashes): a changed world re-renders.
 - The user's render settings, active camera and frame are restored afterwards.
 """
 from __future__ import annotations
@@ -78,6 +81,84 @@ def resolve_engine(name: str) -> str:
     raise CaptureError(f"unknown render engine {name!r}; choose cycles, eevee or workbench")
 
 
+def _round_color(values) -> list[float]:
+    return [round(float(v), 6) for v in list(values)[:3]]
+
+
+def _linked_from(socket):
+    """The node feeding ``socket`` (through reroutes), or None when it is not linked."""
+    while socket is not None and socket.is_linked:
+        link = socket.links[0]
+        if not link.is_valid or link.is_muted:
+            return None
+        node = link.from_node
+        if node.type != "REROUTE":
+            return node
+        socket = node.inputs[0]
+    return None
+
+
+def _background_node(node, depth=0):
+    """The Background node behind a world's Surface: itself, or the first one inside mix/add shaders."""
+    if node is None or depth > 8:
+        return None
+    if node.type == "BACKGROUND":
+        return node
+    if node.type in ("MIX_SHADER", "ADD_SHADER"):
+        for sock in node.inputs:
+            if sock.type == "SHADER":
+                found = _background_node(_linked_from(sock), depth + 1)
+                if found is not None:
+                    return found
+    return None
+
+
+def world_description(world) -> dict:
+    """What the scene's world shows behind everything (what an opaque film renders), as JSON.
+
+    ``{"name", "kind", "image", "color", "strength"}`` with ``kind`` one of:
+    ``environment_texture`` (``image``: the image file's name), ``sky_texture``, ``color`` (``color``:
+    linear RGB), ``other`` (a Background fed by other nodes, or a surface that is not a Background),
+    ``none`` (no world, or nothing linked to the World Output: renders black). ``strength`` is the
+    Background's Strength (null when driven by a link). The World Output is the active one.
+    """
+    out = {"name": world.name if world is not None else None, "kind": "none", "image": None, "color": None,
+           "strength": None}
+    if world is None:
+        return out
+    tree = world.node_tree
+    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):  # 5.0 worlds always use nodes
+        out.update(kind="color", color=_round_color(world.color), strength=1.0)
+        return out
+    outputs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
+    active = [n for n in outputs if n.is_active_output] or outputs
+    if not active:
+        return out
+    surface = _linked_from(active[0].inputs["Surface"])
+    bg = _background_node(surface)
+    if bg is None:
+        if surface is not None:
+            out["kind"] = "other"
+        return out
+    strength = bg.inputs["Strength"]
+    out["strength"] = None if strength.is_linked else round(float(strength.default_value), 6)
+    color_in = bg.inputs["Color"]
+    src = _linked_from(color_in)
+    if not color_in.is_linked:
+        out.update(kind="color", color=_round_color(color_in.default_value))
+    elif src is not None and src.type == "TEX_ENVIRONMENT":
+        image = src.image
+        name = None
+        if image is not None:
+            name = os.path.basename(bpy.path.abspath(image.filepath)) if image.filepath else image.name
+        out.update(kind="environment_texture", image=name)
+    elif src is not None and src.type == "TEX_SKY":
+        out["kind"] = "sky_texture"
+    else:
+        out["kind"] = "other"
+    return out
+
+
 def _sha256(path: str) -> str | None:
     if not path or not os.path.isfile(path):
         return None
@@ -137,6 +218,7 @@ class CaptureJob:
             if settings.target == "SELECTION" and self.engine != "CYCLES":
                 raise CaptureError("object masks of a selection need Cycles (its object index pass)")
         self.render_sig = None
+        self.world = None
         self.frames = []
         self.pending = []
         self.done_keys = set()
@@ -151,7 +233,7 @@ class CaptureJob:
     def _render_signature(self) -> dict:
         sc = self.scene
         vs, ds = sc.view_settings, sc.display_settings
-        return {
+        sig = {
             "engine": self.engine, "samples": self.s.samples, "resolution": [self.s.res_x, self.s.res_y],
             "pixel_aspect": [sc.render.pixel_aspect_x, sc.render.pixel_aspect_y],
             "film_transparent": self.s.film_transparent, "denoise": self.s.denoise,
@@ -163,6 +245,11 @@ class CaptureJob:
                 "sequencer_colorspace": sc.sequencer_colorspace_settings.name,
             },
         }
+        if not self.s.film_transparent:
+            # The world is in every pixel behind the scene. Only opaque captures carry it, so the
+            # hashes of transparent captures (and the folders they resume) stay what they were.
+            sig["world"] = world_description(sc.world)
+        return sig
 
     def plan(self) -> list[dict]:
         """Frames to capture, from the "NeRF Cameras" collection; raises CaptureError on bad cameras."""
@@ -171,6 +258,7 @@ class CaptureJob:
             raise CaptureError(f"no train cameras in the {layouts.COLLECTION_NAME!r} collection; "
                                "generate a camera layout first")
         self.render_sig = self._render_signature()
+        self.world = world_description(self.scene.world)
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
         render = _RenderView(self.scene.render, self.s.res_x, self.s.res_y)
         frames = []
@@ -513,7 +601,8 @@ class CaptureJob:
         near, far = export.near_far([[m[0][3], m[1][3], m[2][3]] for m in cams], *self.bounds)
         self.near, self.far = near, far
         common = {"aabb": [list(map(float, self.bounds[0])), list(map(float, self.bounds[1]))],
-                  "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(*self.bounds)}
+                  "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(*self.bounds),
+                  "film_transparent": bool(self.s.film_transparent), "world": self.world}
         if self.s.depth:
             common["depth_unit_scale_factor"] = 1.0  # EXR depth is already in scene units, not millimetres
         if self.s.points and complete:
@@ -550,6 +639,7 @@ class CaptureJob:
             "blend_unsaved_changes": bool(bpy.data.is_dirty),
             "scene": self.scene.name,
             "render": _round(self.render_sig),
+            "film_transparent": bool(self.s.film_transparent), "world": self.world,
             "seed": self.s.seed, "layout": self.s.layout,
             "normalization": {"scale": 1.0, "offset": [0.0, 0.0, 0.0], "applied": False,
                               "note": "coordinates are Blender world coordinates, unchanged"},

@@ -22,6 +22,7 @@ _LAYOUT_ITEMS = [
     ("random", "Random", "Random points on the sphere band, reproducible from the seed"),
     ("rings", "Rings", "Horizontal rings at evenly spaced elevations"),
     ("spiral", "Spiral", "A spiral climbing from the lowest to the highest elevation"),
+    ("inside", "Inside", "Cameras inside the scene's box (a room), looking outward all around"),
     ("scene-cameras", "Scene Cameras", "Copies of the scene's own cameras"),
     ("animation", "Animation", "The active camera at every Nth frame of the scene's range"),
 ]
@@ -40,6 +41,8 @@ def _layout_changed(self, _context):
         self.elevation_min, self.elevation_max = 0.0, 90.0
     elif self.layout == "rings":
         self.elevation_min, self.elevation_max = 10.0, 60.0
+    elif self.layout == "inside":
+        self.elevation_min, self.elevation_max = layouts.INSIDE_ELEVATION
 
 
 def _path_options() -> set:
@@ -321,7 +324,8 @@ class NERF_PT_capture(bpy.types.Panel):
         col.prop(s, "layout")
         if s.layout in layouts.GENERATED_LAYOUTS:
             col.prop(s, "target")
-            col.prop(s, "radius")
+            if s.layout != "inside":  # inside cameras stand in the target's box: no distance to choose
+                col.prop(s, "radius")
             sub = col.column(align=True)
             sub.prop(s, "elevation_min")
             sub.prop(s, "elevation_max")

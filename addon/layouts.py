@@ -5,6 +5,9 @@ The position generators are pure functions (no bpy) returning lists of (x, y, z)
 users can inspect and edit before capturing (a capture renders whatever cameras that collection holds).
 
 Elevations are in degrees above the target's horizontal plane (+Z up, as in Blender).
+
+Every layout but one looks in at the target from outside. ``inside`` is for rooms and other scenes
+that surround the camera: cameras stand inside the target's box and look outward (see ``inside_poses``).
 """
 from __future__ import annotations
 
@@ -14,10 +17,16 @@ from dataclasses import dataclass
 
 COLLECTION_NAME = "NeRF Cameras"
 SPLITS = ("train", "val", "test")
-GENERATED_LAYOUTS = ("hemisphere", "sphere", "random", "rings", "spiral")
+GENERATED_LAYOUTS = ("hemisphere", "sphere", "random", "rings", "spiral", "inside")
 SCENE_LAYOUTS = ("scene-cameras", "animation")
 LAYOUTS = GENERATED_LAYOUTS + SCENE_LAYOUTS
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+# The "inside" layout: cameras keep this fraction of each horizontal extent free along the walls, stand
+# in this band of the height (fractions of it from the floor), and clip geometry nearer than 5 cm.
+INSIDE_WALL_MARGIN = 0.12
+INSIDE_HEIGHT_BAND = (0.4, 0.6)
+INSIDE_CLIP_START = 0.05
+INSIDE_ELEVATION = (-25.0, 15.0)  # a room's furniture stands low: more floor than ceiling
 
 
 class LayoutError(ValueError):
@@ -45,6 +54,8 @@ class LayoutSpec:
 
     def elevation_range(self) -> tuple[float, float]:
         default = (-90.0, 90.0) if self.layout in ("sphere", "random") else (0.0, 90.0)
+        if self.layout == "inside":
+            default = INSIDE_ELEVATION
         lo = default[0] if self.elevation_min is None else self.elevation_min
         hi = default[1] if self.elevation_max is None else self.elevation_max
         if not -90.0 <= lo <= hi <= 90.0:
@@ -108,6 +119,83 @@ def spiral_positions(n, radius, centre=(0, 0, 0), elevation=(0.0, 90.0), turns=3
         elev = math.radians(elevation[0] + (elevation[1] - elevation[0]) * t)
         out.append(_on_sphere(centre, radius, math.sin(elev), 2 * math.pi * turns * t))
     return out
+
+
+def _exit_distance(p, d, lo, hi) -> float:
+    """How far the ray p + t d (p inside the box) travels before it leaves the box (lo, hi)."""
+    t = float("inf")
+    for k in range(3):
+        if d[k] > 1e-12:
+            t = min(t, (hi[k] - p[k]) / d[k])
+        elif d[k] < -1e-12:
+            t = min(t, (lo[k] - p[k]) / d[k])
+    return t
+
+
+def _in_box(p, box) -> bool:
+    return all(box[0][k] <= p[k] <= box[1][k] for k in range(3))
+
+
+def inside_poses(n, lo, hi, elevation=INSIDE_ELEVATION, seed=0, obstacles=(), wall_margin=INSIDE_WALL_MARGIN,
+                 height_band=INSIDE_HEIGHT_BAND, attempts=200):
+    """n (position, unit view direction) pairs for cameras inside the box (lo, hi), looking outward.
+
+    - Positions: uniform (seeded) in the box shrunk by ``wall_margin`` of each horizontal extent, at
+      heights within ``height_band`` (fractions of the box height above its floor), so no camera sits
+      in a wall, the floor or the ceiling.
+    - Directions: azimuths advance by the golden angle from a seeded start (spread evenly over the
+      circle, never two alike), elevations are stratified over ``elevation`` (degrees).
+    - Each direction gets the first of up to ``attempts`` random positions that is outside every
+      obstacle, at least ``0.02 x`` the smaller horizontal extent from the cameras placed so far, and
+      sees at least ``0.4 x`` that extent of room ahead before the box's wall (so no camera stares at a
+      wall from up close); failing that, the free position seeing the most room.
+    - ``obstacles``: (min, max) boxes, e.g. the furniture's bounding boxes. They are padded by 3 % of
+      the smaller horizontal extent; a box holding the whole camera region is the room's enclosure
+      (one mesh for the walls) and is ignored.
+    Raises LayoutError when the box is flat or obstacles leave no room.
+    """
+    lo, hi = tuple(map(float, lo)), tuple(map(float, hi))
+    size = [h - l for l, h in zip(lo, hi)]
+    if min(size) <= 0:
+        raise LayoutError(f"layout 'inside': the target's box {lo}..{hi} has no volume to stand cameras in")
+    lo_e, hi_e = elevation
+    if not -90.0 <= lo_e <= hi_e <= 90.0:
+        raise LayoutError(f"elevation range [{lo_e}, {hi_e}] must satisfy -90 <= min <= max <= 90 degrees")
+    region = ((lo[0] + wall_margin * size[0], lo[1] + wall_margin * size[1], lo[2] + height_band[0] * size[2]),
+              (hi[0] - wall_margin * size[0], hi[1] - wall_margin * size[1], lo[2] + height_band[1] * size[2]))
+    horiz = min(size[0], size[1])
+    pad = 0.03 * horiz
+    blockers = []
+    for b_lo, b_hi in obstacles:
+        b_lo, b_hi = tuple(map(float, b_lo)), tuple(map(float, b_hi))
+        if _in_box(region[0], (b_lo, b_hi)) and _in_box(region[1], (b_lo, b_hi)):
+            continue  # the enclosure itself
+        blockers.append((tuple(v - pad for v in b_lo), tuple(v + pad for v in b_hi)))
+    want_free, min_gap = 0.4 * horiz, 0.02 * horiz
+    rng = random.Random(seed)
+    start = rng.uniform(0.0, 2.0 * math.pi)
+    poses = []
+    for i in range(n):
+        az = start + i * GOLDEN_ANGLE
+        el = math.radians(lo_e + (hi_e - lo_e) * (i + rng.random()) / n)
+        d = (math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el))
+        best, best_score = None, -1.0
+        for _ in range(attempts):
+            p = tuple(rng.uniform(region[0][k], region[1][k]) for k in range(3))
+            if any(_in_box(p, b) for b in blockers):
+                continue
+            spaced = all(math.dist(p, q) >= min_gap for q, _d in poses)
+            free = min(_exit_distance(p, d, lo, hi), want_free)
+            score = free + (want_free if spaced else 0.0)  # spacing first, then the view ahead
+            if score > best_score:
+                best, best_score = p, score
+            if spaced and free >= want_free:
+                break
+        if best is None:
+            raise LayoutError(f"layout 'inside': every position tried in {region[0]}..{region[1]} is inside an "
+                              "object's bounding box; clear the middle of the room or lower the camera count")
+        poses.append((best, d))
+    return poses
 
 
 def layout_positions(spec: LayoutSpec, n: int, centre, radius: float):
@@ -257,7 +345,9 @@ def _new_camera(scene, coll, name, split, matrix, lens, sensor=36.0, src=None):
 def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     """Replace the "NeRF Cameras" collection's cameras with the layout's; returns the new objects.
 
-    Generated layouts aim every camera at the target centre from ``spec.radius`` (auto when 0).
+    Generated layouts aim every camera at the target centre from ``spec.radius`` (auto when 0), except
+    "inside", which stands the cameras inside the target's box looking outward (``inside_poses``; the
+    renderable objects' bounding boxes are the obstacles; ``radius`` is unused; clip_start 5 cm).
     "scene-cameras" copies the scene's other cameras; "animation" copies the active camera at every
     ``frame_step``-th frame (recording the frame in ``obj["nerf_frame"]``). User cameras are never moved.
     """
@@ -265,7 +355,25 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
 
     coll_existing = nerf_collection(scene, create=False)
     centre = radius = None
-    if spec.layout in GENERATED_LAYOUTS:
+    clip_start = None
+    if spec.layout == "inside":
+        if spec.train < 1:
+            raise LayoutError("a capture needs at least one train view")
+        lo, hi = scene_bounds.scene_bounds(scene, only_selected=spec.target == "SELECTION")
+        import bpy
+
+        depsgraph = bpy.context.evaluated_depsgraph_get() if bpy.context.scene == scene else None
+        obstacles = [scene_bounds.object_bounds([o], depsgraph) for o in scene_bounds.renderable_objects(scene)]
+        n_total = spec.train + spec.val + spec.test
+        splits = ["train"] * spec.train + ["val"] * spec.val + ["test"] * spec.test
+        if spec.val + spec.test:
+            splits = assign_splits(n_total, spec.val, spec.test, spec.seed)
+        poses = inside_poses(n_total, tuple(lo), tuple(hi), spec.elevation_range(), spec.seed,
+                             [(tuple(a), tuple(b)) for a, b in obstacles])
+        plan = [(s, look_at(p, tuple(pc + dc for pc, dc in zip(p, d))), None, None) for s, (p, d) in zip(splits, poses)]
+        radius = (hi - lo).length  # clip_end below: the whole room stays in view
+        clip_start = INSIDE_CLIP_START
+    elif spec.layout in GENERATED_LAYOUTS:
         lo, hi = scene_bounds.scene_bounds(scene, only_selected=spec.target == "SELECTION")
         centre, sphere_r = scene_bounds.bounding_sphere(lo, hi)
         radius = spec.radius
@@ -318,6 +426,8 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     for obj in made:
         # The default 100 m clip would cut far scenes out of the render; the depth pass needs it too.
         obj.data.clip_end = max(obj.data.clip_end, 4.0 * (radius or 0.0))
+        if clip_start is not None:
+            obj.data.clip_start = min(obj.data.clip_start, clip_start)
     return made
 
 

@@ -29,6 +29,9 @@ class ProgressParser:
 
     Attributes (None until an event says otherwise):
         method, device, max_steps, max_seconds, n_params: from the ``start`` event.
+        background, background_reason: what stands behind the scene (``environment``: a learned
+            world for opaque captures; ``random``: cut-outs on a transparent film) and why.
+        notes: messages of ``note`` events (e.g. how the learned world was fitted).
         step, loss, psnr, lr, elapsed, eta, samples_per_s: from the latest ``step`` event.
         preview_path: absolute path of the latest preview PNG.
         checkpoint_path: the latest checkpoint written.
@@ -40,7 +43,7 @@ class ProgressParser:
         log_tail: the last ``LOG_TAIL_LINES`` raw lines (JSON or not), for crash reports.
     """
 
-    KNOWN = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error")
+    KNOWN = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error", "note")
 
     def __init__(self, tail_lines: int = LOG_TAIL_LINES):
         self._decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
@@ -53,6 +56,9 @@ class ProgressParser:
         self.max_steps: Optional[int] = None
         self.max_seconds: Optional[float] = None
         self.n_params: Optional[int] = None
+        self.background: Optional[str] = None
+        self.background_reason: Optional[str] = None
+        self.notes: List[str] = []
         self.step: Optional[int] = None
         self.loss: Optional[float] = None
         self.psnr: Optional[float] = None
@@ -123,6 +129,12 @@ class ProgressParser:
             self.max_seconds = _number(ev.get("max_seconds"))
             n_params = _number(ev.get("n_params"))
             self.n_params = int(n_params) if n_params is not None else None
+            for name in ("background", "background_reason"):
+                if isinstance(ev.get(name), str):
+                    setattr(self, name, ev[name])
+        elif kind == "note":
+            if isinstance(ev.get("message"), str):
+                self.notes.append(ev["message"])
         elif kind == "step":
             step = _number(ev.get("step"))
             if step is not None:

@@ -37,6 +37,8 @@ class RunInfo:
             parts.append(f"{int(budgets['max_steps'])} steps")
         if isinstance(cfg.get("seed"), int):
             parts.append(f"seed {cfg['seed']}")
+        if isinstance(cfg.get("background_used"), str):
+            parts.append(f"background {cfg['background_used']}")
         return ", ".join(parts)
 
     def metrics_summary(self) -> str:

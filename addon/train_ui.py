@@ -271,6 +271,7 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
     eta: FloatProperty(default=-1.0)
     fraction: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     rollbacks: IntProperty(default=0)
+    background: StringProperty(default="", description="What stands behind the scene in this run, and why")
     preview_path: StringProperty(default="")
     runs: CollectionProperty(type=NerfRunItem)
     runs_index: IntProperty(default=0)
@@ -329,7 +330,7 @@ def start_training(context, resume: bool = False) -> TrainJob:
     job = TrainJob(context.scene.name, python, dataset, run, cmd)
     _JOBS["train"] = job
     s.running, s.error, s.step, s.loss, s.psnr, s.fraction, s.rollbacks = True, "", 0, 0.0, 0.0, 0.0, 0
-    s.elapsed, s.eta, s.preview_path = 0.0, -1.0, ""
+    s.elapsed, s.eta, s.preview_path, s.background = 0.0, -1.0, "", ""
     s.status = f"Checking dataset {os.path.basename(dataset)}..."
     return job
 
@@ -349,6 +350,8 @@ def sync_train_settings(job: TrainJob) -> None:
         s.eta = -1.0 if p.eta is None else p.eta
         s.fraction = p.fraction() or 0.0
         s.rollbacks = len(p.rollbacks)
+        if p.background:
+            s.background = p.background + (f": {p.background_reason}" if p.background_reason else "")
         if p.preview_path and p.preview_path != s.preview_path and os.path.isfile(p.preview_path):
             s.preview_path = p.preview_path
             _load_preview(p.preview_path)
@@ -713,6 +716,9 @@ class NERF_PT_train(bpy.types.Panel):
             grid.label(text=f"ETA {format_seconds(s.eta if s.eta >= 0 else None)}")
             if s.rollbacks:
                 grid.label(text=f"{s.rollbacks} rollback(s)", icon="LOOP_BACK")
+            if s.background:
+                # Which background model the run uses: a learned world (opaque captures) or random colours.
+                box.label(text=f"Background: {s.background}"[:120], icon="WORLD")
             if _PREVIEWS is not None and "latest" in _PREVIEWS and s.preview_path:
                 box.template_icon(icon_value=_PREVIEWS["latest"].icon_id, scale=8.0)
         elif s.status:

@@ -44,6 +44,8 @@ def test_layout_choice_sets_elevation_defaults(registered):
     assert (s.elevation_min, s.elevation_max) == (-90.0, 90.0)
     s.layout = "hemisphere"
     assert (s.elevation_min, s.elevation_max) == (0.0, 90.0)
+    s.layout = "inside"
+    assert (s.elevation_min, s.elevation_max) == layouts.INSIDE_ELEVATION
 
 
 def test_generate_and_capture_operators(registered, tmp_path):
@@ -183,7 +185,7 @@ class _RecordingLayout:
         self.log.append(("progress", factor, text))
 
 
-@pytest.mark.parametrize("layout_name", ["hemisphere", "rings", "spiral", "animation", "scene-cameras"])
+@pytest.mark.parametrize("layout_name", ["hemisphere", "rings", "spiral", "inside", "animation", "scene-cameras"])
 def test_panel_draws_every_layout_and_the_running_state(registered, layout_name):
     from types import SimpleNamespace
 
@@ -196,6 +198,7 @@ def test_panel_draws_every_layout_and_the_running_state(registered, layout_name)
     assert {"layout", "engine", "resolution_x", "resolution_y", "output_dir", "depth", "masks"} <= props
     assert ("operator", "nerf.capture") in log and ("operator", "nerf.generate_cameras") in log
     assert ("rings" in props) == (layout_name == "rings") and ("frame_step" in props) == (layout_name == "animation")
+    assert ("radius" in props) == (layout_name in layouts.GENERATED_LAYOUTS and layout_name != "inside")
     s.is_running, s.progress, s.status = True, 0.25, "3/12 train/r_2"
     log.clear()
     capture_ui.NERF_PT_capture.draw(panel, bpy.context)

@@ -76,6 +76,9 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     listed = runs.list_runs(root)
     assert [r.name for r in listed] == ["run"] and listed[0].method == job.process.progress.method
     assert "PSNR" in listed[0].metrics_summary() and listed[0].has_checkpoint
+    # The run list and the live panel say which background model the run uses (a transparent capture: random).
+    assert "background random" in listed[0].settings_summary()
+    assert s.background.startswith("random: ")
     train_ui.refresh_runs(s)
     assert [r.name for r in s.runs] == ["run"] and "PSNR" in s.runs[0].metrics
 

@@ -90,3 +90,14 @@ def test_log_tail_keeps_only_the_last_lines():
     p = ProgressParser(tail_lines=30)
     p.feed("".join(f"line {i}\n" for i in range(100)))
     assert len(p.log_tail) == 30 and p.log_tail[0] == "line 70" and p.tail_text(2) == "line 98\nline 99"
+
+
+def test_start_event_background_and_note_events_are_kept():
+    p = ProgressParser()
+    p.feed(json.dumps({"event": "start", "time": 1.0, "method": "vmgrid", "background": "environment",
+                       "background_reason": "the images have no alpha channel (RGB)"}) + "\n")
+    p.feed(json.dumps({"event": "note", "time": 1.5, "message": "environment: 58 % of the train rays miss the box"}) + "\n")
+    assert p.background == "environment"
+    assert "alpha" in p.background_reason
+    assert p.notes == ["environment: 58 % of the train rays miss the box"]
+    assert p.unknown_events == 0

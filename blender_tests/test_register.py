@@ -120,6 +120,9 @@ def test_panels_draw_in_every_state(tmp_path):
         labels = _labels(_draw(train_ui.NERF_PT_train))
         for text in ("Step 120 (50%)", "PSNR 21.50 dB", "Elapsed 1:05", "ETA 0:30", "1 rollback(s)"):
             assert text in labels
+        assert "Background:" not in labels  # no start event yet: nothing to say
+        s.background = "environment: the images have no alpha channel (RGB)"
+        assert "Background: environment: the images have no alpha channel (RGB)" in _labels(_draw(train_ui.NERF_PT_train))
         s.running = False
         s.error = "Training stopped: boom\n--- last lines of the log ---\n" + "\n".join(f"l{i}" for i in range(30))
         labels = _labels(_draw(train_ui.NERF_PT_train))

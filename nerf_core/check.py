@@ -16,7 +16,7 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from .cameras import PoseError, check_pose
-from .imageio import ImageReadError, png_info
+from .imageio import ImageReadError, png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
 NERFSTUDIO_FILE = "transforms.json"
@@ -214,8 +214,11 @@ def _check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:
             _number(report, fname, meta[key], key, positive=False)
 
 
-def check_dataset(path: Path | str) -> CheckReport:
-    """Check a dataset folder; never raises for dataset problems (they go into the report)."""
+def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
+    """Check a dataset folder; never raises for dataset problems (they go into the report).
+
+    ``background`` is the training background mode to check the images against (``train --background``).
+    """
     root = Path(path)
     report = CheckReport(root)
     if not root.is_dir():
@@ -284,7 +287,68 @@ def check_dataset(path: Path | str) -> CheckReport:
                     break
 
     _check_nerfstudio(report, root, frame_intrinsics)
+    _check_background(report, root, background)
     return report
+
+
+BACKGROUND_PROBE_IMAGES = 16  # evenly spaced train images read to tell opaque from cut-out captures
+
+
+def _check_background(report: CheckReport, root: Path, background: str) -> None:
+    """Warn when opaque images meet a background mode that cannot show their background, and when the
+    declared ``film_transparent`` contradicts the images (``nerf_core.backgrounds`` owns the rules)."""
+    import torch
+
+    from .backgrounds import BACKGROUNDS, FIXED_BACKGROUNDS, TRANSPARENT_SHARE, choose, transparent_share
+
+    fname = "transforms_train.json"
+    meta = None
+    if (root / fname).is_file():
+        try:
+            meta = json.loads((root / fname).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return  # reported above
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
+        return
+    if background not in BACKGROUNDS:
+        report.error(fname, f"background mode {background!r} is not one of {', '.join(BACKGROUNDS)}")
+        return
+    frames = meta["frames"]
+    pick = sorted({round(k * (len(frames) - 1) / max(1, BACKGROUND_PROBE_IMAGES - 1))
+                   for k in range(min(len(frames), BACKGROUND_PROBE_IMAGES))})
+    images = []
+    for k in pick:
+        fp = frames[k].get("file_path") if isinstance(frames[k], dict) else None
+        if not isinstance(fp, str):
+            continue
+        img = root / fp if Path(fp).suffix.lower() in IMAGE_EXTS else root / (fp + ".png")
+        try:
+            px = read_png(img) if img.suffix.lower() == ".png" else None
+        except (ImageReadError, OSError):
+            continue  # reported above
+        if px is not None and px.ndim == 3 and px.dtype == np.uint8:
+            images.append(torch.from_numpy(np.array(px)))
+    if not images or len({tuple(im.shape) for im in images}) != 1:
+        return
+    stack = torch.stack(images)
+    film = meta.get("film_transparent")
+    share = transparent_share(stack)
+    opaque = share < TRANSPARENT_SHARE
+    if film is not None and not isinstance(film, bool):
+        report.error(fname, f"must be true or false, got {film!r}", field="film_transparent")
+        return
+    if film is True and opaque:
+        report.warn(fname, "declares a transparent film, but the train images have no transparent pixel "
+                           "(train learns their background as an environment)", field="film_transparent")
+    if film is False and not opaque:
+        report.warn(fname, f"declares an opaque film, but {100 * share:.1f} % of the train images' pixels are "
+                           "transparent", field="film_transparent")
+    mode = choose(stack, film if isinstance(film, bool) else None)[0] if background == "auto" else background
+    if opaque and mode in FIXED_BACKGROUNDS:
+        report.warn(fname, f"the train images are opaque (their background is part of the picture) but --background "
+                           f"{mode} puts a fixed or random colour there: the model would have to paint the background "
+                           "onto geometry inside the scene box. Use --background environment (what auto picks for "
+                           "opaque images)", field="background")
 
 
 def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict]) -> None:

@@ -14,6 +14,8 @@ import os
 import sys
 from typing import List, Optional
 
+from .backgrounds import BACKGROUNDS
+
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -116,9 +118,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")
     t.add_argument("--batch-rays", type=_positive_int, metavar="N",
                    help="rays per step (default: the method's, else 4096 on CUDA and 1024 on CPU)")
-    t.add_argument("--background", choices=["auto", "white", "black", "random", "white-then-random"], default="auto",
-                   help="colour behind transparent pixels while training; auto = a random colour per ray when the "
-                        "images have alpha; white-then-random = white for the first 20%% of the budget, then random")
+    t.add_argument("--background", choices=list(BACKGROUNDS), default="auto",
+                   help="what stands behind the scene while training: environment = a learned world (light from "
+                        "infinity, for opaque captures); random = a random colour per ray behind the alpha (cut-outs "
+                        "on a transparent film); white-then-random = white for the first 20%% of the budget, then "
+                        "random. auto picks environment or random from the dataset's film_transparent and the "
+                        "images' alpha, and says why")
     t.add_argument("--downscale", type=_positive_int, default=1, metavar="F", help="train on images downscaled by F")
     t.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="options",
                    help="method option, repeatable (e.g. --set n_samples=64)")
@@ -160,6 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Exit 0 when valid; otherwise exit 1 and list every problem with its file/frame/field.")
     c.add_argument("dataset", metavar="DATASET", help="dataset folder")
     c.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    c.add_argument("--background", default="auto", choices=list(BACKGROUNDS),
+                   help="the train --background to check the images against (warns when opaque images meet a mode "
+                        "that cannot show their background)")
 
     sub.add_parser("methods", help="list the available methods")
     return p
@@ -201,7 +209,7 @@ def _cmd_eval(a) -> int:
 def _cmd_check(a) -> int:
     from .check import check_dataset
 
-    report = check_dataset(a.dataset)
+    report = check_dataset(a.dataset, background=a.background)
     if a.json:
         print(json.dumps(report.as_dict()))
     else:

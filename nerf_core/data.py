@@ -139,6 +139,8 @@ class Dataset:
     near: Optional[float] = None
     far: Optional[float] = None
     notes: List[str] = field(default_factory=list)
+    film_transparent: Optional[bool] = None  # what the transforms files declare; None when they do not
+    world: Optional[dict] = None  # the capture's description of the Blender world, when recorded
 
     def split(self, name: str) -> Split:
         if name not in self.splits or len(self.splits[name]) == 0:
@@ -271,7 +273,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             out[name] = _frames_of(meta, jf, add_png=True)
             if name in ("train", "val", "test") and not out[name]:
                 raise DatasetError(f"{jf}: split {name!r} is empty (field 'frames' has no entries)")
-            for key in ("aabb", "near", "far"):
+            for key in ("aabb", "near", "far", "film_transparent", "world"):
                 if key in meta and key not in scene:
                     scene[key] = meta[key]
                     scene[key + "_file"] = jf
@@ -281,7 +283,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
         frames = _frames_of(meta, jf, add_png=False)
         if not frames:
             raise DatasetError(f"{jf}: field 'frames' has no entries")
-        for key in ("aabb", "near", "far", "depth_unit_scale_factor"):
+        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world"):
             if key in meta:
                 scene[key] = meta[key]
                 scene[key + "_file"] = jf
@@ -552,6 +554,30 @@ def estimate_aabb(cameras: Cameras, far: Optional[float] = None) -> tuple[torch.
     return torch.tensor(box, dtype=torch.float32), note
 
 
+INSIDE_PAD = 0.05  # share of the box's extent added on each side when the cameras stand inside it
+
+
+def pad_box_for_interior(aabb: torch.Tensor, origins: torch.Tensor) -> tuple[torch.Tensor, Optional[str]]:
+    """Grow ``aabb`` (2, 3) by ``INSIDE_PAD`` per side when most camera ``origins`` (n, 3) are inside it.
+
+    Cameras inside the box mean an interior: the box is the room's bounds, so its walls, floor and
+    ceiling lie exactly on the box's faces, where a grid has half a cell of support and rays end. The
+    surfaces the images show most then sit where the model is weakest, and the transmittance that the
+    walls fail to stop leaks into the background. A margin puts them inside. Returns the box and a
+    note (None when unchanged).
+    """
+    if origins.numel() == 0:
+        return aabb, None
+    inside = ((origins >= aabb[0]) & (origins <= aabb[1])).all(dim=-1)
+    if float(inside.float().mean()) < 0.5:
+        return aabb, None
+    pad = INSIDE_PAD * (aabb[1] - aabb[0])
+    note = (f"{int(inside.sum())} of {len(origins)} train cameras stand inside the scene box (an interior): "
+            f"grew the box by {100 * INSIDE_PAD:.0f} % of its size on each side so that walls, floor and ceiling "
+            "on its faces lie inside it")
+    return torch.stack([aabb[0] - pad, aabb[1] + pad]), note
+
+
 # ----------------------------------------------------------------------------------------------
 
 
@@ -605,6 +631,12 @@ def load_dataset(
             near, far = (v, far) if key == "near" else (near, v)
     if near is not None and far is not None and far <= near:
         raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
+    film = scene.get("film_transparent")
+    if film is not None and not isinstance(film, bool):
+        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
+    world = scene.get("world")
+    if world is not None and not isinstance(world, dict):
+        raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
     if "aabb" in scene:
         aabb = _parse_aabb(scene["aabb"], str(scene["aabb_file"]))
         source = f"dataset ({Path(scene['aabb_file']).name})"
@@ -613,7 +645,12 @@ def load_dataset(
         cams = Cameras(*(torch.cat([getattr(c, f) for c in all_cams]) for f in ("c2w", "fx", "fy", "cx", "cy", "width", "height")))
         aabb, source = estimate_aabb(cams, far)
         notes.append(source)
-    return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes)
+    if len(loaded["train"]):
+        aabb, inside_note = pad_box_for_interior(aabb, loaded["train"].cameras.origins)
+        if inside_note:
+            notes.append(inside_note)
+            source += "; padded around the cameras standing inside it"
+    return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world)
 
 
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:

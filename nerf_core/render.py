@@ -190,7 +190,8 @@ def render_view(
 ) -> Dict[str, torch.Tensor]:
     """Render a whole camera on the model's device.
 
-    Returns CPU tensors: rgb (h, w, 3) composited onto ``background``, acc (h, w), depth (h, w)
+    Returns CPU tensors: rgb (h, w, 3) composited onto ``background`` (onto the model's learned
+    environment instead when it has one), acc (h, w), depth (h, w)
     (distance along the ray, normalised by acc where acc > 0) and z_depth (h, w) planar depth
     along the camera's -Z (0 where acc < 0.5).
     """
@@ -202,6 +203,8 @@ def render_view(
     rays_d = rays_d.to(device)
     t0, t1 = ray_bounds(rays_o, rays_d, model.aabb, near, far)
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
+    if getattr(model, "environment", None) is not None:
+        bg = model.background(rays_d, bg)  # the learned world replaces the fixed colour
     res = render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk)
     acc = res["acc"].clamp(0, 1).cpu()
     dist = res["depth"].cpu()
@@ -390,12 +393,18 @@ def render_to_dir(
     out.mkdir(parents=True, exist_ok=True)
     frames = []
     bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
+    opaque = getattr(model, "environment", None) is not None
     for v, stem in enumerate(stems):
-        # Render onto black: the result is premultiplied, so dividing by acc gives straight colour for RGBA.
         res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
         acc = res["acc"]
-        rgb = torch.where(acc[..., None] > 1e-6, res["rgb"] / acc[..., None].clamp_min(1e-6), torch.zeros_like(res["rgb"]))
-        rgba = torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
+        if opaque:
+            # A run with a learned world renders what the camera sees, background included, like the
+            # opaque capture it was trained on.
+            rgba = torch.cat([res["rgb"].clamp(0, 1), torch.ones_like(acc)[..., None]], -1).numpy()
+        else:
+            # Rendered onto black, the result is premultiplied: dividing by acc gives straight colour for RGBA.
+            rgb = torch.where(acc[..., None] > 1e-6, res["rgb"] / acc[..., None].clamp_min(1e-6), torch.zeros_like(res["rgb"]))
+            rgba = torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
         write_png(out / f"{stem}.png", rgba)
         write_exr(out / f"{stem}_depth.exr", {"Z": res["z_depth"].numpy()})
         frames.append({
@@ -412,7 +421,9 @@ def render_to_dir(
             on_view(v, stem)
     bar.close()
     meta = {"frames": frames, "depth": "planar z-depth in scene units, EXR channel Z, 0 where nothing was hit",
-            "alpha": "accumulated opacity; colour is straight (not premultiplied)", "created": time.time()}
+            "alpha": ("1: opaque, the learned environment is composited behind the scene" if opaque else
+                      "accumulated opacity; colour is straight (not premultiplied)"),
+            "background": "environment" if opaque else "transparent", "created": time.time()}
     meta.update(extra or {})
     tmp = out / ".renders.json.tmp"
     tmp.write_text(json.dumps(meta, indent=2), encoding="utf-8")

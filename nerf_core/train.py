@@ -48,8 +48,8 @@ from .progress import EventLog
 from .evaluate import _mean
 from .progressbar import ProgressBar
 from .render import RunError, load_state_resizing, read_checkpoint
-
-BACKGROUNDS = ("auto", "white", "black", "random", "white-then-random")
+from . import backgrounds
+from .backgrounds import BACKGROUNDS
 
 
 class TrainError(Exception):
@@ -75,7 +75,7 @@ class TrainConfig:
     device: Optional[str] = None
     lr: Optional[float] = None  # base learning rate; default: the method's default_lr
     batch_rays: Optional[int] = None  # None: the method's default_batch_rays, else 4096 on CUDA / 1024 on CPU
-    background: str = "auto"  # auto: random per ray when the images have alpha, else white
+    background: str = "auto"  # auto: nerf_core.backgrounds.choose (environment for opaque images, random for cut-outs)
     downscale: int = 1
     log_every: int = 50
     preview_every: Optional[int] = None  # steps; None: every preview_seconds of training time
@@ -109,6 +109,8 @@ class TrainConfig:
 DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
 STEP_EVENT_SECONDS = 5.0  # slow steps still produce a step event this often
 AUTO_WHITE_FRACTION = 0.2  # --background white-then-random: white for this share of the budget
+PREFIT_RAYS = 400_000  # train rays tested against the box before an environment run (those that miss fit the world)
+PREFIT_STEPS = 300  # Adam steps of that fit (a texture lookup each: ~10 ms on a 2-core CPU)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -443,10 +445,21 @@ def default_method() -> str:
 
 
 def make_optimizer(model, lr: float) -> torch.optim.Optimizer:
-    groups = model.param_groups(lr)
+    groups = model.optimizer_groups(lr)
     for g in groups:
         g["base_lr"] = g["lr"]  # the schedule scales each group's own base rate
-    return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15 if getattr(model, "adam_eps", None) is None else model.adam_eps)
+    return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15 if getattr(model, "adam_eps", None) is None else model.adam_eps,
+                            **fused_adam_kwargs(groups))
+
+
+def fused_adam_kwargs(groups) -> dict:
+    """``fused=True`` where every parameter allows it (float tensors on the CPU or CUDA): one kernel per
+    step instead of a chain of elementwise ops per tensor, measured 17x faster on a 1.5 M-parameter
+    texture on a 2-core CPU (3.5 ms against 59 ms a step)."""
+    params = [p for g in groups for p in g["params"]]
+    ok = params and all(p.dtype in (torch.float32, torch.float64, torch.float16, torch.bfloat16)
+                        and p.device.type in ("cpu", "cuda") for p in params)
+    return {"fused": True} if ok else {}
 
 
 def rebuild_optimizer(model, old: torch.optim.Optimizer, lr: float) -> torch.optim.Optimizer:
@@ -507,6 +520,8 @@ class _Batcher:
         self.background = background
         self.hw = split.height * split.width
         self.total = len(split) * self.hw
+        # Ground truth is composited onto white in environment mode too (the loaders' convention for the
+        # few transparent pixels an opaque capture may have); the model's environment replaces ``bg``.
         self.fixed_bg = torch.tensor([0.0, 0.0, 0.0] if background == "black" else [1.0, 1.0, 1.0])
 
     def sample(self, n: int, frac: float = 1.0):
@@ -726,6 +741,10 @@ class Trainer:
                 raise TrainError(f"--size {cfg.size!r}: only 'auto' is supported")
             options.update(cfg.options)
             aabb = dataset.aabb
+        if ckpt is None and self.bg_mode == "environment" and "environment" not in options:
+            from .environment import size_for_focal
+
+            options["environment"] = {"width": size_for_focal(float(train.cameras.fx.median()))}
         seed_everything(cfg.seed)
         try:
             model = build_model(self.method, aabb, **options)
@@ -833,7 +852,7 @@ class Trainer:
                       lr=self.base_lr * self.lr_scale, restored_step=self.step, rollbacks=self.rollbacks)
 
     def _rescale_base_lrs(self) -> None:
-        groups = self.model.param_groups(self.base_lr * self.lr_scale)
+        groups = self.model.optimizer_groups(self.base_lr * self.lr_scale)
         for g, fresh in zip(self.opt.param_groups, groups):
             g["base_lr"] = fresh["lr"]
 
@@ -850,6 +869,7 @@ class Trainer:
             "lr": self.base_lr,
             "warmup_steps": self.warmup,
             "background_used": self.bg_mode,
+            "background_reason": self.bg_reason,
             "eval_background": self.eval_bg,
             "aabb": self.model.aabb.detach().cpu().tolist(),
             "aabb_source": self.dataset.aabb_source,
@@ -869,20 +889,21 @@ class Trainer:
     def _fit(self, dataset: Dataset, ckpt: Optional[dict]) -> dict:
         cfg = self.cfg
         self.dataset = dataset
-        self._build(dataset, ckpt)
-        train = self.train
+        train = dataset.split("train")
         if cfg.background == "auto":
-            # Random backgrounds stop a model from explaining the background with semi-transparent
-            # geometry. (A method whose density starts too empty to feel their weak pull towards
-            # opacity can use "white-then-random", which bootstraps geometry on white first.)
-            self.bg_mode = "random" if train.has_alpha else "white"
+            self.bg_mode, self.bg_reason = backgrounds.choose(train.images, dataset.film_transparent,
+                                                              where=f"{dataset.root}")
         else:
-            self.bg_mode = cfg.background
+            self.bg_mode, self.bg_reason = cfg.background, "--background given"
         if self.bg_mode == "random" and not train.has_alpha:
             raise TrainError(
-                f"{train.frames[0].image}: --background random needs images with an alpha channel (RGBA); "
-                "this dataset's images are RGB"
+                f"{train.frames[0].image}: --background {self.bg_mode} needs images with an alpha channel (RGBA); "
+                "this dataset's images are RGB (--background environment learns their background)"
             )
+        if ckpt is not None and self.bg_mode == "environment" and "environment" not in ckpt["options"]:
+            raise TrainError(f"--resume: the run was trained without a learned environment; "
+                             f"it cannot continue with --background environment")
+        self._build(dataset, ckpt)
         self.eval_bg = [0.0, 0.0, 0.0] if self.bg_mode == "black" else [1.0, 1.0, 1.0]
         if cfg.max_steps is None and cfg.max_seconds is None:
             cfg.max_steps = int(getattr(self.model, "default_max_steps", DEFAULT_MAX_STEPS))
@@ -911,13 +932,17 @@ class Trainer:
                       device=str(self.device), n_params=n_params, model=self.model.describe(),
                       size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
                       dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train),
-                      image_size=[train.width, train.height], background=self.bg_mode, notes=dataset.notes)
+                      image_size=[train.width, train.height], background=self.bg_mode,
+                      background_reason=self.bg_reason, notes=dataset.notes)
         if self.size_reasons:
             for r in self.size_reasons:
                 print(f"train: size: {r}", file=sys.stderr)
+        print(f"train: background: {self.bg_mode} ({self.bg_reason})", file=sys.stderr)
         for note in dataset.notes:
             print(f"train: note: {note}", file=sys.stderr)
 
+        if ckpt is None and self.model.environment is not None:
+            self._prefit_environment()
         self.preview_view = self._preview_source()
         self._preview_cost = 0.0
         self._eval_marks = sorted(t for t in cfg.eval_at if t > self.elapsed)
@@ -943,6 +968,8 @@ class Trainer:
             for g in self.opt.param_groups:
                 g["lr"] = g["base_lr"] * factor
             rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
+            if self.model.environment is not None:
+                bg = self.model.background(rays_d, bg)
             near, far = ray_bounds(rays_o, rays_d, self.model.aabb, dataset.near, dataset.far)
             out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
             mse = _masked_mse(out["rgb"], gt, weight)
@@ -1011,6 +1038,37 @@ class Trainer:
         return {"step": self.step, "elapsed": self.elapsed, "checkpoint": str(latest), "metrics": metrics,
                 "loss": last_loss, "rollbacks": self.rollbacks}
 
+    def _prefit_environment(self) -> None:
+        """Fit the learned world to the train pixels whose rays miss the scene box (see
+        ``environment.prefit``); counted as training time."""
+        from .environment import prefit
+
+        started = time.perf_counter()
+        train, cams = self.train, self.train.cameras
+        hw = train.height * train.width
+        per_view = max(1, PREFIT_RAYS // max(1, len(train)))
+        dirs, cols = [], []
+        for v in range(len(train)):
+            pix = torch.randperm(hw, generator=self.gen)[:per_view]
+            j, i = pix // train.width, pix % train.width
+            view = torch.full_like(pix, v)
+            rays_o, rays_d, _ = rays_for_pixels(cams, view, i, j)
+            near, far = ray_bounds(rays_o, rays_d, self.model.aabb.cpu(), self.dataset.near, self.dataset.far)
+            miss = far <= near
+            rgb, _ = train.pixels(view[miss], j[miss], i[miss], torch.ones(3))
+            dirs.append(rays_d[miss])
+            cols.append(rgb)
+        dirs_t, cols_t = torch.cat(dirs).to(self.device), torch.cat(cols).to(self.device)
+        mse = prefit(self.model.environment, dirs_t, cols_t, steps=PREFIT_STEPS if len(dirs_t) else 0,
+                     generator=self.gen)
+        took = time.perf_counter() - started
+        self.elapsed += took
+        share = len(dirs_t) / max(1, per_view * len(train))
+        msg = (f"environment: {100 * share:.0f} % of the train rays miss the scene box; fitted the world to them "
+               f"in {took:.1f} s" + (f" (psnr {_psnr(mse):.1f})" if mse == mse else ""))
+        print(f"train: {msg}", file=sys.stderr)
+        self.log.emit("note", message=msg, miss_share=share)
+
     # ------------------------------------------------------------------ reporting
 
     def _make_bar(self) -> ProgressBar:
@@ -1040,7 +1098,7 @@ class Trainer:
         return min(etas) if etas else None
 
     def _emit_step(self, loss: float, psnr: float, interval: dict) -> None:
-        lr = self.opt.param_groups[-1]["lr"]
+        lr = [g for g in self.opt.param_groups if g.get("name") != "environment"][-1]["lr"]
         sps = interval["samples"] / interval["t"] if interval["t"] > 0 else 0.0
         self.log.emit("step", step=self.step, loss=loss, psnr=psnr, lr=lr, elapsed=self.elapsed, eta=self._eta(),
                       samples_per_s=sps, loss_avg=interval["loss"] / max(1, interval["n"]),

@@ -305,6 +305,22 @@ def checkpoint_size(path: str) -> Optional[int]:
 # --------------------------------------------------------------------------------------------
 
 
+def demo_capture_defaults(scene: str) -> dict:
+    """Capture settings demo scene ``scene`` needs (``addon/demo_capture.py``: e.g. opaque, layout inside).
+
+    That file is loaded by path: importing the ``addon`` package would import bpy.
+    """
+    import importlib.util
+
+    path = os.path.join(REPO_ROOT, "addon", "demo_capture.py")
+    if not os.path.isfile(path):
+        return {}
+    spec = importlib.util.spec_from_file_location("_nerf_bridge_demo_capture", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.capture_defaults(scene)
+
+
 def settings_key(settings: dict) -> str:
     """Stable short hash of capture settings: the cache key of a captured dataset."""
     blob = json.dumps(settings, sort_keys=True, separators=(",", ":"))
@@ -328,8 +344,13 @@ def ensure_dataset(
     dataset folder (outside it, so instant-ngp-style loaders never read it). A cached dataset is reused only
     when that file matches exactly; a half-written one (no transforms) is captured again into a fresh
     folder, never over the user's data. Returns (dataset path, reused?).
+
+    Scenes that need their own capture flags (``demo_capture_defaults``: hdri and interior are opaque,
+    interior uses the inside layout) get them merged under ``settings`` (``settings`` wins), so they
+    are part of the cache key and of the capture's flags; object scenes' keys are unchanged.
     """
     os.makedirs(root, exist_ok=True)
+    settings = {**demo_capture_defaults(scene), **settings}
     key = settings_key({"scene": scene, **settings})
     ds = os.path.join(root, f"{scene}-{key}")
     stamp = ds + ".settings.json"

@@ -7,6 +7,8 @@ Default: a hemisphere of cameras around everything visible, at the distance wher
 the frame; 100 train, 10 val and 20 test views, 200x200, Cycles. The cameras are created in the
 "NeRF Cameras" collection of the scene in memory (the .blend on disk is not modified; pass
 --save-blend to keep them). --keep-cameras captures the cameras that collection already holds.
+For a room (a scene that surrounds the camera), --layout inside stands the cameras inside the scene's
+box looking outward, and --opaque keeps the walls' and world's pixels (no transparent film).
 
 Re-running the same command resumes: frames already rendered with the same settings are kept.
 A folder holding something else is refused unless --overwrite. Prints one JSON summary line last.
@@ -50,9 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--denoise", action="store_true", help="Cycles denoising (off by default: it blurs detail)")
     ap.add_argument("--opaque", action="store_true", help="render the world background instead of a transparent film")
     ap.add_argument("--seed", type=int, default=0, help="random layout and split assignment")
-    ap.add_argument("--radius", type=float, default=0.0, help="camera distance from the target centre; 0 = auto")
-    ap.add_argument("--elevation-min", type=float, help="degrees (default 0 for hemisphere/rings/spiral, -90 else)")
-    ap.add_argument("--elevation-max", type=float, help="degrees (default 90)")
+    ap.add_argument("--radius", type=float, default=0.0,
+                    help="camera distance from the target centre; 0 = auto (unused by --layout inside)")
+    ap.add_argument("--elevation-min", type=float,
+                    help="degrees (default 0 for hemisphere/rings/spiral, -25 for inside, -90 else)")
+    ap.add_argument("--elevation-max", type=float, help="degrees (default 90; 15 for inside)")
     ap.add_argument("--focal-length", type=float, default=50.0, help="mm on a 36 mm sensor")
     ap.add_argument("--rings", type=int, default=3)
     ap.add_argument("--turns", type=float, default=3.0, help="spiral turns")

@@ -70,6 +70,20 @@ def last_json(output: str) -> dict:
     raise StepFailed("expected a JSON object on the last line of the output")
 
 
+def scene_capture_flags(scene: str) -> list[str]:
+    """Extra scripts/capture.py flags demo scene ``scene`` needs (addon/demo_capture.py, loaded by path
+    because importing the add-on package imports bpy): e.g. --opaque for hdri, --layout inside for interior."""
+    import importlib.util
+
+    path = os.path.join(REPO_ROOT, "addon", "demo_capture.py")
+    if not os.path.isfile(path):
+        return []
+    spec = importlib.util.spec_from_file_location("_nerf_bridge_demo_capture", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.capture_flags(scene)
+
+
 def missing_pieces() -> list[str]:
     needed = ["scripts/make_demo_scene.py", "scripts/capture.py", "scripts/import_views.py",
               "nerf_core/train.py", "nerf_core/render.py", "nerf_core/evaluate.py", "nerf_core/check.py"]
@@ -79,7 +93,9 @@ def missing_pieces() -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", help="output folder (must not exist or be empty); default demo_out/<timestamp>")
-    ap.add_argument("--scene", default="diffuse", help="demo scene name (see scripts/make_demo_scene.py --help)")
+    ap.add_argument("--scene", default="diffuse",
+                    help="demo scene name (scripts/make_demo_scene.py --list); hdri and interior get their capture "
+                         "flags (--opaque, --layout inside) automatically")
     ap.add_argument("--train-seconds", type=float, default=180.0, help="training budget in seconds (default 180)")
     ap.add_argument("--resolution", type=int, default=100, help="capture resolution in pixels (square)")
     ap.add_argument("--count", type=int, default=60, help="train views")
@@ -112,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         run_step("2 capture", [py, os.path.join(SCRIPTS, "capture.py"), "--blend", scene, "--out", dataset,
                                "--count", str(args.count), "--val-count", "2", "--test-count", str(args.test_count),
                                "--resolution", str(args.resolution), "--engine", "cycles", "--samples", "16",
-                               "--depth"], logs)
+                               "--depth", *scene_capture_flags(args.scene)], logs)
         run_step("3 check dataset", [py, "-m", "nerf_core", "check", dataset], logs)
         train_cmd = [py, "-m", "nerf_core", "train", dataset, "--out", run, "--max-seconds", str(args.train_seconds), "--seed", "0"]
         if args.method:

@@ -3,7 +3,8 @@
     python scripts/make_demo_scene.py NAME --out scene.blend
     blender -b --python scripts/make_demo_scene.py -- NAME --out scene.blend
 
-NAME: cube, diffuse, highfreq, glossy, thin, multi (``--list`` describes them). An existing --out
+NAME: cube, diffuse, highfreq, glossy, thin, multi (objects for a transparent film), hdri, interior
+(scenes with their own background: capture them with the flags ``--list`` shows). An existing --out
 file is kept unless --overwrite.
 """
 from __future__ import annotations
@@ -27,7 +28,8 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     if args.list:
         for key, text in demo_scenes.SCENES.items():
-            print(f"{key:10s} {text}")
+            flags = " ".join(demo_scenes.capture_flags(key))
+            print(f"{key:10s} {text}" + (f"\n{'':10s} capture with: {flags}" if flags else ""))
         return 0
     if not args.name or not args.out:
         ap.error("NAME and --out are required")
@@ -41,7 +43,11 @@ def main(argv: list[str]) -> int:
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    demo_scenes.build(args.name)
+    try:
+        demo_scenes.build(args.name)
+    except demo_scenes.DemoSceneError as exc:
+        print(f"make_demo_scene: error: {exc}", file=sys.stderr)
+        return 2
     bpy.ops.wm.save_as_mainfile(filepath=out)
     print(f"make_demo_scene: wrote {args.name!r} to {out}")
     return 0

@@ -31,11 +31,25 @@ def available_methods() -> list[str]:
 
 
 def build_model(name: str, aabb: torch.Tensor, **options) -> "RadianceModel":
-    """Build method ``name`` for a scene inside ``aabb`` (2, 3) = [[xmin, ymin, zmin], [xmax, ymax, zmax]]."""
+    """Build method ``name`` for a scene inside ``aabb`` (2, 3) = [[xmin, ymin, zmin], [xmax, ymax, zmax]].
+
+    ``options["environment"]`` (a dict of ``EnvironmentMap`` options, or None) is handled here for
+    every method: the method is built without it and the environment is attached afterwards, so a
+    method never needs to know about the world behind the scene.
+    """
     _load_builtin_methods()
     if name not in _REGISTRY:
         raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
-    return _REGISTRY[name](aabb=aabb, **options)
+    options = dict(options)
+    env_options = options.pop("environment", None)
+    model = _REGISTRY[name](aabb=aabb, **options)
+    if env_options is not None:
+        from ..environment import EnvironmentMap
+
+        if not isinstance(env_options, dict):
+            raise ValueError(f"option 'environment' must be a dict of EnvironmentMap options, got {env_options!r}")
+        model.attach_environment(EnvironmentMap(**env_options))
+    return model
 
 
 def _load_builtin_methods() -> None:
@@ -51,11 +65,25 @@ class RadianceModel(nn.Module):
     """
 
     method_name = "base"
+    environment_lr = 0.02  # Adam step for the environment's texture logits, at the method's default_lr
 
     def __init__(self, aabb: torch.Tensor, **options):
         super().__init__()
         self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
         self.options = dict(options)
+        self.environment = None  # an EnvironmentMap when the run models a visible world
+
+    def attach_environment(self, env: nn.Module) -> None:
+        """Model the background as light from infinity (``nerf_core.environment``); recorded in options."""
+        self.environment = env
+        self.options["environment"] = dict(env.options)
+
+    def background(self, rays_d: torch.Tensor, default: torch.Tensor) -> torch.Tensor:
+        """Colour (n_rays, 3) behind each ray: the learned environment when there is one, else ``default``
+        ((3,) or (n_rays, 3), e.g. the white or random training background)."""
+        if self.environment is not None:
+            return self.environment(rays_d)
+        return default.expand(rays_d.shape[0], 3)
 
     def render_rays(
         self,
@@ -83,8 +111,19 @@ class RadianceModel(nn.Module):
         raise NotImplementedError
 
     def param_groups(self, lr: float) -> list[dict]:
-        """Optimiser parameter groups; override to give grids and MLPs different learning rates."""
-        return [{"params": [p for p in self.parameters() if p.requires_grad], "lr": lr}]
+        """Optimiser parameter groups of the method itself (the environment's group is added by
+        ``optimizer_groups``); override to give grids and MLPs different learning rates."""
+        return [{"params": [p for n, p in self.named_parameters() if p.requires_grad and not n.startswith("environment.")],
+                 "lr": lr}]
+
+    def optimizer_groups(self, lr: float) -> list[dict]:
+        """Every parameter group the trainer optimises: the method's, then the environment's."""
+        groups = self.param_groups(lr)
+        if self.environment is not None:
+            scale = lr / float(getattr(self, "default_lr", lr) or lr)
+            groups.append({"params": list(self.environment.parameters()), "lr": self.environment_lr * scale,
+                           "name": "environment"})
+        return groups
 
     def training_hook(self, step: int, max_steps: int | None, elapsed: float, max_seconds: float | None) -> bool:
         """Called by the trainer before each step (occupancy updates, coarse-to-fine growth).
@@ -103,4 +142,7 @@ class RadianceModel(nn.Module):
 
     def describe(self) -> dict:
         """What was built and why (reported by the trainer in the ``start`` event and config.json)."""
-        return {"method": self.method_name, "options": self.options, "n_params": self.num_parameters()}
+        out = {"method": self.method_name, "options": self.options, "n_params": self.num_parameters()}
+        if self.environment is not None:
+            out["environment_params"] = sum(p.numel() for p in self.environment.parameters())
+        return out

@@ -1,0 +1,71 @@
+"""What stands behind the scene during training, and how ``--background auto`` picks it.
+
+Modes (``train --background``):
+
+* ``environment``: a learned world, light from infinity (``nerf_core.environment``). The right model
+  for opaque captures: a Blender world (HDRI, sky, colour) or photographs whose background is real.
+* ``random``: a random colour per ray behind the images' alpha. The right model for captures on a
+  transparent film: it stops the scene from explaining the background with semi-transparent fog.
+* ``white``, ``black``: a fixed colour; ``white-then-random``: white for the first 20 % of the
+  budget, then random (bootstraps geometry for methods that start too empty to feel random colours).
+
+``auto`` decides from what the dataset says about itself (``choose``), so a capture trains right
+without flags: the capture records ``film_transparent`` in its transforms files, and for datasets
+made elsewhere the images' alpha tells.
+"""
+from __future__ import annotations
+
+from typing import Optional, Tuple
+
+import torch
+
+BACKGROUNDS = ("auto", "environment", "random", "white", "black", "white-then-random")
+# Modes that cannot show an opaque image's background (a photograph, a world): they would have to
+# explain it with geometry inside the box.
+FIXED_BACKGROUNDS = ("random", "white", "black", "white-then-random")
+
+# An RGBA image counts as opaque when fewer than this share of its pixels are less than fully opaque
+# (anti-aliased edges of a cut-out object alone are ~1 % of a 100 px image; an opaque render has none).
+TRANSPARENT_SHARE = 1e-3
+ALPHA_OPAQUE = 0.98
+
+
+def transparent_share(images: torch.Tensor) -> float:
+    """Share of pixels whose alpha is below ``ALPHA_OPAQUE`` in (n, h, w, c) images; 0 without alpha."""
+    if images.shape[-1] != 4 or images.numel() == 0:
+        return 0.0
+    alpha = images[..., 3]
+    limit = ALPHA_OPAQUE * 255.0 if alpha.dtype == torch.uint8 else ALPHA_OPAQUE
+    return float((alpha.float() < limit).float().mean())
+
+
+def images_are_opaque(images: torch.Tensor) -> bool:
+    """True when (n, h, w, c) images have no alpha channel or (almost) no transparent pixel."""
+    return transparent_share(images) < TRANSPARENT_SHARE
+
+
+def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = "dataset") -> Tuple[str, str]:
+    """``--background auto``: the mode for a train split's (n, h, w, c) images, and why.
+
+    ``film_transparent`` is what the dataset's transforms files declare (None when they do not).
+    """
+    has_alpha = images.shape[-1] == 4
+    share = transparent_share(images)
+    if film_transparent is False:
+        return "environment", (f"{where} declares film_transparent: false (an opaque capture showing the world): "
+                               "the background is learned as light from infinity")
+    if film_transparent is True:
+        if has_alpha and share >= TRANSPARENT_SHARE:
+            return "random", (f"{where} declares film_transparent: true: random background colours behind the alpha "
+                              f"({100 * share:.1f} % of the pixels are transparent)")
+        return "environment", (f"{where} declares film_transparent: true, but its images have "
+                               f"{'no transparent pixels' if has_alpha else 'no alpha channel'}: "
+                               "the background is learned as light from infinity")
+    if not has_alpha:
+        return "environment", ("the images have no alpha channel (RGB): their background is part of the picture, "
+                               "learned as light from infinity")
+    if share < TRANSPARENT_SHARE:
+        return "environment", ("the images' alpha is opaque everywhere: their background is part of the picture, "
+                               "learned as light from infinity")
+    return "random", (f"{100 * share:.1f} % of the pixels are transparent (a cut-out on a transparent film): "
+                      "random background colours behind the alpha")
