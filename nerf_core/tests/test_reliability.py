@@ -262,3 +262,108 @@ def test_render_refuses_a_huge_view_with_its_memory_estimate(trained_run, tmp_pa
 def test_eval_refuses_a_downscale_that_leaves_no_pixels(trained_run):
     proc = _cli("eval", trained_run["run"], "--downscale", "100000", "--no-bar")
     _clear_error(proc, "r_0.png", "--downscale")
+
+
+# ---------------------------------------------------------------------------------------------- 6. one validator
+
+
+def _truncate_png(ds):
+    p = ds / "train" / "r_1.png"
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    return "r_1"
+
+
+def _corrupt_depth(ds):
+    (ds / "train" / "r_2_depth.exr").write_bytes(b"\x76\x2f\x31\x01 not really an exr")
+    return "r_2_depth.exr"
+
+
+def _small_depth(ds):
+    import numpy as np
+    from nerf_core.imageio import write_exr
+
+    write_exr(ds / "train" / "r_2_depth.exr", {"Z": np.ones((5, 7), np.float32)})
+    return "depth_file_path"
+
+
+def _far_before_near(ds):
+    for split in ("train", "val", "test"):
+        p = ds / f"transforms_{split}.json"
+        meta = json.loads(p.read_text())
+        meta["near"], meta["far"] = 5.0, 1.0
+        p.write_text(json.dumps(meta))
+    return "'far'"
+
+
+def _one_train_frame(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["frames"] = meta["frames"][:1]
+    p.write_text(json.dumps(meta))
+    return "train split has 1 view"
+
+
+def _fov_beyond_pi(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["camera_angle_x"] = 4.0
+    for k in ("fl_x", "fl_y"):
+        meta.pop(k)
+    p.write_text(json.dumps(meta))
+    return "camera_angle_x"
+
+
+def _near_is_text(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["near"] = "two"
+    p.write_text(json.dumps(meta))
+    return "near"
+
+
+BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_train_frame, _fov_beyond_pi,
+          _near_is_text]
+
+
+@pytest.mark.parametrize("breaker", BROKEN, ids=lambda f: f.__name__.strip("_"))
+def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, capsys):
+    ds = dataset_factory(tmp_path / "ds")
+    word = breaker(ds)
+    from nerf_core.check import check_dataset
+    from nerf_core.data import dataset_problems
+
+    report = check_dataset(ds)
+    assert not report.ok
+    assert any(word in str(p) for p in report.errors), [str(p) for p in report.errors]
+    assert dataset_problems(ds)
+    rc = main(["check", str(ds)])
+    out = capsys.readouterr().out
+    assert rc == 1 and word in out
+    rc = main(["train", str(ds), "--out", str(tmp_path / "run"), "--method", "test-grid", "--max-steps", "2", "--no-bar"])
+    err = capsys.readouterr().err
+    assert rc == 2 and word in err.strip().splitlines()[-1] and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_factory, tmp_path):
+    from nerf_core.check import check_dataset
+    from nerf_core.data import DatasetError, dataset_problems, load_dataset
+
+    ds = dataset_factory(tmp_path / "ds")
+    _truncate_png(ds)
+    _corrupt_depth(ds)
+    problems = dataset_problems(ds)
+    assert len(problems) == 2 and "r_1" in problems[0] and "r_2_depth.exr" in problems[1]
+    with pytest.raises(DatasetError) as exc:
+        load_dataset(ds)
+    assert str(exc.value) == problems[0]
+    text = "\n".join(str(p) for p in check_dataset(ds).errors)
+    assert "r_1" in text and "r_2_depth.exr" in text
+
+
+def test_a_valid_dataset_passes_both(sphere_dataset):
+    from nerf_core.check import check_dataset
+    from nerf_core.data import dataset_problems
+
+    assert check_dataset(sphere_dataset).ok and dataset_problems(sphere_dataset) == []
