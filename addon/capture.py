@@ -41,6 +41,9 @@ DATASET_PATHS = ("train", "val", "test", "depth", "normals", "masks", "points3d.
 FORMAT = "nerf_bridge_capture"
 
 
+MAX_RESOLUTION = 65536  # Blender's largest render resolution per axis
+
+
 class CaptureError(RuntimeError):
     """A capture cannot start or continue; the message names the file, camera or setting."""
 
@@ -202,8 +205,10 @@ class CaptureJob:
         self.engine = resolve_engine(settings.engine)
         if settings.normals and self.engine == "BLENDER_WORKBENCH":
             raise CaptureError("normals need the Cycles or EEVEE engine (Workbench has no normal pass)")
-        if settings.res_x < 1 or settings.res_y < 1:
-            raise CaptureError(f"resolution {settings.res_x}x{settings.res_y} must be positive")
+        if not (1 <= settings.res_x <= MAX_RESOLUTION and 1 <= settings.res_y <= MAX_RESOLUTION):
+            # Blender clamps at 65536 while the manifest would record the size asked for.
+            raise CaptureError(f"resolution {settings.res_x}x{settings.res_y}: each axis must lie in "
+                               f"1..{MAX_RESOLUTION} (Blender's limit)")
         if settings.samples < 1:
             raise CaptureError(f"samples must be at least 1 (got {settings.samples})")
         try:

@@ -1,0 +1,100 @@
+"""Reliability of capture (docs/RELIABILITY.md): arguments checked up front against Blender's limits,
+no two cameras with one pose, resumed captures that verify what is on disk."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import bpy
+import pytest
+
+from addon import capture, layouts
+
+PY = sys.executable
+SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
+
+
+# ---------------------------------------------------------------------------------------------- 8. arguments
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--resolution", "70000"], "--resolution"),
+    (["--resolution", "32x0"], "--resolution"),
+    (["--resolution", "32", "--resolution-y", "0"], "--resolution-y"),
+    (["--count", "0"], "--count"),
+    (["--val-count", "-1"], "--val-count"),
+    (["--samples", "0"], "--samples"),
+    (["--focal-length", "0"], "--focal-length"),
+    (["--radius", "-1"], "--radius"),
+    (["--elevation-min", "-91"], "--elevation-min"),
+    (["--elevation-min", "50", "--elevation-max", "10"], "--elevation-max"),
+    (["--frame-step", "0"], "--frame-step"),
+    (["--n-points", "0"], "--n-points"),
+])
+def test_capture_arguments_are_checked_before_anything_runs(tmp_path, args, flag):
+    out = tmp_path / "ds"
+    proc = subprocess.run([PY, SCRIPT, "--out", str(out), "--quiet", *args], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert flag in proc.stderr and "error" in proc.stderr
+    assert not out.exists()
+
+
+def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
+    with pytest.raises(capture.CaptureError, match="70000.*65536"):
+        capture.CaptureJob(bpy.context.scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
+                                                                      samples=1, res_x=70000, res_y=16))
+
+
+# ---------------------------------------------------------------------------------------------- 9. poses
+
+
+def _box():
+    bpy.ops.mesh.primitive_cube_add(size=2.0)
+
+
+def _matrices(cams):
+    return [tuple(round(v, 5) for row in o.matrix_world for v in row) for o in cams]
+
+
+def test_rings_default_to_the_panels_range_and_give_distinct_poses():
+    _box()
+    spec = layouts.LayoutSpec(layout="rings", train=12, val=2, test=2)
+    assert spec.elevation_range() == (10.0, 60.0)
+    cams = layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    assert len(set(_matrices(cams))) == len(cams) == 16
+
+
+def test_a_ring_at_the_pole_is_refused_before_any_camera_changes():
+    _box()
+    first = layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=4, val=0, test=0), 32, 32)
+    names = sorted(o.name for o in first)
+    with pytest.raises(layouts.LayoutError, match="same pose.*elevation"):
+        layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="rings", train=12, val=0, test=0,
+                                                                     elevation_min=0.0, elevation_max=90.0), 32, 32)
+    assert sorted(o.name for o in layouts.nerf_collection(bpy.context.scene).objects) == names  # untouched
+
+
+def test_a_still_camera_sampled_by_animation_is_refused():
+    _box()
+    cam = bpy.data.objects.new("Still", bpy.data.cameras.new("Still"))
+    scene = bpy.context.scene
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    cam.location = (0.0, -6.0, 1.0)
+    scene.frame_start, scene.frame_end = 1, 30
+    with pytest.raises(layouts.LayoutError, match="same pose.*frame step"):
+        layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=0, test=0), 32, 32)
+
+
+def test_check_distinct_poses_is_exact_enough():
+    a = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
+    b = [[1, 0, 0, 0.01], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
+    layouts.check_distinct_poses([a, b])
+    with pytest.raises(layouts.LayoutError, match="cameras 0 and 2"):
+        layouts.check_distinct_poses([a, b, [list(r) for r in a]])
