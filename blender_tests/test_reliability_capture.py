@@ -98,3 +98,49 @@ def test_check_distinct_poses_is_exact_enough():
     layouts.check_distinct_poses([a, b])
     with pytest.raises(layouts.LayoutError, match="cameras 0 and 2"):
         layouts.check_distinct_poses([a, b, [list(r) for r in a]])
+
+
+# ---------------------------------------------------------------------------------------------- 10. import_views
+
+
+def _import_setup(tmp_path, captured_from):
+    import hashlib
+
+    scene = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(scene), copy=True)
+    run, ds = tmp_path / "run", tmp_path / "dataset"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "latest.pt").write_bytes(b"not really a checkpoint")
+    (run / "config.json").write_text(json.dumps({"dataset": str(ds), "method": "nerf"}))
+    (ds / "nerf_capture").mkdir(parents=True)
+    captured_from = captured_from or scene
+    digest = hashlib.sha256(captured_from.read_bytes()).hexdigest()
+    (ds / "nerf_capture" / "manifest.json").write_text(json.dumps({"blend_file": str(captured_from),
+                                                                   "blend_sha256": digest}))
+    script = os.path.join(os.path.dirname(SCRIPT), "import_views.py")
+
+    def call(*args):
+        return subprocess.run([PY, script, "--blend", str(scene), "--run", str(run), "--out",
+                               str(tmp_path / "cmp.blend"), *args], capture_output=True, text=True, timeout=120)
+
+    return scene, call
+
+
+def test_import_views_refuses_a_run_captured_from_another_blend(tmp_path):
+    other = tmp_path / "other.blend"
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    bpy.ops.wm.save_as_mainfile(filepath=str(other), copy=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene, call = _import_setup(tmp_path, other)
+    proc = call()
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert str(other) in proc.stderr and str(scene) in proc.stderr and "--force" in proc.stderr
+    proc = call("--force")  # goes on (and fails later on the fake dataset), having only warned
+    assert "warning" in proc.stderr and "pass --force" not in proc.stderr
+
+
+def test_import_views_is_quiet_for_the_captured_blend(tmp_path):
+    scene, call = _import_setup(tmp_path, None)
+    proc = call()
+    assert proc.returncode == 2  # the fake dataset has no transforms_test.json: a later refusal
+    assert "would not line up" not in proc.stderr and "transforms_test.json" in proc.stderr
