@@ -144,3 +144,42 @@ def test_import_views_is_quiet_for_the_captured_blend(tmp_path):
     proc = call()
     assert proc.returncode == 2  # the fake dataset has no transforms_test.json: a later refusal
     assert "would not line up" not in proc.stderr and "transforms_test.json" in proc.stderr
+
+
+# ---------------------------------------------------------------------------------------------- 11. capture resume
+
+
+def test_capture_resume_renders_again_what_fails_verification(tmp_path):
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, layouts.LayoutSpec(train=3, val=1, test=1), 24, 16)
+    out = tmp_path / "ds"
+
+    def job():
+        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
+                                                                 res_x=24, res_y=16, depth=True))
+
+    assert job().run()["rendered"] == 5
+    man = json.loads((out / "nerf_capture" / "manifest.json").read_text())
+    entry = next(iter(man["frames"].values()))
+    assert set(entry["sha256"]) == {"image", "depth_file_path"} and all(len(h) == 64 for h in entry["sha256"].values())
+    png = out / "train" / "r_0.png"
+    png.write_bytes(png.read_bytes()[: png.stat().st_size // 2])  # truncated
+    (out / "depth" / "train" / "r_1.exr").write_bytes(b"")  # empty depth EXR
+    again = job().run()
+    assert (again["rendered"], again["kept"]) == (2, 3)
+    assert capture._decodes_at(str(png), 24, 16)
+    assert (out / "depth" / "train" / "r_1.exr").stat().st_size > 0
+
+
+def test_capture_resume_catches_a_changed_file_that_still_decodes(tmp_path):
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
+    out = tmp_path / "ds"
+    settings = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
+    capture.CaptureJob(scene, capture.CaptureSettings(**settings)).run()
+    a, b = out / "train" / "r_0.png", out / "train" / "r_1.png"
+    a.write_bytes(b.read_bytes())  # a valid PNG of the right size, but not the one written for r_0
+    again = capture.CaptureJob(scene, capture.CaptureSettings(**settings)).run()
+    assert (again["rendered"], again["kept"]) == (1, 1)
