@@ -113,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "no dataset hash (newer runs accept a moved dataset by its hash without this flag)")
     t.add_argument("--overwrite", action="store_true", help="start RUN again, deleting only files an earlier training wrote")
     t.add_argument("--size", choices=["auto"], help="let nerf_core.sizing choose the model size for this dataset")
+    t.add_argument("--contract", action="store_true",
+                   help="scene contraction (mip-NeRF 360 style): also model geometry beyond the scene box, such as a "
+                        "ground plane running to the horizon (vmgrid; the same as --set contract=true)")
     t.add_argument("--progress", metavar="FILE", help="also append the JSON progress events to FILE")
     t.add_argument("--device", metavar="DEV", help="torch device (cpu, cuda, cuda:1); default: cuda if available else cpu")
     t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")
@@ -178,7 +181,8 @@ def _cmd_train(a) -> int:
 
     cfg = TrainConfig(
         dataset=a.dataset, out=a.out, method=a.method, max_steps=a.max_steps, max_seconds=a.max_seconds, seed=a.seed,
-        resume=a.resume, overwrite=a.overwrite, dataset_moved=a.dataset_moved, size=a.size, options=parse_options(a.options), progress=a.progress,
+        resume=a.resume, overwrite=a.overwrite, dataset_moved=a.dataset_moved, size=a.size,
+        options={**parse_options(a.options), **({"contract": True} if a.contract else {})}, progress=a.progress,
         device=a.device, lr=a.lr, batch_rays=a.batch_rays, background=a.background, downscale=a.downscale,
         log_every=a.log_every, preview_every=a.preview_every, checkpoint_every=a.checkpoint_every,
         eval_views=a.eval_views, eval_at=a.eval_at, show_bar=not a.no_bar,

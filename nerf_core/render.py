@@ -201,7 +201,8 @@ def render_view(
     rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
     rays_o = rays_o.expand_as(rays_d).to(device)
     rays_d = rays_d.to(device)
-    t0, t1 = ray_bounds(rays_o, rays_d, model.aabb, near, far)
+    t0, t1 = model.ray_interval(rays_o, rays_d, near, far) if hasattr(model, "ray_interval") else \
+        ray_bounds(rays_o, rays_d, model.aabb, near, far)
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
     if getattr(model, "environment", None) is not None:
         bg = model.background(rays_d, bg)  # the learned world replaces the fixed colour

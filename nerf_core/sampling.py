@@ -125,3 +125,52 @@ def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, 
     ray_idx, t = ray_idx[keep], t[keep]
     half = 0.5 * step_size
     return (t - half).clamp_min(near[ray_idx]), (t + half).clamp_max(far[ray_idx]), ray_idx
+
+
+def contracted_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, aabb: Tensor, step_size: float,
+                       occupied_fn, jitter: bool, max_samples: int = 1024,
+                       generator: Optional[torch.Generator] = None) -> Tuple[Tensor, Tensor, Tensor]:
+    """Samples for a contracted scene (``nerf_core.contraction``): a fixed step inside the box, then
+    uniform in disparity (1 / distance) out to ~``n`` times the exit distance, so that samples are
+    about evenly spaced in contracted space; only those whose contracted midpoint is occupied are kept.
+
+    Args:
+        rays_o, rays_d: (n_rays, 3); near: (n_rays,) where each ray starts.
+        aabb: (2, 3) the scene box (uncontracted region).
+        step_size: distance between samples inside the box; the outer part gets as many samples as the
+            box's mean half-size holds steps (the contracted shell is one half-size thick).
+        occupied_fn: maps world points (m, 3) -> (m,) bool (contract inside it).
+
+    Returns:
+        packed ``t_starts`` (k,), ``t_ends`` (k,), ``ray_indices`` (k,) long, sorted by ray then distance.
+    """
+    n_rays = rays_o.shape[0]
+    _, t_exit, hit = ray_aabb_intersect(rays_o, rays_d, aabb)
+    # Where the outer part begins: the box exit for rays that cross the box, else where the ray starts.
+    t_split = torch.where(hit, torch.maximum(t_exit, near), near).clamp_min(1e-3)
+    span = (t_split - near).clamp_min(0)
+    n_in = int(min(max_samples, max(1, int(torch.ceil(span.max() / step_size).item()) if n_rays else 1)))
+    half = float((0.5 * (aabb[1] - aabb[0])).mean())
+    n_out = int(min(max_samples, max(8, round(half / step_size))))
+    dev, dt = rays_o.device, rays_o.dtype
+    shift = (torch.rand(n_rays, 1, device=dev, dtype=dt, generator=generator) if jitter
+             else torch.full((n_rays, 1), 0.5, device=dev, dtype=dt))
+    # Inside: midpoints at a fixed step from near, up to the split.
+    t_in = near.unsqueeze(-1) + (torch.arange(n_in, device=dev, dtype=dt) + shift) * step_size
+    ok_in = t_in < t_split.unsqueeze(-1)
+    lo_in = (t_in - 0.5 * step_size).clamp_min(near.unsqueeze(-1))
+    hi_in = torch.minimum(t_in + 0.5 * step_size, t_split.unsqueeze(-1))
+    # Outside: edges t_split / (1 - s) for s evenly spaced in [0, 1), i.e. uniform in disparity.
+    s = (torch.arange(n_out + 1, device=dev, dtype=dt) / (n_out + 1)).expand(n_rays, -1)
+    if jitter:  # move the inner edges within their strata; the first stays at the split, so no gap opens
+        s = torch.cat([s[:, :1], s[:, 1:] + shift / (n_out + 1)], -1)
+    edges = t_split.unsqueeze(-1) / (1.0 - s)
+    lo_out, hi_out = edges[:, :-1], edges[:, 1:]
+    lo = torch.cat([lo_in, lo_out], -1)
+    hi = torch.cat([hi_in, hi_out], -1)
+    valid = torch.cat([ok_in, torch.ones_like(lo_out, dtype=torch.bool)], -1) & (hi > lo)
+    ray_idx, col = valid.nonzero(as_tuple=True)
+    t0, t1 = lo[ray_idx, col], hi[ray_idx, col]
+    mid = 0.5 * (t0 + t1)
+    keep = occupied_fn(rays_o[ray_idx] + rays_d[ray_idx] * mid.unsqueeze(-1))
+    return t0[keep], t1[keep], ray_idx[keep]

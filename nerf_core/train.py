@@ -941,7 +941,8 @@ class Trainer:
         for note in dataset.notes:
             print(f"train: note: {note}", file=sys.stderr)
 
-        if ckpt is None and self.model.environment is not None:
+        if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):
+            # (A contracted scene has no ray that misses it: the world beyond the box is geometry too.)
             self._prefit_environment()
         self.preview_view = self._preview_source()
         self._preview_cost = 0.0
@@ -970,7 +971,7 @@ class Trainer:
             rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
             if self.model.environment is not None:
                 bg = self.model.background(rays_d, bg)
-            near, far = ray_bounds(rays_o, rays_d, self.model.aabb, dataset.near, dataset.far)
+            near, far = self.model.ray_interval(rays_o, rays_d, dataset.near, dataset.far)
             out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
             mse = _masked_mse(out["rgb"], gt, weight)
             loss = mse

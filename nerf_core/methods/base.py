@@ -110,6 +110,15 @@ class RadianceModel(nn.Module):
         """
         raise NotImplementedError
 
+    def ray_interval(self, rays_o: torch.Tensor, rays_d: torch.Tensor, near: float | None = None,
+                     far: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The (n_rays,), (n_rays,) interval each ray is rendered over, handed back to ``render_rays``:
+        the scene box clipped to the dataset's ``near``/``far``. Methods that model the world beyond the
+        box (scene contraction) override it."""
+        from ..cameras import ray_bounds
+
+        return ray_bounds(rays_o, rays_d, self.aabb, near, far)
+
     def param_groups(self, lr: float) -> list[dict]:
         """Optimiser parameter groups of the method itself (the environment's group is added by
         ``optimizer_groups``); override to give grids and MLPs different learning rates."""

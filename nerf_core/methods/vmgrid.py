@@ -21,6 +21,7 @@ import math
 import torch
 
 from .. import sampling, volrend
+from ..contraction import contract, outer_box
 from ..fields.tensorf import TensorVMField
 from ..occupancy import OccupancyGrid
 from .base import RadianceModel, register
@@ -43,6 +44,8 @@ class VMGrid(RadianceModel):
             whatever never gains density, including space no camera sees).
         grid_lr_scale: grids learn at ``lr * grid_lr_scale`` (TensoRF uses 0.02 vs 1e-3 for networks).
         budget_steps: steps assumed for the schedule when the trainer gives neither max_steps nor max_seconds.
+        contract: model the world beyond the box too (``nerf_core.contraction``): the grid spans the
+            contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
 
     default_lr = 1e-3
@@ -53,7 +56,8 @@ class VMGrid(RadianceModel):
     defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
                     occ_res=64, occ_every=16, step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
-                    grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0)
+                    grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
+                    contract=False)
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
@@ -70,11 +74,14 @@ class VMGrid(RadianceModel):
         sigma0 = -math.log1p(-opts["alpha_init"]) / step0
         density_scale = 25.0
         shift = math.log(math.expm1(sigma0 / density_scale))  # softplus^-1
-        self.field = TensorVMField(self.aabb, resolution=opts["resolution"], density_rank=opts["density_rank"],
+        # With contraction the grids span the contracted world (twice the box); points are warped into it.
+        self.contracted = bool(opts["contract"])
+        field_box = outer_box(self.aabb) if self.contracted else self.aabb
+        self.field = TensorVMField(field_box, resolution=opts["resolution"], density_rank=opts["density_rank"],
                                    app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
                                    view_freqs=opts["view_freqs"], seed=opts["seed"], density_shift=shift,
                                    density_scale=density_scale)
-        self.occupancy = OccupancyGrid(self.aabb, opts["occ_res"])
+        self.occupancy = OccupancyGrid(field_box, opts["occ_res"])
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self._last_growth_step = 0
 
@@ -166,15 +173,31 @@ class VMGrid(RadianceModel):
 
     # ------------------------------------------------------------------ rendering
 
+    def warp(self, pts: Tensor) -> Tensor:
+        """World points (m, 3) -> the field's coordinates (contracted when ``contract`` is on)."""
+        return contract(pts, self.aabb) if self.contracted else pts
+
+    def ray_interval(self, rays_o, rays_d, near=None, far=None):
+        if not self.contracted:
+            return super().ray_interval(rays_o, rays_d, near, far)
+        # The whole ray from ``near`` on: contracted_samples ends it far out, uniform in disparity.
+        t0 = torch.full(rays_o.shape[:1], float(near or 0.0), dtype=rays_d.dtype, device=rays_d.device)
+        return t0, torch.full_like(t0, float("inf"))
+
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         n_rays = rays_o.shape[0]
         step = self.step_size()
-        t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
-                                                 jitter=training, max_samples=4096)
+        if self.contracted:
+            t0, t1, ridx = sampling.contracted_samples(rays_o, rays_d, near, self.aabb, step,
+                                                       lambda p: self.occupancy.query(self.warp(p)),
+                                                       jitter=training, max_samples=4096)
+        else:
+            t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
+                                                     jitter=training, max_samples=4096)
         # Early ray termination: find, without grad, the samples still visible (T > 1e-4).
         with torch.no_grad():
             mids = 0.5 * (t0 + t1)
-            pts = rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1)
+            pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
             sig = torch.cat([self.field.density(pts[i:i + self.render_step_chunk])
                              for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
             trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)

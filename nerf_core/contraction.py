@@ -1,0 +1,35 @@
+"""Scene contraction (mip-NeRF 360 style) for geometry beyond the scene box: a ground plane running
+to the horizon, distant buildings or hills.
+
+The box keeps its coordinates; everything outside it is squeezed into a shell of the same
+thickness around it, with infinity on the shell's outer face. In the box's normalised coordinates
+``x_n = (x - centre) / half`` (the box is [-1, 1]^3) and with the max-norm ``r = |x_n|_inf``:
+
+    contract(x_n) = x_n                      for r <= 1
+                  = (2 - 1 / r) * x_n / r    for r > 1      (in [-2, 2]^3, -> the face at 2 as r -> inf)
+
+The max-norm (rather than mip-NeRF 360's L2 norm) keeps the whole box, corners included, unwarped,
+so a contracted model sees the box exactly as an uncontracted one would. A grid over [-2, 2]^3
+spends half its cells per axis on the box and half on the rest of the world, whose detail shrinks
+with distance the way a camera sees it.
+"""
+from __future__ import annotations
+
+import torch
+
+Tensor = torch.Tensor
+
+
+def outer_box(aabb: Tensor) -> Tensor:
+    """(2, 3) box that the contracted world fills: the scene box grown to twice its size about its centre."""
+    centre, half = 0.5 * (aabb[0] + aabb[1]), 0.5 * (aabb[1] - aabb[0])
+    return torch.stack([centre - 2.0 * half, centre + 2.0 * half])
+
+
+def contract(pts: Tensor, aabb: Tensor) -> Tensor:
+    """World points (m, 3) -> contracted points (m, 3) inside ``outer_box(aabb)``; unchanged in the box."""
+    centre, half = 0.5 * (aabb[0] + aabb[1]), 0.5 * (aabb[1] - aabb[0])
+    xn = (pts - centre) / half
+    r = xn.abs().amax(dim=-1, keepdim=True).clamp_min(1e-12)
+    out = torch.where(r <= 1.0, xn, (2.0 - 1.0 / r) * xn / r)
+    return centre + out * half
