@@ -26,6 +26,10 @@ class RunError(Exception):
     """A run folder or checkpoint that cannot be used; the message names the file."""
 
 
+class CheckpointRefused(RunError):
+    """A checkpoint that would need code to load (a crafted pickle): never skipped over silently."""
+
+
 # ----------------------------------------------------------------------------------------------
 # checkpoints
 
@@ -100,7 +104,7 @@ def read_checkpoint(path: Path) -> dict:
         if found is None:
             raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
         what = next((g.strip() for g in found.groups() if g), "")
-        raise RunError(
+        raise CheckpointRefused(
             f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"
             + (f" ({what})" if what else "")
             + "; it will not be loaded, because loading it could run that code. "

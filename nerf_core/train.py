@@ -47,7 +47,7 @@ from .data import Dataset, DatasetError, Split, load_dataset
 from .progress import EventLog
 from .evaluate import _mean
 from .progressbar import ProgressBar
-from .render import RunError, load_state_resizing, read_checkpoint
+from .render import CheckpointRefused, RunError, load_state_resizing, read_checkpoint
 from . import backgrounds
 from .backgrounds import BACKGROUNDS
 
@@ -647,6 +647,8 @@ class Trainer:
         for path in resume_candidates(self.run):
             try:
                 ckpt = read_checkpoint(path)
+            except CheckpointRefused:
+                raise  # a crafted checkpoint is an alarm, not damage to route around
             except RunError as exc:
                 failures.append(str(exc))
                 continue
