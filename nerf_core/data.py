@@ -141,6 +141,7 @@ class Dataset:
     notes: List[str] = field(default_factory=list)
     film_transparent: Optional[bool] = None  # what the transforms files declare; None when they do not
     world: Optional[dict] = None  # the capture's description of the Blender world, when recorded
+    cameras_inside: bool = False  # most train cameras stand inside the scene box: an interior
 
     def split(self, name: str) -> Split:
         if name not in self.splits or len(self.splits[name]) == 0:
@@ -725,12 +726,14 @@ def load_dataset(
         cams = Cameras(*(torch.cat([getattr(c, f) for c in all_cams]) for f in ("c2w", "fx", "fy", "cx", "cy", "width", "height")))
         aabb, source = estimate_aabb(cams, far)
         notes.append(source)
+    inside_note = None
     if len(loaded["train"]):
         aabb, inside_note = pad_box_for_interior(aabb, loaded["train"].cameras.origins)
         if inside_note:
             notes.append(inside_note)
             source += "; padded around the cameras standing inside it"
-    return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world)
+    return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world,
+                   cameras_inside=inside_note is not None)
 
 
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:

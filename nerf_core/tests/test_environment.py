@@ -295,3 +295,19 @@ def test_check_warns_when_the_declared_film_contradicts_the_images(tmp_path, dat
     assert any("film_transparent" in m and "opaque film" in m for m in msgs)
     # ... and with auto the declared opaque film picks the environment, so no background warning.
     assert not any("field 'background'" in m for m in msgs)
+
+
+def test_a_resumed_run_keeps_the_background_it_started_with(tmp_path, dataset_factory):
+    """Runs from before the environment (white on opaque images) must resume as they were trained."""
+    from nerf_core.train import TrainConfig, train
+
+    ds = _make_opaque(dataset_factory(tmp_path / "ds", depth=False))
+    run = tmp_path / "run"
+    common = dict(dataset=str(ds), out=str(run), method="test-grid", batch_rays=64, stdout_events=False,
+                  show_bar=False, eval_views=0)
+    train(TrainConfig(max_steps=2, background="white", **common))
+    train(TrainConfig(max_steps=4, resume=True, **common))
+    starts = [json.loads(l) for l in (run / "progress.jsonl").read_text().splitlines()]
+    starts = [e for e in starts if e["event"] == "start"]
+    assert [e["background"] for e in starts] == ["white", "white"]
+    assert starts[1]["background_reason"] == "as recorded when the run started"
