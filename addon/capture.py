@@ -41,6 +41,9 @@ DATASET_PATHS = ("train", "val", "test", "depth", "normals", "masks", "points3d.
 FORMAT = "nerf_bridge_capture"
 
 
+MAX_RESOLUTION = 65536  # Blender's largest render resolution per axis
+
+
 class CaptureError(RuntimeError):
     """A capture cannot start or continue; the message names the file, camera or setting."""
 
@@ -169,6 +172,22 @@ def _sha256(path: str) -> str | None:
     return h.hexdigest()
 
 
+def _decodes_at(path: str, width: int, height: int) -> bool:
+    """Whether Blender decodes the image at ``path`` (PNG or EXR) to ``width`` x ``height`` pixels."""
+    try:
+        img = bpy.data.images.load(path, check_existing=False)
+    except RuntimeError:
+        return False
+    try:
+        if tuple(img.size) != (width, height):
+            return False
+        return len(img.pixels) == width * height * img.channels
+    except RuntimeError:
+        return False
+    finally:
+        bpy.data.images.remove(img)
+
+
 def _round(obj):
     if isinstance(obj, float):
         return round(obj, 6)
@@ -202,8 +221,10 @@ class CaptureJob:
         self.engine = resolve_engine(settings.engine)
         if settings.normals and self.engine == "BLENDER_WORKBENCH":
             raise CaptureError("normals need the Cycles or EEVEE engine (Workbench has no normal pass)")
-        if settings.res_x < 1 or settings.res_y < 1:
-            raise CaptureError(f"resolution {settings.res_x}x{settings.res_y} must be positive")
+        if not (1 <= settings.res_x <= MAX_RESOLUTION and 1 <= settings.res_y <= MAX_RESOLUTION):
+            # Blender clamps at 65536 while the manifest would record the size asked for.
+            raise CaptureError(f"resolution {settings.res_x}x{settings.res_y}: each axis must lie in "
+                               f"1..{MAX_RESOLUTION} (Blender's limit)")
         if settings.samples < 1:
             raise CaptureError(f"samples must be at least 1 (got {settings.samples})")
         try:
@@ -222,6 +243,7 @@ class CaptureJob:
         self.frames = []
         self.pending = []
         self.done_keys = set()
+        self.file_sha256 = {}  # frame key -> {file key: sha256 of the file as written}
         self.kept = 0
         self._restore = []
         self._started = False
@@ -373,12 +395,18 @@ class CaptureJob:
             self.plan()
         manifest = self._check_folder()
         kept = set()
+        self.file_sha256 = {}  # frame key -> {file key: sha256 of the file as written}
         if manifest:
             old = manifest.get("frames", {})
             for fr in self.frames:
                 entry = old.get(fr["key"])
-                if entry and entry.get("hash") == fr["hash"] and entry.get("done") and self._files_exist(fr):
+                if (entry and entry.get("hash") == fr["hash"] and entry.get("done") and self._files_exist(fr)
+                        and self._frame_intact(fr, entry)):
                     kept.add(fr["key"])
+                    if isinstance(entry.get("sha256"), dict):
+                        self.file_sha256[fr["key"]] = dict(entry["sha256"])
+                    else:  # a manifest from before per-file hashes: record them now that the files check out
+                        self._record_hashes(fr)
         self.done_keys = set(kept)
         self.kept = len(kept)
         self.pending = [fr for fr in self.frames if fr["key"] not in kept]
@@ -393,6 +421,27 @@ class CaptureJob:
         self._write_manifest()
         self.progress(len(self.done_keys), len(self.frames), f"resuming: {self.kept} kept" if self.kept else "")
         return len(self.pending)
+
+    FRAME_FILE_KEYS = ("image", "depth_file_path", "normal_file_path", "mask_path", "points_cache")
+
+    def _frame_intact(self, fr, entry) -> bool:
+        """A kept frame must be the one written: each file's sha256 equals the one recorded when it was
+        written (manifests from before that record: no hash to compare), and each image decodes at the
+        capture's size. A truncated PNG or an empty EXR fails and is rendered again."""
+        recorded = entry.get("sha256") if isinstance(entry.get("sha256"), dict) else None
+        for k in self.FRAME_FILE_KEYS:
+            if k not in fr:
+                continue
+            path = os.path.join(self.out, fr[k])
+            if recorded is not None and recorded.get(k) != _sha256(path):
+                return False
+            if k != "points_cache" and not _decodes_at(path, self.s.res_x, self.s.res_y):
+                return False
+        return True
+
+    def _record_hashes(self, fr) -> None:
+        self.file_sha256[fr["key"]] = {k: _sha256(os.path.join(self.out, fr[k]))
+                                       for k in self.FRAME_FILE_KEYS if k in fr}
 
     def _files_exist(self, fr) -> bool:
         return all(os.path.isfile(os.path.join(self.out, fr[k]))
@@ -469,6 +518,7 @@ class CaptureJob:
         self._save_png(result, os.path.join(self.out, fr["image"]))
         if self._needs_passes():
             self._save_passes(result, fr)
+        self._record_hashes(fr)
         self.pending.pop(0)
         self.done_keys.add(fr["key"])
         self._write_manifest()
@@ -629,6 +679,8 @@ class CaptureJob:
                 "frame": fr["frame"],
                 "files": {k: fr[k] for k in ("image", "depth_file_path", "normal_file_path", "mask_path") if k in fr},
             }
+            if fr["key"] in self.done_keys and self.file_sha256.get(fr["key"]):
+                frames[fr["key"]]["sha256"] = self.file_sha256[fr["key"]]
             if fr["scale_removed"]:
                 frames[fr["key"]]["camera_scale_removed"] = fr["scale_removed"]
         manifest = {

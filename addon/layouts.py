@@ -26,6 +26,7 @@ GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 INSIDE_WALL_MARGIN = 0.12
 INSIDE_HEIGHT_BAND = (0.4, 0.6)
 INSIDE_CLIP_START = 0.05
+RINGS_ELEVATION = (10.0, 60.0)  # the Capture panel's default for rings (capture_ui._layout_changed)
 INSIDE_ELEVATION = (-25.0, 15.0)  # a room's furniture stands low: more floor than ceiling
 
 
@@ -56,6 +57,8 @@ class LayoutSpec:
         default = (-90.0, 90.0) if self.layout in ("sphere", "random") else (0.0, 90.0)
         if self.layout == "inside":
             default = INSIDE_ELEVATION
+        elif self.layout == "rings":
+            default = RINGS_ELEVATION  # as the panel: a ring at 90 degrees would put all its cameras at the pole
         lo = default[0] if self.elevation_min is None else self.elevation_min
         hi = default[1] if self.elevation_max is None else self.elevation_max
         if not -90.0 <= lo <= hi <= 90.0:
@@ -410,6 +413,7 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     else:
         raise LayoutError(f"unknown layout {spec.layout!r}; choose one of {', '.join(LAYOUTS)}")
 
+    check_distinct_poses([m for _s, m, _src, _f in plan], spec.layout)
     coll = nerf_collection(scene)
     clear_cameras(scene)
     counters = {s: 0 for s in SPLITS}
@@ -429,6 +433,31 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
         if clip_start is not None:
             obj.data.clip_start = min(obj.data.clip_start, clip_start)
     return made
+
+
+POSE_TOLERANCE = 1e-5  # matrix entries closer than this (scene units / cosines) count as the same pose
+
+
+def check_distinct_poses(matrices, layout: str = "") -> None:
+    """Refuse (LayoutError naming the cameras) a plan in which two cameras share one pose: the same view
+    twice teaches a NeRF nothing, and a held-out copy of a train view measures nothing new.
+
+    The one place every layout passes through before cameras are made (create_cameras). A ring at
+    elevation 90, a zero-radius layout, a static camera sampled by "animation" all end here.
+    """
+    seen = {}
+    for k, m in enumerate(matrices):
+        rows = [list(r) for r in m]
+        key = tuple(round(float(v) / POSE_TOLERANCE) for r in rows[:3] for v in r)
+        if key in seen:
+            j = seen[key]
+            hint = {"rings": "lower the top elevation below 90 degrees or use fewer rings",
+                    "animation": "the camera stands still between those frames: raise the frame step or animate it",
+                    "scene-cameras": "two of the scene's cameras stand at one place looking the same way"}.get(
+                layout, "check the radius (> 0), the elevation range and the camera count")
+            raise LayoutError(f"layout {layout!r}: cameras {j} and {k} have the same pose (position "
+                              f"{[round(float(r[3]), 4) for r in rows[:3]]}); {hint}")
+        seen[key] = k
 
 
 def _plan_from_sources(spec: LayoutSpec, sources):

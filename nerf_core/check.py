@@ -8,6 +8,7 @@ surprise (an off-centre principal point that camera_angle_x-only loaders ignore)
 from __future__ import annotations
 
 import json
+import re
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -118,6 +119,10 @@ def _intrinsics(report: CheckReport, fname: str, meta: dict, fr: dict, k: int, f
             continue
         v = _number(report, fname, src[key], key, k if src is fr else None, fpath if src is fr else None,
                     positive=key not in ("cx", "cy"))
+        if v is not None and key == "camera_angle_x" and v >= math.pi:
+            report.error(fname, f"a field of view in radians must lie in (0, pi), got {v:g}",
+                         k if src is fr else None, fpath if src is fr else None, key)
+            v = None
         if v is None:
             ok = False
         vals[key] = v
@@ -288,7 +293,47 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
 
     _check_nerfstudio(report, root, frame_intrinsics)
     _check_background(report, root, background)
+    _check_loadable(report, root)
     return report
+
+
+_FRAME_RE = re.compile(r"^(?P<file>.+?\.json): frame (?P<frame>\d+) \((?P<path>.*?)\): (?P<rest>.*)$", re.S)
+_FILE_RE = re.compile(r"^(?P<file>.+?\.json): (?P<rest>.*)$", re.S)
+
+
+def _check_loadable(report: CheckReport, root: Path) -> None:
+    """Add every problem that makes ``train`` refuse the dataset (``nerf_core.data.dataset_problems``,
+    the loader's own rules), so that `check` never calls valid what `train` refuses. A problem the
+    convention checks above already reported for the same file and frame (or file and field) is not
+    repeated."""
+    from .data import dataset_problems
+
+    reported = {(Path(p.file).name, p.frame) for p in report.errors}
+    fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
+    for msg in dataset_problems(root):
+        m = _FRAME_RE.match(msg)
+        if m:
+            fname, frame = Path(m["file"]).name, int(m["frame"])
+            if (fname, frame) in reported:
+                continue
+            report.error(_relative(root, m["file"]), m["rest"], frame, m["path"])
+            reported.add((fname, frame))
+            continue
+        m = _FILE_RE.match(msg)
+        if m:
+            fname = Path(m["file"]).name
+            if any(f"field '{fld}'" in m["rest"] for (fn, fld) in fields if fn == fname):
+                continue
+            report.error(_relative(root, m["file"]), m["rest"])
+        else:
+            report.error(str(root), msg)
+
+
+def _relative(root: Path, file: str) -> str:
+    try:
+        return str(Path(file).resolve().relative_to(root.resolve()))
+    except ValueError:
+        return file
 
 
 BACKGROUND_PROBE_IMAGES = 16  # evenly spaced train images read to tell opaque from cut-out captures

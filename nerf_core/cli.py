@@ -105,7 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--max-seconds", type=_positive_float, metavar="S",
                    help="stop after S seconds of training (previews, checkpoints and evaluation not counted)")
     t.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (same seed + step budget = same losses)")
-    t.add_argument("--resume", action="store_true", help="continue RUN from RUN/checkpoints/latest.pt")
+    t.add_argument("--resume", action="store_true",
+                   help="continue RUN from RUN/checkpoints/latest.pt (else its newest step_*.pt); DATASET must hold "
+                        "the dataset the run was trained on (checked by the hash of its transforms files)")
+    t.add_argument("--dataset-moved", action="store_true",
+                   help="with --resume: accept a DATASET path other than the recorded one for a run that recorded "
+                        "no dataset hash (newer runs accept a moved dataset by its hash without this flag)")
     t.add_argument("--overwrite", action="store_true", help="start RUN again, deleting only files an earlier training wrote")
     t.add_argument("--size", choices=["auto"], help="let nerf_core.sizing choose the model size for this dataset")
     t.add_argument("--contract", action="store_true",
@@ -176,7 +181,7 @@ def _cmd_train(a) -> int:
 
     cfg = TrainConfig(
         dataset=a.dataset, out=a.out, method=a.method, max_steps=a.max_steps, max_seconds=a.max_seconds, seed=a.seed,
-        resume=a.resume, overwrite=a.overwrite, size=a.size,
+        resume=a.resume, overwrite=a.overwrite, dataset_moved=a.dataset_moved, size=a.size,
         options={**parse_options(a.options), **({"contract": True} if a.contract else {})}, progress=a.progress,
         device=a.device, lr=a.lr, batch_rays=a.batch_rays, background=a.background, downscale=a.downscale,
         log_every=a.log_every, preview_every=a.preview_every, checkpoint_every=a.checkpoint_every,

@@ -189,6 +189,10 @@ def _intrinsics(src: dict, where: str) -> Dict[str, float]:
                 raise DatasetError(f"{where}: field {key!r} is not a number ({src[key]!r})") from exc
             if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
                 raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {src[key]!r}")
+            if key in ("camera_angle_x", "camera_angle_y") and value >= math.pi:
+                # tan(fov / 2) turns negative past pi: a negative focal length would mirror every ray.
+                raise DatasetError(f"{where}: field {key!r} is a field of view in radians and must lie in (0, pi), "
+                                   f"got {src[key]!r}")
             out[key] = value
     return out
 
@@ -345,6 +349,10 @@ def _load_pixels(fr: FrameInfo, downscale: int) -> np.ndarray:
     if img.shape[-1] not in (3, 4):
         raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} has {img.shape[-1]} channels, expected RGB or RGBA")
     if downscale > 1:
+        if img.shape[0] < downscale or img.shape[1] < downscale:
+            raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} is {img.shape[1]}x{img.shape[0]} px; "
+                               f"downscaled by {downscale} it would have no pixels (--downscale must be at most "
+                               f"{min(img.shape[:2])})")
         img = _downscale(img, downscale)
     return img
 
@@ -578,6 +586,103 @@ def pad_box_for_interior(aabb: torch.Tensor, origins: torch.Tensor) -> tuple[tor
 # ----------------------------------------------------------------------------------------------
 
 
+def _check_train_count(root: Path, infos: Dict[str, List[FrameInfo]], min_train_views: int) -> None:
+    n_train = len(infos["train"])
+    if n_train < min_train_views:
+        jf = infos["train"][0].json_file if infos["train"] else root
+        raise DatasetError(
+            f"{jf}: field 'frames': the train split has {n_train} view{'s' if n_train != 1 else ''}; a NeRF needs "
+            f"many views of the scene (at least {min_train_views}, typically 50-200)"
+        )
+
+
+def _scene_checks(scene: dict) -> tuple:
+    """(near, far, film_transparent, world) of a dataset's top-level fields, validated (raises DatasetError)."""
+    near = far = None
+    for key in ("near", "far"):
+        if key in scene:
+            try:
+                v = float(scene[key])
+            except (TypeError, ValueError):
+                raise DatasetError(f"{scene[key + '_file']}: field {key!r} is not a number ({scene[key]!r})") from None
+            if not math.isfinite(v) or v < 0:
+                raise DatasetError(f"{scene[key + '_file']}: field {key!r} must be a finite number >= 0, got {v}")
+            near, far = (v, far) if key == "near" else (near, v)
+    if near is not None and far is not None and far <= near:
+        raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
+    film = scene.get("film_transparent")
+    if film is not None and not isinstance(film, bool):
+        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
+    world = scene.get("world")
+    if world is not None and not isinstance(world, dict):
+        raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
+    return near, far, film, world
+
+
+def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2) -> List[str]:
+    """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
+
+    The one validation pass behind ``train`` and ``check``: it runs the loader's own rules
+    (``frame_infos``, ``_scene_checks``, ``_check_train_count`` and ``load_split`` frame by frame, which
+    decodes every image, depth, normal and mask file and checks its size against the JSON and the
+    split), collecting the errors that ``load_dataset`` raises at the first of. An empty list means
+    ``train`` accepts the dataset. Pixels are read one frame at a time and dropped.
+    """
+    try:
+        layout, root, infos, scene = frame_infos(path, SPLITS)
+    except DatasetError as exc:
+        return [str(exc)]
+    problems: List[str] = []
+    for check in (lambda: _check_train_count(root, infos, min_train_views), lambda: _scene_checks(scene),
+                  lambda: _parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None):
+        try:
+            check()
+        except DatasetError as exc:
+            problems.append(str(exc))
+    try:
+        depth_scale = _depth_scale(scene)
+    except DatasetError as exc:
+        problems.append(str(exc))
+        depth_scale = 1e-3
+    for name in SPLITS:
+        first = None
+        for fr in infos[name]:
+            try:
+                sp = load_split(name, [fr], downscale, depth_scale)
+            except DatasetError as exc:
+                problems.append(str(exc))
+                continue
+            shape = (sp.width, sp.height, sp.images.shape[-1])
+            if first is None:
+                first = (fr, shape)
+                continue
+            try:
+                if shape[:2] != first[1][:2]:
+                    raise DatasetError(
+                        f"{fr.where}: field 'file_path': {fr.image} is {shape[0]}x{shape[1]} but the first {name} image "
+                        f"({first[0].image.name}) is {first[1][0]}x{first[1][1]}; all images of a split must have one size")
+                if shape[2] != first[1][2]:
+                    lacking = fr if shape[2] == 3 else first[0]
+                    raise DatasetError(
+                        f"{lacking.where}: field 'file_path': {lacking.image} has no alpha channel while other {name} "
+                        "images do; the alpha channel is the mask of the object, export every image as RGBA")
+            except DatasetError as exc:
+                problems.append(str(exc))
+    return problems
+
+
+def _depth_scale(scene: dict) -> float:
+    v = scene.get("depth_unit_scale_factor", 1e-3)
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        f = float("nan")
+    if not math.isfinite(f) or f <= 0:
+        raise DatasetError(f"{scene.get('depth_unit_scale_factor_file')}: field 'depth_unit_scale_factor' must be a "
+                           f"positive number, got {v!r}")
+    return f
+
+
 def load_dataset(
     path: Path | str,
     splits: Sequence[str] = SPLITS,
@@ -598,13 +703,9 @@ def load_dataset(
     notes = []
     if "split_note" in scene:
         notes.append(scene["split_note"])
-    depth_scale = float(scene.get("depth_unit_scale_factor", 1e-3))
-    n_train = len(infos["train"])
-    if "train" in splits and n_train < min_train_views:
-        raise DatasetError(
-            f"{root}: the train split has {n_train} view{'s' if n_train != 1 else ''}; a NeRF needs many views "
-            f"of the scene (at least {min_train_views}, typically 50-200)"
-        )
+    depth_scale = _depth_scale(scene)
+    if "train" in splits:
+        _check_train_count(root, infos, min_train_views)
     train_names = {str(f.image) for f in infos["train"]}
     for name in ("val", "test"):
         if name in splits:
@@ -612,28 +713,11 @@ def load_dataset(
             if leaked:
                 notes.append(f"{leaked[0].where}: {len(leaked)} {name} frame(s) use training images; "
                              "their metrics will not measure novel views")
+    near, far, film, world = _scene_checks(scene)
     loaded = {name: load_split(name, infos[name], downscale, depth_scale) for name in splits}
     for name in SPLITS:
         if name not in loaded:
             loaded[name] = load_split(name, [], downscale, depth_scale)
-    near = far = None
-    for key in ("near", "far"):
-        if key in scene:
-            try:
-                v = float(scene[key])
-            except (TypeError, ValueError):
-                raise DatasetError(f"{scene[key + '_file']}: field {key!r} is not a number ({scene[key]!r})") from None
-            if not math.isfinite(v) or v < 0:
-                raise DatasetError(f"{scene[key + '_file']}: field {key!r} must be a finite number >= 0, got {v}")
-            near, far = (v, far) if key == "near" else (near, v)
-    if near is not None and far is not None and far <= near:
-        raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
-    film = scene.get("film_transparent")
-    if film is not None and not isinstance(film, bool):
-        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
-    world = scene.get("world")
-    if world is not None and not isinstance(world, dict):
-        raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
     if "aabb" in scene:
         aabb = _parse_aabb(scene["aabb"], str(scene["aabb_file"]))
         source = f"dataset ({Path(scene['aabb_file']).name})"

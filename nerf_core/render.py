@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import pickle
 import re
 import time
@@ -23,6 +24,10 @@ from .progressbar import ProgressBar
 
 class RunError(Exception):
     """A run folder or checkpoint that cannot be used; the message names the file."""
+
+
+class CheckpointRefused(RunError):
+    """A checkpoint that would need code to load (a crafted pickle): never skipped over silently."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -99,7 +104,7 @@ def read_checkpoint(path: Path) -> dict:
         if found is None:
             raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
         what = next((g.strip() for g in found.groups() if g), "")
-        raise RunError(
+        raise CheckpointRefused(
             f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"
             + (f" ({what})" if what else "")
             + "; it will not be loaded, because loading it could run that code. "
@@ -196,6 +201,7 @@ def render_view(
     """
     device = model.aabb.device
     h, w = int(cameras.height[view]), int(cameras.width[view])
+    check_view_memory(w, h, f"view {view}")
     rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
     rays_o = rays_o.expand_as(rays_d).to(device)
     rays_d = rays_d.to(device)
@@ -216,6 +222,58 @@ def render_view(
         "depth": dist.reshape(h, w),
         "z_depth": z.reshape(h, w),
     }
+
+
+# Bytes per pixel that rendering a whole view holds at once: ray origins/directions and their pixel
+# grid, per-ray bounds, the chunk outputs and their concatenation, the RGBA result and its PNG bytes.
+BYTES_PER_PIXEL = 160
+MIN_PIXELS_CHECKED = 4096 * 4096  # views up to 16 Mpx (2.7 GB) are never refused
+
+
+def available_memory() -> int:
+    """Bytes of memory this process could still get (MemAvailable on Linux, else physical memory)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return 1 << 62
+
+
+def check_view_memory(w: int, h: int, where: str) -> None:
+    """Refuse (RunError) to render a w x h view that would not fit in memory, before allocating any of it."""
+    if w < 1 or h < 1:
+        raise RunError(f"{where}: image size {w}x{h} px is empty; use a smaller --downscale")
+    need = int(w) * int(h) * BYTES_PER_PIXEL
+    have = available_memory()
+    if w * h > MIN_PIXELS_CHECKED and need > have:
+        raise RunError(f"{where}: {w}x{h} px needs about {need / 1e9:.1f} GB of memory to render, more than the "
+                       f"{have / 1e9:.1f} GB available; render at a lower resolution (--downscale "
+                       f"{math.ceil(math.sqrt(need / max(have, 1)))} or more)")
+
+
+def unique_stems(stems: List[str]) -> List[str]:
+    """Output names that never collide, whatever the input: ``a, a, a_1`` -> ``a, a_1, a_1_1``.
+
+    Names are compared case-insensitively (macOS and Windows file systems are), and an empty name
+    becomes ``view_XXX``.
+    """
+    used: set = set()
+    out = []
+    for k, s in enumerate(stems):
+        base = str(s) or f"view_{k:03d}"
+        cand, n = base, 0
+        while cand.lower() in used:
+            n += 1
+            cand = f"{base}_{n}"
+        used.add(cand.lower())
+        out.append(cand)
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -301,13 +359,7 @@ def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, L
         else:
             cams, stems = _camera_list(data, path)
     # Two frames with one basename (train/r_0 and test/r_0) must not overwrite each other's output.
-    seen: Dict[str, int] = {}
-    unique = []
-    for s in stems:
-        n = seen.get(s, 0)
-        seen[s] = n + 1
-        unique.append(s if n == 0 else f"{s}_{n}")
-    return cams, unique
+    return cams, unique_stems(stems)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -331,6 +383,9 @@ def render_to_dir(
     Refuses (RunError listing the files) to replace existing outputs unless ``overwrite``.
     """
     out = Path(out)
+    stems = unique_stems(stems)  # colliding names would overwrite each other's images
+    for v in range(len(stems)):
+        check_view_memory(int(cameras.width[v]), int(cameras.height[v]), f"camera {v} ({stems[v]})")
     targets = [out / "renders.json"]
     for s in stems:
         targets += [out / f"{s}.png", out / f"{s}_depth.exr"]

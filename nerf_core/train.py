@@ -19,9 +19,12 @@ What the loop guarantees (docs/CONTRACTS.md has the file layout and the event vo
 """
 from __future__ import annotations
 
+import errno
+import hashlib
 import json
 import math
 import os
+import re
 import platform
 import random
 import sys
@@ -44,7 +47,7 @@ from .data import Dataset, DatasetError, Split, load_dataset
 from .progress import EventLog
 from .evaluate import _mean
 from .progressbar import ProgressBar
-from .render import RunError, load_state_resizing, read_checkpoint
+from .render import CheckpointRefused, RunError, load_state_resizing, read_checkpoint
 from . import backgrounds
 from .backgrounds import BACKGROUNDS
 
@@ -65,6 +68,7 @@ class TrainConfig:
     seed: int = 0
     resume: bool = False
     overwrite: bool = False
+    dataset_moved: bool = False  # --resume with a DATASET path other than the recorded one (hash checked when recorded)
     size: Optional[str] = None  # "auto": nerf_core.sizing picks the model size for the dataset
     options: Dict[str, object] = field(default_factory=dict)  # explicit method options (--set key=value)
     progress: Optional[str] = None  # extra JSON-lines file
@@ -113,18 +117,87 @@ PREFIT_STEPS = 200  # Adam steps of that fit (8192 texture lookups each: ~15 ms 
 # run folder
 
 TRAINER_FILES = ("config.json", "progress.jsonl", "metrics.json")
+WRITTEN_LIST = ".written.json"  # RUN/.written.json: every file (relative path) this run's trainers wrote
+# What a trainer writes, by exact name: the only files --overwrite removes in a run that has no WRITTEN_LIST.
+_LEGACY_WRITTEN = re.compile(r"(config\.json|progress\.jsonl|metrics\.json|checkpoints/latest\.pt"
+                             r"|checkpoints/step_\d{7}\.pt|previews/step_\d{7}\.png)")
+# Files a trainer writes before its first checkpoint: a folder holding only these can be started again.
+_PRE_CHECKPOINT = re.compile(r"(config\.json|progress\.jsonl|previews/step_\d{7}\.png|\.written\.json"
+                             r"|checkpoints/(latest|step_\d{7})\.pt\.tmp)")
+
+
+def _read_written(run: Path) -> Optional[List[str]]:
+    """The relative paths listed in RUN/.written.json; None when the run has no (readable) list."""
+    try:
+        names = json.loads((run / WRITTEN_LIST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(names, list):
+        return None
+    return [n for n in names if isinstance(n, str)]
+
+
+def record_written(run: Path, *paths: Path) -> None:
+    """Add ``paths`` (files inside ``run``) to RUN/.written.json, atomically (tmp file + rename)."""
+    names = _read_written(run) or []
+    added = False
+    for p in paths:
+        rel = Path(p).resolve().relative_to(run.resolve()).as_posix()
+        if rel not in names:
+            names.append(rel)
+            added = True
+    if added or not (run / WRITTEN_LIST).is_file():
+        _atomic_json(run / WRITTEN_LIST, names)
+
+
+def _inside(run: Path, rel: str) -> Optional[Path]:
+    """``run/rel`` when ``rel`` is a plain relative path that stays inside ``run`` (no .., not absolute)."""
+    parts = Path(rel).parts
+    if not parts or Path(rel).is_absolute() or ".." in parts or rel == RUN_LOCK:
+        return None
+    return run / rel
 
 
 def _trainer_written(run: Path) -> List[Path]:
-    """Files in ``run`` that a previous training wrote (the only ones --overwrite may delete)."""
-    found = [run / f for f in TRAINER_FILES if (run / f).is_file()]
-    ck = run / "checkpoints"
-    if ck.is_dir():
-        found += sorted(p for p in ck.iterdir() if p.is_file() and (p.suffix == ".pt" or p.name.endswith(".pt.tmp")))
-    pv = run / "previews"
-    if pv.is_dir():
-        found += sorted(p for p in pv.iterdir() if p.is_file() and p.name.startswith("step_") and p.suffix == ".png")
+    """Files in ``run`` that a previous training wrote (the only ones --overwrite may delete).
+
+    Those listed in RUN/.written.json (and their leftover ``.tmp``), else, for runs from before that
+    list, only the exact names a trainer writes. Never RUN/.lock, never a file a user put there.
+    """
+    listed = _read_written(run)
+    found: List[Path] = []
+    if listed is not None:
+        for rel in listed:
+            p = _inside(run, rel)
+            if p is None:
+                continue
+            for cand in (p, p.with_name(p.name + ".tmp")):
+                if cand.is_file() and not cand.is_symlink() and cand not in found:
+                    found.append(cand)
+        if (run / WRITTEN_LIST).is_file():
+            found.append(run / WRITTEN_LIST)
+        return found
+    for p in sorted(run.rglob("*")) if run.is_dir() else []:
+        rel = p.relative_to(run).as_posix()
+        if p.is_file() and not p.is_symlink() and _LEGACY_WRITTEN.fullmatch(rel):
+            found.append(p)
     return found
+
+
+def _run_contents(run: Path) -> List[str]:
+    """Relative paths of the files in ``run`` (the lock excluded)."""
+    if not run.is_dir():
+        return []
+    return sorted(p.relative_to(run).as_posix() for p in run.rglob("*") if p.is_file() and p.name != RUN_LOCK)
+
+
+def resume_candidates(run: Path) -> List[Path]:
+    """Checkpoints to resume from, best first: latest.pt, then step_*.pt from the newest."""
+    ck = run / "checkpoints"
+    out = [ck / "latest.pt"] if (ck / "latest.pt").is_file() else []
+    if ck.is_dir():
+        out += sorted((p for p in ck.glob("step_*.pt") if p.is_file()), reverse=True)
+    return out
 
 
 def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
@@ -134,8 +207,22 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
     if run.exists() and not run.is_dir():
         raise TrainError(f"{run}: exists and is not a folder")
     if resume:
-        if not (run / "checkpoints" / "latest.pt").is_file():
-            raise TrainError(f"{run / 'checkpoints' / 'latest.pt'}: not found; nothing to resume (drop --resume to start a new run)")
+        if not resume_candidates(run):
+            latest = run / "checkpoints" / "latest.pt"
+            files = _run_contents(run)
+            if not files:
+                raise TrainError(f"{latest}: not found; nothing to resume (drop --resume to start a new run)")
+            if all(_PRE_CHECKPOINT.fullmatch(f) for f in files):
+                raise TrainError(
+                    f"{latest}: not found; nothing to resume: the trainer stopped before its first checkpoint. "
+                    f"Start the run again with --overwrite instead of --resume (it removes only what that trainer "
+                    f"wrote: {', '.join(files[:6])}{', ...' if len(files) > 6 else ''})"
+                )
+            raise TrainError(
+                f"{latest}: not found and no checkpoints/step_*.pt either; nothing to resume. {run} holds other files "
+                f"({', '.join(files[:6])}{', ...' if len(files) > 6 else ''}): choose another --out, or --overwrite "
+                "(removes only files a trainer wrote there)"
+            )
         return
     # The writer lock (RUN_LOCK) is not content: a trainer starting a new run creates it before it
     # re-checks the folder, and a trainer killed with SIGKILL may leave it behind, unlocked.
@@ -146,6 +233,45 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
             f"{run}: run folder exists and is not empty ({shown}); pass --resume to continue it, "
             "--overwrite to start again (removes only files the trainer wrote), or choose another --out"
         )
+
+
+def dataset_hash(path) -> str:
+    """sha256 over the transforms files of a dataset (names and contents): what ``--resume`` compares
+    to tell the dataset a run was trained on from another one at the same or a different path."""
+    from .data import detect_layout
+
+    layout, root = detect_layout(Path(path))
+    if layout == "synthetic":
+        files = [root / f"transforms_{s}.json" for s in ("train", "val", "test")]
+    else:
+        files = [Path(path) if Path(path).is_file() else root / "transforms.json"]
+    h = hashlib.sha256()
+    for f in files:
+        if f.is_file():
+            h.update(f.name.encode() + b"\0")
+            try:
+                h.update(f.read_bytes())
+            except OSError as exc:
+                raise DatasetError(f"{f}: cannot read ({exc.strerror})") from None
+            h.update(b"\0")
+    return h.hexdigest()
+
+
+def check_run_vs_dataset(run: Path, dataset) -> None:
+    """Refuse a run folder that is the dataset folder, lies inside it, or contains it (TrainError)."""
+    ds = Path(dataset).resolve()
+    if ds.is_file():
+        ds = ds.parent
+    run = Path(run).resolve()
+    if run == ds:
+        raise TrainError(f"--out {run}: is the dataset folder itself; the run's files would mix with the dataset's. "
+                         "Choose a run folder outside the dataset")
+    if ds in run.parents:
+        raise TrainError(f"--out {run}: lies inside the dataset folder {ds} (tools that scan the dataset would find "
+                         "the run's files); choose a run folder outside the dataset")
+    if run in ds.parents:
+        raise TrainError(f"--out {run}: contains the dataset {ds}; --overwrite and the run's files would live beside "
+                         "your data. Choose a run folder that does not hold the dataset")
 
 
 RUN_LOCK = ".lock"  # RUN/.lock: held (flock) by the one trainer writing RUN; holds its PID
@@ -239,9 +365,33 @@ def _atomic_json(path: Path, data: dict) -> None:
 
 
 def _atomic_torch_save(obj, path: Path) -> None:
+    """Write ``path`` through ``path.tmp`` and a rename. On failure (a full disk) the temporary file is
+    removed, ``path`` keeps its previous content, and TrainError names the file and the cause."""
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # torch.save reports a failed write as RuntimeError too
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise TrainError(f"{path}: cannot write checkpoint: {_os_reason(exc)}") from None
+
+
+def _os_reason(exc: BaseException) -> str:
+    """'no space left on device' and the like, from an OSError (or torch's RuntimeError around one)."""
+    err = getattr(exc, "errno", None)
+    if err is None:
+        cause = exc.__cause__ or exc.__context__
+        err = getattr(cause, "errno", None)
+        if err is None and "No space left on device" in str(exc):
+            err = errno.ENOSPC
+    if err == errno.ENOSPC:
+        return "no space left on device"
+    if err is not None:
+        return os.strerror(err).lower()
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
 # ----------------------------------------------------------------------------------------------
@@ -415,6 +565,9 @@ class Trainer:
         early_log = EventLog(extra_logs, stdout=cfg.stdout_events)
         self.log = early_log
         try:
+            # Before the lock file is made: a run folder that is (or holds, or sits in) the dataset would
+            # mix the trainer's files with the user's data, and --overwrite would delete from the dataset.
+            check_run_vs_dataset(self.run, cfg.dataset)
             if self.run.is_dir():
                 # Before anything else, so that a second trainer into a busy run learns who holds it
                 # (rather than that the folder is not empty) and never reads a half-written checkpoint.
@@ -433,8 +586,10 @@ class Trainer:
             self.device = pick_device(cfg.device)
             ckpt = None
             if cfg.resume:
-                ckpt = read_checkpoint(self.run / "checkpoints" / "latest.pt")
+                ckpt = self._read_resume_checkpoint()
                 self._merge_resumed_config(ckpt)
+                check_run_vs_dataset(self.run, self.cfg.dataset)
+            self.dataset_hash = dataset_hash(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
             if self._unlock is None:
                 # A new folder is made only now, so that a run that never starts leaves nothing behind.
@@ -446,9 +601,16 @@ class Trainer:
             early_log.emit("error", message=str(exc))
             early_log.close()
             raise
-        removed = clear_run_folder(self.run) if cfg.overwrite else []
+        try:
+            removed = clear_run_folder(self.run) if cfg.overwrite else []
+            self.log = EventLog([self.run / "progress.jsonl"] + extra_logs, stdout=cfg.stdout_events)
+            record_written(self.run, self.run / "progress.jsonl")
+        except OSError as exc:
+            msg = f"{exc.filename or self.run}: {_os_reason(exc)}"
+            early_log.emit("error", message=msg)
+            early_log.close()
+            raise TrainError(msg) from None
         early_log.close()
-        self.log = EventLog([self.run / "progress.jsonl"] + extra_logs, stdout=cfg.stdout_events)
         if removed:
             print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
                   + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
@@ -456,13 +618,21 @@ class Trainer:
         try:
             return self._fit(dataset, ckpt)
         except KeyboardInterrupt:
-            path = self._save_checkpoint(final=True) if hasattr(self, "opt") else None
+            try:
+                path = self._save_checkpoint(final=True) if hasattr(self, "opt") else None
+            except TrainError as exc:
+                self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {exc}")
+                raise
             self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}"
                           + (f"; checkpoint saved, continue with --resume" if path else ""))
             raise
         except (TrainError, DatasetError, RunError, ValueError) as exc:
             self.log.emit("error", message=str(exc))
             raise
+        except OSError as exc:  # a full disk while writing config, previews or metrics: name the file
+            msg = f"{exc.filename or self.run}: {_os_reason(exc)} (at step {getattr(self, 'step', 0)})"
+            self.log.emit("error", message=msg)
+            raise TrainError(msg) from None
         except RuntimeError as exc:  # e.g. out of memory inside a model: one clear line, no traceback
             msg = str(exc).splitlines()[0]
             self.log.emit("error", message=f"training failed at step {getattr(self, 'step', 0)}: {msg}")
@@ -471,11 +641,31 @@ class Trainer:
             restore()
             self.log.close()
 
+    def _read_resume_checkpoint(self) -> dict:
+        """latest.pt, else the newest step_*.pt that loads (a full disk may have cost latest.pt)."""
+        failures = []
+        for path in resume_candidates(self.run):
+            try:
+                ckpt = read_checkpoint(path)
+            except CheckpointRefused:
+                raise  # a crafted checkpoint is an alarm, not damage to route around
+            except RunError as exc:
+                failures.append(str(exc))
+                continue
+            if failures or path.name != "latest.pt":
+                print(f"train: resuming from {path}" + (f" ({failures[0]})" if failures else
+                      " (checkpoints/latest.pt is missing)"), file=sys.stderr)
+            self.resumed_checkpoint = path
+            return ckpt
+        raise RunError(failures[0] if len(failures) == 1 else
+                       f"{self.run / 'checkpoints'}: no checkpoint loads: " + "; ".join(failures))
+
     def _merge_resumed_config(self, ckpt: dict) -> None:
         saved = dict(ckpt.get("config") or {})
         cli = self.cfg
         if cli.method and saved.get("method") and cli.method != saved["method"]:
             raise TrainError(f"--resume: the run was trained with method {saved['method']!r}, not {cli.method!r}")
+        dataset = self._resume_dataset(saved)
         # What the user may change when resuming: budgets, device, output plumbing.
         keep = {"max_steps", "max_seconds", "device", "progress", "stdout_events", "show_bar", "resume", "out",
                 "eval_views", "eval_seconds", "log_every", "checkpoint_every", "checkpoint_seconds"}
@@ -486,7 +676,51 @@ class Trainer:
         if cli.max_steps is None and cli.max_seconds is None:
             merged["max_steps"], merged["max_seconds"] = saved.get("max_steps"), saved.get("max_seconds")
         merged["resume"], merged["overwrite"] = True, False
+        merged["dataset"], merged["dataset_moved"] = dataset, cli.dataset_moved
         self.cfg = TrainConfig(**merged)
+
+    def _resume_dataset(self, saved: dict) -> str:
+        """The dataset to resume on: the recorded one, or DATASET when it holds the same dataset.
+
+        A run continued on other data would silently mix two scenes, so a DATASET other than the one the
+        run was trained on is refused unless the content hash of its transforms files (recorded in
+        config.json when the run started) matches: then the dataset was moved or copied, and the new
+        path is used. Runs from before the hash was recorded need --dataset-moved to accept another path.
+        """
+        cli = self.cfg
+        recorded = saved.get("dataset")
+        if not recorded:
+            return cli.dataset
+        new = str(Path(cli.dataset).resolve())
+        want = saved.get("dataset_hash")
+        if new == str(Path(recorded).resolve()):
+            if want and Path(new).exists():
+                have = dataset_hash(new)
+                if have != want:
+                    raise TrainError(
+                        f"{new}: the dataset changed since the run started (transforms hash {have[:12]} "
+                        f"instead of {want[:12]}); resuming would train on other data. Start a new run "
+                        "(another --out, or --overwrite)")
+            return new
+        if want:
+            try:
+                have = dataset_hash(new)
+            except DatasetError as exc:
+                raise TrainError(f"--resume: the run was trained on {recorded}, and {exc}") from None
+            if have == want:
+                print(f"train: {new} holds the dataset the run was trained on (moved from {recorded}); using it",
+                      file=sys.stderr)
+                return new
+            raise TrainError(
+                f"--resume: the run was trained on {recorded} (transforms hash {want[:12]}), but {new} holds "
+                f"another dataset (hash {have[:12]}); resume with the original DATASET, or start a new run")
+        if cli.dataset_moved:
+            print(f"train: --dataset-moved: resuming on {new} instead of {recorded} (this run recorded no dataset "
+                  "hash to check it against)", file=sys.stderr)
+            return new
+        raise TrainError(
+            f"--resume: the run was trained on {recorded}, not {new}, and recorded no dataset hash to check that "
+            f"they hold the same data; resume with the original DATASET, or pass --dataset-moved if you moved it")
 
     # ------------------------------------------------------------------ setup
 
@@ -571,8 +805,13 @@ class Trainer:
         ck.mkdir(parents=True, exist_ok=True)
         state = self._checkpoint_state()
         step_path = ck / f"step_{self.step:07d}.pt"
-        _atomic_torch_save(state, step_path)
         latest = ck / "latest.pt"
+        try:
+            record_written(self.run, step_path, latest)
+        except OSError as exc:
+            raise TrainError(f"{self.run / WRITTEN_LIST}: cannot write: {_os_reason(exc)}") from None
+        # step_* first: when latest.pt cannot be written, a complete step_*.pt still is (--resume uses it).
+        _atomic_torch_save(state, step_path)
         _atomic_torch_save(state, latest)
         olds = sorted(ck.glob("step_*.pt"))
         for p in olds[: max(0, len(olds) - self.cfg.keep_checkpoints)]:
@@ -625,6 +864,7 @@ class Trainer:
         rec = asdict(self.cfg)
         rec.update({
             "dataset": str(Path(self.cfg.dataset).resolve()),
+            "dataset_hash": getattr(self, "dataset_hash", None),
             "out": str(self.run),
             "method": self.method,
             "model": self.model.describe(),
@@ -692,6 +932,7 @@ class Trainer:
             self._rescale_base_lrs()
             set_rng_state(ckpt["rng"], self.gen)
             resumed_from = self.step
+        record_written(self.run, self.run / "config.json")
         _atomic_json(self.run / "config.json", self.config_record())
         n_params = self.model.num_parameters()
         self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
@@ -904,6 +1145,7 @@ class Trainer:
         pv = self.run / "previews"
         pv.mkdir(exist_ok=True)
         path = pv / f"step_{self.step:07d}.png"
+        record_written(self.run, path)
         write_png(path, res["rgb"].numpy())
         self._preview_cost = time.monotonic() - started
         self.log.emit("preview", step=self.step, path=str(path))
@@ -968,6 +1210,7 @@ class Trainer:
             result["note"] = (f"evaluated {result['n_views']} of {n} {split_name} views at full resolution to stay within "
                               f"{budget:.0f} s; `python -m nerf_core eval {self.run}` evaluates all")
             print(f"train: {result['note']}", file=sys.stderr)
+        record_written(self.run, self.run / "metrics.json")
         update_metrics_file(self.run / "metrics.json", split_name, result, self.step)
         self.log.emit("eval", step=self.step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
                       n_views=result["n_views"], depth_mae=result.get("depth_mae"))

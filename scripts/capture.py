@@ -28,10 +28,51 @@ def parse_resolution(text: str) -> tuple[int, int | None]:
     try:
         if "x" in text.lower():
             w, h = text.lower().split("x")
-            return int(w), int(h)
-        return int(text), None
+            w, h = int(w), int(h)
+        else:
+            w, h = int(text), None
     except ValueError:
         raise argparse.ArgumentTypeError(f"--resolution {text!r}: expected R or WxH, e.g. 200 or 320x240")
+    # 32x0 used to fall back to 32x32 (0 read as "not given"): every axis must be a real size.
+    for v in (w, h):
+        if v is not None and not 1 <= v <= MAX_RESOLUTION:
+            raise argparse.ArgumentTypeError(
+                f"--resolution {text!r}: {v} px is outside Blender's range 1..{MAX_RESOLUTION} (each axis)")
+    return w, h
+
+
+MAX_RESOLUTION = 65536  # Blender clamps render resolution here (the manifest would record the unclamped size)
+
+
+def argument_errors(args) -> list[str]:
+    """Every capture argument outside what Blender accepts, each naming its flag (empty when all are fine)."""
+    errors = []
+    res_x, res_y = args.resolution
+    for flag, v in (("--resolution", res_x), ("--resolution", res_y), ("--resolution-y", args.resolution_y)):
+        if v is not None and not 1 <= v <= MAX_RESOLUTION:
+            errors.append(f"{flag}: {v} px is outside Blender's range 1..{MAX_RESOLUTION} (each axis)")
+    for flag, v in (("--count", args.count), ("--val-count", args.val_count), ("--test-count", args.test_count)):
+        if v < 0:
+            errors.append(f"{flag}: must be >= 0, got {v}")
+    if args.count < 1 and not args.keep_cameras:
+        errors.append(f"--count: a capture needs at least 1 train view, got {args.count}")
+    for flag, v, lo in (("--samples", args.samples, 1), ("--frame-step", args.frame_step, 1),
+                        ("--n-points", args.n_points, 1), ("--rings", args.rings, 1)):
+        if v < lo:
+            errors.append(f"{flag}: must be >= {lo}, got {v}")
+    import math
+
+    for flag, v, positive in (("--focal-length", args.focal_length, True), ("--radius", args.radius, False),
+                              ("--turns", args.turns, True)):
+        if not math.isfinite(v) or (v <= 0 if positive else v < 0):
+            errors.append(f"{flag}: must be {'> 0' if positive else '>= 0'}, got {v}")
+    for flag, v in (("--elevation-min", args.elevation_min), ("--elevation-max", args.elevation_max)):
+        if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
+            errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
+    if (args.elevation_min is not None and args.elevation_max is not None
+            and args.elevation_min > args.elevation_max):
+        errors.append(f"--elevation-min {args.elevation_min} is above --elevation-max {args.elevation_max}")
+    return errors
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,8 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--radius", type=float, default=0.0,
                     help="camera distance from the target centre; 0 = auto (unused by --layout inside)")
     ap.add_argument("--elevation-min", type=float,
-                    help="degrees (default 0 for hemisphere/rings/spiral, -25 for inside, -90 else)")
-    ap.add_argument("--elevation-max", type=float, help="degrees (default 90; 15 for inside)")
+                    help="degrees (default 0 for hemisphere/spiral, 10 for rings, -25 for inside, -90 else)")
+    ap.add_argument("--elevation-max", type=float, help="degrees (default 90; 60 for rings, 15 for inside)")
     ap.add_argument("--focal-length", type=float, default=50.0, help="mm on a 36 mm sensor")
     ap.add_argument("--rings", type=int, default=3)
     ap.add_argument("--turns", type=float, default=3.0, help="spiral turns")
@@ -80,6 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
+    errors = argument_errors(args)
+    if errors:  # before Blender opens anything or renders a frame
+        for e in errors:
+            print(f"capture: error: {e}", file=sys.stderr)
+        return 2
     _bootstrap.open_blend(args.blend)
     import bpy
 
@@ -87,7 +133,7 @@ def main(argv: list[str]) -> int:
     from nerf_core.progressbar import ProgressBar
 
     res_x, res_y = args.resolution
-    res_y = res_y or args.resolution_y or res_x
+    res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)
     scene = bpy.context.scene
     if args.resume and export.read_manifest(os.path.abspath(args.out)) is None:
         raise capture.CaptureError(f"--resume: {args.out} holds no capture to continue")

@@ -38,6 +38,8 @@ def parse(argv):
     ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
                     help="interpreter with torch for nerf_core (default: $NERF_PYTHON, else this Python)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    ap.add_argument("--force", action="store_true",
+                    help="import although the run's dataset was captured from another .blend (its manifest's sha256)")
     return ap.parse_args(argv)
 
 
@@ -70,6 +72,49 @@ def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> N
         fail(f"rendering {run} failed: {failure}")
 
 
+def _file_sha256(path: str) -> str | None:
+    import hashlib
+
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return None
+    return h.hexdigest()
+
+
+def check_scene_matches_run(run: str, scene_file: str, force: bool) -> None:
+    """Warn, and refuse unless ``force``, when the run's dataset was captured from another .blend.
+
+    The capture manifest (DATASET/nerf_capture/manifest.json) records the .blend's path and sha256;
+    planes imported into another scene would sit beside renders of something else.
+    """
+    from addon import export, runs
+
+    dataset = runs.run_dataset(run)
+    if not dataset or not scene_file or not os.path.isfile(scene_file):
+        return
+    try:
+        manifest = export.read_manifest(dataset)
+    except export.ExportError as exc:
+        print(f"import_views: warning: {exc}; cannot check that {scene_file} is the captured scene", file=sys.stderr)
+        return
+    want = (manifest or {}).get("blend_sha256")
+    if not isinstance(want, str) or not want:
+        return
+    have = _file_sha256(scene_file)
+    if have == want:
+        return
+    captured = manifest.get("blend_file") or "an unnamed .blend"
+    message = (f"the run {run} was trained on a capture of {captured} (sha256 {want[:12]}), but the scene is "
+               f"{scene_file} (sha256 {(have or '?')[:12]}): the imported views would not line up with it")
+    print(f"import_views: warning: {message}", file=sys.stderr)
+    if not force:
+        fail(f"{message}; pass --force to import anyway")
+
+
 def main(argv) -> int:
     args = parse(argv)
     # Flags are checked before the scene is opened or anything is rendered.
@@ -89,6 +134,7 @@ def main(argv) -> int:
         fail(f"--out {out} already exists; pass --overwrite to replace it or choose another name")
     if not os.path.isfile(os.path.join(run, "checkpoints", "latest.pt")):
         fail(f"--run {run}: no checkpoints/latest.pt (train it first with python -m nerf_core train)")
+    check_scene_matches_run(run, scene_file, args.force)
     if args.cameras:
         cameras = os.path.abspath(args.cameras)
         if not os.path.isfile(cameras):

@@ -1,0 +1,369 @@
+"""Reliability rules (docs/RELIABILITY.md): resume on the right data, full disks, what --overwrite may
+delete, run folders vs datasets, unique render names, one validator, early refusals of huge requests."""
+import errno
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from nerf_core.cli import main
+from nerf_core.progress import read_events
+from nerf_core.train import TrainConfig, TrainError, train
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _cfg(ds, run, **kw):
+    base = dict(dataset=str(ds), out=str(run), method="test-grid", max_steps=6, batch_rays=64, seed=0,
+                stdout_events=False, show_bar=False, log_every=5, eval_views=0)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _cli(*args):
+    env = dict(os.environ, PYTHONPATH=REPO_ROOT, NERF_CORE_PLUGINS="nerf_core.tests.conftest")
+    return subprocess.run([sys.executable, "-m", "nerf_core", *map(str, args)], capture_output=True, text=True,
+                          cwd=REPO_ROOT, env=env, timeout=300)
+
+
+def _clear_error(proc, *words):
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "error:" in last
+    for w in words:
+        assert str(w) in last, (w, last)
+    return last
+
+
+# ---------------------------------------------------------------------------------------------- 1. resume
+
+
+def test_resume_on_another_dataset_is_refused_naming_both(sphere_dataset, dataset_factory, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run))
+    cfg = json.loads((run / "config.json").read_text())
+    assert len(cfg["dataset_hash"]) == 64
+    other = dataset_factory(tmp_path / "other", n_train=5)
+    proc = _cli("train", other, "--out", run, "--resume", "--max-steps", "8", "--no-bar")
+    _clear_error(proc, "trained on", str(sphere_dataset.resolve()), str(other.resolve()))
+    assert torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["step"] == 6  # untouched
+
+
+def test_resume_on_a_moved_dataset_is_accepted_by_its_hash(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run))
+    moved = tmp_path / "moved"
+    shutil.move(str(sphere_dataset), str(moved))
+    out = train(_cfg(moved, run, max_steps=9, resume=True))
+    assert out["step"] == 9
+    assert json.loads((run / "config.json").read_text())["dataset"] == str(moved.resolve())
+
+
+def test_resume_on_a_changed_dataset_at_the_same_path_is_refused(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run))
+    tj = sphere_dataset / "transforms_train.json"
+    meta = json.loads(tj.read_text())
+    meta["frames"] = meta["frames"][:-1]
+    tj.write_text(json.dumps(meta))
+    with pytest.raises(TrainError, match="dataset changed since the run started"):
+        train(_cfg(sphere_dataset, run, max_steps=9, resume=True))
+
+
+def test_old_run_without_hash_needs_dataset_moved(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run))
+    for name in ("latest.pt", "step_0000006.pt"):
+        ck = torch.load(run / "checkpoints" / name, weights_only=False)
+        ck["config"].pop("dataset_hash")
+        torch.save(ck, run / "checkpoints" / name)
+    moved = tmp_path / "moved"
+    shutil.copytree(sphere_dataset, moved)
+    with pytest.raises(TrainError, match="--dataset-moved"):
+        train(_cfg(moved, run, max_steps=8, resume=True))
+    assert train(_cfg(moved, run, max_steps=8, resume=True, dataset_moved=True))["step"] == 8
+
+
+class _Killed(BaseException):
+    """Stands for SIGKILL: nothing in the trainer catches it."""
+
+
+def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_says(sphere_dataset, tmp_path, monkeypatch):
+    from nerf_core.methods.base import _REGISTRY
+
+    def hook(self, step, max_steps, elapsed, max_seconds):
+        if step == 2:
+            raise _Killed
+        return False
+
+    monkeypatch.setattr(_REGISTRY["test-grid"], "training_hook", hook)
+    run = tmp_path / "run"
+    with pytest.raises(_Killed):
+        train(_cfg(sphere_dataset, run, preview_every=1))
+    monkeypatch.undo()
+    assert (run / "config.json").is_file() and not (run / "checkpoints" / "latest.pt").exists()
+    proc = _cli("train", sphere_dataset, "--out", run, "--method", "test-grid", "--resume", "--max-steps", "3", "--no-bar")
+    last = _clear_error(proc, "latest.pt", "before its first checkpoint", "--overwrite")
+    proc = _cli("train", sphere_dataset, "--out", run, "--method", "test-grid", "--overwrite", "--max-steps", "3",
+                "--no-bar", "--eval-views", "0")
+    assert proc.returncode == 0, proc.stderr + last
+    assert torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["step"] == 3
+
+
+# ---------------------------------------------------------------------------------------------- 2. disk full
+
+
+def test_disk_full_at_checkpoint_is_a_clear_error_and_resume_uses_the_newest_complete_checkpoint(
+        sphere_dataset, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=4))
+    real_save = torch.save
+
+    def full_disk_save(obj, f, *a, **k):
+        if str(f).endswith("latest.pt.tmp"):
+            with open(f, "wb") as fh:  # a partial file, as a full disk leaves it
+                fh.write(b"PK\x03\x04partial")
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(f))
+        return real_save(obj, f, *a, **k)
+
+    monkeypatch.setattr(torch, "save", full_disk_save)
+    rc = main(["train", str(sphere_dataset), "--out", str(run), "--resume", "--max-steps", "8", "--no-bar"])
+    monkeypatch.undo()
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err
+    assert "latest.pt" in err and "no space left on device" in err
+    last = read_events(run / "progress.jsonl")[-1]
+    assert last["event"] == "error" and "no space left on device" in last["message"] and "latest.pt" in last["message"]
+    ck = run / "checkpoints"
+    assert not (ck / "latest.pt.tmp").exists()  # no half-written file left behind
+    assert torch.load(ck / "step_0000008.pt", weights_only=False)["step"] == 8
+    (ck / "latest.pt").unlink()  # as an older trainer left it: latest.pt missing, step_*.pt complete
+    out = train(_cfg(sphere_dataset, run, max_steps=10, resume=True))
+    assert out["step"] == 10
+    starts = [e for e in read_events(run / "progress.jsonl") if e["event"] == "start"]
+    assert starts[-1]["resumed_from"] == 8
+
+
+def test_disk_full_on_rename_is_reported_too(sphere_dataset, tmp_path, monkeypatch):
+    import nerf_core.train as tr
+
+    real_replace = os.replace
+
+    def full(src, dst, *a, **k):
+        if str(dst).endswith(".pt"):
+            raise OSError(errno.ENOSPC, "No space left on device", str(src))
+        return real_replace(src, dst, *a, **k)
+
+    monkeypatch.setattr(tr.os, "replace", full)
+    with pytest.raises(TrainError, match=r"step_0000003\.pt: cannot write checkpoint: no space left on device"):
+        train(_cfg(sphere_dataset, tmp_path / "run", max_steps=3))
+    monkeypatch.undo()
+    assert not list((tmp_path / "run" / "checkpoints").glob("*.tmp"))
+
+
+def test_resume_skips_a_damaged_latest(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=4))
+    (run / "checkpoints" / "latest.pt").write_bytes(b"truncated")
+    assert train(_cfg(sphere_dataset, run, max_steps=6, resume=True))["step"] == 6
+
+
+# ---------------------------------------------------------------------------------------------- 3. overwrite
+
+
+def test_overwrite_removes_only_files_the_trainer_recorded(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=4, preview_every=2, eval_views=1))
+    written = json.loads((run / ".written.json").read_text())
+    assert {"config.json", "progress.jsonl", "metrics.json", "checkpoints/latest.pt"} <= set(written)
+    (run / "checkpoints" / "my_best_model.pt").write_bytes(b"mine")
+    (run / "previews" / "step_0999999.png").write_bytes(b"mine too")  # trainer-like name, not on the list
+    (run / ".lock").write_text("12345\n")
+    train(_cfg(sphere_dataset, run, max_steps=2, overwrite=True))
+    assert (run / "checkpoints" / "my_best_model.pt").read_bytes() == b"mine"
+    assert (run / "previews" / "step_0999999.png").read_bytes() == b"mine too"
+    assert not (run / "checkpoints" / "step_0000004.pt").exists()
+
+
+def test_overwrite_of_a_run_without_a_list_removes_only_exact_trainer_names(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=3))
+    (run / ".written.json").unlink()
+    for name in ("checkpoints/my_best_model.pt", "checkpoints/latest.pt.bak", "previews/step_1.png", "config.json.orig"):
+        (run / name).write_bytes(b"mine")
+    train(_cfg(sphere_dataset, run, max_steps=2, overwrite=True))
+    for name in ("checkpoints/my_best_model.pt", "checkpoints/latest.pt.bak", "previews/step_1.png", "config.json.orig"):
+        assert (run / name).read_bytes() == b"mine", name
+    assert not (run / "checkpoints" / "step_0000003.pt").exists()
+
+
+# ---------------------------------------------------------------------------------------------- 4. out vs dataset
+
+
+@pytest.mark.parametrize("where", ["same", "inside", "contains"])
+def test_run_folder_and_dataset_must_be_apart(dataset_factory, tmp_path, where):
+    if where == "contains":
+        ds = dataset_factory(tmp_path / "run" / "ds")
+        out = tmp_path / "run"
+    else:
+        ds = dataset_factory(tmp_path / "ds")
+        out = ds if where == "same" else ds / "run"
+    before = sorted(p.name for p in ds.rglob("*"))
+    proc = _cli("train", ds, "--out", out, "--method", "test-grid", "--max-steps", "2", "--no-bar")
+    _clear_error(proc, "--out", str(out.resolve()))
+    assert sorted(p.name for p in ds.rglob("*")) == before  # not even a lock file
+
+
+# ---------------------------------------------------------------------------------------------- 5. render names
+
+
+def _camera_list(names, w=8, h=6):
+    from nerf_core.tests.conftest import look_at
+
+    return [{"name": n, "transform_matrix": look_at((3.0, 0.2 * k, 1.0)).tolist(), "w": w, "h": h,
+             "camera_angle_x": 0.8} for k, n in enumerate(names)]
+
+
+@pytest.mark.parametrize("names", [["a", "a", "a_1"], ["a_1", "a", "a"], ["x", "X", "x_1", "x"], ["", "view_000", ""]])
+def test_render_names_are_unique_for_any_collision(trained_run, tmp_path, names):
+    from nerf_core.render import unique_stems
+
+    stems = unique_stems(names)
+    assert len({s.lower() for s in stems}) == len(names)
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps(_camera_list(names)))
+    proc = _cli("render", trained_run["run"], "--cameras", cams, "--out", tmp_path / "out", "--no-bar")
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((tmp_path / "out" / "renders.json").read_text())
+    files = [f["file_path"] for f in meta["frames"]]
+    assert len(files) == len(set(files)) == len(names)
+    assert len(list((tmp_path / "out").glob("*.png"))) == len(names)
+
+
+# ---------------------------------------------------------------------------------------------- 7. huge requests
+
+
+def test_render_refuses_a_huge_view_with_its_memory_estimate(trained_run, tmp_path):
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps(_camera_list(["small", "huge"])[:1] + _camera_list(["huge"], w=60000, h=60000)))
+    proc = _cli("render", trained_run["run"], "--cameras", cams, "--out", tmp_path / "out", "--no-bar")
+    _clear_error(proc, "60000x60000", "GB", "--downscale")
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+    proc = _cli("render", trained_run["run"], "--cameras", trained_run["dataset"], "--out", tmp_path / "o2",
+                "--downscale", "0.0001", "--no-bar")
+    _clear_error(proc, "GB")
+
+
+def test_eval_refuses_a_downscale_that_leaves_no_pixels(trained_run):
+    proc = _cli("eval", trained_run["run"], "--downscale", "100000", "--no-bar")
+    _clear_error(proc, "r_0.png", "--downscale")
+
+
+# ---------------------------------------------------------------------------------------------- 6. one validator
+
+
+def _truncate_png(ds):
+    p = ds / "train" / "r_1.png"
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    return "r_1"
+
+
+def _corrupt_depth(ds):
+    (ds / "train" / "r_2_depth.exr").write_bytes(b"\x76\x2f\x31\x01 not really an exr")
+    return "r_2_depth.exr"
+
+
+def _small_depth(ds):
+    import numpy as np
+    from nerf_core.imageio import write_exr
+
+    write_exr(ds / "train" / "r_2_depth.exr", {"Z": np.ones((5, 7), np.float32)})
+    return "depth_file_path"
+
+
+def _far_before_near(ds):
+    for split in ("train", "val", "test"):
+        p = ds / f"transforms_{split}.json"
+        meta = json.loads(p.read_text())
+        meta["near"], meta["far"] = 5.0, 1.0
+        p.write_text(json.dumps(meta))
+    return "'far'"
+
+
+def _one_train_frame(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["frames"] = meta["frames"][:1]
+    p.write_text(json.dumps(meta))
+    return "train split has 1 view"
+
+
+def _fov_beyond_pi(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["camera_angle_x"] = 4.0
+    for k in ("fl_x", "fl_y"):
+        meta.pop(k)
+    p.write_text(json.dumps(meta))
+    return "camera_angle_x"
+
+
+def _near_is_text(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["near"] = "two"
+    p.write_text(json.dumps(meta))
+    return "near"
+
+
+BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_train_frame, _fov_beyond_pi,
+          _near_is_text]
+
+
+@pytest.mark.parametrize("breaker", BROKEN, ids=lambda f: f.__name__.strip("_"))
+def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, capsys):
+    ds = dataset_factory(tmp_path / "ds")
+    word = breaker(ds)
+    from nerf_core.check import check_dataset
+    from nerf_core.data import dataset_problems
+
+    report = check_dataset(ds)
+    assert not report.ok
+    assert any(word in str(p) for p in report.errors), [str(p) for p in report.errors]
+    assert dataset_problems(ds)
+    rc = main(["check", str(ds)])
+    out = capsys.readouterr().out
+    assert rc == 1 and word in out
+    rc = main(["train", str(ds), "--out", str(tmp_path / "run"), "--method", "test-grid", "--max-steps", "2", "--no-bar"])
+    err = capsys.readouterr().err
+    assert rc == 2 and word in err.strip().splitlines()[-1] and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_factory, tmp_path):
+    from nerf_core.check import check_dataset
+    from nerf_core.data import DatasetError, dataset_problems, load_dataset
+
+    ds = dataset_factory(tmp_path / "ds")
+    _truncate_png(ds)
+    _corrupt_depth(ds)
+    problems = dataset_problems(ds)
+    assert len(problems) == 2 and "r_1" in problems[0] and "r_2_depth.exr" in problems[1]
+    with pytest.raises(DatasetError) as exc:
+        load_dataset(ds)
+    assert str(exc.value) == problems[0]
+    text = "\n".join(str(p) for p in check_dataset(ds).errors)
+    assert "r_1" in text and "r_2_depth.exr" in text
+
+
+def test_a_valid_dataset_passes_both(sphere_dataset):
+    from nerf_core.check import check_dataset
+    from nerf_core.data import dataset_problems
+
+    assert check_dataset(sphere_dataset).ok and dataset_problems(sphere_dataset) == []
