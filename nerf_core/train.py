@@ -42,7 +42,7 @@ except ImportError:  # Windows
     fcntl = None
 
 from . import __version__
-from .cameras import ray_bounds, rays_for_pixels
+from .cameras import rays_for_pixels
 from .data import Dataset, DatasetError, Split, load_dataset
 from .progress import EventLog
 from .evaluate import _mean
@@ -1059,8 +1059,9 @@ class Trainer:
         view, pix = flat // hw, flat % hw
         j, i = pix // train.width, pix % train.width
         rays_o, rays_d, _ = rays_for_pixels(train.cameras, view, i, j)
-        near, far = ray_bounds(rays_o, rays_d, self.model.aabb.cpu(), self.dataset.near, self.dataset.far)
-        miss = far <= near
+        near, far = self.model.ray_interval(rays_o.to(self.device), rays_d.to(self.device), self.dataset.near,
+                                            self.dataset.far)
+        miss = (far <= near).cpu()
         rgb, _ = train.pixels(view[miss], j[miss], i[miss], torch.ones(3))
         dirs_t, cols_t = rays_d[miss].to(self.device), rgb.to(self.device)
         mse = prefit(self.model.environment, dirs_t, cols_t, steps=PREFIT_STEPS if len(dirs_t) else 0,
