@@ -44,13 +44,22 @@ def images_are_opaque(images: torch.Tensor) -> bool:
     return transparent_share(images) < TRANSPARENT_SHARE
 
 
-def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = "dataset") -> Tuple[str, str]:
+def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = "dataset",
+           cameras_inside: bool = False) -> Tuple[str, str]:
     """``--background auto``: the mode for a train split's (n, h, w, c) images, and why.
 
-    ``film_transparent`` is what the dataset's transforms files declare (None when they do not).
+    ``film_transparent`` is what the dataset's transforms files declare (None when they do not);
+    ``cameras_inside``: the cameras stand inside the scene box (an interior).
     """
     has_alpha = images.shape[-1] == 4
     share = transparent_share(images)
+    if cameras_inside and has_alpha and share < TRANSPARENT_SHARE:
+        # Measured on the interior demo scene: with a learned world the run painted the whole room onto
+        # it as a panorama (opacity 0.005 everywhere, no geometry, 21.0 dB); random colours behind the
+        # leftover transparency make every ray end on a surface instead.
+        return "random", ("the cameras stand inside the scene box and the images are opaque (an interior): every "
+                          "ray should end on a surface, so leftover transparency meets random colours rather than "
+                          "a learned world that could hold the whole room as a panorama")
     if film_transparent is False:
         return "environment", (f"{where} declares film_transparent: false (an opaque capture showing the world): "
                                "the background is learned as light from infinity")

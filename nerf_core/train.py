@@ -898,7 +898,8 @@ class Trainer:
             self.bg_mode, self.bg_reason = recorded, "as recorded when the run started"
         elif cfg.background == "auto":
             self.bg_mode, self.bg_reason = backgrounds.choose(train.images, dataset.film_transparent,
-                                                              where=f"{dataset.root}")
+                                                              where=f"{dataset.root}",
+                                                              cameras_inside=dataset.cameras_inside)
         else:
             self.bg_mode = cfg.background
             self.bg_reason = "as recorded when the run started" if recorded == cfg.background else "--background given"

@@ -44,6 +44,9 @@ class VMGrid(RadianceModel):
             whatever never gains density, including space no camera sees).
         grid_lr_scale: grids learn at ``lr * grid_lr_scale`` (TensoRF uses 0.02 vs 1e-3 for networks).
         budget_steps: steps assumed for the schedule when the trainer gives neither max_steps nor max_seconds.
+        dist_weight: weight of the distortion loss (``volrend.distortion_loss_packed``, distances in box
+            diagonals), which pulls each ray's weight into one short stretch: against the fog that
+            cameras inside a scene can paint in front of themselves. 0 turns it off.
         contract: model the world beyond the box too (``nerf_core.contraction``): the grid spans the
             contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
@@ -57,7 +60,7 @@ class VMGrid(RadianceModel):
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
                     occ_res=64, occ_every=16, step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
-                    contract=False)
+                    contract=False, dist_weight=0.0)
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
@@ -83,6 +86,7 @@ class VMGrid(RadianceModel):
                                    density_scale=density_scale)
         self.occupancy = OccupancyGrid(field_box, opts["occ_res"])
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
+        self._acc_ema = 0.0  # running mean opacity of training rays (see ``formed``)
         self._last_growth_step = 0
 
     # ------------------------------------------------------------------ schedule
@@ -110,6 +114,20 @@ class VMGrid(RadianceModel):
         """True once the occupancy grid has started skipping space (it starts fully occupied)."""
         return self.occupancy.occupied_fraction < 0.95
 
+    # Share of training rays that must be stopped by the scene before geometry counts as formed in a
+    # box with no empty space to prune: an interior, where every ray ends on a wall. An object scene's
+    # rays that miss the object keep this far lower, so the occupancy grid decides there as before.
+    OPAQUE_RAYS = 0.9
+
+    def formed(self) -> bool:
+        """True once coarse geometry exists: the occupancy grid prunes, or nearly every ray is stopped.
+
+        Everything that waits for geometry (the fine marching step, growth, the L1 prior) asks this.
+        Pruning alone never happens in a room, whose box is walls and air seen from inside: the run
+        then kept the coarse warm-up step, grew late and never cleared fog (19.6 dB on the interior).
+        """
+        return self.pruned() or self._acc_ema > self.OPAQUE_RAYS
+
     def step_size(self) -> float:
         """Marching step in scene units: ``step_ratio`` voxels, coarser until the occupancy grid prunes.
 
@@ -118,7 +136,7 @@ class VMGrid(RadianceModel):
         is per unit length, so nothing learnt is invalidated when the step refines.
         """
         s = self.options["step_ratio"] * self.field.voxel_size()
-        return s if self.pruned() else s * self.options["warmup_step_scale"]
+        return s if self.formed() else s * self.options["warmup_step_scale"]
 
     def training_hook(self, step, max_steps, elapsed, max_seconds) -> bool:
         o = self.options
@@ -135,7 +153,7 @@ class VMGrid(RadianceModel):
         # Growing multiplies the cost of every sample's backward pass: wait until empty space is being
         # skipped and each stage has had some steps to fit, even when the time budget says go.
         since = step - self._last_growth_step
-        ready = since >= self.options["min_stage_steps"] and (self.pruned() or since >= 4 * self.options["min_stage_steps"])
+        ready = since >= self.options["min_stage_steps"] and (self.formed() or since >= 4 * self.options["min_stage_steps"])
         if target > self.field.resolution and ready:
             self._last_growth_step = step
             self.field.upsample(self._next_resolution())
@@ -219,16 +237,22 @@ class VMGrid(RadianceModel):
         out = {"rgb": volrend.composite_background(rgb, acc, background.to(rgb.dtype)), "depth": depth, "acc": acc,
                "n_samples": int(ridx.shape[0])}
         if training:
+            self._acc_ema = 0.9 * self._acc_ema + 0.1 * float(acc.detach().mean()) if n_rays else self._acc_ema
             aux = 0.0
-            # The L1 prior waits until the occupancy grid prunes, i.e. until some geometry exists. Before
+            # The L1 prior waits until geometry has formed (``formed``: the occupancy grid prunes, or nearly
+            # every ray is stopped). Before
             # that the rendering gradient on the nearly transparent field is tiny, and Adam scales every
             # parameter's step to the same size whatever its gradient, so L1 alone would drive both
             # factors of the VM products to zero: a saddle (d(plane*line) = 0 there) that training
             # never leaves, seen as a run stuck at its initial PSNR for its whole budget.
-            if self.options["l1_weight"] > 0 and self.pruned():
+            if self.options["l1_weight"] > 0 and self.formed():
                 aux = aux + self.options["l1_weight"] * self.field.density_l1()
             if self.options["tv_weight"] > 0:
                 aux = aux + self.options["tv_weight"] * self.field.density_tv()
+            if self.options["dist_weight"] > 0:
+                scale = float((self.aabb[1] - self.aabb[0]).norm())
+                dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
+                aux = aux + self.options["dist_weight"] * dist.mean()
             if torch.is_tensor(aux):
                 out["aux_loss"] = aux
         return out

@@ -311,3 +311,12 @@ def test_a_resumed_run_keeps_the_background_it_started_with(tmp_path, dataset_fa
     starts = [e for e in starts if e["event"] == "start"]
     assert [e["background"] for e in starts] == ["white", "white"]
     assert starts[1]["background_reason"] == "as recorded when the run started"
+
+
+def test_an_opaque_interior_gets_random_colours_not_a_world():
+    """Cameras inside the box: every ray should end on a wall, so nothing may be left to a world."""
+    mode, why = backgrounds.choose(_rgba(), None, cameras_inside=True)
+    assert mode == "random" and "inside" in why
+    assert backgrounds.choose(_rgba(), False, cameras_inside=True)[0] == "random"
+    # RGB photographs of a room cannot take random colours behind an alpha they do not have.
+    assert backgrounds.choose(_rgba()[..., :3], None, cameras_inside=True)[0] == "environment"

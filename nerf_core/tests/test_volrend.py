@@ -95,3 +95,19 @@ def test_packed_gradients_flow_to_densities():
     assert torch.all(sig.grad > 0)
     expected = 0.5 * math.exp(-(0.5 + 1.0) * 0.5)  # ray 0: d acc / d sigma_0 = delta * exp(-sum sigma delta)
     assert sig.grad[0].item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_distortion_loss_matches_the_double_sum_by_hand():
+    from nerf_core.volrend import distortion_loss_packed
+
+    # Ray 0: weights 0.5 and 0.25 at midpoints 1 and 3 (intervals of length 1); ray 1: no samples;
+    # ray 2: one sample of weight 0.8 on an interval of length 0.5.
+    t0 = torch.tensor([0.5, 2.5, 1.0])
+    t1 = torch.tensor([1.5, 3.5, 1.5])
+    w = torch.tensor([0.5, 0.25, 0.8])
+    ridx = torch.tensor([0, 0, 2])
+    got = distortion_loss_packed(w, t0, t1, ridx, 3)
+    # ray 0: sum_ij w_i w_j |m_i - m_j| = 2 * 0.5 * 0.25 * 2 = 0.5; intra = (0.25 + 0.0625) / 3
+    ray0 = 0.5 + (0.25 + 0.0625) / 3
+    ray2 = 0.64 * 0.5 / 3
+    assert torch.allclose(got, torch.tensor([ray0, 0.0, ray2]))
