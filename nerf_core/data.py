@@ -523,13 +523,16 @@ def _parse_aabb(value, where: str) -> torch.Tensor:
     return torch.tensor(box, dtype=torch.float32)
 
 
-def estimate_aabb(cameras: Cameras, far: Optional[float] = None) -> tuple[torch.Tensor, str]:
+def estimate_aabb(cameras: Cameras, far: Optional[float] = None,
+                  seen: Optional[torch.Tensor] = None) -> tuple[torch.Tensor, str]:
     """A scene box from the cameras alone, for datasets that give no ``aabb``.
 
     Inward-facing captures: the box is centred on the point closest (least squares) to all optical
     axes, with half-size 0.5 x the median camera distance to that point (the synthetic scenes fit
-    in +-1.5 with cameras at radius 4 -> +-2). Cameras that look roughly the same way (ill-posed
-    least squares): a box spanning the camera positions plus ``far`` (or the camera spread) ahead.
+    in +-1.5 with cameras at radius 4 -> +-2). Cameras that look outward or the same way (an
+    interior, a street; the least squares is ill-posed or behind them): a box holding every camera
+    and what they see, from ``seen`` (m, 3) surface points back-projected from depth maps when the
+    dataset has them (``depth_points``), else ``far`` (or twice the camera spread) ahead of each camera.
     """
     o = cameras.origins.double().numpy()
     d = cameras.forward.double().numpy()
@@ -547,6 +550,16 @@ def estimate_aabb(cameras: Cameras, far: Optional[float] = None) -> tuple[torch.
             note = (f"no 'aabb' in the dataset: estimated a box centred at {np.round(centre, 3).tolist()} "
                     f"(where the cameras look) of half-size {half:.3g} (0.5 x median camera distance)")
             return torch.tensor(box, dtype=torch.float32), note
+    if seen is not None and len(seen) >= 16:
+        pts = seen.double().numpy()
+        # Robust extent of what the cameras see (a few stray depth pixels must not blow the box up).
+        lo, hi = np.percentile(pts, 0.5, axis=0), np.percentile(pts, 99.5, axis=0)
+        lo, hi = np.minimum(lo, o.min(0)), np.maximum(hi, o.max(0))
+        pad = 0.05 * (hi - lo)
+        box = np.stack([lo - pad, hi + pad])
+        note = ("no 'aabb' in the dataset and the cameras do not look at a common centre: estimated a box holding "
+                f"every camera and the {len(pts)} surface points their depth maps show")
+        return torch.tensor(box, dtype=torch.float32), note
     spread = float(np.linalg.norm(o.max(0) - o.min(0))) or 1.0
     depth = float(far) if far else 2.0 * spread
     ahead = o + d * depth
@@ -557,6 +570,25 @@ def estimate_aabb(cameras: Cameras, far: Optional[float] = None) -> tuple[torch.
     note = ("no 'aabb' in the dataset and the cameras do not look at a common centre: using a box spanning the "
             f"cameras and {depth:.3g} units in front of them; add 'aabb' to the transforms file for better results")
     return torch.tensor(box, dtype=torch.float32), note
+
+
+def depth_points(split: "Split", max_points: int = 100_000, seed: int = 0) -> Optional[torch.Tensor]:
+    """Up to ``max_points`` (m, 3) world points back-projected from a split's depth maps (planar
+    z-depth; 0 or inf = no surface), or None without depth."""
+    from .cameras import rays_for_pixels
+
+    if split.depth is None or len(split) == 0:
+        return None
+    z = split.depth.reshape(-1)
+    valid = torch.nonzero(torch.isfinite(z) & (z > 0)).squeeze(-1)
+    if valid.numel() == 0:
+        return None
+    gen = torch.Generator().manual_seed(seed)
+    pick = valid[torch.randperm(valid.numel(), generator=gen)[:max_points]]
+    hw = split.height * split.width
+    view, pix = pick // hw, pick % hw
+    rays_o, rays_d, z_per_t = rays_for_pixels(split.cameras, view, pix % split.width, pix // split.width)
+    return rays_o + rays_d * (z[pick] / z_per_t)[:, None]
 
 
 INSIDE_PAD = 0.05  # share of the box's extent added on each side when the cameras stand inside it
@@ -724,7 +756,7 @@ def load_dataset(
     else:
         all_cams = [s.cameras for s in loaded.values() if len(s)]
         cams = Cameras(*(torch.cat([getattr(c, f) for c in all_cams]) for f in ("c2w", "fx", "fy", "cx", "cy", "width", "height")))
-        aabb, source = estimate_aabb(cams, far)
+        aabb, source = estimate_aabb(cams, far, depth_points(loaded["train"]) if "train" in loaded else None)
         notes.append(source)
     inside_note = None
     if len(loaded["train"]):

@@ -320,3 +320,46 @@ def test_an_opaque_interior_gets_random_colours_not_a_world():
     assert backgrounds.choose(_rgba(), False, cameras_inside=True)[0] == "random"
     # RGB photographs of a room cannot take random colours behind an alpha they do not have.
     assert backgrounds.choose(_rgba()[..., :3], None, cameras_inside=True)[0] == "environment"
+
+
+def test_outward_cameras_without_a_box_get_one_holding_them_and_what_their_depth_shows(tmp_path):
+    """Cameras at the origin looking outward at a wall ring of radius 3 (depth maps say so): the
+    estimated box holds every camera and the walls, not just a stretch in front of the cameras."""
+    from nerf_core.cameras import Cameras as Cams
+    from nerf_core.imageio import write_exr
+
+    w = h = 16
+    fx = 8.0
+    frames = []
+    (tmp_path / "train").mkdir()
+    for k in range(8):
+        ang = 2 * math.pi * k / 8
+        eye = np.array([0.2 * math.cos(ang), 0.2 * math.sin(ang), 1.0])
+        c2w = look_at(eye, target=eye + np.array([math.cos(ang), math.sin(ang), 0.0]))
+        cams = Cams.create(c2w[None], fx, fx, w / 2, h / 2, w, h)
+        o, d, z_per_t = rays_for_view(cams, 0)
+        # Distance along each ray to the cylinder of radius 3 around the z axis.
+        o2, d2 = o[..., :2].expand(d.shape[0], 2).double(), d[:, :2].double()
+        a, b, c = (d2 * d2).sum(-1), 2 * (o2 * d2).sum(-1), (o2 * o2).sum(-1) - 9.0
+        t = (-b + torch.sqrt(b * b - 4 * a * c)) / (2 * a)
+        write_exr(tmp_path / "train" / f"r_{k}_depth.exr", {"Z": (t * z_per_t.double()).float().reshape(h, w).numpy()})
+        write_png(tmp_path / "train" / f"r_{k}.png", np.full((h, w, 4), 200, np.uint8))
+        frames.append({"file_path": f"./train/r_{k}", "transform_matrix": c2w.tolist(),
+                       "depth_file_path": f"train/r_{k}_depth.exr"})
+    (tmp_path / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 2 * math.atan(w / 2 / fx),
+                                                                 "frames": frames}))
+    data = load_dataset(tmp_path, splits=("train",))
+    lo, hi = data.aabb
+    assert any("depth maps" in n for n in data.notes)
+    assert float(lo[0]) < -2.5 and float(hi[0]) > 2.5 and float(lo[1]) < -2.5 and float(hi[1]) > 2.5  # the walls
+    assert float(hi[0]) < 4.0  # and not far beyond them
+
+
+def test_vmgrid_counts_geometry_as_formed_when_every_ray_is_stopped_even_without_pruning():
+    """A room has no empty space to prune: nearly opaque rays must still unlock the fine step and L1."""
+    model = build_model("vmgrid", torch.tensor([[-3.0, -2.5, 0.0], [3.0, 2.5, 3.0]]))
+    assert not model.pruned() and not model.formed()
+    coarse = model.step_size()
+    model._acc_ema = 0.95  # what render_rays tracks while training in a room
+    assert model.formed() and not model.pruned()
+    assert model.step_size() == pytest.approx(coarse / model.options["warmup_step_scale"])
