@@ -294,7 +294,25 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
     _check_nerfstudio(report, root, frame_intrinsics)
     _check_background(report, root, background)
     _check_loadable(report, root)
+    _check_paths(report, root)
     return report
+
+
+def _check_paths(report: CheckReport, root: Path) -> None:
+    """Warn about file paths that point outside the dataset folder (``data.resolve_dataset_path``
+    holds the policy: read, but reported)."""
+    from .data import DatasetError, frame_infos
+
+    try:
+        _, _, infos, _ = frame_infos(root)
+    except DatasetError:
+        return  # reported by the loader's own checks
+    for frames in infos.values():
+        for fr in frames:
+            for key in fr.outside:
+                report.warn(_relative(root, str(fr.json_file)), "points outside the dataset folder (absolute or '../'): "
+                            "the file is read, but a copy of the folder or another machine will not find it",
+                            fr.index, fr.file_path, key)
 
 
 _FRAME_RE = re.compile(r"^(?P<file>.+?\.json): frame (?P<frame>\d+) \((?P<path>.*?)\): (?P<rest>.*)$", re.S)

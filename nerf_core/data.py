@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
@@ -50,6 +51,7 @@ class FrameInfo:
     depth: Optional[Path] = None
     normal: Optional[Path] = None
     mask: Optional[Path] = None
+    outside: List[str] = field(default_factory=list)  # fields whose file lies outside the dataset folder
 
     @property
     def where(self) -> str:
@@ -197,6 +199,26 @@ def _intrinsics(src: dict, where: str) -> Dict[str, float]:
     return out
 
 
+def resolve_dataset_path(root: Path, value, where: str, field_name: str) -> tuple[Path, bool]:
+    """The one rule for file paths written in a dataset's JSON: (resolved path, lies outside ``root``).
+
+    Relative paths are taken from the JSON file's folder. Policy: absolute paths and relative paths
+    that climb out of the dataset folder (``../``) are *allowed*, because other tools write them and
+    reading an image runs nothing, but they are reported (``load_dataset`` adds a note, ``check`` a
+    warning): a copy of the folder, or another machine, will not find those files. Containment is
+    decided on the path as written (normalised, not following symlinks), so a dataset that links its
+    image folders from elsewhere stays inside. A value that is not a non-empty string is refused.
+    """
+    if not isinstance(value, str) or not value.strip():
+        raise DatasetError(f"{where}: field {field_name!r} must be a non-empty string (a file path), got {value!r}")
+    p = Path(value)
+    if p.is_absolute():
+        return p, True
+    lexical = os.path.normpath(os.path.join(str(root), value))
+    inside = os.path.commonpath([os.path.abspath(lexical), os.path.abspath(str(root))]) == os.path.abspath(str(root))
+    return (root / value).resolve(), not inside
+
+
 def _resolve_image(root: Path, file_path: str, add_png: bool) -> Path:
     p = (root / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
     if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr") and p.is_file():
@@ -220,6 +242,7 @@ def _frames_of(meta: dict, json_file: Path, add_png: bool) -> List[FrameInfo]:
     for k, fr in enumerate(frames):
         if not isinstance(fr, dict) or "file_path" not in fr:
             raise DatasetError(f"{json_file}: frame {k}: field 'file_path' is missing")
+        _, image_outside = resolve_dataset_path(root, fr["file_path"], f"{json_file}: frame {k}", "file_path")
         fp = str(fr["file_path"])
         where = f"{json_file}: frame {k} ({fp})"
         if "transform_matrix" not in fr:
@@ -231,10 +254,13 @@ def _frames_of(meta: dict, json_file: Path, add_png: bool) -> List[FrameInfo]:
         intr = dict(glob)
         intr.update(_intrinsics(fr, where))
         extra = {}
+        outside = ["file_path"] if image_outside else []
         for key, attr in (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_file_path", "normal"), ("mask_path", "mask")):
-            if fr.get(key) and attr not in extra:
-                extra[attr] = (root / str(fr[key])).resolve()
-        out.append(FrameInfo(k, json_file, fp, _resolve_image(root, fp, add_png), c2w, intr, **extra))
+            if fr.get(key) not in (None, "") and attr not in extra:
+                extra[attr], out_of_root = resolve_dataset_path(root, fr[key], where, key)
+                if out_of_root:
+                    outside.append(key)
+        out.append(FrameInfo(k, json_file, fp, _resolve_image(root, fp, add_png), c2w, intr, outside=outside, **extra))
     return out
 
 
@@ -323,6 +349,12 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             )
     for name in splits:
         out.setdefault(name, [])
+    away = [(f, key) for frames in out.values() for f in frames for key in f.outside]
+    if away:
+        f, key = away[0]
+        scene["path_note"] = (f"{len(away)} file path(s) point outside the dataset folder (absolute or '../'), e.g. "
+                              f"{f.where}: field {key!r}; they are read, but a copy of the folder or another "
+                              "machine will not find them")
     return layout, root, out, scene
 
 
@@ -733,8 +765,9 @@ def load_dataset(
         raise DatasetError(f"unknown split {unknown[0]!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, scene = frame_infos(path, SPLITS)
     notes = []
-    if "split_note" in scene:
-        notes.append(scene["split_note"])
+    for key in ("split_note", "path_note"):
+        if key in scene:
+            notes.append(scene[key])
     depth_scale = _depth_scale(scene)
     if "train" in splits:
         _check_train_count(root, infos, min_train_views)

@@ -367,3 +367,31 @@ def test_a_valid_dataset_passes_both(sphere_dataset):
     from nerf_core.data import dataset_problems
 
     assert check_dataset(sphere_dataset).ok and dataset_problems(sphere_dataset) == []
+
+
+def test_paths_outside_the_dataset_are_read_with_a_note_and_bad_path_types_are_refused(tmp_path, dataset_factory):
+    """One policy for every path field (data.resolve_dataset_path): absolute and '../' paths are read
+    but reported, in train's notes and as check warnings; a path that is not a string is refused."""
+    import shutil
+
+    from nerf_core.check import check_dataset
+    from nerf_core.data import DatasetError, load_dataset
+
+    ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.copy(ds / "train" / "r_0.png", elsewhere / "r_0.png")
+    shutil.copy(ds / "train" / "r_0_depth.exr", elsewhere / "d0.exr")
+    meta = json.loads((ds / "transforms_train.json").read_text())
+    meta["frames"][0]["file_path"] = "../elsewhere/r_0"
+    meta["frames"][0]["depth_file_path"] = str(elsewhere / "d0.exr")  # absolute
+    (ds / "transforms_train.json").write_text(json.dumps(meta))
+    data = load_dataset(ds)
+    assert any("outside the dataset folder" in n and "2 file path(s)" in n for n in data.notes)
+    report = check_dataset(ds)
+    outside = [str(w) for w in report.warnings if "outside the dataset folder" in str(w)]
+    assert len(outside) == 2 and any("depth_file_path" in w for w in outside)
+    meta["frames"][1]["mask_path"] = 7
+    (ds / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match=r"transforms_train.json: frame 1 \(./train/r_1\): field 'mask_path' must be a non-empty string"):
+        load_dataset(ds)
