@@ -103,8 +103,13 @@ def _lights_and_world(scene, strength=1.0):
     bg.inputs["Strength"].default_value = strength
     world.color = (0.35, 0.35, 0.38)
     scene.world = world
+    _sun_and_workbench(scene, energy=3.0)
+
+
+def _sun_and_workbench(scene, energy):
+    """The demo scenes' sun, and Workbench shading that looks like a lit render."""
     sun_data = bpy.data.lights.new("Sun", "SUN")
-    sun_data.energy = 3.0
+    sun_data.energy = energy
     sun_data.angle = math.radians(5)
     sun = bpy.data.objects.new("Sun", sun_data)
     scene.collection.objects.link(sun)
@@ -147,14 +152,7 @@ def _hdri_world(scene, path, strength=1.0):
     links.new(env.outputs["Color"], bg.inputs["Color"])
     world.color = (0.3, 0.35, 0.3)  # Workbench and the viewport's solid mode
     scene.world = world
-    sun_data = bpy.data.lights.new("Sun", "SUN")
-    sun_data.energy = 1.0
-    sun_data.angle = math.radians(5)
-    sun = bpy.data.objects.new("Sun", sun_data)
-    scene.collection.objects.link(sun)
-    sun.rotation_euler = (math.radians(40), math.radians(15), math.radians(30))
-    scene.display.shading.light = "STUDIO"
-    scene.display.shading.color_type = "MATERIAL"
+    _sun_and_workbench(scene, energy=1.0)
 
 
 def _mesh(scene, name, verts, faces, material):
