@@ -1,0 +1,101 @@
+"""docs/CONTRACTS.md in code: the rules that nerf_core, the add-on and the scripts must share.
+
+Only the standard library and numpy: the Blender add-on imports this module (from the repository
+or from the add-on's vendored copy of nerf_core) without torch, and a test imports it with torch
+blocked. One home for each rule; nothing else spells these names out.
+
+Sections:
+- run folder paths (``RUN/config.json``, ``RUN/checkpoints/latest.pt``, ...);
+- the training budget fraction;
+- progress events (one JSON object per line).
+Further sections (transforms files, intrinsics, output naming) live here as they move in.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from typing import Any, Dict, Optional
+
+# -- run folder -----------------------------------------------------------------------------------
+CONFIG = "config.json"
+PROGRESS = "progress.jsonl"
+METRICS = "metrics.json"
+CHECKPOINTS_DIR = "checkpoints"
+LATEST_CHECKPOINT = "latest.pt"
+PREVIEWS_DIR = "previews"
+LOCK = ".lock"
+WRITTEN_LIST = ".written.json"  # every file (relative path) the run's trainers wrote
+
+
+def step_name(step: int, suffix: str) -> str:
+    """``step_0001234.pt`` / ``step_0001234.png``: the one naming rule for per-step files."""
+    return f"step_{int(step):07d}{suffix}"
+
+
+def config_path(run) -> str:
+    return os.path.join(os.fspath(run), CONFIG)
+
+
+def progress_path(run) -> str:
+    return os.path.join(os.fspath(run), PROGRESS)
+
+
+def metrics_path(run) -> str:
+    return os.path.join(os.fspath(run), METRICS)
+
+
+def checkpoints_dir(run) -> str:
+    return os.path.join(os.fspath(run), CHECKPOINTS_DIR)
+
+
+def latest_checkpoint(run) -> str:
+    """``RUN/checkpoints/latest.pt`` (it may not exist)."""
+    return os.path.join(os.fspath(run), CHECKPOINTS_DIR, LATEST_CHECKPOINT)
+
+
+def step_checkpoint(run, step: int) -> str:
+    return os.path.join(os.fspath(run), CHECKPOINTS_DIR, step_name(step, ".pt"))
+
+
+def previews_dir(run) -> str:
+    return os.path.join(os.fspath(run), PREVIEWS_DIR)
+
+
+def preview_path(run, step: int) -> str:
+    return os.path.join(os.fspath(run), PREVIEWS_DIR, step_name(step, ".png"))
+
+
+# -- training budget ------------------------------------------------------------------------------
+def budget_fraction(step: Optional[float], elapsed: Optional[float], max_steps: Optional[float],
+                    max_seconds: Optional[float]) -> Optional[float]:
+    """How much of the training budget is spent, in [0, 1]: the step or the time budget, whichever
+    runs out first (the trainer stops at that one). None when no budget is known."""
+    parts = []
+    if max_steps and step is not None:
+        parts.append(step / max_steps)
+    if max_seconds and elapsed is not None:
+        parts.append(elapsed / max_seconds)
+    if not parts:
+        return None
+    value = max(parts)
+    return min(1.0, max(0.0, value)) if math.isfinite(value) else None
+
+
+# -- progress events ------------------------------------------------------------------------------
+EVENTS = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error", "note")
+
+
+def parse_event_line(line: str) -> Optional[Dict[str, Any]]:
+    """The event object on one line of the trainer's stream, or None for anything else (blank
+    lines, library warnings, truncated JSON, JSON without a string ``event``)."""
+    line = line.strip()
+    if not line.startswith("{"):
+        return None
+    try:
+        obj = json.loads(line)
+    except ValueError:
+        return None
+    if not isinstance(obj, dict) or not isinstance(obj.get("event"), str):
+        return None
+    return obj
