@@ -4,15 +4,17 @@ The trainer's stdout arrives in arbitrary chunks from a reader thread: a chunk m
 even mid-UTF-8 character, and libraries print warnings that are not JSON. ``ProgressParser.feed``
 accepts bytes or str, keeps the unfinished tail for the next call, turns complete JSON lines into
 state (latest step, loss, PSNR, ETA, preview...) and keeps every other line as a log line, so a
-crash can be reported with the end of the log. Imports only the standard library (no bpy, no torch).
+crash can be reported with the end of the log. What counts as an event line, and how the budget
+fraction is computed, are ``nerf_core.contract``'s rules (loaded torch-free by ``.core_contract``).
+Imports only the standard library and that module (no bpy, no torch).
 """
 from __future__ import annotations
 
 import codecs
-import json
-import math
 from collections import deque
 from typing import Any, Deque, Dict, List, Optional, Union
+
+from .core_contract import contract
 
 LOG_TAIL_LINES = 30
 
@@ -33,6 +35,8 @@ class ProgressParser:
             world for opaque captures; ``random``: cut-outs on a transparent film) and why.
         notes: messages of ``note`` events (e.g. how the learned world was fitted).
         step, loss, psnr, lr, elapsed, eta, samples_per_s: from the latest ``step`` event.
+        frac: the training-budget fraction in [0, 1] the latest ``step`` event reported (trainers
+            before the ``frac`` field: None, and ``fraction()`` computes it from the budgets).
         preview_path: absolute path of the latest preview PNG.
         checkpoint_path: the latest checkpoint written.
         rollbacks: list of ``rollback`` events (NaN/divergence recoveries), oldest first.
@@ -43,7 +47,7 @@ class ProgressParser:
         log_tail: the last ``LOG_TAIL_LINES`` raw lines (JSON or not), for crash reports.
     """
 
-    KNOWN = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error", "note")
+    KNOWN = contract.EVENTS
 
     def __init__(self, tail_lines: int = LOG_TAIL_LINES):
         self._decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
@@ -66,6 +70,7 @@ class ProgressParser:
         self.elapsed: Optional[float] = None
         self.eta: Optional[float] = None
         self.samples_per_s: Optional[float] = None
+        self.frac: Optional[float] = None
         self.preview_path: Optional[str] = None
         self.checkpoint_path: Optional[str] = None
         self.rollbacks: List[Dict[str, Any]] = []
@@ -105,13 +110,8 @@ class ProgressParser:
             return None
         self.n_lines += 1
         self.log_tail.append(line)
-        if not line.startswith("{"):
-            return None
-        try:
-            obj = json.loads(line)
-        except ValueError:
-            return None
-        if not isinstance(obj, dict) or not isinstance(obj.get("event"), str):
+        obj = contract.parse_event_line(line)
+        if obj is None:
             return None
         self._apply(obj)
         self.last_event = obj
@@ -145,6 +145,8 @@ class ProgressParser:
                     setattr(self, name, value)
             # eta may legitimately be null ("unknown"), which must clear a stale estimate.
             self.eta = _number(ev.get("eta"))
+            frac = _number(ev.get("frac"))
+            self.frac = min(1.0, max(0.0, frac)) if frac is not None and frac == frac else None
         elif kind == "preview":
             if isinstance(ev.get("path"), str):
                 self.preview_path = ev["path"]
@@ -181,18 +183,14 @@ class ProgressParser:
             self.unknown_events += 1
 
     def fraction(self) -> Optional[float]:
-        """Progress in [0, 1] from the step or time budget, whichever is further; None if unknown."""
+        """Progress in [0, 1]: the latest step event's ``frac`` (the trainer knows its budget best),
+        else, from trainers that do not send it, the step or time budget, whichever is further
+        (``contract.budget_fraction``); None if unknown."""
         if self.done:
             return 1.0
-        parts = []
-        if self.max_steps and self.step is not None:
-            parts.append(self.step / self.max_steps)
-        if self.max_seconds and self.elapsed is not None:
-            parts.append(self.elapsed / self.max_seconds)
-        if not parts:
-            return None
-        value = max(parts)
-        return min(1.0, max(0.0, value)) if math.isfinite(value) else None
+        if self.frac is not None:
+            return self.frac
+        return contract.budget_fraction(self.step, self.elapsed, self.max_steps, self.max_seconds)
 
     def tail_text(self, n: int = LOG_TAIL_LINES) -> str:
         """The last ``n`` log lines joined, for error reports."""

@@ -10,6 +10,8 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
 
+from .core_contract import contract
+
 
 @dataclass
 class RunInfo:
@@ -81,18 +83,18 @@ def _read_json(path: str) -> Any:
 
 def read_run(path: str) -> Optional[RunInfo]:
     """A RunInfo for ``path`` when it looks like a run folder (has config.json or checkpoints/), else None."""
-    config_path = os.path.join(path, "config.json")
-    ckpt = os.path.join(path, "checkpoints", "latest.pt")
-    if not (os.path.isfile(config_path) or os.path.isdir(os.path.join(path, "checkpoints"))):
+    config_path = contract.config_path(path)
+    ckpt = contract.latest_checkpoint(path)
+    if not (os.path.isfile(config_path) or os.path.isdir(contract.checkpoints_dir(path))):
         return None
     info = RunInfo(path=os.path.abspath(path), name=os.path.basename(os.path.normpath(path)),
                    has_checkpoint=os.path.isfile(ckpt))
     info.mtime = os.path.getmtime(path)
     problems = []
-    for attr, file in (("config", config_path), ("metrics", os.path.join(path, "metrics.json"))):
+    for attr, file in (("config", config_path), ("metrics", contract.metrics_path(path))):
         if not os.path.isfile(file):
             if attr == "config":
-                problems.append("config.json missing")
+                problems.append(f"{contract.CONFIG} missing")
             continue
         try:
             data = _read_json(file)
@@ -132,7 +134,7 @@ def list_runs(root: str) -> List[RunInfo]:
 def run_dataset(run: str) -> Optional[str]:
     """The dataset folder recorded in ``RUN/config.json`` (key ``dataset`` or ``dataset_path``)."""
     try:
-        cfg = _read_json(os.path.join(run, "config.json"))
+        cfg = _read_json(contract.config_path(run))
     except (OSError, ValueError):
         return None
     if not isinstance(cfg, dict):
@@ -150,7 +152,7 @@ def run_background(run: str) -> tuple:
     """The background the run's renders are evaluated on (config ``eval_background``, else
     ``background``), white by default: ground truth is composited onto the same colour."""
     try:
-        cfg = _read_json(os.path.join(run, "config.json"))
+        cfg = _read_json(contract.config_path(run))
         bg = (cfg.get("eval_background") or cfg.get("background")) if isinstance(cfg, dict) else None
     except (OSError, ValueError):
         bg = None

@@ -5,7 +5,8 @@ interpreter (an add-on preference, default ``sys.executable`` when it can import
 gets its own session/process group so that Cancel kills the whole tree, and its stdout/stderr are
 read by daemon threads into a queue that the UI drains from a modal timer (``BackgroundProcess.poll``).
 
-Imports only the standard library and ``.progress``: scripts and tests use it without bpy.
+Imports only the standard library, ``.progress`` and the torch-free contract (``.core_contract``):
+scripts and tests use it without bpy.
 """
 from __future__ import annotations
 
@@ -22,10 +23,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
 
+from .core_contract import contract
+from .core_path import ADDON_DIR, nerf_core_search_path  # noqa: F401 (nerf_core_search_path: re-exported)
 from .progress import LOG_TAIL_LINES, ProgressParser
 
-ADDON_DIR = os.path.dirname(os.path.abspath(__file__))
-VENDOR_DIRNAME = "vendor"
 PREFS_HINT = "Edit > Preferences > Add-ons > NeRF Bridge > Python with torch"
 
 
@@ -38,21 +39,6 @@ class DiskFullError(OSError):
 
 
 # -- finding nerf_core and an interpreter ------------------------------------------------------
-def nerf_core_search_path(addon_dir: str = ADDON_DIR) -> Optional[str]:
-    """The folder to put on the child's PYTHONPATH so ``import nerf_core`` works, or None.
-
-    Order: the copy that scripts/build_addon.py vendors into the installed add-on, then the repository
-    root when the add-on runs from a checkout, else None (rely on the interpreter's site-packages).
-    """
-    vendored = os.path.join(addon_dir, VENDOR_DIRNAME)
-    if os.path.isfile(os.path.join(vendored, "nerf_core", "__init__.py")):
-        return vendored
-    repo = os.path.dirname(addon_dir)
-    if os.path.isfile(os.path.join(repo, "nerf_core", "__init__.py")):
-        return repo
-    return None
-
-
 def child_env(addon_dir: str = ADDON_DIR, base: Optional[Dict[str, str]] = None) -> Dict[str, str]:
     """Environment for a nerf_core child: nerf_core importable, unbuffered output, UTF-8."""
     env = dict(os.environ if base is None else base)
@@ -191,7 +177,7 @@ def run_folder_state(run: str) -> str:
         return "occupied"
     if not os.listdir(run):
         return "empty"
-    if os.path.isfile(os.path.join(run, "checkpoints", "latest.pt")):
+    if os.path.isfile(contract.latest_checkpoint(run)):
         return "resumable"
     return "occupied"
 
