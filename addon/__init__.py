@@ -1,13 +1,14 @@
 """NeRF Bridge: a Blender extension that captures a scene as a NeRF dataset, trains a NeRF in a
 separate process (torch never loads inside Blender), and imports its novel views as image planes.
 
-Each UI module exposes ``register()``/``unregister()`` built with ``register_classes_factory`` from
-its own ``CLASSES`` tuple. Non-UI modules (``layouts``, ``capture``, ``export``, ``demo_scenes``,
-``trainer_process``, ``progress``, ``planes``) are importable by scripts without registering anything.
+UI modules (``prefs``, ``jobs``, ``capture_ui``, ``train_ui``) expose ``register()``/``unregister()``
+built with ``register_classes_factory`` from their own ``classes`` tuple (``prefs``: ``CLASSES``).
+Non-UI modules (``layouts``, ``capture``, ``export``, ``demo_scenes``, ``compare``, ``trainer_process``,
+``progress``, ``planes``, ``runs``, ``core_contract``) are importable by scripts without registering anything.
 """
-from . import prefs, capture_ui, train_ui
+from . import prefs, jobs, capture_ui, train_ui
 
-_MODULES = (prefs, capture_ui, train_ui)
+_MODULES = (prefs, jobs, capture_ui, train_ui)
 
 
 def register():

@@ -1,8 +1,9 @@
 """Capture panel (3D viewport > N-panel > NeRF > Capture), its settings and operators.
 
-Settings live in ``Scene.nerf_capture`` (saved with the .blend). Capturing is a modal operator
-driven by a timer: one frame per tick, so Blender stays responsive between frames; Esc or the
-Cancel button stops it, leaving a folder that resumes on the next capture.
+Settings live in ``Scene.nerf_capture`` (saved with the .blend). The Capture operator prepares a
+``capture.CaptureJob`` and hands it, as a ``jobs.CaptureTask``, to the job follower that also
+advances training and rendering: one frame per timer event, so Blender stays responsive between
+frames; Esc or the Cancel button stops it, leaving a folder that resumes on the next capture.
 """
 from __future__ import annotations
 
@@ -11,10 +12,10 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import capture, demo_scenes, export, layouts, scene_bounds
+from . import capture, demo_scenes, export, jobs, layouts, scene_bounds
+from .ui_common import NerfPanel
 
-# The running capture (one at a time) and the operator instance driving it.
-_ACTIVE = {"job": None}
+CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 
 _LAYOUT_ITEMS = [
     ("hemisphere", "Hemisphere", "Fibonacci points on the upper hemisphere (elevation range)"),
@@ -156,12 +157,9 @@ class NERF_OT_capture(bpy.types.Operator):
     generate: BoolProperty(name="Generate Cameras", default=True, options={"SKIP_SAVE"},
                            description="Create the layout's cameras first when the collection has none")
 
-    _timer = None
-    _job = None
-
     @classmethod
     def poll(cls, context):
-        return context.scene is not None and _ACTIVE["job"] is None
+        return context.scene is not None and not jobs.is_running(CAPTURE)
 
     def _make_job(self, context):
         s = context.scene.nerf_capture
@@ -199,7 +197,6 @@ class NERF_OT_capture(bpy.types.Operator):
         except _ERRORS as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        s = context.scene.nerf_capture
         if context.window is None or bpy.app.background:
             # Scripts and tests (no event loop to deliver timer events): render everything now.
             try:
@@ -212,58 +209,50 @@ class NERF_OT_capture(bpy.types.Operator):
             summary = job.finish()
             self.report({"INFO"}, f"captured {summary['frames']} frames into {summary['out']}")
             return {"FINISHED"}
-        self._job = job
-        _ACTIVE["job"] = job
-        s.is_running, s.cancel_requested = True, False
-        self._timer = context.window_manager.event_timer_add(0.05, window=context.window)
-        context.window_manager.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
-
-    def modal(self, context, event):
-        s = context.scene.nerf_capture
-        if event.type == "ESC" or s.cancel_requested:
-            return self._stop(context, cancelled=True)
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        try:
-            more = self._job.step()
-        except Exception as exc:  # a failed frame must not leave the modal handler running
-            self._stop(context, cancelled=True)
-            self.report({"ERROR"}, f"capture stopped: {exc}")
-            return {"CANCELLED"}
-        for area in context.screen.areas if context.screen else ():
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-        _status_bar(context, f"NeRF capture {s.status} ({100 * s.progress:.0f}%) - Esc to cancel")
-        if not more:
-            return self._stop(context, cancelled=False)
-        return {"RUNNING_MODAL"}
-
-    def _stop(self, context, cancelled: bool):
-        context.window_manager.event_timer_remove(self._timer)
-        _status_bar(context, None)
-        s = context.scene.nerf_capture
-        s.is_running, s.cancel_requested = False, False
-        _ACTIVE["job"] = None
-        if cancelled:
-            summary = self._job.cancel()
-            s.status = f"cancelled: {summary['rendered'] + summary['kept']}/{summary['frames']} frames kept; capture again to resume"
-            self.report({"WARNING"}, s.status)
-            return {"CANCELLED"}
-        summary = self._job.finish()
-        s.status = f"done: {summary['frames']} frames in {summary['out']}"
-        train = getattr(context.scene, "nerf_train", None)
-        if train is not None and hasattr(train, "dataset_dir") and not train.dataset_dir:
-            train.dataset_dir = summary["out"]  # the Train panel picks up the new dataset
-        self.report({"INFO"}, s.status)
+        follow_capture(context.scene, job)
+        jobs.follow(context)
         return {"FINISHED"}
 
 
-def _status_bar(context, text):
-    """Show (or with None, clear) a line in Blender's status bar, where users look for long jobs."""
-    workspace = getattr(context, "workspace", None)
-    if workspace is not None:
-        workspace.status_text_set(text)
+def follow_capture(scene, job: capture.CaptureJob) -> jobs.CaptureTask:
+    """Hand a prepared capture to the job follower, mirroring it into ``scene.nerf_capture``."""
+    name = scene.name
+
+    def settings():
+        scene = bpy.data.scenes.get(name)
+        return scene.nerf_capture if scene is not None else None
+
+    def cancel_requested() -> bool:
+        s = settings()
+        return s is not None and s.cancel_requested
+
+    def progress_text() -> str:
+        s = settings()
+        return f"{s.status} ({100 * s.progress:.0f}%)" if s is not None else ""
+
+    task = jobs.CaptureTask(name, job, cancel_requested=cancel_requested, progress_text=progress_text)
+    task.on_update, task.on_end = sync_capture_settings, _dataset_to_train
+    jobs.add(CAPTURE, task)
+    s = scene.nerf_capture
+    s.is_running, s.cancel_requested = True, False
+    return task
+
+
+def sync_capture_settings(task: jobs.CaptureTask) -> None:
+    """After the capture stops: the panel leaves its running state and says how it ended."""
+    scene = task.scene
+    if scene is None or task.state == "running":
+        return
+    s = scene.nerf_capture
+    s.is_running, s.cancel_requested = False, False
+    s.status = task.message.splitlines()[0]
+
+
+def _dataset_to_train(task: jobs.CaptureTask) -> None:
+    scene = task.scene
+    train = getattr(scene, "nerf_train", None) if scene is not None else None
+    if task.state == "done" and train is not None and hasattr(train, "dataset_dir") and not train.dataset_dir:
+        train.dataset_dir = task.capture.out  # the Train panel picks up the new dataset
 
 
 class NERF_OT_capture_cancel(bpy.types.Operator):
@@ -273,7 +262,7 @@ class NERF_OT_capture_cancel(bpy.types.Operator):
     bl_label = "Cancel Capture"
 
     def execute(self, context):
-        context.scene.nerf_capture.cancel_requested = True
+        context.scene.nerf_capture.cancel_requested = True  # the follower stops before the next frame
         return {"FINISHED"}
 
 
@@ -300,12 +289,9 @@ class NERF_OT_add_demo_scene(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NERF_PT_capture(bpy.types.Panel):
+class NERF_PT_capture(NerfPanel, bpy.types.Panel):
     bl_label = "Capture"
     bl_idname = "NERF_PT_capture"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "NeRF"
 
     def draw(self, context):
         layout = self.layout
@@ -374,7 +360,7 @@ class NERF_PT_capture(bpy.types.Panel):
         layout.operator_menu_enum(NERF_OT_add_demo_scene.bl_idname, "name", icon="SCENE_DATA")
 
 
-CLASSES = (
+classes = (
     NerfCaptureSettings,
     NERF_OT_generate_cameras,
     NERF_OT_clear_cameras,
@@ -384,7 +370,7 @@ CLASSES = (
     NERF_PT_capture,
 )
 
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
 
 
 def register():
@@ -393,9 +379,6 @@ def register():
 
 
 def unregister():
-    job = _ACTIVE.get("job")
-    if job is not None:  # disabling the add-on mid-capture: keep what is rendered, resumable
-        job.cancel()
-        _ACTIVE["job"] = None
+    jobs.forget((CAPTURE,))  # disabling the add-on mid-capture: keep what is rendered, resumable
     del bpy.types.Scene.nerf_capture
     _unregister_classes()

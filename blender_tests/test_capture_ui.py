@@ -8,7 +8,7 @@ import bpy
 import pytest
 
 import addon
-from addon import capture_ui, layouts
+from addon import capture_ui, jobs, layouts
 
 
 @pytest.fixture
@@ -79,13 +79,14 @@ def test_operator_errors_are_reported_not_raised_deep(registered, tmp_path):
 
 
 def _fake_modal_operator(job):
-    """The modal operator's methods bound to a stand-in instance (no event loop runs headless)."""
+    """The job follower's modal method bound to a stand-in instance (no event loop runs headless),
+    following ``job`` as the Capture operator hands it over."""
     from types import SimpleNamespace
 
-    op = SimpleNamespace(_job=job, _timer=None, reports=[])
+    capture_ui.follow_capture(bpy.context.scene, job)
+    op = SimpleNamespace(_timer=None, reports=[])
     op.report = lambda kind, msg: op.reports.append((kind, msg))
-    op._stop = lambda ctx, cancelled: capture_ui.NERF_OT_capture._stop(op, ctx, cancelled)
-    op.modal = lambda ctx, event: capture_ui.NERF_OT_capture.modal(op, ctx, event)
+    op.modal = lambda ctx, event: jobs.NERF_OT_follow_jobs.modal(op, ctx, event)
     ctx = SimpleNamespace(scene=bpy.context.scene, screen=None,
                           window_manager=SimpleNamespace(event_timer_remove=lambda timer: None))
     return op, ctx
@@ -130,7 +131,7 @@ def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
 def test_cancel_button_sets_the_flag(registered):
     assert bpy.ops.nerf.capture_cancel() == {"FINISHED"}
     assert bpy.context.scene.nerf_capture.cancel_requested
-    assert capture_ui._ACTIVE["job"] is None
+    assert jobs.get(capture_ui.CAPTURE) is None
 
 
 def test_addon_register_unregister_twice():

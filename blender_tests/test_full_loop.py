@@ -15,7 +15,7 @@ import bpy
 import pytest
 from bpy_extras.object_utils import world_to_camera_view
 
-from addon import capture, layouts, planes, runs, train_ui, trainer_process
+from addon import capture, jobs, layouts, planes, runs, train_ui, trainer_process
 
 RES = 32
 
@@ -24,11 +24,11 @@ def drive(job, timeout=240.0):
     """What the modal timer does, in a loop: update the job until it leaves 'running'."""
     deadline = time.monotonic() + timeout
     while job.update() == "running":
-        if isinstance(job, train_ui.TrainJob):
+        if isinstance(job, jobs.TrainJob):
             train_ui.sync_train_settings(job)
         assert time.monotonic() < deadline, f"{job.kind} did not finish in {timeout} s:\n{job.process.log_tail()}"
         time.sleep(0.1)
-    if isinstance(job, train_ui.TrainJob):
+    if isinstance(job, jobs.TrainJob):
         train_ui.sync_train_settings(job)
     assert job.state == "done", job.message
     return job
@@ -158,8 +158,8 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
     s.dataset_dir, s.run_dir = tiny_capture(root), os.path.join(root, "run")
     # The job the Train button starts, minus the dataset check (the loop test above covers it).
     cmd = trainer_process.train_command(sys.executable, s.dataset_dir, s.run_dir, max_seconds=600)
-    job = train_ui.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
-    train_ui._JOBS["train"] = job
+    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
+    jobs.add(train_ui.TRAIN, job)
     deadline = time.monotonic() + 180
     while job.stage != "train" or job.process.progress.step is None:  # the first step event
         assert job.update() == "running", job.message

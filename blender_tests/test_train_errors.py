@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 import pytest
 
-from addon import image_metrics, prefs, train_ui, trainer_process
+from addon import compare, image_metrics, jobs, prefs, train_ui, trainer_process
 from addon.trainer_process import SetupError
 
 
@@ -40,7 +40,7 @@ def finish(job, timeout=120.0):
     while job.update() == "running":
         assert time.monotonic() < deadline, job.process.log_tail()
         time.sleep(0.05)
-    if isinstance(job, train_ui.TrainJob):
+    if isinstance(job, jobs.TrainJob):
         train_ui.sync_train_settings(job)
     return job
 
@@ -105,7 +105,7 @@ def test_trainer_that_dies_is_reported_with_its_log_tail(s, tmp_path):
     script.write_text("import sys\nprint('{\"event\": \"start\", \"time\": 0}', flush=True)\n"
                       "for i in range(50): print(f'log line {i}', file=sys.stderr)\n"
                       "raise MemoryError('out of memory in the trainer')\n")
-    job = train_ui.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
+    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
                             [sys.executable, str(script)], check=False)
     finish(job)
     assert job.state == "failed"
@@ -156,13 +156,13 @@ def test_camera_with_another_aspect_is_refused(s, tmp_path):
     cam = bpy.data.objects.new("Wide Cam", bpy.data.cameras.new("Wide Cam"))
     scene.collection.objects.link(cam)
     with pytest.raises(SetupError, match=r"No camera is selected"):
-        train_ui.write_cameras_file(bpy.context, run, "SELECTED")
+        compare.write_cameras_file(bpy.context, run, "SELECTED")
     bpy.context.view_layer.objects.active = cam
     cam.select_set(True)
     with pytest.raises(SetupError, match=r"'Wide Cam' renders at 1920x1080 .*trained on 100x100"):
-        train_ui.write_cameras_file(bpy.context, run, "SELECTED")
+        compare.write_cameras_file(bpy.context, run, "SELECTED")
     scene.render.resolution_x = scene.render.resolution_y = 400  # same aspect, other size: fine
-    path, n, label = train_ui.write_cameras_file(bpy.context, run, "SELECTED")
+    path, n, label = compare.write_cameras_file(bpy.context, run, "SELECTED")
     assert n == 1 and label == "selected" and json.load(open(path))["frames"][0]["w"] == 100
 
 
@@ -179,11 +179,11 @@ def test_quitting_blender_leaves_no_orphan_trainer(tmp_path, repo_root):
 import sys, time
 sys.path.insert(0, {repo_root!r})
 import bpy
-from addon import train_ui
+from addon import jobs, train_ui
 train_ui.register()
 cmd = [sys.executable, "-c", "import time\\nwhile True: time.sleep(0.1)"]
-job = train_ui.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
-train_ui._JOBS["train"] = job
+job = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
+jobs.add(train_ui.TRAIN, job)
 print(job.process.pid, flush=True)
 time.sleep(0.5)
 """)  # ...and exits without cancelling, as a user quitting Blender would

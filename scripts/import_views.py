@@ -55,15 +55,14 @@ def fail(message: str) -> None:
 
 def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> None:
     """Run ``nerf_core render`` with a progress bar counting the PNGs as they appear."""
-    from addon import trainer_process
+    from addon import compare, trainer_process
     from nerf_core.progressbar import ProgressBar
 
     proc = trainer_process.BackgroundProcess(trainer_process.render_command(python, run, cameras, out_dir)).start()
     bar = ProgressBar(total=n_views, label="render views")
     while not proc.finished():
         proc.poll()
-        done = sum(1 for f in os.listdir(out_dir) if f.endswith(".png"))
-        bar.set(min(done, n_views))
+        bar.set(min(compare.rendered_count(out_dir), n_views))
         time.sleep(0.2)
     proc.poll()
     bar.close()
@@ -119,6 +118,7 @@ def main(argv) -> int:
     args = parse(argv)
     # Flags are checked before the scene is opened or anything is rendered.
     from addon import runs, trainer_process
+    from nerf_core import contract
 
     out = os.path.abspath(args.out)
     run = os.path.abspath(args.run)
@@ -132,8 +132,9 @@ def main(argv) -> int:
         fail(f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
     if os.path.exists(out) and not args.overwrite:
         fail(f"--out {out} already exists; pass --overwrite to replace it or choose another name")
-    if not os.path.isfile(os.path.join(run, "checkpoints", "latest.pt")):
-        fail(f"--run {run}: no checkpoints/latest.pt (train it first with python -m nerf_core train)")
+    if not os.path.isfile(contract.latest_checkpoint(run)):
+        fail(f"--run {run}: no {os.path.relpath(contract.latest_checkpoint(run), run)} "
+             "(train it first with python -m nerf_core train)")
     check_scene_matches_run(run, scene_file, args.force)
     if args.cameras:
         cameras = os.path.abspath(args.cameras)
@@ -158,8 +159,7 @@ def main(argv) -> int:
 
     import bpy
 
-    from addon import planes
-    from addon.train_ui import auto_distances
+    from addon import compare, planes
 
     open_blend(args.blend)
     label = os.path.splitext(os.path.basename(cameras))[0].replace("transforms_", "")
@@ -167,15 +167,15 @@ def main(argv) -> int:
         render_dir = os.path.abspath(args.render_dir)
         if os.path.isdir(render_dir) and os.listdir(render_dir):
             fail(f"--render-dir {render_dir} is not empty; choose an empty or new folder")
+        try:
+            os.makedirs(render_dir, exist_ok=True)
+        except OSError as exc:
+            fail(trainer_process.describe_os_error(exc, render_dir, "creating"))
     else:
-        parent, k = os.path.join(run, "views"), 1
-        while os.path.exists(os.path.join(parent, f"{label}_{k:03d}")):
-            k += 1
-        render_dir = os.path.join(parent, f"{label}_{k:03d}")
-    try:
-        os.makedirs(render_dir, exist_ok=True)
-    except OSError as exc:
-        fail(trainer_process.describe_os_error(exc, render_dir, "creating"))
+        try:  # a new RUN/views/<label>_NNN, as the Compare panel makes: earlier renders stay intact
+            render_dir = compare.fresh_dir(os.path.join(run, compare.VIEWS_DIR), label)
+        except trainer_process.SetupError as exc:
+            fail(str(exc))
     render(python, run, cameras, render_dir, n_views)
 
     try:
@@ -184,7 +184,7 @@ def main(argv) -> int:
         if args.layout == "gallery":
             planes.import_gallery(views, render_dir, background=runs.run_background(run), scene=scene)
         else:
-            distance = args.distance or auto_distances(views, run)
+            distance = args.distance or compare.auto_distances(views, run)
             planes.import_camera_aligned(views, distance, scene=scene)
             for view in views:  # metrics are worth printing for the camera layout too
                 planes.compare_view(view, render_dir, runs.run_background(run))

@@ -1,0 +1,173 @@
+"""Rendering a trained run's novel views and bringing them back as image planes (no UI here).
+
+``prepare_render`` writes the cameras to render (the dataset's test/val split, or a
+transforms file for selected cameras / a fly-through) and makes a fresh output folder;
+``jobs.RenderJob`` runs ``nerf_core render`` into it, then ``import_views`` lays the images out as
+camera-aligned planes or a NeRF | Blender | error gallery. scripts/import_views.py uses the same
+functions headless. Earlier renders are never overwritten: each gets its own ``RUN/views/<label>_NNN``.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from typing import List, Tuple
+
+from . import planes, runs, trainer_process
+from .core_contract import contract
+from .trainer_process import SetupError
+
+VIEWS_DIR = "views"  # RUN/views/: cameras files and render folders made by the add-on
+SPLIT_FILES = ("transforms_test.json", "transforms_val.json", "transforms_train.json", "transforms.json")
+
+
+@dataclass
+class RenderPlan:
+    """What one render writes: the cameras file, how many views it holds, and the fresh output folder."""
+
+    run: str
+    cameras: str
+    n_views: int
+    label: str
+    out: str
+
+
+def require_checkpoint(run: str) -> None:
+    """SetupError unless ``run`` has a trained checkpoint to render from."""
+    if not run or not os.path.isfile(contract.latest_checkpoint(run)):
+        raise SetupError(f"Run folder {run or '(not set)'} has no trained checkpoint yet: train first.")
+
+
+def prepare_render(context, run: str, source: str) -> RenderPlan:
+    """Write the cameras for ``source`` ('TEST', 'VAL', 'SELECTED', 'ANIMATION') and create
+    ``RUN/views/<label>_NNN``; SetupError says what to fix."""
+    require_checkpoint(run)
+    cameras, n_views, label = write_cameras_file(context, run, source)
+    out = fresh_dir(os.path.join(run, VIEWS_DIR), label)
+    return RenderPlan(run, cameras, n_views, label, out)
+
+
+def fresh_dir(parent: str, label: str) -> str:
+    """``parent/label_001``, ``_002``...: each render gets its own folder, earlier ones stay intact."""
+    k = 1
+    while os.path.exists(os.path.join(parent, f"{label}_{k:03d}")):
+        k += 1
+    path = os.path.join(parent, f"{label}_{k:03d}")
+    try:
+        os.makedirs(path)
+    except OSError as exc:
+        raise SetupError(trainer_process.describe_os_error(exc, path, "creating")) from None
+    return path
+
+
+def dataset_meta(run: str) -> dict:
+    """The run's dataset's first transforms file (test, val, train, single) as a dict; {} if none reads."""
+    dataset = runs.run_dataset(run)
+    for name in SPLIT_FILES:
+        path = os.path.join(dataset, name) if dataset else None
+        if path and os.path.isfile(path):
+            try:
+                with open(path, encoding="utf-8") as fh:
+                    return json.load(fh)
+            except (OSError, ValueError):
+                return {}
+    return {}
+
+
+def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
+    """(transforms path, number of views, label) for ``source``: the dataset's split file, or a file
+    written into RUN/views/ for the selected cameras / the active camera's animation."""
+    dataset = runs.run_dataset(run)
+    if source in ("TEST", "VAL"):
+        split = source.lower()
+        path = os.path.join(dataset, f"transforms_{split}.json") if dataset else ""
+        if not path or not os.path.isfile(path):
+            raise SetupError(f"The run's dataset ({dataset or 'unknown: config.json has no dataset'}) has no "
+                             f"transforms_{split}.json.")
+        try:
+            with open(path, encoding="utf-8") as fh:
+                n = len(json.load(fh).get("frames", []))
+        except (OSError, ValueError) as exc:
+            raise SetupError(f"{path}: cannot read ({exc})") from None
+        return path, n, split
+    meta = dataset_meta(run)
+    if not meta.get("w") or not meta.get("h"):
+        raise SetupError(f"The run's dataset has no image size (w, h) in its transforms: cannot match camera aspect.")
+    scene = context.scene
+    try:
+        if source == "SELECTED":
+            cams = [ob for ob in context.selected_objects if ob.type == "CAMERA"]
+            if not cams:
+                raise SetupError("No camera is selected: select the camera(s) to render.")
+            data = planes.cameras_transforms(cams, scene, (meta["w"], meta["h"]), base=meta, prefix="selected")
+            label = "selected"
+        else:
+            cam = scene.camera if scene.camera is not None else None
+            if context.active_object is not None and context.active_object.type == "CAMERA":
+                cam = context.active_object
+            if cam is None:
+                raise SetupError("No active camera for the fly-through: make a camera active.")
+            frames = list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
+            data = planes.cameras_transforms([cam], scene, (meta["w"], meta["h"]), frames=frames, base=meta,
+                                             prefix="flythrough")
+            label = "flythrough"
+    except ValueError as exc:
+        raise SetupError(str(exc)) from None
+    path = os.path.join(run, VIEWS_DIR, f"cameras_{label}.json")
+    try:
+        trainer_process.write_json_atomic(path, data)
+    except OSError as exc:
+        raise SetupError(str(exc) if isinstance(exc, trainer_process.DiskFullError)
+                         else trainer_process.describe_os_error(exc, path)) from None
+    return path, len(data["frames"]), label
+
+
+def rendered_count(out_dir: str) -> int:
+    """How many views ``nerf_core render`` has written into ``out_dir`` so far (error maps excluded)."""
+    try:
+        return sum(1 for f in os.listdir(out_dir) if f.endswith(".png") and not f.endswith("_error.png"))
+    except OSError:
+        return 0
+
+
+def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run: str, distance: float = 0.0):
+    """Import ``views`` with ``layout`` ('CAMERA' or 'GALLERY') and list their metrics on the scene."""
+    if layout == "GALLERY":
+        planes.import_gallery(views, out_dir, origin=tuple(scene.cursor.location),
+                              background=runs.run_background(run), scene=scene)
+    else:
+        planes.import_camera_aligned(views, distance or auto_distances(views, run), scene=scene)
+    settings = getattr(scene, "nerf_train", None)
+    if settings is not None:
+        settings.view_metrics.clear()
+        for view in views:
+            item = settings.view_metrics.add()
+            item.name = view.name
+            item.psnr = view.metrics.get("psnr", 0.0)
+            item.ssim = view.metrics.get("ssim", 0.0)
+            item.has_metrics = bool(view.metrics)
+
+
+def auto_distances(views: List[planes.View], run: str) -> List[float]:
+    """Per view, where a camera-aligned plane goes when no distance is set: at the depth of the scene
+    centre (middle of the run's aabb, else the dataset's), so the image sits among the objects it
+    shows; just beyond ``near`` when the centre is behind that; 1 scene unit when nothing is known."""
+    import mathutils
+
+    meta = dataset_meta(run)
+    try:
+        with open(contract.config_path(run), encoding="utf-8") as fh:
+            config = json.load(fh)
+    except (OSError, ValueError):
+        config = {}
+    aabb = config.get("aabb") or meta.get("aabb")
+    near = config.get("near", meta.get("near")) or 0.0
+    out = []
+    for view in views:
+        if not (isinstance(aabb, list) and len(aabb) == 2):
+            out.append(near * 1.05 if near > 0 else 1.0)
+            continue
+        centre = (mathutils.Vector(aabb[0]) + mathutils.Vector(aabb[1])) / 2
+        depth = -(mathutils.Matrix(view.c2w).inverted() @ centre).z
+        out.append(depth if depth > max(near, 1e-6) else (near * 1.05 if near > 0 else 1.0))
+    return out
