@@ -101,3 +101,32 @@ def test_start_event_background_and_note_events_are_kept():
     assert "alpha" in p.background_reason
     assert p.notes == ["environment: 58 % of the train rays miss the box"]
     assert p.unknown_events == 0
+
+
+def _step(step, elapsed, **extra):
+    return json.dumps({"event": "step", "time": 0.0, "step": step, "loss": 0.1, "psnr": 10.0, "lr": 0.01,
+                       "elapsed": elapsed, "eta": None, "samples_per_s": 1.0, **extra}) + "\n"
+
+
+def test_fraction_prefers_the_trainers_frac():
+    p = ProgressParser()
+    p.feed(json.dumps({"event": "start", "time": 0.0, "max_steps": 100, "max_seconds": 40.0}) + "\n")
+    # The trainer knows its budget best (a resumed run, a budget it changed): 0.3, not 50/100 or 10/40.
+    p.feed(_step(50, 10.0, frac=0.3))
+    assert p.frac == 0.3 and p.fraction() == 0.3
+    p.feed(_step(60, 12.0, frac=1.7))  # out of range: clamped, like the budget rule
+    assert p.fraction() == 1.0
+    p.feed(_step(70, 30.0, frac=None))  # no usable frac: the budget rule, whichever budget is further
+    assert p.frac is None and p.fraction() == 30.0 / 40.0
+    p.feed(_step(80, 31.0, frac="half"))
+    assert p.fraction() == 0.8
+
+
+def test_fraction_of_a_trainer_without_frac_uses_the_budgets():
+    p = ProgressParser()
+    p.feed(json.dumps({"event": "start", "time": 0.0, "max_steps": 200, "max_seconds": None}) + "\n")
+    assert p.fraction() is None  # no step yet
+    p.feed(_step(50, 5.0))
+    assert p.frac is None and p.fraction() == 0.25
+    p.feed(json.dumps({"event": "done", "time": 1.0, "step": 60, "elapsed": 6.0}) + "\n")
+    assert p.fraction() == 1.0  # stopped early, but done is done
