@@ -113,12 +113,13 @@ class ProgressParser:
         obj = contract.parse_event_line(line)
         if obj is None:
             return None
-        self._apply(obj)
+        self.apply(obj)
         self.last_event = obj
         return obj
 
     # -- state -------------------------------------------------------------------------------
-    def _apply(self, ev: Dict[str, Any]) -> None:
+    def apply(self, ev: Dict[str, Any]) -> None:
+        """Update the state from one event object (also used for JSON events that arrive on stderr)."""
         kind = ev["event"]
         if kind == "start":
             self.method = ev.get("method") if isinstance(ev.get("method"), str) else self.method

@@ -313,7 +313,7 @@ class BackgroundProcess:
             elif found:
                 # A JSON event on stderr (e.g. an error printed by a crashing trainer) still counts.
                 for ev in found:
-                    self.progress._apply(ev)
+                    self.progress.apply(ev)
                 events.extend(found)
         return events
 
