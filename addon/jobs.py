@@ -387,8 +387,8 @@ class NERF_OT_follow_jobs(bpy.types.Operator):
         return {"CANCELLED"} if ended and ended[-1].state in ("failed", "cancelled") else {"FINISHED"}
 
 
-CLASSES = (NERF_OT_follow_jobs,)
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+classes = (NERF_OT_follow_jobs,)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
 
 
 def register():

@@ -69,8 +69,8 @@ def settings_of(context) -> NerfTrainSettings:
     return context.scene.nerf_train
 
 
-CLASSES = (NerfViewMetric, NerfRunItem, NerfTrainSettings)
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(CLASSES)
+classes = (NerfViewMetric, NerfRunItem, NerfTrainSettings)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
 
 
 def register():
