@@ -23,6 +23,7 @@ BACKGROUNDS = ("auto", "environment", "random", "white", "black", "white-then-ra
 # Modes that cannot show an opaque image's background (a photograph, a world): they would have to
 # explain it with geometry inside the box.
 FIXED_BACKGROUNDS = ("random", "white", "black", "white-then-random")
+AUTO_WHITE_FRACTION = 0.2  # white-then-random: white for this share of the training budget
 
 # An RGBA image counts as opaque when fewer than this share of its pixels are less than fully opaque
 # (anti-aliased edges of a cut-out object alone are ~1 % of a 100 px image; an opaque render has none).
@@ -78,3 +79,16 @@ def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = 
                                "learned as light from infinity")
     return "random", (f"{100 * share:.1f} % of the pixels are transparent (a cut-out on a transparent film): "
                       "random background colours behind the alpha")
+
+
+def for_run(requested: str, recorded: Optional[str], dataset) -> Tuple[str, str]:
+    """The mode a run trains with, and why, for ``requested`` (``train --background``) on a loaded
+    ``data.Dataset``. ``recorded``: the mode a resumed run started with (None for a new run); ``auto``
+    keeps it, so a run never changes its background halfway (also runs from before the environment).
+    """
+    if requested == "auto" and recorded in BACKGROUNDS:
+        return recorded, "as recorded when the run started"
+    if requested == "auto":
+        return choose(dataset.split("train").images, dataset.film_transparent, where=f"{dataset.root}",
+                      cameras_inside=dataset.cameras_inside)
+    return requested, "as recorded when the run started" if recorded == requested else "--background given"

@@ -12,7 +12,7 @@ import importlib
 import json
 import os
 import sys
-from typing import List, Optional
+from typing import Dict, List, Optional
 
 from .backgrounds import BACKGROUNDS
 
@@ -66,6 +66,34 @@ def _nonneg_int(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
     return v
+
+
+def parse_option_value(value: str):
+    """One ``--set`` value: an int, a float, true/false, JSON (lists, objects, null), else the string."""
+    for cast in (int, float):
+        try:
+            return cast(value)
+        except ValueError:
+            pass
+    if value.lower() in ("true", "false"):
+        return value.lower() == "true"
+    try:
+        return json.loads(value)
+    except ValueError:
+        return value
+
+
+def parse_options(items: List[str]) -> Dict[str, object]:
+    """``["n_samples=64", "resolution=[64,128]"]`` -> dict (numbers, booleans and JSON are parsed)."""
+    from .runfolder import TrainError
+
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise TrainError(f"--set {it!r}: expected KEY=VALUE")
+        k, v = it.split("=", 1)
+        out[k.strip()] = parse_option_value(v.strip())
+    return out
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -177,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_train(a) -> int:
-    from .train import TrainConfig, parse_options, train
+    from .train import TrainConfig, train
 
     cfg = TrainConfig(
         dataset=a.dataset, out=a.out, method=a.method, max_steps=a.max_steps, max_seconds=a.max_seconds, seed=a.seed,
@@ -239,8 +267,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     from .data import DatasetError
     from .imageio import ImageReadError
-    from .render import RunError
-    from .train import TrainError
+    from .checkpoints import RunError
+    from .runfolder import TrainError
 
     expected = (DatasetError, RunError, TrainError, ImageReadError, ValueError, OSError)
     try:

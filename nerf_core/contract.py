@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from typing import Any, Dict, Optional
 
 # -- run folder -----------------------------------------------------------------------------------
@@ -31,6 +32,16 @@ WRITTEN_LIST = ".written.json"  # every file (relative path) the run's trainers 
 def step_name(step: int, suffix: str) -> str:
     """``step_0001234.pt`` / ``step_0001234.png``: the one naming rule for per-step files."""
     return f"step_{int(step):07d}{suffix}"
+
+
+def step_glob(suffix: str) -> str:
+    """``step_*.pt``: the glob that lists per-step files (``pathlib.Path.glob``)."""
+    return f"step_*{suffix}"
+
+
+def step_name_pattern(suffix: str) -> str:
+    """Regular expression (for ``re.fullmatch``) of exactly the names ``step_name(..., suffix)`` makes."""
+    return r"step_\d{7}" + re.escape(suffix)
 
 
 def config_path(run) -> str:

@@ -833,3 +833,50 @@ def cameras_of_frames(frames: List[FrameInfo]) -> Cameras:
     p = np.asarray(params, dtype=np.float64)
     s = np.asarray(sizes)
     return Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1])
+
+
+# ----------------------------------------------------------------------------------------------
+# training batches
+
+
+class RayBatcher:
+    """Random ray batches over every pixel of a (train) split; images stay uint8 on the CPU.
+
+    ``background`` is a ``train --background`` mode other than ``auto`` (see ``nerf_core.backgrounds``);
+    ``gen`` draws every random number (pixels, random colours), so a saved generator state replays
+    the same batches.
+    """
+
+    def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device):
+        self.split, self.gen, self.device = split, gen, device
+        self.background = background
+        self.hw = split.height * split.width
+        self.total = len(split) * self.hw
+        # Ground truth is composited onto white in environment mode too (the loaders' convention for the
+        # few transparent pixels an opaque capture may have); the model's environment replaces ``bg``.
+        self.fixed_bg = torch.tensor([0.0, 0.0, 0.0] if background == "black" else [1.0, 1.0, 1.0])
+
+    def sample(self, n: int, frac: float = 1.0):
+        """``n`` random rays at ``frac`` (in [0, 1]) of the training budget.
+
+        Returns rays_o (n, 3), rays_d (n, 3), background (n, 3), ground-truth colour (n, 3) composited
+        onto that background, and the mask weight (n,) or None, all on ``device``.
+        """
+        from .backgrounds import AUTO_WHITE_FRACTION
+        from .cameras import rays_for_pixels
+
+        flat = torch.randint(0, self.total, (n,), generator=self.gen)
+        view = flat // self.hw
+        pix = flat % self.hw
+        j, i = pix // self.split.width, pix % self.split.width
+        random_bg = self.background == "random" or (self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION)
+        if random_bg:
+            bg = torch.rand(n, 3, generator=self.gen)
+        else:
+            bg = self.fixed_bg.expand(n, 3)
+        rgb, _ = self.split.pixels(view, j, i, bg)
+        rays_o, rays_d, _ = rays_for_pixels(self.split.cameras, view, i, j)
+        weight = self.split.masks[view, j, i].float() if self.split.masks is not None else None
+        d = self.device
+        return (rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
+                None if weight is None else weight.to(d))

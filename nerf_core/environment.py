@@ -141,3 +141,39 @@ def prefit(env: EnvironmentMap, dirs: Tensor, rgb: Tensor, steps: int = 200, bat
         mse.backward()
         opt.step()
     return float(mse.detach())
+
+
+PREFIT_RAYS = 400_000  # train rays tested against the box before an environment run (those that miss fit the world)
+PREFIT_STEPS = 200  # Adam steps of that fit (8192 texture lookups each: ~15 ms on an idle 2-core CPU)
+
+
+def prefit_from_split(model, split, near: float | None, far: float | None, generator: torch.Generator,
+                      device: torch.device, max_rays: int = PREFIT_RAYS, steps: int = PREFIT_STEPS) -> tuple[str, float]:
+    """``prefit`` ``model.environment`` to the pixels of ``split`` (a ``data.Split``) whose rays miss
+    the model's scene box (``model.ray_interval`` empty).
+
+    Up to ``max_rays`` random pixels are tested, drawn from ``generator``. Returns (a one-line note
+    for the user: share of rays that miss, time, PSNR of the fit; that share in [0, 1]).
+    """
+    import time
+
+    from .cameras import rays_for_pixels
+    from .losses import psnr_from_mse
+
+    started = time.perf_counter()
+
+    hw = split.height * split.width
+    n = min(max_rays, len(split) * hw)
+    flat = torch.randint(0, len(split) * hw, (n,), generator=generator)
+    view, pix = flat // hw, flat % hw
+    j, i = pix // split.width, pix % split.width
+    rays_o, rays_d, _ = rays_for_pixels(split.cameras, view, i, j)
+    t0, t1 = model.ray_interval(rays_o.to(device), rays_d.to(device), near, far)
+    miss = (t1 <= t0).cpu()
+    rgb, _ = split.pixels(view[miss], j[miss], i[miss], torch.ones(3))
+    dirs_t, cols_t = rays_d[miss].to(device), rgb.to(device)
+    mse = prefit(model.environment, dirs_t, cols_t, steps=steps if len(dirs_t) else 0, generator=generator)
+    share, took = len(dirs_t) / max(1, n), time.perf_counter() - started
+    msg = (f"environment: {100 * share:.0f} % of the train rays miss the scene box; fitted the world to them "
+           f"in {took:.1f} s" + (f" (psnr {psnr_from_mse(mse):.1f})" if mse == mse else ""))
+    return msg, share

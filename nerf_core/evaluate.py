@@ -15,16 +15,13 @@ from typing import Callable, Dict, List, Optional, Sequence
 import torch
 import torch.nn.functional as F
 
+from . import contract
+from .losses import psnr_from_mse
+
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
-
-
-def mse_to_psnr(mse: float | torch.Tensor) -> float:
-    """PSNR in dB for images in [0, 1]; ``inf`` for a perfect match."""
-    mse = float(mse)
-    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)
 
 
 def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = None) -> float:
@@ -32,7 +29,7 @@ def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = No
     err = (pred.float() - gt.float()) ** 2
     if mask is not None:
         err = err[mask.bool()]
-    return mse_to_psnr(err.mean())
+    return psnr_from_mse(err.mean())
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
@@ -87,7 +84,8 @@ def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch
     return float((pred_z[valid] - gt_z[valid]).abs().mean())
 
 
-def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
+def mean_finite(values: Sequence[Optional[float]]) -> Optional[float]:
+    """Mean of the finite values (None and inf/NaN skipped); None when there are none."""
     vals = [v for v in values if v is not None and math.isfinite(v)]
     return sum(vals) / len(vals) if vals else None
 
@@ -123,8 +121,8 @@ def evaluate_split(
         if on_view:
             on_view(entry)
     out = {
-        "psnr": _mean([e["psnr"] for e in per_view]),
-        "ssim": _mean([e["ssim"] for e in per_view]),
+        "psnr": mean_finite([e["psnr"] for e in per_view]),
+        "ssim": mean_finite([e["ssim"] for e in per_view]),
         "n_views": len(per_view),
         "n_views_total": len(split),
         "width": split.width,
@@ -132,8 +130,56 @@ def evaluate_split(
         "per_view": per_view,
     }
     if split.depth is not None:
-        out["depth_mae"] = _mean([e.get("depth_mae") for e in per_view])
+        out["depth_mae"] = mean_finite([e.get("depth_mae") for e in per_view])
     return out
+
+
+def spread_views(n: int, k: int) -> List[int]:
+    """``k`` view indices evenly spread over ``0 .. n-1``, first and last included (``[0]`` for k <= 1)."""
+    return sorted({round(x * (n - 1) / max(1, k - 1)) for x in range(k)}) if k > 1 else [0]
+
+
+def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = None, background=(1.0, 1.0, 1.0),
+                       near: Optional[float] = None, far: Optional[float] = None, chunk: int = 8192) -> dict:
+    """``evaluate_split`` on evenly spread views of ``split``: ``max_views`` of them when given, else
+    as many as fit in ``seconds`` at the time view 0 took (at least one). The end-of-training
+    evaluation, which must not take longer than a share of the training itself.
+    """
+    n = len(split)
+    t0 = time.perf_counter()
+    first = evaluate_split(model, split, [0], background=background, near=near, far=far, chunk=chunk)
+    per_view_s = time.perf_counter() - t0
+    if max_views is not None:
+        k = min(n, max_views)
+    else:
+        k = int(min(n, max(1, seconds // max(per_view_s, 1e-3))))
+    rest = [v for v in spread_views(n, k) if v != 0]
+    if not rest:
+        return first
+    more = evaluate_split(model, split, rest, background=background, near=near, far=far, chunk=chunk)
+    per_view = first["per_view"] + more["per_view"]
+    result = dict(first, per_view=per_view, n_views=len(per_view))
+    for key in ("psnr", "ssim", "depth_mae"):
+        if key in first:
+            result[key] = mean_finite([e.get(key) for e in per_view])
+    return result
+
+
+def evaluate_held_out(model, dataset, max_views: Optional[int] = None, seconds: Optional[float] = None,
+                      background=(1.0, 1.0, 1.0), chunk: int = 8192) -> Optional[tuple[str, dict]]:
+    """(split name, ``evaluate_split`` result) on the held-out split of a ``data.Dataset`` (test, else
+    val), None when it has neither. Views are evenly spread: ``max_views`` of them (all when None or
+    0) or, when ``seconds`` is given and ``max_views`` is None, as many as fit in that time
+    (``evaluate_in_budget``)."""
+    split_name = dataset.held_out_split(("test", "val"))
+    if split_name is None:
+        return None
+    split = dataset.splits[split_name]
+    kw = dict(background=background, near=dataset.near, far=dataset.far, chunk=chunk)
+    if seconds is not None:
+        return split_name, evaluate_in_budget(model, split, seconds, max_views, **kw)
+    n = len(split)
+    return split_name, evaluate_split(model, split, spread_views(n, min(n, max_views or n)), **kw)
 
 
 def update_metrics_file(path: Path, split: str, result: dict, step: Optional[int]) -> dict:
@@ -164,18 +210,18 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     from .device import pick_device
     from .progress import EventLog
     from .progressbar import ProgressBar
-    from .render import RunError, load_run
+    from .checkpoints import RunError, load_run
 
     dev = pick_device(device)
     run = Path(run)
     model, config, ckpt = load_run(run, dev, checkpoint)
     dataset_path = config.get("dataset")
     if not dataset_path:
-        raise RunError(f"{run / 'config.json'}: no 'dataset' recorded")
+        raise RunError(f"{contract.config_path(run)}: no 'dataset' recorded")
     ds = load_dataset(dataset_path, splits=(split,), downscale=max(int(downscale), int(config.get("downscale", 1))))
     sp = ds.split(split)
     n = len(sp) if not max_views else min(len(sp), int(max_views))
-    views = list(range(n)) if n == len(sp) else [round(k * (len(sp) - 1) / max(1, n - 1)) for k in range(n)]
+    views = spread_views(len(sp), n)
     bg = config.get("eval_background", [1.0, 1.0, 1.0])
     bar = ProgressBar(total=len(views), label=f"eval {split}", enabled=show_progress)
 
@@ -189,8 +235,8 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     result = evaluate_split(model, sp, views, background=bg, near=config.get("near"), far=config.get("far"), chunk=chunk, on_view=show)
     bar.close()
     step = ckpt.get("step")
-    update_metrics_file(run / "metrics.json", split, result, step)
-    with EventLog([run / "progress.jsonl"], stdout=False) as log:
+    update_metrics_file(Path(contract.metrics_path(run)), split, result, step)
+    with EventLog([contract.progress_path(run)], stdout=False) as log:
         log.emit("eval", step=step, split=split, psnr=result["psnr"], ssim=result["ssim"])
     summary = {"psnr": result["psnr"], "ssim": result["ssim"], "split": split, "n_views": result["n_views"],
                "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method")}

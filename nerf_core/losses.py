@@ -1,7 +1,9 @@
-"""Losses and regularisers shared by the methods (photometric terms live with the trainer)."""
+"""Losses, regularisers and the PSNR of an MSE: the one home of the photometric terms the trainer
+optimises and of the PSNR formula every report uses."""
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import torch
 
@@ -11,6 +13,15 @@ Tensor = torch.Tensor
 def mse(pred: Tensor, target: Tensor) -> Tensor:
     """Mean squared error over all elements of (n, 3) colours."""
     return (pred - target).square().mean()
+
+
+def masked_mse(pred: Tensor, gt: Tensor, weight: Optional[Tensor]) -> Tensor:
+    """Mean over rays of the per-ray squared error of (n, 3) colours, each ray weighted by ``weight``
+    (n,) (a mask: 0 = ignore); plain mean when ``weight`` is None."""
+    err = ((pred - gt) ** 2).mean(-1)
+    if weight is None:
+        return err.mean()
+    return (err * weight).sum() / weight.sum().clamp_min(1.0)
 
 
 def psnr_from_mse(value: float | Tensor) -> float:

@@ -9,8 +9,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import pickle
-import re
 import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional
@@ -19,147 +17,11 @@ import numpy as np
 import torch
 
 from .cameras import Cameras, check_pose, PoseError, ray_bounds, rays_for_view
+# Checkpoint reading moved to nerf_core.checkpoints; the names stay importable from here for callers
+# written against render (scripts/benchmark.py reads model sizes through them).
+from .checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint  # noqa: F401
+from .contract import config_path
 from .progressbar import ProgressBar
-
-
-class RunError(Exception):
-    """A run folder or checkpoint that cannot be used; the message names the file."""
-
-
-class CheckpointRefused(RunError):
-    """A checkpoint that would need code to load (a crafted pickle): never skipped over silently."""
-
-
-# ----------------------------------------------------------------------------------------------
-# checkpoints
-
-
-def load_state_resizing(model: torch.nn.Module, state: Dict[str, torch.Tensor]) -> None:
-    """``load_state_dict`` that copes with parameters whose saved shape differs from a fresh build.
-
-    Methods that grow during training (coarse-to-fine grids) are rebuilt at their initial size by
-    ``build_model``. A method may handle that in its own ``load_state_dict``; otherwise the
-    mismatched tensors are resized to the saved shapes before loading.
-    """
-    try:
-        model.load_state_dict(state)
-        return
-    except RuntimeError as exc:
-        if "size mismatch" not in str(exc):
-            raise
-    own = dict(model.named_parameters())
-    own.update(dict(model.named_buffers()))
-    for key, value in state.items():
-        cur = own.get(key)
-        if cur is not None and cur.shape != value.shape:
-            cur.data = torch.empty(value.shape, dtype=cur.dtype, device=cur.device)
-    model.load_state_dict(state)
-
-
-def _legacy_checkpoint_globals() -> list:
-    """The only non-tensor globals a checkpoint written before checkpoints became weights-only may hold.
-
-    Older trainers saved ``np.random.get_state()`` (a numpy array) and ``torch.__version__`` (a
-    ``TorchVersion``, a ``str`` subclass). Unpickling those needs numpy's array and dtype
-    reconstruction and that string class: data-only constructors that run no user code, so
-    allowing them keeps old runs resumable without opening the door to arbitrary pickles.
-    """
-    from torch.torch_version import TorchVersion
-
-    try:
-        from numpy._core.multiarray import _reconstruct as reconstruct  # numpy 2 (and the alias in 1.26)
-    except ImportError:
-        from numpy.core.multiarray import _reconstruct as reconstruct
-    allowed = [np.ndarray, np.dtype, TorchVersion,
-               # numpy 1.x writes numpy.core..., numpy 2.x numpy._core...: one function under either name
-               (reconstruct, "numpy.core.multiarray._reconstruct"),
-               (reconstruct, "numpy._core.multiarray._reconstruct")]
-    dtypes = getattr(np, "dtypes", None)  # numpy >= 1.25 pickles a dtype through its class (UInt32DType...)
-    if dtypes is not None:
-        allowed += [c for c in vars(dtypes).values() if isinstance(c, type) and issubclass(c, np.dtype)]
-    return allowed
-
-
-# What torch's weights-only unpickler says when a file needs something it will not build; any other
-# unpickling error is a damaged file rather than a refused one.
-_REFUSED = re.compile(r"GLOBAL (\S+) was not an allowed global|unsupported GLOBAL (\S+) whose module|"
-                      r"reduce for unrecognized function (.+)|Can only create new object.* but got (.+)")
-
-
-def read_checkpoint(path: Path) -> dict:
-    """The checkpoint at ``path``, loaded so that it cannot run code (raises RunError naming the file).
-
-    A ``.pt`` file is a pickle, and an unrestricted unpickle executes whatever the file asks for, so
-    a crafted ``latest.pt`` would run code on ``eval``, ``render`` or ``train --resume``. The trainer
-    writes only tensors and plain Python data, which ``torch.load(weights_only=True)`` accepts; the
-    numpy state of older checkpoints is admitted through ``_legacy_checkpoint_globals`` and nothing else.
-    """
-    if not path.is_file():
-        raise RunError(f"{path}: checkpoint not found")
-    try:
-        with torch.serialization.safe_globals(_legacy_checkpoint_globals()):
-            ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        found = _REFUSED.search(str(exc))
-        if found is None:
-            raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
-        what = next((g.strip() for g in found.groups() if g), "")
-        raise CheckpointRefused(
-            f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"
-            + (f" ({what})" if what else "")
-            + "; it will not be loaded, because loading it could run that code. "
-            "Use a checkpoint written by `python -m nerf_core train`."
-        ) from None  # the unpickler's long advice to reload with weights_only=False must not reach the user
-    except Exception as exc:  # truncated or foreign file
-        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {_first_line(exc)})") from exc
-    if not isinstance(ckpt, dict):
-        raise RunError(f"{path}: not a nerf_core checkpoint (holds a {type(ckpt).__name__}, not a dict)")
-    return ckpt
-
-
-def _unpickler_detail(exc: BaseException) -> str:
-    """The unpickler's own complaint, without torch's advice around it (which suggests weights_only=False)."""
-    text = str(exc).split("\n\nCheck the documentation")[0]
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    return lines[-1] if lines else type(exc).__name__
-
-
-def _first_line(exc: BaseException) -> str:
-    lines = [ln for ln in str(exc).splitlines() if ln.strip()]
-    return lines[0] if lines else type(exc).__name__
-
-
-def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
-    from .methods import build_model
-
-    try:
-        method, options, aabb = ckpt["method"], ckpt["options"], ckpt["aabb"]
-        model = build_model(method, torch.as_tensor(aabb), **options)
-        load_state_resizing(model, ckpt["model"])
-    except KeyError as exc:
-        raise RunError(f"{where}: missing entry {exc} (not a nerf_core checkpoint?)") from exc
-    except ValueError as exc:  # unknown method name
-        raise RunError(f"{where}: {exc}") from exc
-    except RuntimeError as exc:
-        raise RunError(f"{where}: the saved weights do not fit method {ckpt.get('method')!r}: {str(exc).splitlines()[0]}") from exc
-    return model.to(device).eval()
-
-
-def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
-    """(model in eval mode, config dict, checkpoint dict) of a run folder."""
-    run = Path(run)
-    cfg_path = run / "config.json"
-    if not run.is_dir():
-        raise RunError(f"{run}: run folder not found")
-    if not cfg_path.is_file():
-        raise RunError(f"{cfg_path}: not found; is {run} a folder written by `python -m nerf_core train`?")
-    try:
-        config = json.loads(cfg_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
-    ck = Path(checkpoint) if checkpoint else run / "checkpoints" / "latest.pt"
-    ckpt = read_checkpoint(ck)
-    return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
 
 
 # ----------------------------------------------------------------------------------------------
@@ -446,7 +308,7 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     if cameras_path is None:
         cameras_path = config.get("dataset")
         if not cameras_path:
-            raise RunError(f"{run}/config.json: no 'dataset' recorded; pass --cameras")
+            raise RunError(f"{config_path(run)}: no 'dataset' recorded; pass --cameras")
     cams, stems = cameras_from_file(cameras_path, split)
     if downscale != 1.0:
         cams = cams.scaled(1.0 / downscale)

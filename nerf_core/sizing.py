@@ -15,13 +15,12 @@ Calibration (``docs/benchmarks/full``, 100 px captures, 5 minutes of one CPU cor
 fine-checker scene an appearance rank of 16 at 72 cells scored as well as rank 32 or 48 and within
 0.2 dB of the 160-cell default, so a full texture budget is rank 16, not more: a bigger model makes
 fewer steps in the same time. A density rank above 8 bought nothing even on thin rods (see
-``_DENSITY_RANK``). Empty space is not a sizing concern: the occupancy grid skips it at run time.
+``VMGrid.size_options``). Empty space is not a sizing concern: the occupancy grid skips it at run time.
 Known blind spot: geometric detail at the pixel scale on untextured objects (several small objects
 seen from afar) reads as coarse, so such scenes get a grid a step too coarse (0.4 dB on ``multi``).
 """
 from __future__ import annotations
 
-import math
 from typing import Optional, Tuple
 
 import torch
@@ -32,9 +31,6 @@ Tensor = torch.Tensor
 # Detail score at which the full texture budget is used: about a third of the object's interior
 # pixels carrying texture. A flat-shaded cube scores a few percent (its face edges only).
 _FULL_DETAIL = 0.3
-# Density rank of every auto-sized grid. Geometry did not call for more in the calibration: on the
-# thin-rods scene, rank 16 scored 33.94 dB against 33.96 dB for rank 8 (5 min of one core).
-_DENSITY_RANK = 8
 # Share of the detail at the pixel scale (``fine_detail_share``) below which a grid at half the
 # footprint resolution suffices, and above which it needs the full footprint resolution. Calibrated
 # on 100 px captures: the fine checker (share 0.65) kept gaining up to 72 cells (30.9 dB at 48,
@@ -122,8 +118,11 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
               images: Tensor | int | None, alphas: Optional[Tensor] = None) -> Tuple[dict, list[str]]:
     """Choose build options for ``method``.
 
+    The three questions of the module docstring are answered here, for every method alike; turning
+    the answers into options is the method's own ``size_options`` (``RadianceModel.size_options``).
+
     Args:
-        method: method name ("vmgrid", "nerf", "nerf-nope"; others get no options).
+        method: a registered method name (unknown names, and methods without a rule, get no options).
         aabb: (2, 3) scene box. fx: focal length in pixels. width, height: image size in pixels.
         cam_dist: typical distance from a camera to the *nearest point of the box* (scene units):
             where the images resolve the finest detail (see ``nearest_box_distance``).
@@ -157,29 +156,32 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
     # Cells per axis: the footprint's resolution for pixel-fine texture, half of it for coarse or none.
     fine_res = nyquist * (0.5 + 0.5 * f)
 
-    if method == "vmgrid":
-        res_final = int(max(32, min(320, round(fine_res / 8) * 8)))
-        # Start at two thirds of the final size but no finer than 48: coarser starts lose the first
-        # minute (24 dB at 18 cells vs 29 dB at 48 on the fine checker), finer ones prune later.
-        res_init = int(max(16, min(48, round(res_final * 2 / 3 / 8) * 8)))
-        app_rank = int(round((8 + 8 * s) / 4) * 4)
-        opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=_DENSITY_RANK)
-        reasons.append(f"grid grows {res_init} -> {res_final} cells per axis (no finer than the pixel footprint"
-                       + (", coarser for coarse texture" if f < 1 else "") + ")")
-        reasons.append(f"appearance rank {app_rank} (8-16) from the texture probe, density rank {_DENSITY_RANK}")
-        return opts, reasons
-    if method in ("nerf", "nerf-nope"):
-        # Highest frequency 2^(L-1) pi on [-1, 1]: period 2^(2-L) of the box half-size; stop at ~2 cells.
-        pos_freqs = int(max(4, min(12, math.ceil(math.log2(max(2.0, fine_res))))))
-        width = 64 if s < 0.35 else 128
-        opts = dict(width=width)
-        if method == "nerf":
-            opts["pos_freqs"] = pos_freqs
-            reasons.append(f"{pos_freqs} positional-encoding frequencies: the finest period matches ~2 pixel footprints")
-        reasons.append(f"MLP width {width} from the texture probe")
-        return opts, reasons
-    reasons.append(f"no sizing rule for method {method!r}: using its defaults")
-    return {}, reasons
+    from .methods.base import method_class
+
+    cls = method_class(method)
+    if cls is None:
+        reasons.append(f"no sizing rule for method {method!r}: using its defaults")
+        return {}, reasons
+    opts, why = cls.size_options(fine_res, s, f)
+    return dict(opts), reasons + list(why)
+
+
+def auto_size_dataset(method: str, dataset, background=(1.0, 1.0, 1.0)) -> Tuple[dict, list[str]]:
+    """``auto_size`` for the train split of a loaded ``data.Dataset``.
+
+    The probes look at a few images only: they get 8 evenly spaced views as float, composited onto
+    ``background`` (the evaluation background) with their alpha, instead of a float copy of the
+    whole split.
+    """
+    tr = dataset.split("train")
+    near = nearest_box_distance(tr.cameras.origins, dataset.aabb)
+    pick = torch.linspace(0, len(tr) - 1, min(len(tr), 8)).round().long().tolist()
+    views = [tr.image(v, list(background)) for v in pick]
+    probe = torch.stack([rgb for rgb, _ in views])
+    alphas = torch.stack([a for _, a in views]) if tr.has_alpha else None
+    options, reasons = auto_size(method, dataset.aabb, float(tr.cameras.fx[0]), tr.width, tr.height, near,
+                                 probe, alphas=alphas)
+    return dict(options), list(reasons)
 
 
 def nearest_box_distance(origins: Tensor, aabb: Tensor) -> float:

@@ -577,7 +577,7 @@ def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 102
                 wall = dict.fromkeys(wall, 0.0)
             sync()
             t = time.perf_counter()
-            if model.training_hook(step, None, 0.0, None):
+            if model.training_hook(step, None):
                 opt = torch.optim.Adam(model.param_groups(1e-2))
             sync()
             t_hook = time.perf_counter()

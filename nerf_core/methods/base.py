@@ -6,7 +6,7 @@ implement ``render_rays`` and register itself with ``@register("name")``.
 """
 from __future__ import annotations
 
-from typing import Callable, Dict
+from typing import Callable, Dict, Optional
 
 import torch
 from torch import nn
@@ -50,6 +50,12 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> "RadianceModel":
             raise ValueError(f"option 'environment' must be a dict of EnvironmentMap options, got {env_options!r}")
         model.attach_environment(EnvironmentMap(**env_options))
     return model
+
+
+def method_class(name: str) -> Optional[type]:
+    """The ``RadianceModel`` subclass registered as ``name`` (built-in or plugin), or None."""
+    _load_builtin_methods()
+    return _REGISTRY.get(name)
 
 
 def _load_builtin_methods() -> None:
@@ -134,12 +140,33 @@ class RadianceModel(nn.Module):
                            "name": "environment"})
         return groups
 
-    def training_hook(self, step: int, max_steps: int | None, elapsed: float, max_seconds: float | None) -> bool:
+    def training_hook(self, step: int, frac: float | None) -> bool:
         """Called by the trainer before each step (occupancy updates, coarse-to-fine growth).
+
+        Args:
+            step: optimisation steps done so far.
+            frac: share of the training budget spent, in [0, 1]: the step or the time budget,
+                whichever runs out first (``contract.budget_fraction``); None when the caller has no
+                budget (a method then assumes one of its own).
 
         Returns True when the set or shape of parameters changed, so the trainer rebuilds its optimiser.
         """
         return False
+
+    @classmethod
+    def size_options(cls, fine_res: float, texture: float, fine_share: float) -> tuple[dict, list[str]]:
+        """``--size auto`` for this method (``nerf_core.sizing.auto_size`` answers the questions,
+        the method turns the answers into its build options).
+
+        Args:
+            fine_res: cells per axis the images can supervise: the pixel footprint's resolution for
+                pixel-fine texture, half of it for coarse texture or none.
+            texture: amount of texture in [0, 1] (1: the full appearance budget).
+            fine_share: how much of that texture is at the pixel scale, in [0, 1].
+
+        Returns (build options, one human-readable reason per decision).
+        """
+        return {}, [f"no sizing rule for method {cls.method_name!r}: using its defaults"]
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())

@@ -3,6 +3,9 @@
 - ``vmgrid`` (DEFAULT_METHOD): VM-factorised grid, coarse-to-fine, occupancy-skipped; minutes on a CPU.
 - ``nerf``: the classic MLP NeRF with positional encoding and hierarchical sampling (CPU-sized).
 - ``nerf-nope``: ``nerf`` without positional encoding, the blurry baseline.
+
+Registering a method registers its hooks with it: ``training_hook`` (schedules driven by the
+trainer's budget fraction) and ``size_options`` (``--size auto``), both looked up through the class.
 """
 from . import nerf, vmgrid  # noqa: F401  (the @register decorators run on import)
 

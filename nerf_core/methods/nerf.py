@@ -9,6 +9,8 @@ Use ``width=256, depth=8, skip=4, n_coarse=64, n_fine=128`` for the paper's conf
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .. import sampling, volrend
@@ -38,6 +40,18 @@ class NeRF(RadianceModel):
                    width=opts["width"], depth=opts["depth"], skip=opts["skip"])
         self.coarse = NeRFMLP(self.aabb, **net)
         self.fine = NeRFMLP(self.aabb, **net) if opts["n_fine"] > 0 else None
+
+    @classmethod
+    def size_options(cls, fine_res, texture, fine_share):
+        # Highest frequency 2^(L-1) pi on [-1, 1]: period 2^(2-L) of the box half-size; stop at ~2 cells.
+        pos_freqs = int(max(4, min(12, math.ceil(math.log2(max(2.0, fine_res))))))
+        width = 64 if texture < 0.35 else 128
+        opts, reasons = dict(width=width), []
+        if cls.defaults["use_pe"]:  # without the encoding (nerf-nope) there are no frequencies to size
+            opts["pos_freqs"] = pos_freqs
+            reasons.append(f"{pos_freqs} positional-encoding frequencies: the finest period matches ~2 pixel footprints")
+        reasons.append(f"MLP width {width} from the texture probe")
+        return opts, reasons
 
     def _render(self, net: NeRFMLP, rays_o, rays_d, edges, background):
         t_starts, t_ends = edges[:, :-1], edges[:, 1:]

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.render import RunError, read_checkpoint
-from nerf_core.train import TrainConfig, rng_state, set_rng_state, train
+from nerf_core.checkpoints import RunError, read_checkpoint
+from nerf_core.seeding import rng_state, set_rng_state
+from nerf_core.train import TrainConfig, train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

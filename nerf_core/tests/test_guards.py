@@ -310,7 +310,7 @@ def test_training_recovers_after_the_occupancy_grid_empties(sphere):
     opt = torch.optim.Adam(model.param_groups(getattr(model, "default_lr", 1e-3)))
 
     def step(k):
-        if model.training_hook(k, 200, 0.0, None):
+        if model.training_hook(k, k / 200):
             nonlocal opt
             opt = torch.optim.Adam(model.param_groups(getattr(model, "default_lr", 1e-3)))
         out = model.render_rays(o, d, near, far, bg, training=True)

@@ -59,7 +59,7 @@ def overfit(name, steps, batch, lr=None, stripes=0.0, **options):
     lr = lr or model.default_lr
     opt = torch.optim.Adam(model.param_groups(lr), betas=(0.9, 0.99))
     for step in range(steps):
-        if model.training_hook(step, steps, 0.0, None):
+        if model.training_hook(step, step / steps):
             opt = torch.optim.Adam(model.param_groups(lr), betas=(0.9, 0.99))
         idx = torch.randint(0, o.shape[0], (batch,))
         out = model.render_rays(o[idx], d[idx], near[idx], far[idx], torch.ones(batch, 3), True)
@@ -161,7 +161,7 @@ def test_render_rays_contract_for_every_method():
 def test_grown_vmgrid_checkpoint_reloads_through_build_model():
     model = build_model("vmgrid", BOX, **SMALL_GRID)
     model.occupancy.binary[:2] = False
-    assert model.training_hook(25, 30, 0.0, None)  # past upsample_at and min_stage_steps: grows
+    assert model.training_hook(25, 25 / 30)  # past upsample_at and min_stage_steps: grows
     assert model.field.resolution == 32
     state, options = model.state_dict(), json.loads(json.dumps(model.options))
     rebuilt = build_model("vmgrid", BOX, **options)
@@ -179,6 +179,6 @@ def test_methods_run_on_cuda():
     o, d, near, far, _ = (t.cuda() for t in sphere_scene(n_cams=1, size=4))
     for name in ("nerf", "vmgrid"):
         model = build_model(name, BOX).cuda()
-        model.training_hook(16, 100, 0.0, None)
+        model.training_hook(16, 16 / 100)
         out = model.render_rays(o, d, near, far, torch.ones(16, 3, device="cuda"), True)
         assert out["rgb"].is_cuda

@@ -96,7 +96,7 @@ class _Killed(BaseException):
 def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_says(sphere_dataset, tmp_path, monkeypatch):
     from nerf_core.methods.base import _REGISTRY
 
-    def hook(self, step, max_steps, elapsed, max_seconds):
+    def hook(self, step, frac):
         if step == 2:
             raise _Killed
         return False
@@ -150,7 +150,7 @@ def test_disk_full_at_checkpoint_is_a_clear_error_and_resume_uses_the_newest_com
 
 
 def test_disk_full_on_rename_is_reported_too(sphere_dataset, tmp_path, monkeypatch):
-    import nerf_core.train as tr
+    import nerf_core.checkpoints as tr
 
     real_replace = os.replace
 

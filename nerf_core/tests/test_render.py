@@ -39,7 +39,7 @@ def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, caps
 
 
 def test_render_png_alpha_and_depth_agree_with_the_model(trained_run, tmp_path):
-    from nerf_core.render import load_run
+    from nerf_core.checkpoints import load_run
 
     run, ds = trained_run["run"], trained_run["dataset"]
     model, cfg, _ = load_run(run, torch.device("cpu"))
@@ -77,7 +77,7 @@ def test_bad_camera_files_are_named(trained_run, tmp_path, capsys):
 
 
 def test_render_view_chunks_give_the_same_image(trained_run):
-    from nerf_core.render import load_run
+    from nerf_core.checkpoints import load_run
 
     model, cfg, _ = load_run(trained_run["run"], torch.device("cpu"))
     cams = Cameras.create(np.eye(4)[None] @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1.0]]),

@@ -11,7 +11,8 @@ import time
 import pytest
 
 from nerf_core.progress import read_events
-from nerf_core.train import RUN_LOCK, TrainConfig, TrainError, check_run_folder, lock_run_folder, train
+from nerf_core.runfolder import RUN_LOCK, check_run_folder, lock_run_folder
+from nerf_core.train import TrainConfig, TrainError, train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

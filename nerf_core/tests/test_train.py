@@ -185,7 +185,7 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkey
 
     cls = _REGISTRY["test-grid"]
 
-    def hook(self, step, max_steps, elapsed, max_seconds):
+    def hook(self, step, frac):
         if step == 7 and not getattr(self, "_interrupted", False):
             self._interrupted = True
             raise KeyboardInterrupt
@@ -204,7 +204,8 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkey
 
 def test_white_then_random_background(sphere_dataset):
     from nerf_core.data import load_dataset
-    from nerf_core.train import AUTO_WHITE_FRACTION, _Batcher
+    from nerf_core.backgrounds import AUTO_WHITE_FRACTION
+    from nerf_core.data import RayBatcher as _Batcher
 
     split = load_dataset(sphere_dataset).splits["train"]
     b = _Batcher(split, "white-then-random", torch.Generator().manual_seed(0), torch.device("cpu"))

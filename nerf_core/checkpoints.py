@@ -1,0 +1,240 @@
+"""Checkpoints of a run: writing them (atomic, keep-N), reading them safely, and loading a model.
+
+* ``save_checkpoint`` writes ``RUN/checkpoints/step_XXXXXXX.pt`` then ``latest.pt``, each through a
+  ``.tmp`` file and a rename, lists both in ``RUN/.written.json`` first, and keeps the newest
+  ``keep`` step files.
+* ``read_checkpoint`` loads with ``torch.load(weights_only=True)``: a checkpoint holds only tensors
+  and plain Python data, and anything else is refused (``CheckpointRefused``) rather than run.
+* ``model_from_checkpoint`` / ``load_run`` rebuild the trained model for ``render`` and ``eval``;
+  ``read_resume_checkpoint`` picks what ``train --resume`` continues from.
+
+File names come from ``nerf_core.contract``; the run folder's rules live in ``nerf_core.runfolder``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import platform
+import re
+import sys
+from pathlib import Path
+from typing import Dict, Optional
+
+import numpy as np
+import torch
+
+from . import __version__, contract
+from .runfolder import WRITTEN_LIST, TrainError, os_reason, record_written, resume_candidates
+
+
+class RunError(Exception):
+    """A run folder or checkpoint that cannot be used; the message names the file."""
+
+
+class CheckpointRefused(RunError):
+    """A checkpoint that would need code to load (a crafted pickle): never skipped over silently."""
+
+
+# ----------------------------------------------------------------------------------------------
+# reading
+
+
+def load_state_resizing(model: torch.nn.Module, state: Dict[str, torch.Tensor]) -> None:
+    """``load_state_dict`` that copes with parameters whose saved shape differs from a fresh build.
+
+    Methods that grow during training (coarse-to-fine grids) are rebuilt at their initial size by
+    ``build_model``. A method may handle that in its own ``load_state_dict``; otherwise the
+    mismatched tensors are resized to the saved shapes before loading.
+    """
+    try:
+        model.load_state_dict(state)
+        return
+    except RuntimeError as exc:
+        if "size mismatch" not in str(exc):
+            raise
+    own = dict(model.named_parameters())
+    own.update(dict(model.named_buffers()))
+    for key, value in state.items():
+        cur = own.get(key)
+        if cur is not None and cur.shape != value.shape:
+            cur.data = torch.empty(value.shape, dtype=cur.dtype, device=cur.device)
+    model.load_state_dict(state)
+
+
+def _legacy_checkpoint_globals() -> list:
+    """The only non-tensor globals a checkpoint written before checkpoints became weights-only may hold.
+
+    Older trainers saved ``np.random.get_state()`` (a numpy array) and ``torch.__version__`` (a
+    ``TorchVersion``, a ``str`` subclass). Unpickling those needs numpy's array and dtype
+    reconstruction and that string class: data-only constructors that run no user code, so
+    allowing them keeps old runs resumable without opening the door to arbitrary pickles.
+    """
+    from torch.torch_version import TorchVersion
+
+    try:
+        from numpy._core.multiarray import _reconstruct as reconstruct  # numpy 2 (and the alias in 1.26)
+    except ImportError:
+        from numpy.core.multiarray import _reconstruct as reconstruct
+    allowed = [np.ndarray, np.dtype, TorchVersion,
+               # numpy 1.x writes numpy.core..., numpy 2.x numpy._core...: one function under either name
+               (reconstruct, "numpy.core.multiarray._reconstruct"),
+               (reconstruct, "numpy._core.multiarray._reconstruct")]
+    dtypes = getattr(np, "dtypes", None)  # numpy >= 1.25 pickles a dtype through its class (UInt32DType...)
+    if dtypes is not None:
+        allowed += [c for c in vars(dtypes).values() if isinstance(c, type) and issubclass(c, np.dtype)]
+    return allowed
+
+
+# What torch's weights-only unpickler says when a file needs something it will not build; any other
+# unpickling error is a damaged file rather than a refused one.
+_REFUSED = re.compile(r"GLOBAL (\S+) was not an allowed global|unsupported GLOBAL (\S+) whose module|"
+                      r"reduce for unrecognized function (.+)|Can only create new object.* but got (.+)")
+
+
+def read_checkpoint(path: Path) -> dict:
+    """The checkpoint at ``path``, loaded so that it cannot run code (raises RunError naming the file).
+
+    A ``.pt`` file is a pickle, and an unrestricted unpickle executes whatever the file asks for, so
+    a crafted ``latest.pt`` would run code on ``eval``, ``render`` or ``train --resume``. The trainer
+    writes only tensors and plain Python data, which ``torch.load(weights_only=True)`` accepts; the
+    numpy state of older checkpoints is admitted through ``_legacy_checkpoint_globals`` and nothing else.
+    """
+    if not path.is_file():
+        raise RunError(f"{path}: checkpoint not found")
+    try:
+        with torch.serialization.safe_globals(_legacy_checkpoint_globals()):
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = _REFUSED.search(str(exc))
+        if found is None:
+            raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
+        what = next((g.strip() for g in found.groups() if g), "")
+        raise CheckpointRefused(
+            f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"
+            + (f" ({what})" if what else "")
+            + "; it will not be loaded, because loading it could run that code. "
+            "Use a checkpoint written by `python -m nerf_core train`."
+        ) from None  # the unpickler's long advice to reload with weights_only=False must not reach the user
+    except Exception as exc:  # truncated or foreign file
+        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {_first_line(exc)})") from exc
+    if not isinstance(ckpt, dict):
+        raise RunError(f"{path}: not a nerf_core checkpoint (holds a {type(ckpt).__name__}, not a dict)")
+    return ckpt
+
+
+def _unpickler_detail(exc: BaseException) -> str:
+    """The unpickler's own complaint, without torch's advice around it (which suggests weights_only=False)."""
+    text = str(exc).split("\n\nCheck the documentation")[0]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1] if lines else type(exc).__name__
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
+
+
+def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
+    """The checkpoint's model, rebuilt with ``build_model`` and its weights, in eval mode on ``device``
+    (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
+    from .methods import build_model
+
+    try:
+        method, options, aabb = ckpt["method"], ckpt["options"], ckpt["aabb"]
+        model = build_model(method, torch.as_tensor(aabb), **options)
+        load_state_resizing(model, ckpt["model"])
+    except KeyError as exc:
+        raise RunError(f"{where}: missing entry {exc} (not a nerf_core checkpoint?)") from exc
+    except ValueError as exc:  # unknown method name
+        raise RunError(f"{where}: {exc}") from exc
+    except RuntimeError as exc:
+        raise RunError(f"{where}: the saved weights do not fit method {ckpt.get('method')!r}: {str(exc).splitlines()[0]}") from exc
+    return model.to(device).eval()
+
+
+def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
+    """(model in eval mode, config dict, checkpoint dict) of a run folder."""
+    run = Path(run)
+    cfg_path = Path(contract.config_path(run))
+    if not run.is_dir():
+        raise RunError(f"{run}: run folder not found")
+    if not cfg_path.is_file():
+        raise RunError(f"{cfg_path}: not found; is {run} a folder written by `python -m nerf_core train`?")
+    try:
+        config = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
+    ck = Path(checkpoint) if checkpoint else Path(contract.latest_checkpoint(run))
+    ckpt = read_checkpoint(ck)
+    return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+
+
+def read_resume_checkpoint(run: Path) -> tuple[Path, dict]:
+    """(path, checkpoint) that ``--resume`` continues from: latest.pt, else the newest step_*.pt that
+    loads (a full disk may have cost latest.pt). A refused checkpoint stops the search (RunError)."""
+    failures = []
+    for path in resume_candidates(run):
+        try:
+            ckpt = read_checkpoint(path)
+        except CheckpointRefused:
+            raise  # a crafted checkpoint is an alarm, not damage to route around
+        except RunError as exc:
+            failures.append(str(exc))
+            continue
+        if failures or path.name != contract.LATEST_CHECKPOINT:
+            latest = f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}"
+            print(f"train: resuming from {path}" + (f" ({failures[0]})" if failures else f" ({latest} is missing)"),
+                  file=sys.stderr)
+        return path, ckpt
+    raise RunError(failures[0] if len(failures) == 1 else
+                   f"{contract.checkpoints_dir(run)}: no checkpoint loads: " + "; ".join(failures))
+
+
+# ----------------------------------------------------------------------------------------------
+# writing
+
+
+def versions() -> dict:
+    """Library versions recorded in config.json and in every checkpoint, as plain ``str``."""
+    # str(): torch.__version__ is a TorchVersion, a class the weights-only checkpoint loader refuses.
+    return {"nerf_core": str(__version__), "torch": str(torch.__version__), "numpy": str(np.__version__),
+            "python": platform.python_version()}
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    """Write ``path`` through ``path.tmp`` and a rename. On failure (a full disk) the temporary file is
+    removed, ``path`` keeps its previous content, and TrainError names the file and the cause."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # torch.save reports a failed write as RuntimeError too
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise TrainError(f"{path}: cannot write checkpoint: {os_reason(exc)}") from None
+
+
+def save_checkpoint(run: Path, state: dict, step: int, keep: int) -> Path:
+    """Write ``state`` as ``RUN/checkpoints/step_XXXXXXX.pt`` and ``latest.pt``; returns latest's path.
+
+    Both names are recorded in ``RUN/.written.json`` before either is written. The step file goes
+    first: when ``latest.pt`` cannot be written, a complete step file still is (``--resume`` uses it).
+    Only the newest ``keep`` step files are kept. Raises TrainError naming the file that failed.
+    """
+    ck = Path(contract.checkpoints_dir(run))
+    ck.mkdir(parents=True, exist_ok=True)
+    step_path = Path(contract.step_checkpoint(run, step))
+    latest = Path(contract.latest_checkpoint(run))
+    try:
+        record_written(run, step_path, latest)
+    except OSError as exc:
+        raise TrainError(f"{run / WRITTEN_LIST}: cannot write: {os_reason(exc)}") from None
+    atomic_torch_save(state, step_path)
+    atomic_torch_save(state, latest)
+    olds = sorted(ck.glob(contract.step_glob(".pt")))
+    for p in olds[: max(0, len(olds) - keep)]:
+        p.unlink()
+    return latest
