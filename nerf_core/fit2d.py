@@ -32,9 +32,9 @@ class FitConfig:
 
     steps: int = 1000
     lr: float = 1e-3  # Tancik et al.'s 2D image experiments use Adam at 1e-3
-    width: int = 256
+    width: int = 128  # 4 x 128 rather than Tancik's 4 x 256: a quarter of the CPU time, same trends
     depth: int = 4  # linear layers, the output layer included
-    n_features: int = 256  # Gaussian Fourier features (each gives a sin and a cos)
+    n_features: int = 128  # Gaussian Fourier features (each gives a sin and a cos)
     seed: int = 0
     threads: Optional[int] = None  # torch threads during the fit; None leaves torch's setting
 

@@ -1,6 +1,6 @@
 """Kernel width, shown on one real photograph: no encoding vs NeRF PE vs Gaussian Fourier features.
 
-    python scripts/kernel_width.py --out DIR [--jobs 2] [--steps 1000] [--sigmas 0.3,1,3,10,30,100,300]
+    python scripts/kernel_width.py --out DIR [--jobs 2] [--steps 1000] [--sigmas 0.1,0.3,1,3,10,30,100,300]
                                    [--pe-freqs 4,5,6,7] [--hdri PATH | --hdri-name forest.exr]
                                    [--crop TOP,LEFT,SIDE] [--downscale K] [--overwrite]
     blender -b --python scripts/kernel_width.py -- --out DIR --python /path/to/.venv/bin/python
@@ -40,10 +40,10 @@ def parse_args(argv):
     ap.add_argument("--downscale", type=int, default=1, help="box-downscale the crop by this factor (default 1)")
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--lr", type=float, default=1e-3)
-    ap.add_argument("--width", type=int, default=256)
+    ap.add_argument("--width", type=int, default=128)
     ap.add_argument("--depth", type=int, default=4, help="linear layers, output layer included")
-    ap.add_argument("--features", type=int, default=256, help="Gaussian Fourier features")
-    ap.add_argument("--sigmas", default="0.3,1,3,10,30,100,300", help="RFF scales, cycles per image width")
+    ap.add_argument("--features", type=int, default=128, help="Gaussian Fourier features")
+    ap.add_argument("--sigmas", default="0.1,0.3,1,3,10,30,100,300", help="RFF scales, cycles per image width")
     ap.add_argument("--pe-freqs", default="", help="PE frequency counts to try (default: the four counts up to the training Nyquist)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="models fitted at once")

@@ -71,7 +71,7 @@ def draw_chart(path: str, results: Sequence[FitResult], meta: Dict) -> None:
 def _zoom_box(h: int, w: int, side: int) -> tuple:
     """(top, left, side) of the zoomed square: the lower-middle of the image (the fence, by default)."""
     side = min(side, h, w)
-    return (h - side - h // 8, (w - side) // 2, side)
+    return (max(0, h - side - h // 8), (w - side) // 2, side)
 
 
 def draw_crops(path: str, image: np.ndarray, results: Sequence[FitResult]) -> None:

@@ -92,3 +92,40 @@ def test_fourier_feature_scale_sets_the_kernel_width():
     assert large.test_psnr <= none.test_psnr - 1.5, (none.test_psnr, large.test_psnr)
     assert large.train_psnr >= best.train_psnr and large.train_psnr - large.test_psnr >= 10.0
     assert all(math.isfinite(r.test_psnr) for r in results)
+
+
+def test_script_writes_the_study_and_never_overwrites_it(tmp_path):
+    """scripts/kernel_width.py end to end on a tiny crop: four files, a JSON whose table matches the
+    models asked for, then a refusal to write over them, and a one-line error for a missing EXR."""
+    import json
+    import subprocess
+    import sys
+
+    from nerf_core.tests.conftest import REPO_ROOT
+
+    script = str(REPO_ROOT / "scripts" / "kernel_width.py")
+    out = tmp_path / "study"
+    try:
+        find_hdri()
+        source = []
+    except PhotoError:
+        pytest.skip("no bpy studio lights here")
+    run = lambda *a: subprocess.run([sys.executable, script, "--out", str(out), *source, *a],  # noqa: E731
+                                    capture_output=True, text=True, timeout=300)
+    done = run("--crop", "250,700,16", "--steps", "3", "--sigmas", "1,100", "--pe-freqs", "2")
+    assert done.returncode == 0, done.stderr
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["README.md", "kernel_width.json", "kernel_width.png", "kernel_width_crops.png"]
+    data = json.loads((out / "kernel_width.json").read_text())
+    assert [r["name"] for r in data["results"]] == ["none", "pe L=2", "rff σ=1", "rff σ=100"]
+    assert data["picks"]["too_small"] == "rff σ=1" and data["picks"]["too_large"] == "rff σ=100"
+    assert data["image"]["size"] == [16, 16] and data["train_pixels"] == 64 and data["held_out_pixels"] == 192
+    assert "| rff σ=100 |" in (out / "README.md").read_text()
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    again = run("--steps", "3")
+    assert again.returncode == 2 and "already holds" in again.stderr and "Traceback" not in again.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    missing = subprocess.run([sys.executable, script, "--out", str(tmp_path / "x"), "--hdri", str(tmp_path / "no.exr")],
+                             capture_output=True, text=True, timeout=300)
+    assert missing.returncode == 2 and str(tmp_path / "no.exr") in missing.stderr and "Traceback" not in missing.stderr
+    assert not (tmp_path / "x").exists()
