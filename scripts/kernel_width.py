@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import platform
+import shlex
 import subprocess
 import sys
 import time
@@ -133,7 +134,11 @@ def main(argv=None) -> int:
     wall = time.time() - start
 
     os.makedirs(args.out, exist_ok=True)
-    command = "python scripts/kernel_width.py " + " ".join(argv)
+    shown = list(argv)
+    if "--datafiles" in shown:  # added by the Blender run, not typed by the user
+        i = shown.index("--datafiles")
+        del shown[i:i + 2]
+    command = "python scripts/kernel_width.py " + shlex.join(shown)
     meta = {"command": command, "image": {"source": photo.source, "crop": photo.crop, "downscale": photo.downscale,
                                           "tonemap": photo.tonemap, "size": [w, h]},
             "config": {"steps": cfg.steps, "lr": cfg.lr, "width": cfg.width, "depth": cfg.depth,
