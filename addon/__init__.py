@@ -5,9 +5,9 @@ Each UI module exposes ``register()``/``unregister()`` built with ``register_cla
 its own ``CLASSES`` tuple. Non-UI modules (``layouts``, ``capture``, ``export``, ``demo_scenes``,
 ``trainer_process``, ``progress``, ``planes``) are importable by scripts without registering anything.
 """
-from . import prefs, capture_ui, train_ui
+from . import prefs, capture_ui, train_ui, render_engine
 
-_MODULES = (prefs, capture_ui, train_ui)
+_MODULES = (prefs, capture_ui, train_ui, render_engine)
 
 
 def register():
