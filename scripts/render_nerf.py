@@ -132,11 +132,21 @@ def main(argv) -> int:
         image = bpy.data.images["Render Result"]
         entry = {"frame": frame, "png": os.path.join(out, f"{frame:04d}.png")}
         set_format(scene.render.image_settings, "PNG")
-        image.save_render(filepath=entry["png"], scene=scene)
+        try:
+            image.save_render(filepath=entry["png"], scene=scene)
+        except RuntimeError as exc:
+            fail(f"frame {frame}: could not write {entry['png']}: {str(exc).strip().splitlines()[0]}")
         if args.depth:
             entry["depth"] = os.path.join(out, f"{frame:04d}_depth.exr")
             set_format(scene.render.image_settings, "EXR")
-            image.save_render(filepath=entry["depth"], scene=scene)
+            # Blender 5.0 refuses to write a multilayer EXR whose headers carry a pixel aspect other
+            # than 1 ("Conflicting attributes ... pixelAspectRatio"); the pixels are the same either way.
+            aspect = (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y)
+            scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
+            try:
+                image.save_render(filepath=entry["depth"], scene=scene)
+            finally:
+                scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = aspect
         written.append(entry)
         print(f"render_nerf: frame {frame} ({k + 1}/{len(frames)}) -> {entry['png']}", file=sys.stderr, flush=True)
     render_client.shutdown_all()
