@@ -8,7 +8,7 @@ with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine.py: the active
 fit, shift and pixel aspect at the scene's resolution x percentage) and written as ``DIR/FFFF.png``
 (RGBA, 8 bit) and, with ``--depth``, ``DIR/FFFF_depth.exr``: Blender's multilayer EXR of the same
 render (float32; layer ``ViewLayer``, passes ``Combined`` and ``Depth``, channel ``ViewLayer.Depth.Z`` =
-planar z-depth in scene units, inf where nothing was hit). The render process loads the model once
+planar z-depth in scene units; where nothing was hit inf, which Blender stores as 3.4e38). The render process loads the model once
 for all frames. Colour management is set to Standard for these renders (the NeRF's colours are
 already display-referred); the scene file is never saved. Existing outputs are refused unless
 ``--overwrite``. The last stdout line is a JSON summary.
