@@ -130,8 +130,8 @@ class ViewportState:
 
     def want(self, client, key, requests) -> None:
         """The view is ``key``; ``requests`` = one request per PREVIEW_LEVELS entry. Starts the coarsest."""
-        if client is not self.client:
-            self.client, self.view_key = client, None
+        if client is not self.client:  # a new process (another run or checkpoint): start over
+            self.client, self.view_key, self.pending, self.image = client, None, None, None
         if key == self.view_key:
             return
         self.view_key, self.requests = key, requests
