@@ -3,7 +3,8 @@ separate process (torch never loads inside Blender), and imports its novel views
 
 Each UI module exposes ``register()``/``unregister()`` built with ``register_classes_factory`` from
 its own ``CLASSES`` tuple. Non-UI modules (``layouts``, ``capture``, ``export``, ``demo_scenes``,
-``trainer_process``, ``progress``, ``planes``) are importable by scripts without registering anything.
+``trainer_process``, ``progress``, ``planes``, ``render_client``) are importable by scripts without registering
+anything. ``render_engine`` registers the "NeRF" render engine and its Render Properties panel.
 """
 from . import prefs, capture_ui, train_ui, render_engine
 
