@@ -230,8 +230,9 @@ class BackgroundProcess:
     """
 
     def __init__(self, cmd: Sequence[str], env: Optional[Dict[str, str]] = None, cwd: Optional[str] = None,
-                 tail_lines: int = LOG_TAIL_LINES):
+                 tail_lines: int = LOG_TAIL_LINES, stdin_pipe: bool = False):
         self.cmd = list(cmd)
+        self.stdin_pipe = stdin_pipe  # a request/response child (nerf_core serve) reads its stdin
         self.env = env if env is not None else child_env()
         self.cwd = cwd
         self.tail: deque = deque(maxlen=tail_lines)
@@ -255,7 +256,8 @@ class BackgroundProcess:
             kwargs["creationflags"] = getattr(subprocess, "CREATE_NEW_PROCESS_GROUP", 0)
         try:
             self.proc = subprocess.Popen(
-                self.cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                self.cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                stdin=subprocess.PIPE if self.stdin_pipe else subprocess.DEVNULL,
                 env=self.env, cwd=self.cwd, bufsize=0, **kwargs,
             )
         except OSError as exc:

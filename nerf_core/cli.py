@@ -200,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the train --background to check the images against (warns when opaque images meet a mode "
                         "that cannot show their background)")
 
+    from .render_server import add_serve_parser
+
+    add_serve_parser(sub, fmt)
     sub.add_parser("methods", help="list the available methods")
     return p
 
@@ -259,7 +262,8 @@ def _cmd_methods(a) -> int:
     return 0
 
 
-COMMANDS = {"train": _cmd_train, "render": _cmd_render, "eval": _cmd_eval, "check": _cmd_check, "methods": _cmd_methods}
+COMMANDS = {"train": _cmd_train, "render": _cmd_render, "eval": _cmd_eval, "check": _cmd_check, "methods": _cmd_methods,
+            "serve": lambda a: a.handler(a)}
 
 
 def main(argv: Optional[List[str]] = None) -> int:

@@ -29,10 +29,12 @@ from .progressbar import ProgressBar
 
 
 @torch.no_grad()
-def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int = 8192) -> Dict[str, torch.Tensor]:
+def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int = 8192,
+                        on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
     """Evaluation rendering of (m, 3) rays in chunks of ``chunk`` rays to bound memory.
 
     Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
+    ``on_chunk(done, m)`` is called after each chunk (progress; it may raise to stop early).
     """
     out: Dict[str, List[torch.Tensor]] = {"rgb": [], "depth": [], "acc": []}
     bg = background.expand(rays_o.shape[0], 3) if background.dim() == 1 else background
@@ -41,6 +43,8 @@ def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int
         res = model.render_rays(rays_o[s:e], rays_d[s:e], near[s:e], far[s:e], bg[s:e], training=False)
         for k in out:
             out[k].append(res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1) if k != "rgb" else res[k].detach().float())
+        if on_chunk is not None:
+            on_chunk(min(e, rays_o.shape[0]), rays_o.shape[0])
     return {k: torch.cat(v) for k, v in out.items()}
 
 
@@ -53,8 +57,9 @@ def render_view(
     near: Optional[float] = None,
     far: Optional[float] = None,
     chunk: int = 8192,
+    on_chunk: Optional[Callable[[int, int], None]] = None,
 ) -> Dict[str, torch.Tensor]:
-    """Render a whole camera on the model's device.
+    """Render a whole camera on the model's device (``on_chunk``: see ``render_rays_chunked``).
 
     Returns CPU tensors: rgb (h, w, 3) composited onto ``background`` (onto the model's learned
     environment instead when it has one), acc (h, w), depth (h, w)
@@ -72,7 +77,7 @@ def render_view(
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
     if getattr(model, "environment", None) is not None:
         bg = model.background(rays_d, bg)  # the learned world replaces the fixed colour
-    res = render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk)
+    res = render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk, on_chunk)
     acc = res["acc"].clamp(0, 1).cpu()
     dist = res["depth"].cpu()
     # Whether a model's depth is already divided by acc is method-specific; dividing again would be
@@ -194,8 +199,8 @@ def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, L
     """Cameras and output stems to render.
 
     ``path`` may be a dataset folder (the frames of ``split``), a transforms file of either layout
-    (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), or a
-    JSON list of cameras (see ``_camera_list``).
+    (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), a
+    nerfstudio ``camera_path.json`` (``nerf_core.camera_path``), or a JSON list of cameras (see ``_camera_list``).
     """
     from .data import DatasetError, load_cameras
 
@@ -212,7 +217,11 @@ def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, L
             raise DatasetError(f"{path}: cannot read ({exc})") from exc
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from exc
-        if isinstance(data, dict) and "frames" in data:
+        from .camera_path import cameras_from_camera_path, is_camera_path
+
+        if is_camera_path(data):  # nerfstudio's camera_path.json (viewer, Blender add-on)
+            cams, stems = cameras_from_camera_path(data, path)
+        elif isinstance(data, dict) and "frames" in data:
             if data.get("train_filenames") is not None and not path.name.startswith("transforms_"):
                 cams, frames = load_cameras(path, split)
                 stems = [f.stem for f in frames]
@@ -225,6 +234,20 @@ def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, L
 
 
 # ----------------------------------------------------------------------------------------------
+
+
+def straight_rgba(res: Dict[str, torch.Tensor], opaque: bool) -> np.ndarray:
+    """(h, w, 4) float32 RGBA with straight colour from ``render_view(..., background=(0, 0, 0))``.
+
+    ``opaque`` (a run with a learned world): what the camera sees, background included, alpha 1,
+    like the opaque capture it was trained on. Otherwise alpha = accumulated opacity.
+    """
+    acc = res["acc"]
+    if opaque:
+        return torch.cat([res["rgb"].clamp(0, 1), torch.ones_like(acc)[..., None]], -1).numpy()
+    # Rendered onto black, the result is premultiplied: dividing by acc gives straight colour for RGBA.
+    rgb = torch.where(acc[..., None] > 1e-6, res["rgb"] / acc[..., None].clamp_min(1e-6), torch.zeros_like(res["rgb"]))
+    return torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
 
 
 def render_to_dir(
@@ -263,15 +286,7 @@ def render_to_dir(
     opaque = getattr(model, "environment", None) is not None
     for v, stem in enumerate(stems):
         res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
-        acc = res["acc"]
-        if opaque:
-            # A run with a learned world renders what the camera sees, background included, like the
-            # opaque capture it was trained on.
-            rgba = torch.cat([res["rgb"].clamp(0, 1), torch.ones_like(acc)[..., None]], -1).numpy()
-        else:
-            # Rendered onto black, the result is premultiplied: dividing by acc gives straight colour for RGBA.
-            rgb = torch.where(acc[..., None] > 1e-6, res["rgb"] / acc[..., None].clamp_min(1e-6), torch.zeros_like(res["rgb"]))
-            rgba = torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
+        rgba = straight_rgba(res, opaque)
         write_png(out / f"{stem}.png", rgba)
         write_exr(out / f"{stem}_depth.exr", {"Z": res["z_depth"].numpy()})
         frames.append({

@@ -1,0 +1,118 @@
+"""``python -m nerf_core serve``: one model load, one JSON line per camera, images equal to ``render``'s."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from nerf_core.cameras import Cameras
+from nerf_core.render import load_run, render_view
+from nerf_core.render_server import RenderServer, parse_request
+from nerf_core.tests.conftest import REPO_ROOT, look_at
+
+C2W = look_at((0.5, -2.8, 1.2))
+
+
+def _req(rid, out, **kw):
+    base = {"id": rid, "c2w": C2W.tolist(), "fx": 22.0, "fy": 20.0, "cx": 11.0, "cy": 8.5, "w": 24, "h": 18,
+            "out": str(out), "depth": True}
+    base.update(kw)
+    return base
+
+
+def _serve(run, lines):
+    """Run an in-process server over ``lines``; returns its events."""
+    out = io.StringIO()
+    server = RenderServer(str(run), device="cpu", out=out)
+    assert server.serve(io.StringIO("".join(line + "\n" for line in lines))) == 0
+    return [json.loads(x) for x in out.getvalue().splitlines()]
+
+
+def test_answers_match_render_view_pixel_for_pixel(trained_run, tmp_path):
+    events = _serve(trained_run["run"], [json.dumps(_req(1, tmp_path / "a.npy")),
+                                         json.dumps(_req(2, tmp_path / "b.npy", c2w=C2W.reshape(-1).tolist(), depth=False,
+                                                         w=6, h=5, fx=5.5, fy=5.0, cx=None, cy=None))])
+    assert [e["event"] for e in events] == ["ready", "result", "result"]
+    assert events[0]["method"] == "test-grid" and events[0]["step"] == 30 and events[0]["background"] == "transparent"
+    assert events[1]["path"] == str(tmp_path / "a.npy") and events[1]["depth_path"] == str(tmp_path / "a_depth.npy")
+    assert events[2]["depth_path"] is None and not (tmp_path / "b_depth.npy").exists()
+
+    # Independently: the same camera through render_view, with near/far from the run's config.
+    model, config, _ = load_run(trained_run["run"], "cpu")
+    cams = Cameras.create(C2W[None], 22.0, 20.0, 11.0, 8.5, 24, 18)
+    ref = render_view(model, cams, 0, background=(0.0, 0.0, 0.0), near=config["near"], far=config["far"])
+    rgba = np.load(tmp_path / "a.npy")
+    depth = np.load(tmp_path / "a_depth.npy")
+    assert rgba.dtype == np.float32 and rgba.shape == (18, 24, 4) and depth.shape == (18, 24)
+    acc = ref["acc"].numpy()
+    assert np.allclose(rgba[..., 3], acc, atol=1e-6)
+    hit = acc > 1e-3
+    assert hit.any() and np.allclose(rgba[..., :3][hit] * acc[hit][:, None], ref["rgb"].numpy()[hit], atol=1e-5)
+    assert np.allclose(depth, ref["z_depth"].numpy(), atol=1e-5)
+    small = np.load(tmp_path / "b.npy")
+    assert small.shape == (5, 6, 4)  # cx, cy omitted: the image centre
+
+
+def test_bad_requests_get_one_error_line_each_and_the_server_goes_on(trained_run, tmp_path):
+    (tmp_path / "taken.npy").write_bytes(b"user data")
+    lines = ["not json", json.dumps({"cmd": "dance"}), json.dumps(_req(3, tmp_path / "x.npy", fx=-1)),
+             json.dumps(_req(4, tmp_path / "x.npy", c2w=[[1, 0], [0, 1]])),
+             json.dumps(_req(5, tmp_path / "x.npy", w=0)), json.dumps(_req(6, "relative.npy")),
+             json.dumps(_req(7, tmp_path / "taken.npy")), json.dumps(_req(8, tmp_path / "x.npy", near=3.0, far=2.0)),
+             json.dumps(_req(9, tmp_path / "ok.npy")), json.dumps({"cmd": "quit"}),
+             json.dumps(_req(10, tmp_path / "never.npy"))]
+    events = _serve(trained_run["run"], lines)
+    kinds = [e["event"] for e in events]
+    assert kinds == ["ready"] + ["error"] * 8 + ["result"]
+    msgs = [e["message"] for e in events[1:9]]
+    assert "not JSON" in msgs[0] and "unknown cmd 'dance'" in msgs[1]
+    assert msgs[2] == "request 3: field 'fx' must be positive, got -1"
+    assert "request 4: field 'c2w' must be a 4x4 matrix" in msgs[3]
+    assert "request 5: field 'w' must be a whole number of pixels" in msgs[4]
+    assert "request 6: field 'out' must be an absolute path ending in .npy" in msgs[5]
+    assert "taken.npy already exists" in msgs[6] and (tmp_path / "taken.npy").read_bytes() == b"user data"
+    assert "'far' (2.0) must be greater than 'near' (3.0)" in msgs[7]
+    assert [e["id"] for e in events[3:9]] == [3, 4, 5, 6, 7, 8]
+    assert events[-1]["id"] == 9 and not (tmp_path / "never.npy").exists()  # nothing after quit
+
+
+def test_a_newer_request_of_the_same_group_replaces_a_waiting_one(trained_run, tmp_path):
+    lines = [json.dumps(_req(k, tmp_path / f"v{k}.npy", group="viewport")) for k in (1, 2, 3)]
+    lines.append(json.dumps(_req(4, tmp_path / "final.npy")))  # no group: always rendered
+    out = io.StringIO()
+    server = RenderServer(str(trained_run["run"]), device="cpu", out=out)
+    for line in lines:  # all four are waiting before the first is handled; end of input comes after them
+        server._inbox.put(line + "\n")
+    assert server.serve(io.StringIO("")) == 0
+    events = [json.loads(x) for x in out.getvalue().splitlines()][1:]
+    assert [(e["event"], e["id"]) for e in events] == [("skipped", 1), ("skipped", 2), ("result", 3), ("result", 4)]
+    assert not (tmp_path / "v1.npy").exists() and (tmp_path / "v3.npy").exists()
+
+
+def test_parse_request_accepts_flat_row_major_matrices():
+    req = parse_request(_req(1, "/tmp/x_never_written.npy", c2w=C2W.reshape(-1).tolist(), depth=False))
+    assert np.array_equal(req["c2w"], C2W) and req["depth_out"] is None and req["near"] is None
+
+
+def test_subprocess_serves_over_stdin_and_a_missing_run_is_one_fatal_line(trained_run, tmp_path):
+    env = {**os.environ, "NERF_CORE_PLUGINS": "nerf_core.tests.conftest", "PYTHONPATH": str(REPO_ROOT)}
+    cmd = [sys.executable, "-m", "nerf_core", "serve", str(trained_run["run"])]
+    stdin = json.dumps(_req(1, tmp_path / "p.npy")) + "\n"  # end of input ends the server
+    proc = subprocess.run(cmd, input=stdin, capture_output=True, text=True, env=env, timeout=120, cwd=str(REPO_ROOT))
+    assert proc.returncode == 0, proc.stderr
+    events = [json.loads(x) for x in proc.stdout.splitlines()]  # stdout holds JSON lines only
+    assert [e["event"] for e in events] == ["ready", "result"] and np.load(tmp_path / "p.npy").shape == (18, 24, 4)
+
+    missing = tmp_path / "no_run"
+    proc = subprocess.run(cmd[:-1] + [str(missing)], input="", capture_output=True, text=True, env=env, timeout=120,
+                          cwd=str(REPO_ROOT))
+    assert proc.returncode == 2
+    (line,) = proc.stdout.splitlines()
+    ev = json.loads(line)
+    assert ev["event"] == "error" and ev["fatal"] is True and str(missing) in ev["message"]
+    assert "Traceback" not in proc.stderr and proc.stderr.strip() == f"nerf_core serve: error: {ev['message']}"

@@ -1,0 +1,162 @@
+"""Render a scene's active camera over its frame range through a trained NeRF (the "NeRF" render engine).
+
+    python scripts/render_nerf.py --blend scene.blend --run RUN --out DIR [--frames A:B] [--depth] [--python PY]
+    blender -b scene.blend --python scripts/render_nerf.py -- --run RUN --out DIR [--frames A:B] [--depth]
+
+For each frame F (``--frames A:B`` inclusive, default the scene's range and step) the scene is rendered
+with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine.py: the active camera's lens, sensor
+fit, shift and pixel aspect at the scene's resolution x percentage) and written as ``DIR/FFFF.png``
+(RGBA, 8 bit) and, with ``--depth``, ``DIR/FFFF_depth.exr``: Blender's multilayer EXR of the same
+render (float32; layer ``ViewLayer``, passes ``Combined`` and ``Depth``, channel ``ViewLayer.Depth.Z`` =
+planar z-depth in scene units; where nothing was hit inf, which Blender stores as 3.4e38). The render process loads the model once
+for all frames. Colour management is set to Standard for these renders (the NeRF's colours are
+already display-referred); the scene file is never saved. Existing outputs are refused unless
+``--overwrite``. The last stdout line is a JSON summary.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _bootstrap import REPO_ROOT, exit_code, open_blend, script_args  # noqa: E402
+
+
+def parse(argv):
+    ap = argparse.ArgumentParser(prog="render_nerf.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--blend", help="scene to render (plain Python; under Blender the open file is used)")
+    ap.add_argument("--run", required=True, help="training run folder (has checkpoints/latest.pt)")
+    ap.add_argument("--checkpoint", default="", help="checkpoint instead of RUN/checkpoints/latest.pt")
+    ap.add_argument("--out", required=True, help="output folder for FFFF.png (and FFFF_depth.exr)")
+    ap.add_argument("--frames", metavar="A:B", help="first and last frame, inclusive (default: the scene's range)")
+    ap.add_argument("--depth", action="store_true", help="also write FFFF_depth.exr (multilayer EXR with the Depth pass)")
+    ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
+                    help="interpreter with torch for the render process (default: $NERF_PYTHON, else this Python)")
+    ap.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
+    return ap.parse_args(argv)
+
+
+def fail(message: str) -> None:
+    print(f"render_nerf: error: {message}", file=sys.stderr)
+    exit_code(2)
+
+
+def frame_range(text, scene) -> list:
+    """Frames to render: ``A:B`` inclusive (step 1), else the scene's start..end by its frame step."""
+    if not text:
+        return list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        fail(f"--frames {text!r}: expected A:B, two whole frame numbers, e.g. 1:48")
+    if b < a:
+        fail(f"--frames {text!r}: the last frame comes before the first")
+    return list(range(a, b + 1))
+
+
+def set_format(settings, fmt: str) -> None:
+    """PNG RGBA 8 bit, or multilayer float EXR (Blender 5 has ``media_type``; 4.x a file format of its own)."""
+    if fmt == "PNG":
+        if hasattr(settings, "media_type"):
+            settings.media_type = "IMAGE"
+        settings.file_format = "PNG"
+        settings.color_mode, settings.color_depth = "RGBA", "8"
+    else:
+        if hasattr(settings, "media_type"):
+            settings.media_type = "MULTI_LAYER_IMAGE"
+        else:
+            settings.file_format = "OPEN_EXR_MULTILAYER"
+        settings.color_depth = "32"
+
+
+def main(argv) -> int:
+    args = parse(argv)
+    from addon import render_client, trainer_process
+
+    run = os.path.abspath(args.run)
+    problem = render_client.run_problem(run, os.path.abspath(args.checkpoint) if args.checkpoint else "")
+    if problem:
+        fail(f"--run: {problem}")
+    try:
+        python = trainer_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
+    except trainer_process.SetupError as exc:
+        fail(f"{exc} (or pass --python / set NERF_PYTHON)")
+    os.environ["NERF_PYTHON"] = python  # the engine's interpreter when no add-on preference names one
+
+    import bpy
+
+    open_blend(args.blend)
+    scene = bpy.context.scene
+    frames = frame_range(args.frames, scene)
+    out = os.path.abspath(args.out)
+    targets = [os.path.join(out, f"{f:04d}{suffix}") for f in frames
+               for suffix in ((".png", "_depth.exr") if args.depth else (".png",))]
+    existing = [t for t in targets if os.path.exists(t)]
+    if existing and not args.overwrite:
+        fail(f"--out {out} already holds {os.path.basename(existing[0])}"
+             + (f" and {len(existing) - 1} more" if len(existing) > 1 else "") + "; pass --overwrite or choose another folder")
+    if scene.camera is None:
+        fail(f"scene {scene.name!r} has no active camera")
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        fail(trainer_process.describe_os_error(exc, out, "creating"))
+
+    import addon
+    from addon import render_engine
+
+    if not hasattr(bpy.types.Scene, "nerf_render"):  # an installed copy of the extension may have registered it
+        addon.register()
+    scene.render.engine = render_engine.ENGINE_ID
+    scene.nerf_render.run_dir = run
+    scene.nerf_render.checkpoint = os.path.abspath(args.checkpoint) if args.checkpoint else ""
+    bpy.context.view_layer.use_pass_z = bool(args.depth)
+    warning = render_engine.colour_warning(scene)
+    if warning:
+        print(f"render_nerf: note: {warning}; rendering with Standard (the scene file is not changed)", file=sys.stderr)
+    vs = scene.view_settings
+    vs.view_transform, vs.look, vs.exposure, vs.gamma = "Standard", "None", 0.0, 1.0
+
+    t0 = time.monotonic()
+    written = []
+    for k, frame in enumerate(frames):
+        scene.frame_set(frame)
+        try:
+            bpy.ops.render.render(write_still=False)
+        except RuntimeError as exc:
+            fail(str(exc).strip().removeprefix("Error: ").strip())
+        image = bpy.data.images["Render Result"]
+        entry = {"frame": frame, "png": os.path.join(out, f"{frame:04d}.png")}
+        set_format(scene.render.image_settings, "PNG")
+        try:
+            image.save_render(filepath=entry["png"], scene=scene)
+        except RuntimeError as exc:
+            fail(f"frame {frame}: could not write {entry['png']}: {str(exc).strip().splitlines()[0]}")
+        if args.depth:
+            entry["depth"] = os.path.join(out, f"{frame:04d}_depth.exr")
+            set_format(scene.render.image_settings, "EXR")
+            # Blender 5.0 refuses to write a multilayer EXR whose headers carry a pixel aspect other
+            # than 1 ("Conflicting attributes ... pixelAspectRatio"); the pixels are the same either way.
+            aspect = (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y)
+            scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
+            try:
+                image.save_render(filepath=entry["depth"], scene=scene)
+            finally:
+                scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = aspect
+        written.append(entry)
+        print(f"render_nerf: frame {frame} ({k + 1}/{len(frames)}) -> {entry['png']}", file=sys.stderr, flush=True)
+    render_client.shutdown_all()
+    summary = {"out": out, "run": run, "frames": written, "depth": bool(args.depth),
+               "width": scene.render.resolution_x * scene.render.resolution_percentage // 100,
+               "height": scene.render.resolution_y * scene.render.resolution_percentage // 100,
+               "seconds": round(time.monotonic() - t0, 2)}
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    exit_code(main(script_args()))
