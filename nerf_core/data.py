@@ -31,6 +31,7 @@ from .contract.intrinsics import resolve_intrinsics
 from .contract.transforms import (HOLDOUT_EVERY, INTRINSIC_KEYS, SPLITS, DatasetError,  # noqa: F401
                                   FrameInfo, detect_layout, frame_infos, resolve_dataset_path)
 from .dataset_checks import check_train_count, dataset_problems, depth_scale, parse_aabb, scene_fields  # noqa: F401
+from .metrics import composite
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
 
 
@@ -95,12 +96,9 @@ class Split:
     def image(self, view: int, background) -> tuple[torch.Tensor, torch.Tensor]:
         """Full image ``view``: rgb (h, w, 3) composited onto ``background`` (3,), alpha (h, w)."""
         px = self._to_float(self.images[view])
-        rgb = px[..., :3]
         if not self.has_alpha:
-            return rgb, torch.ones_like(rgb[..., 0])
-        alpha = px[..., 3]
-        bg = torch.as_tensor(background, dtype=torch.float32)
-        return rgb * alpha[..., None] + bg * (1.0 - alpha[..., None]), alpha
+            return px[..., :3], torch.ones_like(px[..., 0])
+        return composite(px, background), px[..., 3]
 
 
 @dataclass

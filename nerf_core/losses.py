@@ -1,8 +1,6 @@
 """Losses and regularisers shared by the methods (photometric terms live with the trainer)."""
 from __future__ import annotations
 
-import math
-
 import torch
 
 Tensor = torch.Tensor
@@ -11,12 +9,6 @@ Tensor = torch.Tensor
 def mse(pred: Tensor, target: Tensor) -> Tensor:
     """Mean squared error over all elements of (n, 3) colours."""
     return (pred - target).square().mean()
-
-
-def psnr_from_mse(value: float | Tensor) -> float:
-    """PSNR in dB for colours in [0, 1]; inf for a perfect match."""
-    v = float(value)
-    return math.inf if v <= 0 else -10.0 * math.log10(v)
 
 
 def total_variation_2d(planes: Tensor) -> Tensor:
