@@ -390,7 +390,7 @@ def render_to_dir(
         raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
     from .evaluate import score_view
     from .imageio import write_exr, write_png
-    from .metrics import error_heatmap
+    from .metrics import HEATMAP_VMAX, error_heatmap
     from .volrend import composite_background
 
     out.mkdir(parents=True, exist_ok=True)
@@ -447,6 +447,7 @@ def render_to_dir(
             "background": "environment" if opaque else "transparent", "created": time.time()}
     if any("psnr" in f for f in frames):
         meta["metrics_background"] = [float(c) for c in bg.tolist()]
+        meta["error_map_vmax"] = HEATMAP_VMAX
     meta.update(extra or {})
     tmp = out / ".renders.json.tmp"
     tmp.write_text(json.dumps(meta, indent=2), encoding="utf-8")
