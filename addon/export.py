@@ -8,10 +8,11 @@ Only ``camera_intrinsics``, ``camera_to_world`` and ``cameras_transforms`` touch
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import numpy as np
+
+from .core_contract import contract
 
 MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
@@ -47,8 +48,8 @@ def intrinsics_from_params(lens, sensor_width, sensor_height, sensor_fit, shift_
     cx = 0.5 * res_x - shift_x * viewfac
     cy = 0.5 * res_y + shift_y * viewfac / ycor
     return {
-        "camera_angle_x": 2.0 * math.atan(res_x / (2.0 * fx)),
-        "camera_angle_y": 2.0 * math.atan(res_y / (2.0 * fy)),
+        "camera_angle_x": contract.fov_from_focal(fx, res_x),
+        "camera_angle_y": contract.fov_from_focal(fy, res_y),
         "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": int(res_x), "h": int(res_y),
         "camera_model": "OPENCV", "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
     }
