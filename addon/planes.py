@@ -99,6 +99,8 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
                 gt_by_stem[stem] = str(contract.resolve_image(base, fp, add_png=not os.path.splitext(fp)[1]))
     views = []
     for i, (stem, fr) in enumerate(zip(contract.output_stems(meta["frames"]), meta["frames"])):
+        if not isinstance(fr, dict):
+            raise ValueError(f"{source}: frame {i} is not an object")
         image = os.path.join(render_dir, contract.render_files(stem)["image"])
         if not os.path.isfile(image):
             raise ValueError(f"{render_dir}: frame {i} ({stem}): render {stem}.png is missing")

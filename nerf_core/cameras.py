@@ -12,9 +12,8 @@ from typing import Optional, Tuple
 import numpy as np
 import torch
 
-# Pose validation and the focal-length rule are the contract's (the add-on needs them without torch).
-from .contract.intrinsics import focal_from_fov  # noqa: F401 (re-exported)
-from .contract.transforms import PoseError, check_pose  # noqa: F401 (re-exported)
+# Pose validation (contract.check_pose) and the focal-length rule (contract.resolve_intrinsics) live
+# in nerf_core.contract: the add-on needs them without torch.
 from .sampling import ray_aabb_intersect
 
 

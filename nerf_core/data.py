@@ -17,7 +17,6 @@ Every problem with the input raises ``DatasetError`` whose message names the fil
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
@@ -26,10 +25,10 @@ import numpy as np
 import torch
 
 from .cameras import Cameras
-# Reading transforms files is the contract's (shared with the add-on); re-exported for callers of data.
+# Reading transforms files is the contract's (shared with the add-on); DatasetError, FrameInfo,
+# detect_layout and dataset_problems stay importable from here for data's long-standing callers.
 from .contract.intrinsics import resolve_intrinsics
-from .contract.transforms import (HOLDOUT_EVERY, INTRINSIC_KEYS, SPLITS, DatasetError,  # noqa: F401
-                                  FrameInfo, detect_layout, frame_infos, resolve_dataset_path)
+from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
 from .dataset_checks import check_train_count, dataset_problems, depth_scale, parse_aabb, scene_fields  # noqa: F401
 from .metrics import composite
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
@@ -230,8 +229,9 @@ def load_split(
     downscale: int = 1,
     depth_scale: float = 1e-3,
     load_extras: bool = True,
+    extras: Sequence[str] = ("depth", "normals", "masks"),
 ) -> Split:
-    """Read the pixels (and depth, normals, masks) of one split's frames."""
+    """Read the pixels (and, with ``load_extras``, the ``extras`` of ``EXTRAS``) of one split's frames."""
     images, params = [], []
     size = None
     for fr in frames:
@@ -269,7 +269,7 @@ def load_split(
     split = Split(name, cams, stack, list(frames))
     if not load_extras or not frames:
         return split
-    for attr in ("depth", "normals", "masks"):
+    for attr in extras:
         if any(getattr(f, EXTRAS[attr][0]) for f in frames):
             setattr(split, attr, torch.from_numpy(np.stack([_load_extra(attr, fr, h, w, downscale, depth_scale)
                                                             for fr in frames])))

@@ -339,7 +339,7 @@ def _ground_truth(frame: Optional[FrameInfo], cameras: Cameras, view: int, downs
     if frame is None or not frame.image.is_file():
         return None, None
     try:
-        split = load_split("ground truth", [frame], downscale)
+        split = load_split("ground truth", [frame], downscale, extras=("masks",))  # PSNR counts mask pixels
     except DatasetError as exc:
         return None, str(exc)
     size, want = (split.width, split.height), (int(cameras.width[view]), int(cameras.height[view]))
