@@ -13,7 +13,7 @@ import os
 from dataclasses import dataclass
 from typing import List, Tuple
 
-from . import planes, runs, trainer_process
+from . import export, planes, runs, trainer_process
 from .core_contract import contract
 from .trainer_process import SetupError
 
@@ -99,7 +99,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
             cams = [ob for ob in context.selected_objects if ob.type == "CAMERA"]
             if not cams:
                 raise SetupError("No camera is selected: select the camera(s) to render.")
-            data = planes.cameras_transforms(cams, scene, (meta["w"], meta["h"]), base=meta, prefix="selected")
+            data = export.cameras_transforms(cams, scene, (meta["w"], meta["h"]), base=meta, prefix="selected")
             label = "selected"
         else:
             cam = scene.camera if scene.camera is not None else None
@@ -108,7 +108,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
             if cam is None:
                 raise SetupError("No active camera for the fly-through: make a camera active.")
             frames = list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
-            data = planes.cameras_transforms([cam], scene, (meta["w"], meta["h"]), frames=frames, base=meta,
+            data = export.cameras_transforms([cam], scene, (meta["w"], meta["h"]), frames=frames, base=meta,
                                              prefix="flythrough")
             label = "flythrough"
     except ValueError as exc:

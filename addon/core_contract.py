@@ -1,12 +1,16 @@
 """``nerf_core.contract`` for the add-on, loaded without torch: ``from .core_contract import contract``.
 
 The rules the add-on shares with nerf_core (run folder paths, the training budget fraction, progress
-event lines) have one home, ``nerf_core/contract.py``. Inside Blender nerf_core is not importable: the
-installed extension carries it in ``vendor/`` (scripts/build_addon.py) for the child trainer only, and
-putting that folder on Blender's ``sys.path`` would invite an ``import nerf_core.train`` (torch) into
-Blender. So the one file is loaded by path, from the same folder the child trainer is given
-(``core_path.nerf_core_search_path``), under a private module name; ``contract.py`` imports only the
-standard library and numpy, and never torch (nerf_core/tests/test_contract.py checks that).
+event lines, the intrinsics rule, output names) have one home, the ``nerf_core/contract/`` package.
+Inside Blender nerf_core is not importable: the installed extension carries it in ``vendor/``
+(scripts/build_addon.py) for the child trainer only, and putting that folder on Blender's
+``sys.path`` would invite an ``import nerf_core.train`` (torch) into Blender. So the contract package
+alone is loaded by path, from the same folder the child trainer is given
+(``core_path.nerf_core_search_path``), under a private package name: its modules import only each
+other (relatively), the standard library and numpy, never torch (nerf_core/tests/test_contract.py).
+
+    from .core_contract import contract
+    fx, fy, cx, cy, w, h = contract.resolve_intrinsics(meta, frame, None)
 """
 from __future__ import annotations
 
@@ -22,7 +26,7 @@ _MODULE_NAME = f"{__package__ or 'nerf_bridge'}.nerf_core_contract"
 
 
 def load(addon_dir: str = ADDON_DIR) -> ModuleType:
-    """The contract module of the nerf_core that the add-on in ``addon_dir`` hands to its trainer.
+    """The contract package of the nerf_core that the add-on in ``addon_dir`` hands to its trainer.
 
     Raises ImportError, naming the folder searched, when there is none (a broken install).
     """
@@ -34,21 +38,23 @@ def load(addon_dir: str = ADDON_DIR) -> ModuleType:
         except ImportError:
             raise ImportError(f"nerf_core not found: neither {os.path.join(addon_dir, 'vendor')} nor a checkout "
                               "around the add-on has it; rebuild the extension with scripts/build_addon.py") from None
-    path = os.path.join(root, "nerf_core", "contract.py")
+    package_dir = os.path.join(root, "nerf_core", "contract")
+    path = os.path.join(package_dir, "__init__.py")
     name = _MODULE_NAME if addon_dir == ADDON_DIR else f"{_MODULE_NAME}_{abs(hash(root))}"
     loaded = sys.modules.get(name)
     if loaded is not None and getattr(loaded, "__file__", None) == path:
         return loaded
-    spec = importlib.util.spec_from_file_location(name, path)
-    if spec is None or not os.path.isfile(path):
+    if not os.path.isfile(path):
         raise ImportError(f"{path}: missing; the add-on's nerf_core is older than the add-on "
                           "(rebuild the extension with scripts/build_addon.py)")
+    spec = importlib.util.spec_from_file_location(name, path, submodule_search_locations=[package_dir])
     module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses and pickling look modules up by name
+    sys.modules[name] = module  # its submodules (``from .intrinsics import ...``) and dataclasses look it up
     try:
         spec.loader.exec_module(module)
     except BaseException:
-        del sys.modules[name]
+        for key in [k for k in sys.modules if k == name or k.startswith(name + ".")]:
+            del sys.modules[key]
         raise
     return module
 

@@ -3,15 +3,16 @@
 Follows ../shared/CONVENTIONS.md and docs/CONTRACTS.md: ``transforms_{train,val,test}.json`` with
 ``file_path`` without extension, a nerfstudio ``transforms.json`` with real file names and split
 lists, every intrinsic, and the manifest in ``nerf_capture/manifest.json`` (out of instant-ngp's way).
-Only ``camera_intrinsics`` and ``camera_to_world`` touch bpy objects.
+Only ``camera_intrinsics``, ``camera_to_world`` and ``cameras_transforms`` touch bpy objects.
 """
 from __future__ import annotations
 
 import json
-import math
 import os
 
 import numpy as np
+
+from .core_contract import contract
 
 MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
@@ -47,8 +48,8 @@ def intrinsics_from_params(lens, sensor_width, sensor_height, sensor_fit, shift_
     cx = 0.5 * res_x - shift_x * viewfac
     cy = 0.5 * res_y + shift_y * viewfac / ycor
     return {
-        "camera_angle_x": 2.0 * math.atan(res_x / (2.0 * fx)),
-        "camera_angle_y": 2.0 * math.atan(res_y / (2.0 * fy)),
+        "camera_angle_x": contract.fov_from_focal(fx, res_x),
+        "camera_angle_y": contract.fov_from_focal(fy, res_y),
         "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": int(res_x), "h": int(res_y),
         "camera_model": "OPENCV", "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0,
     }
@@ -93,50 +94,117 @@ def _atomic_json(path: str, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def _frame_entry(f: dict, folder: str, per_frame_intrinsics: bool, nerfstudio: bool) -> dict:
+    """One frame of a transforms file: ``./folder/name`` (synthetic) or ``folder/name.png`` (nerfstudio)."""
+    path = f"{folder}/{f['name']}.png" if nerfstudio else f"./{folder}/{f['name']}"
+    entry = {"file_path": path, "transform_matrix": f["transform_matrix"]}
+    if per_frame_intrinsics:  # instant-ngp and nerfstudio both read these
+        for k in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"):
+            entry[k] = f["intrinsics"][k]
+    for key in ("depth_file_path", "normal_file_path", "mask_path"):
+        if f.get(key):
+            entry[key] = f[key]
+    if f.get("frame") is not None:
+        entry["blender_frame"] = f["frame"]  # not "time": nerfstudio reads that as dynamic-scene time
+    if f.get("camera"):
+        entry["camera"] = f["camera"]
+    return entry
+
+
+def transforms_document(frames: list[dict], common: dict, folder: str, nerfstudio: bool = False,
+                        intrinsics_of: list[dict] | None = None, per_frame: bool = False) -> dict:
+    """The transforms object of ``frames``, all in ``folder``: the one writer of transforms JSON, for
+    the capture's files and the Compare panel's camera files alike.
+
+    ``frames``: dicts with name ("r_3"), transform_matrix, intrinsics (``intrinsics_from_params``),
+    optional depth/normal/mask relative paths (with extension), ``frame`` (Blender frame) and
+    ``camera`` (object name). Intrinsics that all of ``intrinsics_of`` (default ``frames``) share go
+    to the top level, else (or with ``per_frame``) they go on every frame. ``nerfstudio``: real file names
+    (``folder/name.png``) instead of ``./folder/name``. ``common``: aabb, near, far, ply_file_path...
+    """
+    basis = frames if intrinsics_of is None else intrinsics_of
+    if not basis:
+        raise ExportError("no frames to write")
+    shared = shared_intrinsics(basis)
+    top = {k: v for k, v in (shared or basis[0]["intrinsics"]).items() if k not in ("camera_angle_y",)}
+    top.update(common)
+    top["frames"] = [_frame_entry(f, folder, per_frame or shared is None, nerfstudio) for f in frames]
+    return top
+
+
 def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str]:
     """Write transforms_{train,val,test}.json and nerfstudio's transforms.json; return the paths.
 
-    ``frames``: dicts with split, name ("r_3"), transform_matrix, intrinsics, and optional
-    depth/normal/mask relative paths (with extension). ``common``: aabb, near, far, ply_file_path...
+    ``frames``: as ``transforms_document`` wants them, each with its ``split``. Every file shares one
+    top level, taken from all frames.
     """
     if not frames:
         raise ExportError(f"{out_dir}: no rendered frames to export")
-    shared = shared_intrinsics(frames)
-    base = dict(shared) if shared else dict(frames[0]["intrinsics"])
-    top = {k: v for k, v in base.items() if k not in ("camera_angle_y",)}
-    top.update(common)
     written = []
-    per_split_files = {s: [] for s in SPLITS}
     ns_frames = []
+    per_split_files = {s: [] for s in SPLITS}
     for split in SPLITS:
         split_frames = [f for f in frames if f["split"] == split]
-        out_frames = []
-        for f in split_frames:
-            entry = {"file_path": f"./{split}/{f['name']}", "transform_matrix": f["transform_matrix"]}
-            ns = {"file_path": f"{split}/{f['name']}.png", "transform_matrix": f["transform_matrix"]}
-            if shared is None:  # per-frame intrinsics: instant-ngp and nerfstudio both read these
-                for k in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"):
-                    entry[k] = ns[k] = f["intrinsics"][k]
-            for key in ("depth_file_path", "normal_file_path", "mask_path"):
-                if f.get(key):
-                    entry[key] = ns[key] = f[key]
-            if f.get("frame") is not None:
-                entry["blender_frame"] = ns["blender_frame"] = f["frame"]  # not "time": nerfstudio reads that as dynamic-scene time
-            out_frames.append(entry)
-            ns_frames.append(ns)
-            per_split_files[split].append(ns["file_path"])
-        doc = dict(top)
-        doc["frames"] = out_frames
+        doc = transforms_document(split_frames, common, split, intrinsics_of=frames)
+        ns_split = transforms_document(split_frames, common, split, nerfstudio=True, intrinsics_of=frames)["frames"]
+        ns_frames += ns_split
+        per_split_files[split] = [e["file_path"] for e in ns_split]
         path = os.path.join(out_dir, f"transforms_{split}.json")
         _atomic_json(path, doc)
         written.append(path)
-    ns_doc = dict(top)
+    ns_doc = transforms_document([], common, "", intrinsics_of=frames)
     ns_doc.update({f"{s}_filenames": per_split_files[s] for s in SPLITS})
     ns_doc["frames"] = ns_frames
     path = os.path.join(out_dir, "transforms.json")
     _atomic_json(path, ns_doc)
     written.append(path)
     return written
+
+
+def cameras_transforms(cameras, scene, size, frames=None, base: dict | None = None, prefix: str = "view") -> dict:
+    """A transforms object (``transforms_document``) for Blender cameras rendered at ``size`` = (w, h),
+    for ``nerf_core render`` (the Compare panel's selected cameras or fly-through).
+
+    With ``frames``, ``cameras`` must hold one camera and one view is written per frame (a fly-through
+    along its animation). ``base`` supplies near/far/aabb from the run's dataset. Raises ValueError
+    (ExportError) when a camera's aspect differs from ``size`` (the run renders the aspect it trained
+    on), for a camera that is not perspective, scaled or sheared, and without cameras.
+    """
+    import bpy  # bpy.path.clean_name: the rule for file names made from object names
+
+    w, h = int(size[0]), int(size[1])
+    r = scene.render
+    res_x, res_y = r.resolution_x * r.pixel_aspect_x, r.resolution_y * r.pixel_aspect_y
+    if abs(res_x / res_y - w / h) > 0.005 * (w / h):
+        names = ", ".join(repr(c.name) for c in cameras)
+        raise ExportError(
+            f"camera {names} renders at {r.resolution_x}x{r.resolution_y} in this scene "
+            f"(aspect {res_x / res_y:.3f}) but the run was trained on {w}x{h} (aspect {w / h:.3f}): set "
+            f"Output Properties > Resolution to the same aspect, or render the run's own cameras")
+    common = {k: v for k, v in (base or {}).items() if k in ("near", "far", "aabb", "aabb_scale")}
+    out_frames = []
+    saved_frame = scene.frame_current
+    try:
+        shots = [(cameras[0], f) for f in frames] if frames is not None else [(c, None) for c in cameras]
+        for cam, frame in shots:
+            if cam.type != "CAMERA":
+                raise ExportError(f"object {cam.name!r} is not a camera")
+            if frame is not None:
+                scene.frame_set(frame)
+            data = cam.data
+            if data.type != "PERSP":
+                raise ExportError(f"camera {cam.name!r} is {data.type.lower()}; only perspective cameras can be rendered")
+            intr = intrinsics_from_params(data.lens, data.sensor_width, data.sensor_height, data.sensor_fit,
+                                          data.shift_x, data.shift_y, w, h, r.pixel_aspect_x, r.pixel_aspect_y)
+            out_frames.append({"name": f"frame_{frame:04d}" if frame is not None else bpy.path.clean_name(cam.name),
+                               "transform_matrix": camera_to_world(cam), "intrinsics": intr, "frame": frame,
+                               "camera": cam.name})
+    finally:
+        scene.frame_set(saved_frame)
+    if not out_frames:
+        raise ExportError("no cameras to render")
+    # Every frame carries its intrinsics, as camera files always have (the top level holds the first's).
+    return transforms_document(out_frames, common, prefix, per_frame=True)
 
 
 def ngp_aabb_scale(lo, hi, ngp_scale: float = 0.33) -> int:

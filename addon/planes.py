@@ -6,7 +6,10 @@ Two layouts:
   ``distance``, sized from the render's intrinsics so that looking through the camera shows the
   plane exactly over the image (lens shift, sensor fit and aspect are all in fx, fy, cx, cy);
 * comparison gallery (``import_gallery``): per view a row NeRF | Blender (the dataset image) | error
-  heat-map, with PSNR / SSIM on text objects.
+  heat-map, with PSNR / SSIM on text objects. ``nerf_core render`` computes those metrics and writes
+  the heat-maps (with eval's own functions); the gallery only reads them from ``renders.json``.
+
+Intrinsics and the names of render outputs follow ``nerf_core.contract`` (``core_contract``).
 
 Everything created is tagged ``nerf_bridge`` and lives in its own collection; importing again first
 removes what the previous import created there (objects, meshes, materials, images, text curves),
@@ -24,12 +27,11 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from . import image_metrics
+from .core_contract import contract
 
 VIEWS_COLLECTION = "NeRF Views"
 GALLERY_COLLECTION = "NeRF Gallery"
 TAG = "nerf_bridge"
-HEATMAP_VMAX = 0.25  # mean absolute error drawn at full brightness; fixed so views are comparable
 
 
 @dataclass
@@ -37,7 +39,9 @@ class View:
     """One rendered view.
 
     ``c2w`` is the 4x4 camera-to-world (OpenGL, no scale); ``intrinsics`` holds fx, fy, cx, cy, w, h
-    in pixels of the rendered image; ``ground_truth`` is the dataset image for the same camera.
+    in pixels of the rendered image; ``ground_truth`` is the dataset image for the same camera;
+    ``metrics`` (psnr, ssim) and ``error_map`` (heat-map PNG, mean absolute error, ``error_vmax`` and
+    above at full brightness) are what ``nerf_core render`` wrote for it.
     """
 
     name: str
@@ -47,31 +51,19 @@ class View:
     ground_truth: Optional[str] = None
     depth: Optional[str] = None
     metrics: Dict[str, float] = field(default_factory=dict)
+    error_map: Optional[str] = None
+    error_vmax: Optional[float] = None
 
 
 # -- reading render folders ----------------------------------------------------------------------
 def intrinsics_from(meta: dict, frame: dict, image_size: Optional[Sequence[int]] = None) -> Dict[str, float]:
-    """fx, fy, cx, cy, w, h from a transforms frame (per-frame keys override the file's)."""
-
-    def get(key):
-        return frame.get(key, meta.get(key))
-
-    w, h = get("w"), get("h")
-    if (w is None or h is None) and image_size is not None:
-        w, h = image_size
-    if w is None or h is None:
-        raise ValueError("transforms has no 'w'/'h' and the image size is unknown")
-    w, h = float(w), float(h)
-    fx, fy = get("fl_x"), get("fl_y")
-    if fx is None:
-        angle = get("camera_angle_x")
-        if angle is None:
-            raise ValueError("transforms has neither 'fl_x' nor 'camera_angle_x'")
-        fx = 0.5 * w / math.tan(0.5 * float(angle))
-    fy = fx if fy is None else fy
-    cx, cy = get("cx"), get("cy")
-    return {"fx": float(fx), "fy": float(fy), "cx": float(w / 2 if cx is None else cx),
-            "cy": float(h / 2 if cy is None else cy), "w": w, "h": h}
+    """fx, fy, cx, cy, w, h of a transforms frame by the contract's rule (``contract.resolve_intrinsics``:
+    per-frame keys override the file's, ``fl_x`` before ``camera_angle_x``); ValueError when incomplete."""
+    try:
+        fx, fy, cx, cy, w, h = contract.resolve_intrinsics(meta, frame, image_size, "transforms")
+    except contract.DatasetError as exc:
+        raise ValueError(str(exc).split(": ", 1)[-1]) from None
+    return {"fx": fx, "fy": fy, "cx": cx, "cy": cy, "w": w, "h": h}
 
 
 def _load_json(path: str) -> dict:
@@ -87,35 +79,28 @@ def _load_json(path: str) -> dict:
     return data
 
 
-def frame_stem(frame: dict, index: int) -> str:
-    """The output name nerf_core render uses for a frame: basename of file_path, else view_XXX."""
-    path = frame.get("file_path")
-    if isinstance(path, str) and path:
-        return os.path.splitext(os.path.basename(path))[0]
-    return f"view_{index:03d}"
-
-
 def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> List[View]:
-    """The views in ``render_dir`` (``renders.json`` from ``nerf_core render``), each matched by name to
-    its frame in ``cameras_json`` to find the dataset's ground-truth image (when the file exists)."""
+    """The views in ``render_dir`` (``renders.json`` from ``nerf_core render``) with the metrics and
+    error maps it lists. A view's ground truth is the image renders.json names, else (older render
+    folders) the frame of ``cameras_json`` whose output name matches (``contract.output_stems``)."""
     listing = os.path.join(render_dir, "renders.json")
     source = listing if os.path.isfile(listing) else cameras_json
     if source is None:
         raise ValueError(f"{render_dir}: no renders.json (was it written by 'nerf_core render'?)")
     meta = _load_json(source)
-    gt_meta, gt_by_stem = None, {}
+    gt_by_stem = {}
     if cameras_json and os.path.isfile(cameras_json):
-        gt_meta = _load_json(cameras_json)
+        gt_frames = _load_json(cameras_json)["frames"]
         base = os.path.dirname(os.path.abspath(cameras_json))
-        for i, fr in enumerate(gt_meta["frames"]):
-            fp = fr.get("file_path")
+        for stem, fr in zip(contract.output_stems(gt_frames), gt_frames):
+            fp = fr.get("file_path") if isinstance(fr, dict) else None
             if isinstance(fp, str) and fp:
-                path = os.path.normpath(os.path.join(base, fp))
-                gt_by_stem[frame_stem(fr, i)] = path if os.path.splitext(path)[1] else path + ".png"
+                gt_by_stem[stem] = str(contract.resolve_image(base, fp, add_png=not os.path.splitext(fp)[1]))
     views = []
-    for i, fr in enumerate(meta["frames"]):
-        stem = frame_stem(fr, i)
-        image = os.path.join(render_dir, stem + ".png")
+    for i, (stem, fr) in enumerate(zip(contract.output_stems(meta["frames"]), meta["frames"])):
+        if not isinstance(fr, dict):
+            raise ValueError(f"{source}: frame {i} is not an object")
+        image = os.path.join(render_dir, contract.render_files(stem)["image"])
         if not os.path.isfile(image):
             raise ValueError(f"{render_dir}: frame {i} ({stem}): render {stem}.png is missing")
         if "transform_matrix" not in fr:
@@ -124,10 +109,16 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
             intr = intrinsics_from(meta, fr)
         except ValueError as exc:
             raise ValueError(f"{source}: frame {i} ({stem}): {exc}") from None
-        gt = gt_by_stem.get(stem)
-        depth = os.path.join(render_dir, stem + "_depth.exr")
-        views.append(View(stem, os.path.abspath(image), fr["transform_matrix"], intr,
-                          gt if gt and os.path.isfile(gt) else None, depth if os.path.isfile(depth) else None))
+        gt = fr.get("ground_truth") or gt_by_stem.get(stem)
+        depth = os.path.join(render_dir, contract.render_files(stem)["depth"])
+        view = View(stem, os.path.abspath(image), fr["transform_matrix"], intr,
+                    gt if gt and os.path.isfile(gt) else None, depth if os.path.isfile(depth) else None)
+        if isinstance(fr.get("psnr"), (int, float)) and isinstance(fr.get("ssim"), (int, float)):
+            view.metrics = {"psnr": float(fr["psnr"]), "ssim": float(fr["ssim"])}
+        heat = os.path.join(render_dir, fr["error_map"]) if isinstance(fr.get("error_map"), str) else None
+        view.error_map = heat if heat and os.path.isfile(heat) else None
+        view.error_vmax = meta.get("error_map_vmax")
+        views.append(view)
     return views
 
 
@@ -279,22 +270,6 @@ def load_image_array(path: str) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
-def compare_view(view: View, out_dir: str, background=(1.0, 1.0, 1.0)) -> Optional[str]:
-    """PSNR / SSIM of the render against the ground truth into ``view.metrics``; writes the error
-    heat-map ``<out_dir>/<name>_error.png`` and returns its path (None without ground truth)."""
-    if not view.ground_truth:
-        return None
-    nerf = image_metrics.composite(load_image_array(view.image), background)
-    gt = image_metrics.composite(load_image_array(view.ground_truth), background)
-    if nerf.shape != gt.shape:
-        raise ValueError(f"view {view.name}: render {nerf.shape[1]}x{nerf.shape[0]} and ground truth "
-                         f"{view.ground_truth} {gt.shape[1]}x{gt.shape[0]} differ in size")
-    view.metrics = {"psnr": image_metrics.psnr(nerf, gt), "ssim": image_metrics.ssim(nerf, gt)}
-    path = os.path.join(out_dir, f"{view.name}_error.png")
-    image_metrics.write_png(path, image_metrics.error_heatmap(nerf, gt, vmax=HEATMAP_VMAX))
-    return path
-
-
 def _text(collection, name: str, body: str, location, size: float) -> bpy.types.Object:
     curve = bpy.data.curves.new(name, "FONT")
     curve.body = body
@@ -307,11 +282,15 @@ def _text(collection, name: str, body: str, location, size: float) -> bpy.types.
     return ob
 
 
-def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), row_height: float = 1.0,
-                   background=(1.0, 1.0, 1.0), collection_name: str = GALLERY_COLLECTION,
-                   scene=None) -> List[View]:
+def import_gallery(views: Sequence[View], out_dir: str = "", origin=(0.0, 0.0, 0.0), row_height: float = 1.0,
+                   background=None, collection_name: str = GALLERY_COLLECTION, scene=None) -> List[View]:
     """Replace the gallery: one row per view (NeRF | Blender | error), upright in the XZ plane facing
-    -Y (the front view), rows going down from ``origin``. Fills ``view.metrics``; returns the views."""
+    -Y (the front view), rows going down from ``origin``; returns the views.
+
+    Metrics and heat-maps are the ones ``nerf_core render`` wrote (``views_from_render``), computed
+    on the run's evaluation background; ``out_dir`` and ``background`` are accepted for older callers
+    and not used (nothing is computed or written here).
+    """
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
     gap = 0.1 * row_height
@@ -321,15 +300,16 @@ def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), 
     if views:
         aspect = views[0].intrinsics["w"] / views[0].intrinsics["h"]
         col_w = aspect * row_height
-        headers = ("NeRF", "Blender", f"|error| (bright = {HEATMAP_VMAX:g}+)")
+        vmax = next((v.error_vmax for v in views if v.error_vmax), None)
+        headers = ("NeRF", "Blender", f"|error| (bright = {vmax:g}+)" if vmax else "|error|")
         for col, title in enumerate(headers):
             _text(coll, f"Gallery {title.split()[0]}", title, origin + Vector((col * (col_w + gap), 0, gap)), label)
     for row, view in enumerate(views):
-        heat = compare_view(view, out_dir, background)
         z = -row * (row_height + 2 * label + 2 * gap)
         aspect = view.intrinsics["w"] / view.intrinsics["h"]
         col_w = aspect * row_height
-        for col, (kind, path) in enumerate((("NeRF", view.image), ("Blender", view.ground_truth), ("Error", heat))):
+        for col, (kind, path) in enumerate((("NeRF", view.image), ("Blender", view.ground_truth),
+                                            ("Error", view.error_map))):
             if not path:
                 continue
             ob = import_image_plane(path, coll, f"Gallery {kind} {view.name}")
@@ -339,70 +319,9 @@ def import_gallery(views: Sequence[View], out_dir: str, origin=(0.0, 0.0, 0.0), 
             ob["nerf_view"] = view.name
         if view.metrics:
             body = f"{view.name}   PSNR {view.metrics['psnr']:.2f} dB   SSIM {view.metrics['ssim']:.3f}"
+        elif view.ground_truth:
+            body = f"{view.name}   (no metrics in renders.json)"
         else:
             body = f"{view.name}   (no ground truth image)"
         _text(coll, f"Label {view.name}", body, origin + Vector((0.0, 0.0, z - row_height - label - gap / 2)), label)
     return list(views)
-
-
-# -- Blender cameras to a transforms file for ``nerf_core render`` ---------------------------------------
-def _camera_intrinsics(cam_ob, scene, w: int, h: int) -> Dict[str, float]:
-    """Pixel intrinsics of ``cam_ob`` rendered at w x h, from the capture helper's function, so that
-    capture and comparison can never disagree on lens shift or sensor fit."""
-    from .export import intrinsics_from_params
-
-    cam = cam_ob.data
-    if cam.type != "PERSP":
-        raise ValueError(f"camera {cam_ob.name!r} is {cam.type.lower()}; only perspective cameras can be rendered")
-    r = scene.render
-    intr = intrinsics_from_params(cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit, cam.shift_x,
-                                  cam.shift_y, w, h, r.pixel_aspect_x, r.pixel_aspect_y)
-    return {"fx": intr["fl_x"], "fy": intr["fl_y"], "cx": intr["cx"], "cy": intr["cy"], "w": float(w), "h": float(h)}
-
-
-def cameras_transforms(cameras: Sequence, scene, size: Sequence[int], frames: Optional[Sequence[int]] = None,
-                       base: Optional[dict] = None, prefix: str = "view") -> dict:
-    """A transforms dict (docs/CONTRACTS.md) for Blender cameras rendered at ``size`` = (w, h).
-
-    With ``frames``, ``cameras`` must hold one camera and one view is written per frame (a fly-through
-    along its animation). ``base`` supplies near/far/aabb from the run's dataset. Raises ValueError
-    when a camera's aspect differs from ``size`` (the run can only render the aspect it trained on).
-    """
-    from .export import camera_to_world  # raises (a ValueError) for scaled or sheared cameras
-
-    w, h = int(size[0]), int(size[1])
-    res_x = scene.render.resolution_x * scene.render.pixel_aspect_x
-    res_y = scene.render.resolution_y * scene.render.pixel_aspect_y
-    if abs(res_x / res_y - w / h) > 0.005 * (w / h):
-        names = ", ".join(repr(c.name) for c in cameras)
-        raise ValueError(
-            f"camera {names} renders at {scene.render.resolution_x}x{scene.render.resolution_y} in this scene "
-            f"(aspect {res_x / res_y:.3f}) but the run was trained on {w}x{h} (aspect {w / h:.3f}): set "
-            f"Output Properties > Resolution to the same aspect, or render the run's own cameras")
-    meta = {k: v for k, v in (base or {}).items() if k in ("near", "far", "aabb", "aabb_scale")}
-    out_frames = []
-    saved_frame = scene.frame_current
-    try:
-        shots = [(cameras[0], f) for f in frames] if frames is not None else [(c, None) for c in cameras]
-        for i, (cam, frame) in enumerate(shots):
-            if cam.type != "CAMERA":
-                raise ValueError(f"object {cam.name!r} is not a camera")
-            if frame is not None:
-                scene.frame_set(frame)
-            intr = _camera_intrinsics(cam, scene, w, h)
-            stem = f"frame_{frame:04d}" if frame is not None else bpy.path.clean_name(cam.name)
-            out_frames.append({
-                "file_path": f"./{prefix}/{stem}",
-                "transform_matrix": camera_to_world(cam),
-                "fl_x": intr["fx"], "fl_y": intr["fy"], "cx": intr["cx"], "cy": intr["cy"], "w": w, "h": h,
-                "camera": cam.name,
-            })
-    finally:
-        scene.frame_set(saved_frame)
-    if not out_frames:
-        raise ValueError("no cameras to render")
-    first = out_frames[0]
-    meta.update({"camera_angle_x": 2 * math.atan(0.5 * w / first["fl_x"]), "fl_x": first["fl_x"],
-                 "fl_y": first["fl_y"], "cx": first["cx"], "cy": first["cy"], "w": w, "h": h,
-                 "frames": out_frames})
-    return meta

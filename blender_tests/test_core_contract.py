@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from addon import core_contract, core_path
+from addon import core_contract, core_path, planes
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts"))
 import build_addon  # noqa: E402
@@ -38,7 +38,7 @@ def test_checkout_addon_loads_the_contract_with_torch_blocked(repo_root):
     out = subprocess.run([sys.executable, "-c", code], cwd=repo_root, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["file"] == os.path.join(repo_root, "nerf_core", "contract.py")
+    assert got["file"] == os.path.join(repo_root, "nerf_core", "contract", "__init__.py")
     assert got["torch"] is False
     assert got["nerf_core"] is False  # loaded by path: nerf_core.train stays out of Blender's reach
     assert got["latest"] == os.path.join("R", "checkpoints", "latest.pt")
@@ -46,14 +46,14 @@ def test_checkout_addon_loads_the_contract_with_torch_blocked(repo_root):
 
 def test_the_add_on_and_its_trainer_read_the_same_contract(repo_root):
     assert core_contract.contract.__file__ == os.path.join(core_path.nerf_core_search_path(), "nerf_core",
-                                                          "contract.py")
+                                                          "contract", "__init__.py")
     assert core_path.nerf_core_search_path() == repo_root
 
 
 def test_installed_layout_prefers_the_vendored_copy(tmp_path):
     installed = tmp_path / "nerf_bridge"
     build_addon.stage(build_addon.ADDON_DIR, str(installed))
-    vendored = installed / "vendor" / "nerf_core" / "contract.py"
+    vendored = installed / "vendor" / "nerf_core" / "contract" / "__init__.py"
     # Mark the vendored copy so that loading the checkout's instead cannot pass unnoticed.
     vendored.write_text(vendored.read_text() + "\nVENDORED_MARK = 'installed copy'\n")
     module = core_contract.load(str(installed))
@@ -64,8 +64,8 @@ def test_installed_layout_prefers_the_vendored_copy(tmp_path):
 def test_a_vendored_nerf_core_without_the_contract_is_named(tmp_path):
     installed = tmp_path / "nerf_bridge"
     build_addon.stage(build_addon.ADDON_DIR, str(installed))
-    os.remove(installed / "vendor" / "nerf_core" / "contract.py")
-    with pytest.raises(ImportError, match=r"vendor/nerf_core/contract\.py: missing.*build_addon\.py"):
+    os.remove(installed / "vendor" / "nerf_core" / "contract" / "__init__.py")
+    with pytest.raises(ImportError, match=r"vendor/nerf_core/contract/__init__\.py: missing.*build_addon\.py"):
         core_contract.load(str(installed))
 
 
@@ -111,7 +111,18 @@ def test_installed_extension_uses_its_vendored_contract_without_torch(tmp_path):
     installed = home / "extensions" / "user_default" / "nerf_bridge"
     assert got["result"] == ["FINISHED"] and got["train_panel"]
     assert got["addon"] == str(installed / "core_contract.py")
-    assert got["file"] == str(installed / "vendor" / "nerf_core" / "contract.py")
+    assert got["file"] == str(installed / "vendor" / "nerf_core" / "contract" / "__init__.py")
     assert got["torch"] is False
     assert got["old"] == 0.2 and got["new"] == 0.75  # 20/100 from the budgets, then the trainer's frac
     assert got["method"] == "vmgrid" and got["checkpoint"] is True
+
+
+def test_planes_and_nerf_core_read_one_rule():
+    """The gallery's intrinsics are the loader's: a file with fl_x at the top and camera_angle_x on a
+    frame (fl_x wins) and no fl_y (fy = fx)."""
+    contract = core_contract.contract
+    meta = {"fl_x": 30.0, "w": 40, "h": 20, "cx": 19.0}
+    frame = {"camera_angle_x": 1.2, "cy": 11.0}
+    intr = planes.intrinsics_from(meta, frame)
+    assert (intr["fx"], intr["fy"], intr["cx"], intr["cy"], intr["w"], intr["h"]) == contract.resolve_intrinsics(meta, frame)
+    assert intr == {"fx": 30.0, "fy": 30.0, "cx": 19.0, "cy": 11.0, "w": 40.0, "h": 20.0}

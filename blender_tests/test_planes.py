@@ -11,7 +11,8 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Euler, Matrix, Vector
 
-from addon import image_metrics, planes
+from addon import export, image_metrics, planes
+from nerf_core import metrics
 
 W, H = 40, 30
 
@@ -34,8 +35,16 @@ def fake_render(tmp_path, n=2, intr=None):
         c2w = Matrix.Translation((i, -4.0, 0.5)) @ Euler((math.radians(85), 0.0, math.radians(10 * i))).to_matrix().to_4x4()
         frames.append({"file_path": f"./test/r_{i}", "transform_matrix": [list(r) for r in c2w]})
     meta = dict(intr, near=0.5, far=8.0, frames=frames)
-    (render / "renders.json").write_text(json.dumps(meta))
     (data / "transforms_test.json").write_text(json.dumps(meta))
+    # What `nerf_core render` adds for views with ground truth: nerf_core's metrics and heat-maps.
+    rendered = []
+    for i, fr in enumerate(frames):
+        pred = metrics.composite(planes.load_image_array(str(render / f"r_{i}.png")))
+        gt = metrics.composite(planes.load_image_array(str(data / "test" / f"r_{i}.png")))
+        write_png(str(render / "errors" / f"r_{i}.png"), metrics.error_heatmap(pred, gt))
+        rendered.append(dict(fr, file_path=f"r_{i}.png", psnr=metrics.psnr(pred, gt), ssim=metrics.ssim(pred, gt),
+                             error_map=f"errors/r_{i}.png"))
+    (render / "renders.json").write_text(json.dumps(dict(meta, frames=rendered, error_map_vmax=metrics.HEATMAP_VMAX)))
     return str(render), str(data / "transforms_test.json")
 
 
@@ -103,7 +112,7 @@ def test_gallery_rows_have_metrics_heatmaps_and_labels(tmp_path):
         offset = round(0.02 * (i + 1) * 255) / 255
         assert view.metrics["psnr"] == pytest.approx(-10 * math.log10(offset ** 2), abs=0.5)
         assert 0.9 < view.metrics["ssim"] <= 1.0
-        heat = os.path.join(render, f"{view.name}_error.png")
+        heat = os.path.join(render, "errors", f"{view.name}.png")
         assert os.path.isfile(heat)
         ob = bpy.data.objects[f"Gallery Error {view.name}"]
         assert planes.plane_image_path(ob) == heat
@@ -126,7 +135,7 @@ def test_selected_camera_file_matches_blenders_projection_including_shift(tmp_pa
     scene.collection.objects.link(cam)
     cam.data.lens, cam.data.shift_x, cam.data.shift_y = 40.0, 0.15, -0.1
     cam.matrix_world = Matrix.Translation((1.0, -5.0, 2.0)) @ Euler((math.radians(70), 0, math.radians(15))).to_matrix().to_4x4()
-    data = planes.cameras_transforms([cam], scene, (160, 120), base={"near": 0.1, "far": 9, "aabb": [[-1] * 3, [1] * 3]})
+    data = export.cameras_transforms([cam], scene, (160, 120), base={"near": 0.1, "far": 9, "aabb": [[-1] * 3, [1] * 3]})
     assert data["near"] == 0.1 and data["w"] == 160 and len(data["frames"]) == 1
     frame = data["frames"][0]
     intr = planes.intrinsics_from(data, frame)
@@ -144,7 +153,7 @@ def test_fly_through_writes_one_view_per_frame(tmp_path):
     for f, x in ((1, 0.0), (3, 2.0)):
         cam.location = (x, -5, 0)
         cam.keyframe_insert("location", frame=f)
-    data = planes.cameras_transforms([cam], scene, (50, 50), frames=[1, 2, 3], prefix="flythrough")
+    data = export.cameras_transforms([cam], scene, (50, 50), frames=[1, 2, 3], prefix="flythrough")
     xs = [fr["transform_matrix"][0][3] for fr in data["frames"]]
     assert [fr["file_path"] for fr in data["frames"]] == [f"./flythrough/frame_{i:04d}" for i in (1, 2, 3)]
     assert xs[0] == pytest.approx(0.0) and xs[2] == pytest.approx(2.0) and 0 < xs[1] < 2
@@ -157,18 +166,18 @@ def test_camera_with_another_aspect_is_refused(tmp_path):
     cam = bpy.data.objects.new("Wide", bpy.data.cameras.new("Wide"))
     scene.collection.objects.link(cam)
     with pytest.raises(ValueError, match=r"'Wide' renders at 1920x1080.*aspect 1.778.*trained on 100x100"):
-        planes.cameras_transforms([cam], scene, (100, 100))
+        export.cameras_transforms([cam], scene, (100, 100))
 
 
 def test_image_metrics_against_hand_computed_values(tmp_path):
     a = np.zeros((16, 16, 3))
     b = np.full((16, 16, 3), 0.1)
-    assert image_metrics.psnr(a, b) == pytest.approx(20.0)
-    assert image_metrics.psnr(a, a) == float("inf")
-    assert image_metrics.ssim(b, b) == pytest.approx(1.0)
+    assert metrics.psnr(a, b) == pytest.approx(20.0)
+    assert metrics.psnr(a, a) == float("inf")
+    assert metrics.ssim(b, b) == pytest.approx(1.0)
     rgba = np.zeros((2, 2, 4)); rgba[..., 3] = 0.25
-    assert image_metrics.composite(rgba, (1, 1, 1))[0, 0] == pytest.approx([0.75] * 3)
-    heat = image_metrics.error_heatmap(a, b, vmax=0.1)
+    assert metrics.composite(rgba, (1, 1, 1))[0, 0] == pytest.approx([0.75] * 3)
+    heat = metrics.error_heatmap(a, b, vmax=0.1)
     assert heat.shape == (16, 16, 3) and heat[0, 0] == pytest.approx([0.988, 0.998, 0.645], abs=1e-3)
     path = str(tmp_path / "x.png")
     image_metrics.write_png(path, np.dstack([b, np.ones((16, 16))]))

@@ -6,50 +6,15 @@ its camera-space ray is ``((i + 0.5 - cx) / fx, -(j + 0.5 - cy) / fy, -1)``.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
 import numpy as np
 import torch
 
-
-class PoseError(ValueError):
-    """A camera matrix that is not a finite rigid transform."""
-
-
-def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3) -> np.ndarray:
-    """Validate a camera-to-world matrix and return it as float64 (4, 4).
-
-    Raises PoseError naming ``where`` for wrong shape, NaN/inf, a singular or scaled/sheared
-    rotation part, or a bottom row other than [0, 0, 0, 1].
-    """
-    try:
-        m = np.asarray(matrix, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise PoseError(f"{where}: not a numeric matrix ({exc})") from exc
-    if m.shape == (3, 4):
-        m = np.vstack([m, [0, 0, 0, 1]])
-    if m.shape != (4, 4):
-        raise PoseError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise PoseError(f"{where}: contains NaN or inf")
-    rot = m[:3, :3]
-    det = np.linalg.det(rot)
-    if abs(det) < 1e-8:
-        raise PoseError(f"{where}: rotation part is singular (determinant {det:.3g})")
-    gram = rot.T @ rot
-    if not np.allclose(gram, np.eye(3), atol=scale_tol):
-        scales = np.sqrt(np.diag(gram))
-        raise PoseError(
-            f"{where}: rotation part is scaled or sheared (column lengths {np.round(scales, 4).tolist()}); "
-            "transform_matrix must be matrix_world with the scale removed"
-        )
-    if det < 0:
-        raise PoseError(f"{where}: rotation part is a reflection (determinant {det:.3g})")
-    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
-        raise PoseError(f"{where}: bottom row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    return m
+# Pose validation (contract.check_pose) and the focal-length rule (contract.resolve_intrinsics) live
+# in nerf_core.contract: the add-on needs them without torch.
+from .sampling import ray_aabb_intersect
 
 
 @dataclass
@@ -168,24 +133,6 @@ def project_points(cameras: Cameras, view: int, points: torch.Tensor) -> Tuple[t
     return torch.stack([u, v], dim=-1), depth
 
 
-def intersect_aabb(rays_o: torch.Tensor, rays_d: torch.Tensor, aabb: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Slab test of rays against a box.
-
-    Args:
-        rays_o, rays_d: (m, 3); aabb: (2, 3) [[min], [max]].
-    Returns:
-        t_near (m,) clamped at 0, t_far (m,), hit (m,) bool. Missed rays get t_near = t_far.
-    """
-    inv = 1.0 / torch.where(rays_d.abs() < 1e-12, torch.full_like(rays_d, 1e-12), rays_d)
-    t0 = (aabb[0] - rays_o) * inv
-    t1 = (aabb[1] - rays_o) * inv
-    t_near = torch.minimum(t0, t1).amax(-1).clamp_min(0.0)
-    t_far = torch.maximum(t0, t1).amin(-1)
-    hit = t_far > t_near
-    t_far = torch.where(hit, t_far, t_near)
-    return t_near, t_far, hit
-
-
 def ray_bounds(
     rays_o: torch.Tensor,
     rays_d: torch.Tensor,
@@ -194,19 +141,10 @@ def ray_bounds(
     far: Optional[float] = None,
 ) -> Tuple[torch.Tensor, torch.Tensor]:
     """The interval (m,), (m,) handed to a model: the box intersection, tightened by the dataset's near/far."""
-    try:  # one box test for the whole library: the models' own sampler when it is there
-        from .sampling import ray_aabb_intersect as _intersect
-    except ImportError:
-        _intersect = intersect_aabb
-    t_near, t_far, _ = _intersect(rays_o, rays_d, aabb.to(rays_o))
+    t_near, t_far, _ = ray_aabb_intersect(rays_o, rays_d, aabb.to(rays_o))
     if near is not None:
         t_near = t_near.clamp_min(float(near))
     if far is not None:
         t_far = t_far.clamp_max(float(far))
     t_far = torch.maximum(t_far, t_near)
     return t_near, t_far
-
-
-def focal_from_fov(fov: float, size: float) -> float:
-    """Focal length in pixels for a field of view (radians) spanning ``size`` pixels."""
-    return 0.5 * size / math.tan(0.5 * fov)

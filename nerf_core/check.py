@@ -16,13 +16,14 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .cameras import PoseError, check_pose
+from .contract.intrinsics import focal_from_fov
+from .contract.naming import evenly_spaced
+from .contract.transforms import IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos
 from .imageio import ImageReadError, png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
 NERFSTUDIO_FILE = "transforms.json"
 REQUIRED_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
-IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
 
 
 @dataclass
@@ -145,7 +146,7 @@ def _check_intrinsics_consistency(report: CheckReport, fname: str, intr: dict, k
         if not 0.0 < intr[c] < size:
             report.error(fname, f"{intr[c]} lies outside the image (0..{name}={size:g})", k, fpath, c)
     if "camera_angle_x" in intr and intr.get("camera_angle_x"):
-        fx_from_angle = 0.5 * w / math.tan(0.5 * intr["camera_angle_x"])
+        fx_from_angle = focal_from_fov(intr["camera_angle_x"], w)
         if abs(fx_from_angle - intr["fl_x"]) > 1e-3 * intr["fl_x"] + 1e-3:
             report.error(fname, f"camera_angle_x {intr['camera_angle_x']:.6g} gives fl_x {fx_from_angle:.4f} "
                                 f"but fl_x is {intr['fl_x']:.4f}; loaders that read only camera_angle_x would use another focal length",
@@ -299,10 +300,8 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
 
 
 def _check_paths(report: CheckReport, root: Path) -> None:
-    """Warn about file paths that point outside the dataset folder (``data.resolve_dataset_path``
+    """Warn about file paths that point outside the dataset folder (``contract.resolve_dataset_path``
     holds the policy: read, but reported)."""
-    from .data import DatasetError, frame_infos
-
     try:
         _, _, infos, _ = frame_infos(root)
     except DatasetError:
@@ -320,11 +319,11 @@ _FILE_RE = re.compile(r"^(?P<file>.+?\.json): (?P<rest>.*)$", re.S)
 
 
 def _check_loadable(report: CheckReport, root: Path) -> None:
-    """Add every problem that makes ``train`` refuse the dataset (``nerf_core.data.dataset_problems``,
+    """Add every problem that makes ``train`` refuse the dataset (``nerf_core.dataset_checks.dataset_problems``,
     the loader's own rules), so that `check` never calls valid what `train` refuses. A problem the
     convention checks above already reported for the same file and frame (or file and field) is not
     repeated."""
-    from .data import dataset_problems
+    from .dataset_checks import dataset_problems
 
     reported = {(Path(p.file).name, p.frame) for p in report.errors}
     fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
@@ -377,8 +376,7 @@ def _check_background(report: CheckReport, root: Path, background: str) -> None:
         report.error(fname, f"background mode {background!r} is not one of {', '.join(BACKGROUNDS)}")
         return
     frames = meta["frames"]
-    pick = sorted({round(k * (len(frames) - 1) / max(1, BACKGROUND_PROBE_IMAGES - 1))
-                   for k in range(min(len(frames), BACKGROUND_PROBE_IMAGES))})
+    pick = evenly_spaced(len(frames), BACKGROUND_PROBE_IMAGES)
     images = []
     for k in pick:
         fp = frames[k].get("file_path") if isinstance(frames[k], dict) else None

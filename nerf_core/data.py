@@ -17,9 +17,6 @@ Every problem with the input raises ``DatasetError`` whose message names the fil
 """
 from __future__ import annotations
 
-import json
-import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
@@ -27,39 +24,14 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 import torch
 
-from .cameras import Cameras, PoseError, check_pose
+from .cameras import Cameras
+# Reading transforms files is the contract's (shared with the add-on); DatasetError, FrameInfo,
+# detect_layout and dataset_problems stay importable from here for data's long-standing callers.
+from .contract.intrinsics import resolve_intrinsics
+from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
+from .dataset_checks import check_train_count, dataset_problems, depth_scale, parse_aabb, scene_fields  # noqa: F401
+from .metrics import composite
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
-
-SPLITS = ("train", "val", "test")
-HOLDOUT_EVERY = 8  # nerfstudio-style deterministic split when transforms.json lists no split files
-
-
-class DatasetError(Exception):
-    """Bad dataset input; the message names the file, frame and field concerned."""
-
-
-@dataclass
-class FrameInfo:
-    """One frame's metadata before its pixels are read."""
-
-    index: int  # position in its JSON file's ``frames`` list
-    json_file: Path
-    file_path: str  # as written in the JSON
-    image: Path  # resolved image file
-    c2w: np.ndarray  # (4, 4)
-    intrinsics: Dict[str, float]  # any of fl_x fl_y cx cy w h camera_angle_x camera_angle_y
-    depth: Optional[Path] = None
-    normal: Optional[Path] = None
-    mask: Optional[Path] = None
-    outside: List[str] = field(default_factory=list)  # fields whose file lies outside the dataset folder
-
-    @property
-    def where(self) -> str:
-        return f"{self.json_file}: frame {self.index} ({self.file_path})"
-
-    @property
-    def stem(self) -> str:
-        return Path(self.file_path).stem if Path(self.file_path).suffix else Path(self.file_path).name
 
 
 @dataclass
@@ -123,12 +95,9 @@ class Split:
     def image(self, view: int, background) -> tuple[torch.Tensor, torch.Tensor]:
         """Full image ``view``: rgb (h, w, 3) composited onto ``background`` (3,), alpha (h, w)."""
         px = self._to_float(self.images[view])
-        rgb = px[..., :3]
         if not self.has_alpha:
-            return rgb, torch.ones_like(rgb[..., 0])
-        alpha = px[..., 3]
-        bg = torch.as_tensor(background, dtype=torch.float32)
-        return rgb * alpha[..., None] + bg * (1.0 - alpha[..., None]), alpha
+            return px[..., :3], torch.ones_like(px[..., 0])
+        return composite(px, background), px[..., 3]
 
 
 @dataclass
@@ -157,205 +126,6 @@ class Dataset:
             if name in self.splits and len(self.splits[name]):
                 return name
         return None
-
-
-# ----------------------------------------------------------------------------------------------
-# metadata
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        with open(path, encoding="utf-8") as f:
-            meta = json.load(f)
-    except FileNotFoundError as exc:
-        raise DatasetError(f"{path}: file not found") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read ({exc})") from exc
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{path}: expected a JSON object with 'frames'")
-    return meta
-
-
-INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
-
-
-def _intrinsics(src: dict, where: str) -> Dict[str, float]:
-    out = {}
-    for key in INTRINSIC_KEYS:
-        if key in src and src[key] is not None:
-            try:
-                value = float(src[key])
-            except (TypeError, ValueError) as exc:
-                raise DatasetError(f"{where}: field {key!r} is not a number ({src[key]!r})") from exc
-            if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
-                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {src[key]!r}")
-            if key in ("camera_angle_x", "camera_angle_y") and value >= math.pi:
-                # tan(fov / 2) turns negative past pi: a negative focal length would mirror every ray.
-                raise DatasetError(f"{where}: field {key!r} is a field of view in radians and must lie in (0, pi), "
-                                   f"got {src[key]!r}")
-            out[key] = value
-    return out
-
-
-def resolve_dataset_path(root: Path, value, where: str, field_name: str) -> tuple[Path, bool]:
-    """The one rule for file paths written in a dataset's JSON: (resolved path, lies outside ``root``).
-
-    Relative paths are taken from the JSON file's folder. Policy: absolute paths and relative paths
-    that climb out of the dataset folder (``../``) are *allowed*, because other tools write them and
-    reading an image runs nothing, but they are reported (``load_dataset`` adds a note, ``check`` a
-    warning): a copy of the folder, or another machine, will not find those files. Containment is
-    decided on the path as written (normalised, not following symlinks), so a dataset that links its
-    image folders from elsewhere stays inside. A value that is not a non-empty string is refused.
-    """
-    if not isinstance(value, str) or not value.strip():
-        raise DatasetError(f"{where}: field {field_name!r} must be a non-empty string (a file path), got {value!r}")
-    p = Path(value)
-    if p.is_absolute():
-        return p, True
-    lexical = os.path.normpath(os.path.join(str(root), value))
-    inside = os.path.commonpath([os.path.abspath(lexical), os.path.abspath(str(root))]) == os.path.abspath(str(root))
-    return (root / value).resolve(), not inside
-
-
-def _resolve_image(root: Path, file_path: str, add_png: bool) -> Path:
-    p = (root / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
-    if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr") and p.is_file():
-        return p
-    if add_png:
-        for ext in (".png", ".exr"):
-            cand = p.with_name(p.name + ext)
-            if cand.is_file():
-                return cand
-        return p.with_name(p.name + ".png") if not p.suffix else p
-    return p
-
-
-def _frames_of(meta: dict, json_file: Path, add_png: bool) -> List[FrameInfo]:
-    frames = meta.get("frames")
-    if not isinstance(frames, list):
-        raise DatasetError(f"{json_file}: field 'frames' is missing or not a list")
-    glob = _intrinsics(meta, f"{json_file}")
-    root = json_file.parent
-    out = []
-    for k, fr in enumerate(frames):
-        if not isinstance(fr, dict) or "file_path" not in fr:
-            raise DatasetError(f"{json_file}: frame {k}: field 'file_path' is missing")
-        _, image_outside = resolve_dataset_path(root, fr["file_path"], f"{json_file}: frame {k}", "file_path")
-        fp = str(fr["file_path"])
-        where = f"{json_file}: frame {k} ({fp})"
-        if "transform_matrix" not in fr:
-            raise DatasetError(f"{where}: field 'transform_matrix' is missing")
-        try:
-            c2w = check_pose(fr["transform_matrix"], f"{where}: field 'transform_matrix'")
-        except PoseError as exc:
-            raise DatasetError(str(exc)) from exc
-        intr = dict(glob)
-        intr.update(_intrinsics(fr, where))
-        extra = {}
-        outside = ["file_path"] if image_outside else []
-        for key, attr in (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_file_path", "normal"), ("mask_path", "mask")):
-            if fr.get(key) not in (None, "") and attr not in extra:
-                extra[attr], out_of_root = resolve_dataset_path(root, fr[key], where, key)
-                if out_of_root:
-                    outside.append(key)
-        out.append(FrameInfo(k, json_file, fp, _resolve_image(root, fp, add_png), c2w, intr, outside=outside, **extra))
-    return out
-
-
-def detect_layout(path: Path) -> tuple[str, Path]:
-    """('synthetic'|'nerfstudio', dataset root) for a dataset folder or one of its transforms files."""
-    path = Path(path)
-    if path.is_file():
-        if path.name.startswith("transforms_") and path.suffix == ".json":
-            return "synthetic", path.parent
-        return "nerfstudio", path.parent
-    if not path.exists():
-        raise DatasetError(f"{path}: dataset folder not found")
-    if (path / "transforms_train.json").is_file():
-        return "synthetic", path
-    if (path / "transforms.json").is_file():
-        return "nerfstudio", path
-    raise DatasetError(f"{path}: no transforms_train.json or transforms.json in this folder")
-
-
-def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, Path, Dict[str, List[FrameInfo]], dict]:
-    """Parse the metadata of a dataset without reading pixels.
-
-    Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
-    ``far``, ``depth_unit_scale_factor`` and ``aabb_file`` when the dataset gives them.
-    """
-    path = Path(path)
-    layout, root = detect_layout(path)
-    out: Dict[str, List[FrameInfo]] = {}
-    scene: dict = {}
-    if layout == "synthetic":
-        for name in splits:
-            jf = root / f"transforms_{name}.json"
-            if path.is_file() and path.name.startswith("transforms_") and jf != path and name == "train" and not jf.is_file():
-                jf = path
-            if not jf.is_file():
-                if name == "train":
-                    raise DatasetError(f"{jf}: file not found (the training split is required)")
-                out[name] = []
-                continue
-            meta = _read_json(jf)
-            out[name] = _frames_of(meta, jf, add_png=True)
-            if name in ("train", "val", "test") and not out[name]:
-                raise DatasetError(f"{jf}: split {name!r} is empty (field 'frames' has no entries)")
-            for key in ("aabb", "near", "far", "film_transparent", "world"):
-                if key in meta and key not in scene:
-                    scene[key] = meta[key]
-                    scene[key + "_file"] = jf
-    else:
-        jf = path if path.is_file() else root / "transforms.json"
-        meta = _read_json(jf)
-        frames = _frames_of(meta, jf, add_png=False)
-        if not frames:
-            raise DatasetError(f"{jf}: field 'frames' has no entries")
-        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world"):
-            if key in meta:
-                scene[key] = meta[key]
-                scene[key + "_file"] = jf
-
-        def norm(p: str) -> str:
-            return str(Path(p))  # "./images/a.png" and "images/a.png" name the same frame
-
-        lists = {name: meta.get(f"{name}_filenames") for name in SPLITS}
-        if lists["train"] is not None:
-            by_name = {norm(f.file_path): f for f in frames}
-            for name in splits:
-                names = lists.get(name) or (lists.get("val") if name == "test" else lists.get("test") if name == "val" else None) or []
-                chosen = []
-                for n in names:
-                    if norm(n) not in by_name:
-                        raise DatasetError(f"{jf}: field '{name}_filenames' lists {n!r}, which is not a frame's file_path")
-                    chosen.append(by_name[norm(n)])
-                out[name] = chosen
-            if not out.get("train"):
-                raise DatasetError(f"{jf}: field 'train_filenames' is empty")
-        else:
-            order = sorted(range(len(frames)), key=lambda k: frames[k].file_path)
-            held = {k for pos, k in enumerate(order) if len(frames) > 1 and pos % HOLDOUT_EVERY == 0}
-            for name in splits:
-                if name == "train":
-                    out[name] = [frames[k] for k in order if k not in held]
-                else:
-                    out[name] = [frames[k] for k in order if k in held]
-            scene["split_note"] = (
-                f"{jf}: no train_filenames/val_filenames/test_filenames; held out every {HOLDOUT_EVERY}th frame "
-                f"(by file name) as val/test: {len(held)} of {len(frames)}"
-            )
-    for name in splits:
-        out.setdefault(name, [])
-    away = [(f, key) for frames in out.values() for f in frames for key in f.outside]
-    if away:
-        f, key = away[0]
-        scene["path_note"] = (f"{len(away)} file path(s) point outside the dataset folder (absolute or '../'), e.g. "
-                              f"{f.where}: field {key!r}; they are read, but a copy of the folder or another "
-                              "machine will not find them")
-    return layout, root, out, scene
 
 
 # ----------------------------------------------------------------------------------------------
@@ -415,34 +185,42 @@ def _resize_map(m: np.ndarray, f: int, mode: str) -> np.ndarray:
 
 
 def _camera_params(fr: FrameInfo, img_w: int, img_h: int, downscale: int) -> tuple:
-    intr = fr.intrinsics
-    w_decl, h_decl = intr.get("w"), intr.get("h")
-    full_w = img_w * downscale if downscale > 1 else img_w
-    full_h = img_h * downscale if downscale > 1 else img_h
+    """(fx, fy, cx, cy) of ``fr`` for its image as loaded (img_w x img_h px after ``downscale``)."""
+    w_decl, h_decl = fr.intrinsics.get("w"), fr.intrinsics.get("h")
     if w_decl is not None and h_decl is not None and downscale == 1 and (int(w_decl) != img_w or int(h_decl) != img_h):
         raise DatasetError(
             f"{fr.where}: fields 'w'/'h' say {int(w_decl)}x{int(h_decl)} but {fr.image} is {img_w}x{img_h}"
         )
-    W = float(w_decl) if w_decl is not None else float(full_w)
-    H = float(h_decl) if h_decl is not None else float(full_h)
-    if "fl_x" in intr:
-        fx = intr["fl_x"]
-    elif "camera_angle_x" in intr:
-        fx = 0.5 * W / math.tan(0.5 * intr["camera_angle_x"])
-    elif "fl_y" in intr:
-        fx = intr["fl_y"]
-    else:
-        raise DatasetError(f"{fr.where}: no focal length (fields 'fl_x' or 'camera_angle_x' missing)")
-    if "fl_y" in intr:
-        fy = intr["fl_y"]
-    elif "camera_angle_y" in intr and "fl_x" not in intr and "camera_angle_x" not in intr:
-        fy = 0.5 * H / math.tan(0.5 * intr["camera_angle_y"])
-    else:
-        fy = fx
-    cx = intr.get("cx", W / 2.0)
-    cy = intr.get("cy", H / 2.0)
+    fx, fy, cx, cy, W, H = resolve_intrinsics(fr.intrinsics, None, (img_w * downscale, img_h * downscale), fr.where)
     s_x, s_y = img_w / W, img_h / H
     return fx * s_x, fy * s_y, cx * s_x, cy * s_y
+
+
+# Per-frame extra channels: Split attribute -> (FrameInfo attribute, JSON field named in errors, reader,
+# value where a frame has none). Depth 0 = unknown; normals 0 = none; a missing mask keeps every pixel.
+EXTRAS = {
+    "depth": ("depth", "depth_file_path", None, lambda h, w: np.zeros((h, w), np.float32)),
+    "normals": ("normal", "normal_file_path", read_normals, lambda h, w: np.zeros((h, w, 3), np.float32)),
+    "masks": ("mask", "mask_path", read_mask, lambda h, w: np.ones((h, w), bool)),
+}
+
+
+def _load_extra(attr: str, fr: FrameInfo, h: int, w: int, downscale: int, depth_scale: float) -> np.ndarray:
+    """One frame's depth (h, w) float32, normals (h, w, 3) float32 or mask (h, w) bool (``EXTRAS``),
+    resized like its image (nearest: averaging depths or normals across an edge would invent surfaces)."""
+    fr_attr, json_field, reader, missing = EXTRAS[attr]
+    path = getattr(fr, fr_attr)
+    if path is None:
+        return missing(h, w)
+    try:
+        m = read_depth(path, png_scale=depth_scale) if attr == "depth" else reader(path)
+    except ImageReadError as exc:
+        raise DatasetError(f"{fr.where}: field {json_field!r}: {exc}") from exc
+    if downscale > 1:
+        m = _resize_map(m, downscale, "nearest")
+    if m.shape[:2] != (h, w):
+        raise DatasetError(f"{fr.where}: field {json_field!r}: {path} is {m.shape[1]}x{m.shape[0]}, image is {w}x{h}")
+    return m
 
 
 def load_split(
@@ -451,8 +229,9 @@ def load_split(
     downscale: int = 1,
     depth_scale: float = 1e-3,
     load_extras: bool = True,
+    extras: Sequence[str] = ("depth", "normals", "masks"),
 ) -> Split:
-    """Read the pixels (and depth, normals, masks) of one split's frames."""
+    """Read the pixels (and, with ``load_extras``, the ``extras`` of ``EXTRAS``) of one split's frames."""
     images, params = [], []
     size = None
     for fr in frames:
@@ -490,69 +269,15 @@ def load_split(
     split = Split(name, cams, stack, list(frames))
     if not load_extras or not frames:
         return split
-    if any(f.depth for f in frames):
-        depths = []
-        for fr in frames:
-            if fr.depth is None:
-                depths.append(np.zeros((h, w), np.float32))
-                continue
-            try:
-                d = read_depth(fr.depth, png_scale=depth_scale)
-            except ImageReadError as exc:
-                raise DatasetError(f"{fr.where}: field 'depth_file_path': {exc}") from exc
-            if downscale > 1:
-                d = _resize_map(d, downscale, "nearest")
-            if d.shape != (h, w):
-                raise DatasetError(f"{fr.where}: field 'depth_file_path': {fr.depth} is {d.shape[1]}x{d.shape[0]}, image is {w}x{h}")
-            depths.append(d)
-        split.depth = torch.from_numpy(np.stack(depths))
-    if any(f.normal for f in frames):
-        normals = []
-        for fr in frames:
-            if fr.normal is None:
-                normals.append(np.zeros((h, w, 3), np.float32))
-                continue
-            try:
-                nm = read_normals(fr.normal)
-            except ImageReadError as exc:
-                raise DatasetError(f"{fr.where}: field 'normal_file_path': {exc}") from exc
-            if downscale > 1:
-                nm = _resize_map(nm, downscale, "nearest")
-            if nm.shape[:2] != (h, w):
-                raise DatasetError(f"{fr.where}: field 'normal_file_path': {fr.normal} is {nm.shape[1]}x{nm.shape[0]}, image is {w}x{h}")
-            normals.append(nm)
-        split.normals = torch.from_numpy(np.stack(normals))
-    if any(f.mask for f in frames):
-        masks = []
-        for fr in frames:
-            if fr.mask is None:
-                masks.append(np.ones((h, w), bool))
-                continue
-            try:
-                mk = read_mask(fr.mask)
-            except ImageReadError as exc:
-                raise DatasetError(f"{fr.where}: field 'mask_path': {exc}") from exc
-            if downscale > 1:
-                mk = _resize_map(mk, downscale, "nearest")
-            if mk.shape != (h, w):
-                raise DatasetError(f"{fr.where}: field 'mask_path': {fr.mask} is {mk.shape[1]}x{mk.shape[0]}, image is {w}x{h}")
-            masks.append(mk)
-        split.masks = torch.from_numpy(np.stack(masks))
+    for attr in extras:
+        if any(getattr(f, EXTRAS[attr][0]) for f in frames):
+            setattr(split, attr, torch.from_numpy(np.stack([_load_extra(attr, fr, h, w, downscale, depth_scale)
+                                                            for fr in frames])))
     return split
 
 
 # ----------------------------------------------------------------------------------------------
 # scene box
-
-
-def _parse_aabb(value, where: str) -> torch.Tensor:
-    try:
-        box = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise DatasetError(f"{where}: field 'aabb' is not a numeric [[xmin,ymin,zmin],[xmax,ymax,zmax]]") from exc
-    if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
-        raise DatasetError(f"{where}: field 'aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {value!r}")
-    return torch.tensor(box, dtype=torch.float32)
 
 
 def estimate_aabb(cameras: Cameras, far: Optional[float] = None,
@@ -650,103 +375,6 @@ def pad_box_for_interior(aabb: torch.Tensor, origins: torch.Tensor) -> tuple[tor
 # ----------------------------------------------------------------------------------------------
 
 
-def _check_train_count(root: Path, infos: Dict[str, List[FrameInfo]], min_train_views: int) -> None:
-    n_train = len(infos["train"])
-    if n_train < min_train_views:
-        jf = infos["train"][0].json_file if infos["train"] else root
-        raise DatasetError(
-            f"{jf}: field 'frames': the train split has {n_train} view{'s' if n_train != 1 else ''}; a NeRF needs "
-            f"many views of the scene (at least {min_train_views}, typically 50-200)"
-        )
-
-
-def _scene_checks(scene: dict) -> tuple:
-    """(near, far, film_transparent, world) of a dataset's top-level fields, validated (raises DatasetError)."""
-    near = far = None
-    for key in ("near", "far"):
-        if key in scene:
-            try:
-                v = float(scene[key])
-            except (TypeError, ValueError):
-                raise DatasetError(f"{scene[key + '_file']}: field {key!r} is not a number ({scene[key]!r})") from None
-            if not math.isfinite(v) or v < 0:
-                raise DatasetError(f"{scene[key + '_file']}: field {key!r} must be a finite number >= 0, got {v}")
-            near, far = (v, far) if key == "near" else (near, v)
-    if near is not None and far is not None and far <= near:
-        raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
-    film = scene.get("film_transparent")
-    if film is not None and not isinstance(film, bool):
-        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
-    world = scene.get("world")
-    if world is not None and not isinstance(world, dict):
-        raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
-    return near, far, film, world
-
-
-def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2) -> List[str]:
-    """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
-
-    The one validation pass behind ``train`` and ``check``: it runs the loader's own rules
-    (``frame_infos``, ``_scene_checks``, ``_check_train_count`` and ``load_split`` frame by frame, which
-    decodes every image, depth, normal and mask file and checks its size against the JSON and the
-    split), collecting the errors that ``load_dataset`` raises at the first of. An empty list means
-    ``train`` accepts the dataset. Pixels are read one frame at a time and dropped.
-    """
-    try:
-        layout, root, infos, scene = frame_infos(path, SPLITS)
-    except DatasetError as exc:
-        return [str(exc)]
-    problems: List[str] = []
-    for check in (lambda: _check_train_count(root, infos, min_train_views), lambda: _scene_checks(scene),
-                  lambda: _parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None):
-        try:
-            check()
-        except DatasetError as exc:
-            problems.append(str(exc))
-    try:
-        depth_scale = _depth_scale(scene)
-    except DatasetError as exc:
-        problems.append(str(exc))
-        depth_scale = 1e-3
-    for name in SPLITS:
-        first = None
-        for fr in infos[name]:
-            try:
-                sp = load_split(name, [fr], downscale, depth_scale)
-            except DatasetError as exc:
-                problems.append(str(exc))
-                continue
-            shape = (sp.width, sp.height, sp.images.shape[-1])
-            if first is None:
-                first = (fr, shape)
-                continue
-            try:
-                if shape[:2] != first[1][:2]:
-                    raise DatasetError(
-                        f"{fr.where}: field 'file_path': {fr.image} is {shape[0]}x{shape[1]} but the first {name} image "
-                        f"({first[0].image.name}) is {first[1][0]}x{first[1][1]}; all images of a split must have one size")
-                if shape[2] != first[1][2]:
-                    lacking = fr if shape[2] == 3 else first[0]
-                    raise DatasetError(
-                        f"{lacking.where}: field 'file_path': {lacking.image} has no alpha channel while other {name} "
-                        "images do; the alpha channel is the mask of the object, export every image as RGBA")
-            except DatasetError as exc:
-                problems.append(str(exc))
-    return problems
-
-
-def _depth_scale(scene: dict) -> float:
-    v = scene.get("depth_unit_scale_factor", 1e-3)
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        f = float("nan")
-    if not math.isfinite(f) or f <= 0:
-        raise DatasetError(f"{scene.get('depth_unit_scale_factor_file')}: field 'depth_unit_scale_factor' must be a "
-                           f"positive number, got {v!r}")
-    return f
-
-
 def load_dataset(
     path: Path | str,
     splits: Sequence[str] = SPLITS,
@@ -768,9 +396,9 @@ def load_dataset(
     for key in ("split_note", "path_note"):
         if key in scene:
             notes.append(scene[key])
-    depth_scale = _depth_scale(scene)
+    dscale = depth_scale(scene)
     if "train" in splits:
-        _check_train_count(root, infos, min_train_views)
+        check_train_count(root, infos, min_train_views)
     train_names = {str(f.image) for f in infos["train"]}
     for name in ("val", "test"):
         if name in splits:
@@ -778,13 +406,13 @@ def load_dataset(
             if leaked:
                 notes.append(f"{leaked[0].where}: {len(leaked)} {name} frame(s) use training images; "
                              "their metrics will not measure novel views")
-    near, far, film, world = _scene_checks(scene)
-    loaded = {name: load_split(name, infos[name], downscale, depth_scale) for name in splits}
+    near, far, film, world = scene_fields(scene)
+    loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
     for name in SPLITS:
         if name not in loaded:
-            loaded[name] = load_split(name, [], downscale, depth_scale)
+            loaded[name] = load_split(name, [], downscale, dscale)
     if "aabb" in scene:
-        aabb = _parse_aabb(scene["aabb"], str(scene["aabb_file"]))
+        aabb = parse_aabb(scene["aabb"], str(scene["aabb_file"]))
         source = f"dataset ({Path(scene['aabb_file']).name})"
     else:
         all_cams = [s.cameras for s in loaded.values() if len(s)]

@@ -1,9 +1,4 @@
-"""Image metrics (PSNR, SSIM, depth error) and evaluation of a run on a held-out split.
-
-SSIM follows Wang et al. 2004 as used by the NeRF papers: an 11x11 Gaussian window with sigma 1.5,
-K1 = 0.01, K2 = 0.03, dynamic range 1, computed per RGB channel over the valid (unpadded) region
-and averaged.
-"""
+"""Evaluation of a run on a held-out split (the metrics themselves live in ``nerf_core.metrics``)."""
 from __future__ import annotations
 
 import json
@@ -13,81 +8,35 @@ from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
 
 import torch
-import torch.nn.functional as F
 
 from . import contract
-from .losses import psnr_from_mse
-
-SSIM_WINDOW = 11
-SSIM_SIGMA = 1.5
-SSIM_K1 = 0.01
-SSIM_K2 = 0.03
-
-
-def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = None) -> float:
-    """PSNR of (..., 3) images in [0, 1], over the pixels where ``mask`` (...,) is True."""
-    err = (pred.float() - gt.float()) ** 2
-    if mask is not None:
-        err = err[mask.bool()]
-    return psnr_from_mse(err.mean())
-
-
-def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
-    """(size,) normalised 1D Gaussian centred on the middle tap."""
-    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2.0
-    g = torch.exp(-(x * x) / (2.0 * sigma * sigma))
-    return g / g.sum()
-
-
-def ssim_map(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """Per-pixel SSIM (3, h - 10, w - 10) of two (h, w, 3) images in [0, 1]."""
-    if pred.shape != gt.shape or pred.dim() != 3:
-        raise ValueError(f"ssim needs two (h, w, c) images of one shape, got {tuple(pred.shape)} and {tuple(gt.shape)}")
-    if min(pred.shape[:2]) < SSIM_WINDOW:
-        raise ValueError(f"ssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {pred.shape[1]}x{pred.shape[0]}")
-    x = pred.double().permute(2, 0, 1)[None]  # (1, c, h, w); float64 so E[x^2]-E[x]^2 does not cancel badly
-    y = gt.double().permute(2, 0, 1)[None]
-    c = x.shape[1]
-    g = gaussian_window()
-    kx = g.view(1, 1, 1, -1).repeat(c, 1, 1, 1)
-    ky = g.view(1, 1, -1, 1).repeat(c, 1, 1, 1)
-
-    def blur(t):
-        return F.conv2d(F.conv2d(t, kx, groups=c), ky, groups=c)
-
-    mu_x, mu_y = blur(x), blur(y)
-    sxx = blur(x * x) - mu_x * mu_x
-    syy = blur(y * y) - mu_y * mu_y
-    sxy = blur(x * y) - mu_x * mu_y
-    c1, c2 = SSIM_K1 ** 2, SSIM_K2 ** 2
-    num = (2 * mu_x * mu_y + c1) * (2 * sxy + c2)
-    den = (mu_x * mu_x + mu_y * mu_y + c1) * (sxx + syy + c2)
-    return (num / den)[0]
-
-
-def ssim(pred: torch.Tensor, gt: torch.Tensor) -> float:
-    """Mean SSIM of two (h, w, 3) images in [0, 1]."""
-    return float(ssim_map(pred, gt).mean())
-
-
-def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch.Tensor] = None,
-              mask: Optional[torch.Tensor] = None) -> Optional[float]:
-    """Mean absolute error of planar depths (h, w) over pixels with ground truth (finite, > 0),
-    ground-truth alpha > 0.5 and ``mask``; None when no pixel qualifies."""
-    valid = torch.isfinite(gt_z) & (gt_z > 0)
-    if gt_alpha is not None:
-        valid &= gt_alpha > 0.5
-    if mask is not None:
-        valid &= mask.bool()
-    if not bool(valid.any()):
-        return None
-    return float((pred_z[valid] - gt_z[valid]).abs().mean())
+# Re-exported: callers and tests have always found the metrics here.
+from .metrics import (SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, depth_mae, gaussian_window,  # noqa: F401
+                      mse_to_psnr, psnr, ssim, ssim_map)
+from .contract.naming import evenly_spaced
 
 
 def mean_finite(values: Sequence[Optional[float]]) -> Optional[float]:
     """Mean of the finite values (None and inf/NaN skipped); None when there are none."""
     vals = [v for v in values if v is not None and math.isfinite(v)]
     return sum(vals) / len(vals) if vals else None
+
+
+def score_view(rgb: torch.Tensor, split, view: int, background, z_depth: Optional[torch.Tensor] = None):
+    """Metrics of one rendered view against view ``view`` of a ``data.Split``: the one comparison
+    behind ``eval``, training's held-out evaluation and ``render`` (renders.json).
+
+    ``rgb`` (h, w, 3) is the render composited onto ``background`` (3,); the ground truth is
+    composited onto the same colour (``Split.image``). PSNR counts only the split's mask pixels.
+    Returns ({"psnr", "ssim"[, "depth_mae"]}, ground truth (h, w, 3)); ``depth_mae`` when ``z_depth``
+    (h, w) is given and the split has depth.
+    """
+    gt, alpha = split.image(view, background)
+    mask = split.masks[view] if split.masks is not None else None
+    scores = {"psnr": psnr(rgb, gt, mask), "ssim": ssim(rgb, gt)}
+    if z_depth is not None and split.depth is not None:
+        scores["depth_mae"] = depth_mae(z_depth, split.depth[view], alpha if split.has_alpha else None, mask)
+    return scores, gt
 
 
 def evaluate_split(
@@ -112,11 +61,8 @@ def evaluate_split(
     per_view: List[dict] = []
     for v in views:
         res = render_view(model, split.cameras, v, background=background, near=near, far=far, chunk=chunk)
-        gt, alpha = split.image(v, background)
-        mask = split.masks[v] if split.masks is not None else None
-        entry = {"view": v, "name": split.frames[v].stem, "psnr": psnr(res["rgb"], gt, mask), "ssim": ssim(res["rgb"], gt)}
-        if split.depth is not None:
-            entry["depth_mae"] = depth_mae(res["z_depth"], split.depth[v], alpha if split.has_alpha else None, mask)
+        scores, _ = score_view(res["rgb"], split, v, background, res["z_depth"])
+        entry = {"view": v, "name": split.frames[v].stem, **scores}
         per_view.append(entry)
         if on_view:
             on_view(entry)
@@ -135,8 +81,9 @@ def evaluate_split(
 
 
 def spread_views(n: int, k: int) -> List[int]:
-    """``k`` view indices evenly spread over ``0 .. n-1``, first and last included (``[0]`` for k <= 1)."""
-    return sorted({round(x * (n - 1) / max(1, k - 1)) for x in range(k)}) if k > 1 else [0]
+    """``k`` view indices evenly spread over ``0 .. n-1``, first and last included (``[0]`` for k <= 1):
+    the contract's ``evenly_spaced`` rule."""
+    return evenly_spaced(n, max(1, k)) if n > 0 else [0]
 
 
 def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = None, background=(1.0, 1.0, 1.0),
@@ -221,7 +168,7 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     ds = load_dataset(dataset_path, splits=(split,), downscale=max(int(downscale), int(config.get("downscale", 1))))
     sp = ds.split(split)
     n = len(sp) if not max_views else min(len(sp), int(max_views))
-    views = spread_views(len(sp), n)
+    views = evenly_spaced(len(sp), n)
     bg = config.get("eval_background", [1.0, 1.0, 1.0])
     bar = ProgressBar(total=len(views), label=f"eval {split}", enabled=show_progress)
 

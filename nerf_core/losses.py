@@ -1,11 +1,12 @@
-"""Losses, regularisers and the PSNR of an MSE: the one home of the photometric terms the trainer
-optimises and of the PSNR formula every report uses."""
+"""Losses and regularisers: the photometric terms the trainer optimises. (The PSNR formula lives in
+``metrics``; ``psnr_from_mse`` is the trainer's name for it.)"""
 from __future__ import annotations
 
-import math
 from typing import Optional
 
 import torch
+
+from .metrics import mse_to_psnr as psnr_from_mse  # noqa: F401  (one formula, in metrics)
 
 Tensor = torch.Tensor
 
@@ -22,12 +23,6 @@ def masked_mse(pred: Tensor, gt: Tensor, weight: Optional[Tensor]) -> Tensor:
     if weight is None:
         return err.mean()
     return (err * weight).sum() / weight.sum().clamp_min(1.0)
-
-
-def psnr_from_mse(value: float | Tensor) -> float:
-    """PSNR in dB for colours in [0, 1]; inf for a perfect match."""
-    v = float(value)
-    return math.inf if v <= 0 else -10.0 * math.log10(v)
 
 
 def total_variation_2d(planes: Tensor) -> Tensor:

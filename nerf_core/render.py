@@ -2,7 +2,10 @@
 
 ``python -m nerf_core render RUN --cameras TRANSFORMS.json --out DIR`` writes, per camera,
 ``DIR/<stem>.png`` (RGBA: straight colour, alpha = accumulated opacity), ``DIR/<stem>_depth.exr``
-(planar z-depth in scene units, channel ``Z``, 0 where nothing was hit) and ``DIR/renders.json``.
+(planar z-depth in scene units, channel ``Z``, 0 where nothing was hit) and ``DIR/renders.json``;
+for cameras whose frame has a ground-truth image also ``DIR/errors/<stem>.png`` (an error heat-map)
+and that view's ``psnr``/``ssim`` in renders.json (docs/CONTRACTS.md). File names follow
+``nerf_core.contract.naming``.
 """
 from __future__ import annotations
 
@@ -16,11 +19,14 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 import torch
 
-from .cameras import Cameras, check_pose, PoseError, ray_bounds, rays_for_view
+from .cameras import Cameras, ray_bounds, rays_for_view
 # Checkpoint reading moved to nerf_core.checkpoints; the names stay importable from here for callers
 # written against render (scripts/benchmark.py reads model sizes through them).
 from .checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint  # noqa: F401
 from .contract import config_path
+from .contract.intrinsics import resolve_intrinsics
+from .contract.naming import frame_stem, render_files, unique_stems
+from .contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, read_transforms
 from .progressbar import ProgressBar
 
 
@@ -124,39 +130,17 @@ def check_view_memory(w: int, h: int, where: str) -> None:
                        f"{math.ceil(math.sqrt(need / max(have, 1)))} or more)")
 
 
-def unique_stems(stems: List[str]) -> List[str]:
-    """Output names that never collide, whatever the input: ``a, a, a_1`` -> ``a, a_1, a_1_1``.
-
-    Names are compared case-insensitively (macOS and Windows file systems are), and an empty name
-    becomes ``view_XXX``.
-    """
-    used: set = set()
-    out = []
-    for k, s in enumerate(stems):
-        base = str(s) or f"view_{k:03d}"
-        cand, n = base, 0
-        while cand.lower() in used:
-            n += 1
-            cand = f"{base}_{n}"
-        used.add(cand.lower())
-        out.append(cand)
-    return out
-
-
 # ----------------------------------------------------------------------------------------------
 # camera files
 
 
-def _camera_list(data, src: Path):
+def _camera_list(data, src: Path) -> tuple[Cameras, List[str]]:
     """Cameras from a JSON list: each item a 4x4 matrix (intrinsics from the top level) or a dict
-    with ``transform_matrix`` plus ``fl_x``/``fl_y``/``cx``/``cy``/``w``/``h`` or ``camera_angle_x``."""
-    from .data import INTRINSIC_KEYS, _intrinsics, DatasetError
-
+    with ``transform_matrix`` plus intrinsics (``contract.resolve_intrinsics``; ``w`` and ``h`` required)."""
     items, glob = (data, {}) if isinstance(data, list) else (data.get("cameras"), data)
     if not isinstance(items, list) or not items:
         raise DatasetError(f"{src}: expected a list of cameras (or an object with 'frames' or 'cameras')")
-    g = _intrinsics(glob, str(src)) if isinstance(glob, dict) else {}
-    mats, params, stems = [], [], []
+    mats, params = [], []
     for k, item in enumerate(items):
         where = f"{src}: camera {k}"
         m = item.get("transform_matrix") if isinstance(item, dict) else item
@@ -164,47 +148,24 @@ def _camera_list(data, src: Path):
             mats.append(check_pose(m, f"{where}: field 'transform_matrix'"))
         except PoseError as exc:
             raise DatasetError(str(exc)) from exc
-        intr = dict(g)
-        if isinstance(item, dict):
-            intr.update(_intrinsics(item, where))
-        if "w" not in intr or "h" not in intr:
-            raise DatasetError(f"{where}: fields 'w' and 'h' (image size in pixels) are required")
-        W, H = intr["w"], intr["h"]
-        if "fl_x" in intr:
-            fx = intr["fl_x"]
-        elif "camera_angle_x" in intr:
-            fx = 0.5 * W / math.tan(0.5 * intr["camera_angle_x"])
-        else:
-            raise DatasetError(f"{where}: field 'fl_x' or 'camera_angle_x' is required")
-        fy = intr.get("fl_y", fx)
-        params.append((fx, fy, intr.get("cx", W / 2), intr.get("cy", H / 2), W, H))
-        name = item.get("name") or item.get("file_path") if isinstance(item, dict) else None
-        stems.append(Path(str(name)).stem if name else f"view_{k:03d}")
+        params.append(resolve_intrinsics(glob, item if isinstance(item, dict) else None, None, where))
     p = np.asarray(params, dtype=np.float64)
     cams = Cameras.create(np.stack(mats), p[:, 0], p[:, 1], p[:, 2], p[:, 3], p[:, 4].astype(int), p[:, 5].astype(int))
-    return cams, stems
+    return cams, [frame_stem(item, k) for k, item in enumerate(items)]
 
 
-def _all_frames(path: Path) -> tuple[Cameras, List[str]]:
-    """Every frame of one transforms file (image sizes from ``w``/``h`` or the image headers)."""
-    from .data import DatasetError, _frames_of, _read_json, cameras_of_frames
-
-    frames = _frames_of(_read_json(path), path, add_png=True)
-    if not frames:
-        raise DatasetError(f"{path}: field 'frames' has no entries")
-    return cameras_of_frames(frames), [f.stem for f in frames]
-
-
-def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, List[str]]:
-    """Cameras and output stems to render.
+def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[str], List[Optional[FrameInfo]]]:
+    """Cameras to render, their output stems (unique, ``contract.output_stems``'s rule) and, per camera,
+    the transforms frame it came from (its ``image`` is the ground truth), None for a bare camera.
 
     ``path`` may be a dataset folder (the frames of ``split``), a transforms file of either layout
     (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), a
     nerfstudio ``camera_path.json`` (``nerf_core.camera_path``), or a JSON list of cameras (see ``_camera_list``).
     """
-    from .data import DatasetError, load_cameras
+    from .data import cameras_of_frames, load_cameras
 
     path = Path(path)
+    frames: List[Optional[FrameInfo]]
     if path.is_dir():
         cams, frames = load_cameras(path, split)
         stems = [f.stem for f in frames]
@@ -221,19 +182,42 @@ def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, L
 
         if is_camera_path(data):  # nerfstudio's camera_path.json (viewer, Blender add-on)
             cams, stems = cameras_from_camera_path(data, path)
+            frames = [None] * len(stems)
         elif isinstance(data, dict) and "frames" in data:
             if data.get("train_filenames") is not None and not path.name.startswith("transforms_"):
                 cams, frames = load_cameras(path, split)
-                stems = [f.stem for f in frames]
             else:
-                cams, stems = _all_frames(path)
+                frames = read_transforms(path)
+                cams = cameras_of_frames(frames)
+            stems = [f.stem for f in frames]
         else:
             cams, stems = _camera_list(data, path)
+            frames = [None] * len(stems)
     # Two frames with one basename (train/r_0 and test/r_0) must not overwrite each other's output.
-    return cams, unique_stems(stems)
+    return cams, unique_stems(stems), list(frames)
 
 
-# ----------------------------------------------------------------------------------------------
+def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, List[str]]:
+    """Cameras and output stems to render (``camera_views`` without the frames)."""
+    cams, stems, _ = camera_views(path, split)
+    return cams, stems
+
+
+def _ground_truth(frame: Optional[FrameInfo], cameras: Cameras, view: int, downscale: int):
+    """(one-view ``data.Split`` holding the ground truth of ``view``, None) or (None, why not). No
+    frame or no image file: (None, None), a camera without ground truth is not a problem."""
+    from .data import load_split
+
+    if frame is None or not frame.image.is_file():
+        return None, None
+    try:
+        split = load_split("ground truth", [frame], downscale, extras=("masks",))  # PSNR counts mask pixels
+    except DatasetError as exc:
+        return None, str(exc)
+    size, want = (split.width, split.height), (int(cameras.width[view]), int(cameras.height[view]))
+    if size != want:
+        return None, f"{frame.image} is {size[0]}x{size[1]} px (downscaled by {downscale}), the render {want[0]}x{want[1]}"
+    return split, None
 
 
 def straight_rgba(res: Dict[str, torch.Tensor], opaque: bool) -> np.ndarray:
@@ -262,42 +246,75 @@ def render_to_dir(
     extra: Optional[dict] = None,
     show_progress: bool = True,
     on_view: Optional[Callable[[int, str], None]] = None,
+    ground_truth: Optional[List[Optional[FrameInfo]]] = None,
+    metrics_background=(1.0, 1.0, 1.0),
+    gt_downscale: int = 1,
 ) -> Path:
     """Render every camera into ``out``; returns the path of ``renders.json``.
 
+    ``ground_truth``: per camera, the transforms frame whose image is its ground truth (None: none).
+    Views with one get ``psnr`` and ``ssim`` in renders.json, computed exactly as ``eval`` does
+    (``evaluate.score_view``: render and ground truth composited onto ``metrics_background``, the
+    run's ``eval_background``), and an error heat-map ``errors/<stem>.png``. The ground truth is
+    box-filtered by ``gt_downscale`` like ``eval --downscale``.
     Refuses (RunError listing the files) to replace existing outputs unless ``overwrite``.
     """
     out = Path(out)
     stems = unique_stems(stems)  # colliding names would overwrite each other's images
+    gt_frames = list(ground_truth) if ground_truth is not None else [None] * len(stems)
     for v in range(len(stems)):
         check_view_memory(int(cameras.width[v]), int(cameras.height[v]), f"camera {v} ({stems[v]})")
     targets = [out / "renders.json"]
-    for s in stems:
-        targets += [out / f"{s}.png", out / f"{s}_depth.exr"]
+    for s, fr in zip(stems, gt_frames):
+        files = render_files(s)
+        targets += [out / files["image"], out / files["depth"]]
+        if fr is not None:
+            targets.append(out / files["error_map"])
     existing = [t for t in targets if t.exists()]
     if existing and not overwrite:
         names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
         raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
+    from .evaluate import score_view
     from .imageio import write_exr, write_png
+    from .metrics import HEATMAP_VMAX, error_heatmap
+    from .volrend import composite_background
 
     out.mkdir(parents=True, exist_ok=True)
     frames = []
     bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
     opaque = getattr(model, "environment", None) is not None
+    bg = torch.as_tensor(metrics_background, dtype=torch.float32)
     for v, stem in enumerate(stems):
+        files = render_files(stem)
         res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
         rgba = straight_rgba(res, opaque)
-        write_png(out / f"{stem}.png", rgba)
-        write_exr(out / f"{stem}_depth.exr", {"Z": res["z_depth"].numpy()})
-        frames.append({
-            "file_path": f"{stem}.png",
-            "depth_file_path": f"{stem}_depth.exr",
+        write_png(out / files["image"], rgba)
+        write_exr(out / files["depth"], {"Z": res["z_depth"].numpy()})
+        entry = {
+            "file_path": files["image"],
+            "depth_file_path": files["depth"],
             "transform_matrix": cameras.c2w[v].tolist(),
             "fl_x": float(cameras.fx[v]), "fl_y": float(cameras.fy[v]),
             "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
             "w": int(cameras.width[v]), "h": int(cameras.height[v]),
             "camera_angle_x": float(cameras.fov_x()[v]),
-        })
+        }
+        gt_split, why_not = _ground_truth(gt_frames[v], cameras, v, gt_downscale)
+        if gt_split is not None:
+            # What eval sees: the same pixels as rendering onto the background (model.render_rays puts
+            # ``background`` behind the opacity exactly so); a learned world already fills them.
+            pred = res["rgb"] if opaque else composite_background(res["rgb"], acc, bg).clamp(0, 1)
+            try:
+                scores, gt = score_view(pred, gt_split, 0, bg)
+            except ValueError as exc:  # e.g. smaller than SSIM's window: the render itself is fine
+                why_not = f"{gt_frames[v].image}: {exc}"
+            else:
+                (out / files["error_map"]).parent.mkdir(exist_ok=True)
+                write_png(out / files["error_map"], error_heatmap(pred, gt))
+                entry.update(scores, error_map=files["error_map"], ground_truth=str(gt_frames[v].image))
+        if why_not:
+            entry["metrics_skipped"] = why_not
+        frames.append(entry)
         bar.update(1, info=stem)
         if on_view:
             on_view(v, stem)
@@ -306,6 +323,9 @@ def render_to_dir(
             "alpha": ("1: opaque, the learned environment is composited behind the scene" if opaque else
                       "accumulated opacity; colour is straight (not premultiplied)"),
             "background": "environment" if opaque else "transparent", "created": time.time()}
+    if any("psnr" in f for f in frames):
+        meta["metrics_background"] = [float(c) for c in bg.tolist()]
+        meta["error_map_vmax"] = HEATMAP_VMAX
     meta.update(extra or {})
     tmp = out / ".renders.json.tmp"
     tmp.write_text(json.dumps(meta, indent=2), encoding="utf-8")
@@ -315,7 +335,8 @@ def render_to_dir(
 
 def render_run(run, cameras_path, out, split="test", overwrite=False, device=None, downscale: float = 1.0,
                chunk: int = 8192, checkpoint=None, show_progress=True) -> Path:
-    """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file."""
+    """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
+    per-view PSNR / SSIM and error heat-maps where the cameras' frames have ground-truth images."""
     from .device import pick_device
 
     dev = pick_device(device)
@@ -324,12 +345,16 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         cameras_path = config.get("dataset")
         if not cameras_path:
             raise RunError(f"{config_path(run)}: no 'dataset' recorded; pass --cameras")
-    cams, stems = cameras_from_file(cameras_path, split)
+    cams, stems, frames = camera_views(cameras_path, split)
     if downscale != 1.0:
         cams = cams.scaled(1.0 / downscale)
+    # Ground truth is box-filtered like eval's; a fractional downscale has no such image: no metrics.
+    gt_downscale = int(downscale) if float(downscale).is_integer() and downscale >= 1 else None
     return render_to_dir(
         model, cams, stems, out, overwrite=overwrite, near=config.get("near"), far=config.get("far"), chunk=chunk,
         extra={"run": str(Path(run).resolve()), "step": ckpt.get("step"), "method": ckpt.get("method"),
                "cameras": str(Path(cameras_path).resolve())},
         show_progress=show_progress,
+        ground_truth=frames if gt_downscale else None,
+        metrics_background=config.get("eval_background", [1.0, 1.0, 1.0]), gt_downscale=gt_downscale or 1,
     )

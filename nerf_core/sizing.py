@@ -26,6 +26,8 @@ from typing import Optional, Tuple
 import torch
 import torch.nn.functional as F
 
+from .contract.naming import evenly_spaced
+
 Tensor = torch.Tensor
 
 # Detail score at which the full texture budget is used: about a third of the object's interior
@@ -56,7 +58,7 @@ def _probe_views(images: Tensor, alphas: Optional[Tensor], max_images: int) -> T
     if images.ndim != 4 or images.shape[-1] < 3:
         raise ValueError(f"images must be (n, h, w, 3), got {tuple(images.shape)}")
     n = images.shape[0]
-    pick = torch.linspace(0, n - 1, min(n, max_images)).round().long()
+    pick = torch.tensor(evenly_spaced(n, max_images), dtype=torch.long)
     rgb = images[pick, ..., :3].float()
     gray = rgb.mean(-1, keepdim=True).permute(0, 3, 1, 2)
     return gray, _foreground(rgb, None if alphas is None else alphas[pick].float())

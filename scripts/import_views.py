@@ -182,12 +182,10 @@ def main(argv) -> int:
         views = planes.views_from_render(render_dir, cameras)
         scene = bpy.context.scene
         if args.layout == "gallery":
-            planes.import_gallery(views, render_dir, background=runs.run_background(run), scene=scene)
+            planes.import_gallery(views, scene=scene)
         else:
             distance = args.distance or compare.auto_distances(views, run)
-            planes.import_camera_aligned(views, distance, scene=scene)
-            for view in views:  # metrics are worth printing for the camera layout too
-                planes.compare_view(view, render_dir, runs.run_background(run))
+            planes.import_camera_aligned(views, distance, scene=scene)  # metrics came with renders.json
     except ValueError as exc:
         fail(str(exc))
     except OSError as exc:

@@ -41,3 +41,68 @@ def test_parse_event_line():
     assert contract.parse_event_line('{"event": "step", "step": 3}\n') == {"event": "step", "step": 3}
     for bad in ("", "warning: x", '{"event": 3}', '{"step": 1}', '{"event": "st', "[1]"):
         assert contract.parse_event_line(bad) is None
+
+
+# -- intrinsics: the one focal-length rule ---------------------------------------------------------
+def test_resolve_intrinsics_precedence_by_hand():
+    import math
+
+    import pytest
+
+    angle = 2 * math.atan(0.5)  # tan(angle / 2) = 0.5: fx = 0.5 * w / 0.5 = w
+    top = {"camera_angle_x": angle, "w": 100, "h": 60}
+    assert contract.resolve_intrinsics(top, {}) == pytest.approx((100, 100, 50, 30, 100, 60))
+    # A frame's value overrides the file's; fl_x beats camera_angle_x; fy falls back to fx.
+    assert contract.resolve_intrinsics(top, {"fl_x": 80.0, "cy": 20.0}) == pytest.approx((80, 80, 50, 20, 100, 60))
+    assert contract.resolve_intrinsics({"fl_x": 120.0, "w": 100, "h": 60}, {"camera_angle_x": angle})[0] == 120.0
+    assert contract.resolve_intrinsics({"fl_y": 70.0}, {}, (40, 30)) == pytest.approx((70, 70, 20, 15, 40, 30))
+    assert contract.resolve_intrinsics({"fl_x": 70.0, "fl_y": 90.0, "w": 8, "h": 6}, None)[:2] == (70.0, 90.0)
+    # The declared size beats the image's; the image's fills in when the JSON has none.
+    assert contract.resolve_intrinsics(top, {}, (7, 7))[4:] == (100.0, 60.0)
+    assert contract.resolve_intrinsics({"camera_angle_x": angle}, {}, (10, 4)) == pytest.approx((10, 10, 5, 2, 10, 4))
+    with pytest.raises(contract.DatasetError, match=r"cams.json: camera 2: fields 'w' and 'h'"):
+        contract.resolve_intrinsics({"fl_x": 5.0}, {}, None, "cams.json: camera 2")
+    with pytest.raises(contract.DatasetError, match="no focal length"):
+        contract.resolve_intrinsics({"w": 4, "h": 4}, {"cx": 2.0})
+    with pytest.raises(contract.DatasetError, match=r"frame 3: field 'camera_angle_x'.*\(0, pi\)"):
+        contract.resolve_intrinsics(top, {"camera_angle_x": 3.5}, None, "frame 3")
+    assert contract.focal_from_fov(contract.fov_from_focal(42.0, 64), 64) == pytest.approx(42.0)
+
+
+# -- output names ----------------------------------------------------------------------------------
+def test_output_stems_follow_render_naming_and_never_collide():
+    frames = [{"file_path": "./train/r_0"}, {"file_path": "./test/r_0"}, {"name": "A", "file_path": "x/b.png"},
+              [[1, 0, 0, 0]] * 4, {"file_path": "images/R_0.png"}, {"file_path": ""}]
+    assert contract.output_stems(frames) == ["r_0", "r_0_1", "A", "view_003", "R_0_2", "view_005"]
+    assert contract.unique_stems(["a", "a", "a_1"]) == ["a", "a_1", "a_1_1"]
+    assert contract.render_files("r_0") == {"image": "r_0.png", "depth": "r_0_depth.exr", "error_map": "errors/r_0.png"}
+
+
+def test_evenly_spaced_by_hand():
+    assert contract.evenly_spaced(10, 4) == [0, 3, 6, 9]
+    assert contract.evenly_spaced(100, 8) == [0, 14, 28, 42, 57, 71, 85, 99]  # round(k * 99 / 7)
+    assert contract.evenly_spaced(5, 10) == [0, 1, 2, 3, 4]
+    assert contract.evenly_spaced(7, 1) == [0] and contract.evenly_spaced(0, 3) == [] and contract.evenly_spaced(3, 0) == []
+
+
+# -- transforms files ------------------------------------------------------------------------------
+def test_read_transforms_names_file_frame_and_field(tmp_path):
+    import json
+
+    import pytest
+
+    eye = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
+    (tmp_path / "train").mkdir()
+    (tmp_path / "train" / "r_0.png").write_bytes(b"")
+    path = tmp_path / "transforms_train.json"
+    path.write_text(json.dumps({"camera_angle_x": 0.7, "frames": [
+        {"file_path": "./train/r_0", "transform_matrix": eye, "depth_path": "../d.exr", "w": 8, "h": 6}]}))
+    (fr,) = contract.read_transforms(path)
+    assert fr.image == (tmp_path / "train" / "r_0.png").resolve() and fr.stem == "r_0"
+    assert fr.intrinsics == {"camera_angle_x": 0.7, "w": 8.0, "h": 6.0} and fr.outside == ["depth_path"]
+    assert fr.depth == (tmp_path.parent / "d.exr").resolve() and fr.c2w[2, 3] == 4.0
+    bad = dict(json.loads(path.read_text()))
+    bad["frames"][0]["transform_matrix"] = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]
+    path.write_text(json.dumps(bad))
+    with pytest.raises(contract.DatasetError, match=r"transforms_train.json: frame 0 \(./train/r_0\): field 'transform_matrix'.*scaled"):
+        contract.read_transforms(path)

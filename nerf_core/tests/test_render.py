@@ -1,6 +1,7 @@
 """``render``: RGBA PNG + planar-depth EXR per camera with the right sizes, renders.json, no overwrite."""
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -113,3 +114,51 @@ def test_depth_is_planar_and_empty_pixels_are_zero(tmp_path):
     png = np.asarray(Image.open(tmp_path / "v.png"))
     assert png[0, 0, 3] == 0 and png[0, 1, 3] == 255
     np.testing.assert_array_equal(png[0, 2, :3], [51, 102, 153])  # straight colour, not premultiplied
+
+
+def test_render_metrics_equal_eval_for_the_same_view_and_checkpoint(trained_run, tmp_path):
+    """renders.json's PSNR / SSIM are eval's numbers (same functions, same background compositing),
+    although render draws onto black and eval onto the run's eval background."""
+    from nerf_core.data import load_dataset
+    from nerf_core.evaluate import evaluate_split
+    from nerf_core.metrics import error_heatmap
+    from nerf_core.render import load_run
+
+    run, ds = trained_run["run"], trained_run["dataset"]
+    out = tmp_path / "r"
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]) == 0
+    meta = json.loads((out / "renders.json").read_text())
+    model, cfg, _ = load_run(run, torch.device("cpu"))
+    split = load_dataset(ds, splits=("test",)).split("test")
+    bg = cfg.get("eval_background", [1.0, 1.0, 1.0])
+    ev = evaluate_split(model, split, background=bg, near=cfg.get("near"), far=cfg.get("far"))
+    assert meta["metrics_background"] == pytest.approx(bg)
+    assert [f["file_path"] for f in meta["frames"]] == [f"{e['name']}.png" for e in ev["per_view"]]
+    for frame, e in zip(meta["frames"], ev["per_view"]):
+        assert 5.0 < e["psnr"] < 60.0  # a real comparison, not a perfect or empty one
+        assert frame["psnr"] == pytest.approx(e["psnr"], abs=1e-3)
+        assert frame["ssim"] == pytest.approx(e["ssim"], abs=1e-5)
+        assert frame["error_map"] == f"errors/{e['name']}.png"
+        assert Path(frame["ground_truth"]) == (ds / "test" / f"{e['name']}.png").resolve()
+        heat = np.asarray(Image.open(out / frame["error_map"]))
+        assert heat.shape == (split.height, split.width, 3)
+    # The heat-map is the mean absolute error of those two images on the fixed colour scale.
+    res = render_view(model, split.cameras, 0, background=bg, near=cfg.get("near"), far=cfg.get("far"))
+    gt, _ = split.image(0, bg)
+    want = (np.clip(error_heatmap(res["rgb"], gt), 0, 1) * 255 + 0.5).astype(np.uint8)
+    got = np.asarray(Image.open(out / meta["frames"][0]["error_map"]))
+    assert np.abs(got.astype(int) - want.astype(int)).max() <= 1
+
+
+def test_render_of_cameras_without_images_has_no_metrics(trained_run, tmp_path):
+    ds = trained_run["dataset"]
+    meta = json.loads((ds / "transforms_test.json").read_text())
+    for fr in meta["frames"]:
+        fr["file_path"] = "./novel/" + fr["file_path"].split("/")[-1]  # no such images
+    cams = tmp_path / "novel.json"
+    cams.write_text(json.dumps(meta))
+    out = tmp_path / "r"
+    assert main(["render", str(trained_run["run"]), "--cameras", str(cams), "--out", str(out), "--no-bar"]) == 0
+    frames = json.loads((out / "renders.json").read_text())["frames"]
+    assert frames and all("psnr" not in f and "error_map" not in f and "metrics_skipped" not in f for f in frames)
+    assert not (out / "errors").exists()

@@ -8,7 +8,10 @@ Sections:
 - run folder paths (``RUN/config.json``, ``RUN/checkpoints/latest.pt``, ...);
 - the training budget fraction;
 - progress events (one JSON object per line).
-Further sections (transforms files, intrinsics, output naming) live here as they move in.
+Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``contract.latest_checkpoint``):
+- ``transforms``: reading transforms files (JSON, frames, poses, the dataset path rule, splits);
+- ``intrinsics``: the one focal-length rule, ``resolve_intrinsics``;
+- ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices.
 """
 from __future__ import annotations
 
@@ -17,6 +20,14 @@ import math
 import os
 import re
 from typing import Any, Dict, Optional
+
+from .intrinsics import focal_from_fov, fov_from_focal, resolve_intrinsics  # noqa: F401 (re-exported)
+from .naming import (ERRORS_DIR, evenly_spaced, frame_stem, output_stems, path_stem,  # noqa: F401
+                     render_files, unique_stems)
+from .transforms import (EXTRA_FIELDS, HOLDOUT_EVERY, IMAGE_EXTS, INTRINSIC_KEYS, SPLITS,  # noqa: F401
+                         DatasetError, FrameInfo, PoseError, check_pose, detect_layout, frame_infos,
+                         parse_intrinsics, read_frames, read_json, read_transforms, resolve_dataset_path,
+                         resolve_image)
 
 # -- run folder -----------------------------------------------------------------------------------
 CONFIG = "config.json"

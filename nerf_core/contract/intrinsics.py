@@ -1,0 +1,57 @@
+"""Pixel intrinsics of a transforms frame: THE focal-length rule (standard library only).
+
+Precedence, field by field (docs/CONTRACTS.md, "Intrinsics"):
+
+1. a frame's own value overrides the file's top-level value of the same field;
+2. ``fx`` = ``fl_x``; else from ``camera_angle_x`` and ``w`` (``0.5 w / tan(angle / 2)``); else ``fl_y``;
+3. ``fy`` = ``fl_y``; else ``fx`` (square pixels, what the original NeRF loader assumes);
+   ``camera_angle_y`` is never read: every writer we know also writes ``camera_angle_x`` or ``fl_*``;
+4. ``cx``, ``cy`` = the given values, else the image centre ``w / 2``, ``h / 2``;
+5. ``w``, ``h`` = the given values, else ``size`` (the image's own size), else an error.
+
+So ``fl_x``/``fl_y`` beat ``camera_angle_x``: a file that has both uses the focal lengths, which carry
+non-square pixels; ``nerf_core check`` reports a file where the two disagree.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence, Tuple
+
+from .transforms import DatasetError, parse_intrinsics
+
+
+def focal_from_fov(fov: float, size: float) -> float:
+    """Focal length in pixels for a field of view ``fov`` (radians) spanning ``size`` pixels."""
+    return 0.5 * size / math.tan(0.5 * fov)
+
+
+def fov_from_focal(focal: float, size: float) -> float:
+    """Field of view in radians spanning ``size`` pixels at focal length ``focal`` (pixels)."""
+    return 2.0 * math.atan(0.5 * size / focal)
+
+
+def resolve_intrinsics(meta: Optional[dict], frame: Optional[dict], size: Optional[Sequence[float]] = None,
+                       where: str = "transforms") -> Tuple[float, float, float, float, float, float]:
+    """(fx, fy, cx, cy, w, h) in pixels of the declared image for one frame (rules in the module doc).
+
+    ``meta`` is the file's top-level object and ``frame`` one of its frames (either may be None; raw
+    JSON values are validated). ``size`` = (w, h) of the image, used when the JSON gives none.
+    Raises DatasetError naming ``where`` and the field.
+    """
+    intr = parse_intrinsics(meta or {}, where)
+    intr.update(parse_intrinsics(frame or {}, where))
+    w, h = intr.get("w"), intr.get("h")
+    if (w is None or h is None) and size is None:
+        raise DatasetError(f"{where}: fields 'w' and 'h' (image size in pixels) are required")
+    w = float(size[0]) if w is None else w
+    h = float(size[1]) if h is None else h
+    if "fl_x" in intr:
+        fx = intr["fl_x"]
+    elif "camera_angle_x" in intr:
+        fx = focal_from_fov(intr["camera_angle_x"], w)
+    elif "fl_y" in intr:
+        fx = intr["fl_y"]
+    else:
+        raise DatasetError(f"{where}: no focal length (fields 'fl_x' or 'camera_angle_x' missing)")
+    fy = intr.get("fl_y", fx)
+    return fx, fy, intr.get("cx", w / 2.0), intr.get("cy", h / 2.0), float(w), float(h)

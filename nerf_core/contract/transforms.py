@@ -1,0 +1,322 @@
+"""Reading transforms files: the JSON, its frames, camera poses and the file paths they name.
+
+The one reader behind ``nerf_core.data`` (training, eval), ``nerf_core.render`` (camera files) and the
+add-on. Standard library and numpy only (see ``nerf_core.contract``).
+
+Layouts (docs/CONTRACTS.md):
+
+* synthetic: ``transforms_{train,val,test}.json``, ``frames[*].file_path`` without extension
+  (``./train/r_0`` -> ``train/r_0.png``);
+* nerfstudio: one ``transforms.json`` with real file names and optional
+  ``train_filenames``/``val_filenames``/``test_filenames``; without them every ``HOLDOUT_EVERY``-th
+  frame (by file name) is held out and serves as val and test.
+
+Every problem raises ``DatasetError`` whose message names the file, frame and field.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+SPLITS = ("train", "val", "test")
+HOLDOUT_EVERY = 8  # nerfstudio-style deterministic split when transforms.json lists no split files
+INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
+# Per-frame extra channels: JSON field -> FrameInfo attribute. Earlier fields win for one attribute
+# (nerfstudio's ``depth_file_path`` before instant-ngp's ``depth_path``).
+EXTRA_FIELDS = (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_file_path", "normal"),
+                ("mask_path", "mask"))
+
+
+class DatasetError(Exception):
+    """Bad dataset input; the message names the file, frame and field concerned."""
+
+
+class PoseError(ValueError):
+    """A camera matrix that is not a finite rigid transform."""
+
+
+def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3) -> np.ndarray:
+    """Validate a camera-to-world matrix and return it as float64 (4, 4) (a (3, 4) gets [0, 0, 0, 1]).
+
+    Raises PoseError naming ``where`` for wrong shape, NaN/inf, a singular or scaled/sheared
+    rotation part, a reflection, or a bottom row other than [0, 0, 0, 1].
+    """
+    try:
+        m = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise PoseError(f"{where}: not a numeric matrix ({exc})") from exc
+    if m.shape == (3, 4):
+        m = np.vstack([m, [0, 0, 0, 1]])
+    if m.shape != (4, 4):
+        raise PoseError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise PoseError(f"{where}: contains NaN or inf")
+    rot = m[:3, :3]
+    det = np.linalg.det(rot)
+    if abs(det) < 1e-8:
+        raise PoseError(f"{where}: rotation part is singular (determinant {det:.3g})")
+    gram = rot.T @ rot
+    if not np.allclose(gram, np.eye(3), atol=scale_tol):
+        scales = np.sqrt(np.diag(gram))
+        raise PoseError(
+            f"{where}: rotation part is scaled or sheared (column lengths {np.round(scales, 4).tolist()}); "
+            "transform_matrix must be matrix_world with the scale removed"
+        )
+    if det < 0:
+        raise PoseError(f"{where}: rotation part is a reflection (determinant {det:.3g})")
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
+        raise PoseError(f"{where}: bottom row must be [0, 0, 0, 1], got {m[3].tolist()}")
+    return m
+
+
+def read_json(path: Path | str) -> dict:
+    """A transforms file's top-level object (DatasetError naming the file when it cannot be read)."""
+    path = Path(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            meta = json.load(f)
+    except FileNotFoundError as exc:
+        raise DatasetError(f"{path}: file not found") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot read ({exc})") from exc
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path}: expected a JSON object with 'frames'")
+    return meta
+
+
+def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
+    """The intrinsic fields (``INTRINSIC_KEYS``) present in ``src``, as validated floats."""
+    out = {}
+    for key in INTRINSIC_KEYS:
+        if key in src and src[key] is not None:
+            try:
+                value = float(src[key])
+            except (TypeError, ValueError) as exc:
+                raise DatasetError(f"{where}: field {key!r} is not a number ({src[key]!r})") from exc
+            if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
+                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {src[key]!r}")
+            if key in ("camera_angle_x", "camera_angle_y") and value >= math.pi:
+                # tan(fov / 2) turns negative past pi: a negative focal length would mirror every ray.
+                raise DatasetError(f"{where}: field {key!r} is a field of view in radians and must lie in (0, pi), "
+                                   f"got {src[key]!r}")
+            out[key] = value
+    return out
+
+
+def resolve_dataset_path(root: Path, value, where: str, field_name: str) -> tuple[Path, bool]:
+    """The one rule for file paths written in a dataset's JSON: (resolved path, lies outside ``root``).
+
+    Relative paths are taken from the JSON file's folder. Policy: absolute paths and relative paths
+    that climb out of the dataset folder (``../``) are *allowed*, because other tools write them and
+    reading an image runs nothing, but they are reported (``load_dataset`` adds a note, ``check`` a
+    warning): a copy of the folder, or another machine, will not find those files. Containment is
+    decided on the path as written (normalised, not following symlinks), so a dataset that links its
+    image folders from elsewhere stays inside. A value that is not a non-empty string is refused.
+    """
+    root = Path(root)
+    if not isinstance(value, str) or not value.strip():
+        raise DatasetError(f"{where}: field {field_name!r} must be a non-empty string (a file path), got {value!r}")
+    p = Path(value)
+    if p.is_absolute():
+        return p, True
+    lexical = os.path.normpath(os.path.join(str(root), value))
+    inside = os.path.commonpath([os.path.abspath(lexical), os.path.abspath(str(root))]) == os.path.abspath(str(root))
+    return (root / value).resolve(), not inside
+
+
+def resolve_image(root: Path, file_path: str, add_png: bool) -> Path:
+    """The image a ``file_path`` names. ``add_png`` (synthetic layout): a path without extension gets
+    ``.png`` (else ``.exr``, when only that exists), as the original loaders add it."""
+    p = (Path(root) / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
+    if p.suffix.lower() in IMAGE_EXTS and p.is_file():
+        return p
+    if add_png:
+        for ext in (".png", ".exr"):
+            cand = p.with_name(p.name + ext)
+            if cand.is_file():
+                return cand
+        return p.with_name(p.name + ".png") if not p.suffix else p
+    return p
+
+
+@dataclass
+class FrameInfo:
+    """One frame's metadata before its pixels are read."""
+
+    index: int  # position in its JSON file's ``frames`` list
+    json_file: Path
+    file_path: str  # as written in the JSON
+    image: Path  # resolved image file
+    c2w: np.ndarray  # (4, 4) float64
+    intrinsics: Dict[str, float]  # any of INTRINSIC_KEYS, frame values over the file's
+    depth: Optional[Path] = None
+    normal: Optional[Path] = None
+    mask: Optional[Path] = None
+    outside: List[str] = field(default_factory=list)  # fields whose file lies outside the dataset folder
+    name: Optional[str] = None  # the frame's optional ``name`` field (names its render outputs)
+
+    @property
+    def where(self) -> str:
+        return f"{self.json_file}: frame {self.index} ({self.file_path})"
+
+    @property
+    def stem(self) -> str:
+        """The frame's name before de-duplication (``naming.frame_stem``)."""
+        from .naming import frame_stem
+
+        return frame_stem({"name": self.name, "file_path": self.file_path}, self.index)
+
+
+def read_frames(meta: dict, json_file: Path, add_png: bool) -> List[FrameInfo]:
+    """The validated frames of one transforms file's object ``meta`` (read from ``json_file``)."""
+    json_file = Path(json_file)
+    frames = meta.get("frames")
+    if not isinstance(frames, list):
+        raise DatasetError(f"{json_file}: field 'frames' is missing or not a list")
+    glob = parse_intrinsics(meta, f"{json_file}")
+    root = json_file.parent
+    out = []
+    for k, fr in enumerate(frames):
+        if not isinstance(fr, dict) or "file_path" not in fr:
+            raise DatasetError(f"{json_file}: frame {k}: field 'file_path' is missing")
+        _, image_outside = resolve_dataset_path(root, fr["file_path"], f"{json_file}: frame {k}", "file_path")
+        fp = str(fr["file_path"])
+        where = f"{json_file}: frame {k} ({fp})"
+        if "transform_matrix" not in fr:
+            raise DatasetError(f"{where}: field 'transform_matrix' is missing")
+        try:
+            c2w = check_pose(fr["transform_matrix"], f"{where}: field 'transform_matrix'")
+        except PoseError as exc:
+            raise DatasetError(str(exc)) from exc
+        intr = dict(glob)
+        intr.update(parse_intrinsics(fr, where))
+        extra = {}
+        outside = ["file_path"] if image_outside else []
+        for key, attr in EXTRA_FIELDS:
+            if fr.get(key) not in (None, "") and attr not in extra:
+                extra[attr], out_of_root = resolve_dataset_path(root, fr[key], where, key)
+                if out_of_root:
+                    outside.append(key)
+        name = fr.get("name") if isinstance(fr.get("name"), str) else None
+        out.append(FrameInfo(k, json_file, fp, resolve_image(root, fp, add_png), c2w, intr, outside=outside,
+                             name=name, **extra))
+    return out
+
+
+def read_transforms(path: Path | str) -> List[FrameInfo]:
+    """Every frame of one transforms file (``.png`` is added to extension-less paths)."""
+    path = Path(path)
+    frames = read_frames(read_json(path), path, add_png=True)
+    if not frames:
+        raise DatasetError(f"{path}: field 'frames' has no entries")
+    return frames
+
+
+def detect_layout(path: Path | str) -> tuple[str, Path]:
+    """('synthetic'|'nerfstudio', dataset root) for a dataset folder or one of its transforms files."""
+    path = Path(path)
+    if path.is_file():
+        if path.name.startswith("transforms_") and path.suffix == ".json":
+            return "synthetic", path.parent
+        return "nerfstudio", path.parent
+    if not path.exists():
+        raise DatasetError(f"{path}: dataset folder not found")
+    if (path / "transforms_train.json").is_file():
+        return "synthetic", path
+    if (path / "transforms.json").is_file():
+        return "nerfstudio", path
+    raise DatasetError(f"{path}: no transforms_train.json or transforms.json in this folder")
+
+
+def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, Path, Dict[str, List[FrameInfo]], dict]:
+    """Parse the metadata of a dataset without reading pixels.
+
+    Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
+    ``far``, ``depth_unit_scale_factor``, ``film_transparent`` and ``world`` when the dataset gives
+    them (each with ``KEY_file``, the file it came from), and ``split_note``/``path_note``.
+    """
+    path = Path(path)
+    layout, root = detect_layout(path)
+    out: Dict[str, List[FrameInfo]] = {}
+    scene: dict = {}
+    if layout == "synthetic":
+        for name in splits:
+            jf = root / f"transforms_{name}.json"
+            if path.is_file() and path.name.startswith("transforms_") and jf != path and name == "train" and not jf.is_file():
+                jf = path
+            if not jf.is_file():
+                if name == "train":
+                    raise DatasetError(f"{jf}: file not found (the training split is required)")
+                out[name] = []
+                continue
+            meta = read_json(jf)
+            out[name] = read_frames(meta, jf, add_png=True)
+            if name in SPLITS and not out[name]:
+                raise DatasetError(f"{jf}: split {name!r} is empty (field 'frames' has no entries)")
+            for key in ("aabb", "near", "far", "film_transparent", "world"):
+                if key in meta and key not in scene:
+                    scene[key] = meta[key]
+                    scene[key + "_file"] = jf
+    else:
+        jf = path if path.is_file() else root / "transforms.json"
+        meta = read_json(jf)
+        frames = read_frames(meta, jf, add_png=False)
+        if not frames:
+            raise DatasetError(f"{jf}: field 'frames' has no entries")
+        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world"):
+            if key in meta:
+                scene[key] = meta[key]
+                scene[key + "_file"] = jf
+        _nerfstudio_splits(meta, jf, frames, splits, out, scene)
+    for name in splits:
+        out.setdefault(name, [])
+    away = [(f, key) for frames in out.values() for f in frames for key in f.outside]
+    if away:
+        f, key = away[0]
+        scene["path_note"] = (f"{len(away)} file path(s) point outside the dataset folder (absolute or '../'), e.g. "
+                              f"{f.where}: field {key!r}; they are read, but a copy of the folder or another "
+                              "machine will not find them")
+    return layout, root, out, scene
+
+
+def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Sequence[str],
+                       out: Dict[str, List[FrameInfo]], scene: dict) -> None:
+    """Fill ``out`` with the frames of each split of a nerfstudio ``transforms.json``."""
+
+    def norm(p: str) -> str:
+        return str(Path(p))  # "./images/a.png" and "images/a.png" name the same frame
+
+    lists = {name: meta.get(f"{name}_filenames") for name in SPLITS}
+    if lists["train"] is not None:
+        by_name = {norm(f.file_path): f for f in frames}
+        for name in splits:
+            names = lists.get(name) or (lists.get("val") if name == "test" else lists.get("test") if name == "val" else None) or []
+            chosen = []
+            for n in names:
+                if norm(n) not in by_name:
+                    raise DatasetError(f"{jf}: field '{name}_filenames' lists {n!r}, which is not a frame's file_path")
+                chosen.append(by_name[norm(n)])
+            out[name] = chosen
+        if not out.get("train"):
+            raise DatasetError(f"{jf}: field 'train_filenames' is empty")
+        return
+    order = sorted(range(len(frames)), key=lambda k: frames[k].file_path)
+    held = {k for pos, k in enumerate(order) if len(frames) > 1 and pos % HOLDOUT_EVERY == 0}
+    for name in splits:
+        if name == "train":
+            out[name] = [frames[k] for k in order if k not in held]
+        else:
+            out[name] = [frames[k] for k in order if k in held]
+    scene["split_note"] = (
+        f"{jf}: no train_filenames/val_filenames/test_filenames; held out every {HOLDOUT_EVERY}th frame "
+        f"(by file name) as val/test: {len(held)} of {len(frames)}"
+    )

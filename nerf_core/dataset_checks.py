@@ -1,0 +1,123 @@
+"""Validation of a dataset's top-level fields and the one pass that lists every problem
+(``dataset_problems``), shared by ``nerf_core.data.load_dataset`` (stops at the first) and
+``python -m nerf_core check`` (lists them all). Messages name the file, frame and field.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Dict, List
+
+import numpy as np
+import torch
+
+from .contract.transforms import SPLITS, DatasetError, FrameInfo, frame_infos
+
+
+def parse_aabb(value, where: str) -> torch.Tensor:
+    try:
+        box = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DatasetError(f"{where}: field 'aabb' is not a numeric [[xmin,ymin,zmin],[xmax,ymax,zmax]]") from exc
+    if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
+        raise DatasetError(f"{where}: field 'aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {value!r}")
+    return torch.tensor(box, dtype=torch.float32)
+
+
+def check_train_count(root: Path, infos: Dict[str, List[FrameInfo]], min_train_views: int) -> None:
+    n_train = len(infos["train"])
+    if n_train < min_train_views:
+        jf = infos["train"][0].json_file if infos["train"] else root
+        raise DatasetError(
+            f"{jf}: field 'frames': the train split has {n_train} view{'s' if n_train != 1 else ''}; a NeRF needs "
+            f"many views of the scene (at least {min_train_views}, typically 50-200)"
+        )
+
+
+def scene_fields(scene: dict) -> tuple:
+    """(near, far, film_transparent, world) of a dataset's top-level fields, validated (raises DatasetError)."""
+    near = far = None
+    for key in ("near", "far"):
+        if key in scene:
+            try:
+                v = float(scene[key])
+            except (TypeError, ValueError):
+                raise DatasetError(f"{scene[key + '_file']}: field {key!r} is not a number ({scene[key]!r})") from None
+            if not math.isfinite(v) or v < 0:
+                raise DatasetError(f"{scene[key + '_file']}: field {key!r} must be a finite number >= 0, got {v}")
+            near, far = (v, far) if key == "near" else (near, v)
+    if near is not None and far is not None and far <= near:
+        raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
+    film = scene.get("film_transparent")
+    if film is not None and not isinstance(film, bool):
+        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
+    world = scene.get("world")
+    if world is not None and not isinstance(world, dict):
+        raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
+    return near, far, film, world
+
+
+def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2) -> List[str]:
+    """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
+
+    The one validation pass behind ``train`` and ``check``: it runs the loader's own rules
+    (``frame_infos``, ``scene_fields``, ``check_train_count`` and ``load_split`` frame by frame, which
+    decodes every image, depth, normal and mask file and checks its size against the JSON and the
+    split), collecting the errors that ``load_dataset`` raises at the first of. An empty list means
+    ``train`` accepts the dataset. Pixels are read one frame at a time and dropped.
+    """
+    from .data import load_split  # data imports this module: load the loader only when called
+
+    try:
+        layout, root, infos, scene = frame_infos(path, SPLITS)
+    except DatasetError as exc:
+        return [str(exc)]
+    problems: List[str] = []
+    for check in (lambda: check_train_count(root, infos, min_train_views), lambda: scene_fields(scene),
+                  lambda: parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None):
+        try:
+            check()
+        except DatasetError as exc:
+            problems.append(str(exc))
+    try:
+        scale = depth_scale(scene)
+    except DatasetError as exc:
+        problems.append(str(exc))
+        scale = 1e-3
+    for name in SPLITS:
+        first = None
+        for fr in infos[name]:
+            try:
+                sp = load_split(name, [fr], downscale, scale)
+            except DatasetError as exc:
+                problems.append(str(exc))
+                continue
+            shape = (sp.width, sp.height, sp.images.shape[-1])
+            if first is None:
+                first = (fr, shape)
+                continue
+            try:
+                if shape[:2] != first[1][:2]:
+                    raise DatasetError(
+                        f"{fr.where}: field 'file_path': {fr.image} is {shape[0]}x{shape[1]} but the first {name} image "
+                        f"({first[0].image.name}) is {first[1][0]}x{first[1][1]}; all images of a split must have one size")
+                if shape[2] != first[1][2]:
+                    lacking = fr if shape[2] == 3 else first[0]
+                    raise DatasetError(
+                        f"{lacking.where}: field 'file_path': {lacking.image} has no alpha channel while other {name} "
+                        "images do; the alpha channel is the mask of the object, export every image as RGBA")
+            except DatasetError as exc:
+                problems.append(str(exc))
+    return problems
+
+
+def depth_scale(scene: dict) -> float:
+    v = scene.get("depth_unit_scale_factor", 1e-3)
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        f = float("nan")
+    if not math.isfinite(f) or f <= 0:
+        raise DatasetError(f"{scene.get('depth_unit_scale_factor_file')}: field 'depth_unit_scale_factor' must be a "
+                           f"positive number, got {v!r}")
+    return f
