@@ -22,7 +22,8 @@ from typing import List, Tuple
 
 import numpy as np
 
-from .cameras import Cameras, PoseError, check_pose
+from .cameras import Cameras
+from .contract.transforms import PoseError, check_pose
 
 
 class CameraPathError(ValueError):

@@ -303,7 +303,7 @@ def render_to_dir(
         if gt_split is not None:
             # What eval sees: the same pixels as rendering onto the background (model.render_rays puts
             # ``background`` behind the opacity exactly so); a learned world already fills them.
-            pred = res["rgb"] if opaque else composite_background(res["rgb"], acc, bg).clamp(0, 1)
+            pred = res["rgb"] if opaque else composite_background(res["rgb"], res["acc"], bg).clamp(0, 1)
             try:
                 scores, gt = score_view(pred, gt_split, 0, bg)
             except ValueError as exc:  # e.g. smaller than SSIM's window: the render itself is fine

@@ -64,7 +64,7 @@ def parse_request(req: Any) -> Dict[str, Any]:
 
     Raises RequestError naming the request id and field.
     """
-    from .cameras import PoseError, check_pose
+    from .contract.transforms import PoseError, check_pose
 
     if not isinstance(req, dict):
         raise RequestError(f"request must be a JSON object, got {type(req).__name__}")
@@ -122,7 +122,7 @@ class RenderServer:
     def __init__(self, run: str, checkpoint: Optional[str] = None, device: Optional[str] = None,
                  chunk: int = 8192, out: TextIO = sys.stdout):
         from .device import pick_device
-        from .render import load_run
+        from .checkpoints import load_run
 
         self.out = out
         self.chunk = chunk
