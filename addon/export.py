@@ -166,17 +166,28 @@ def near_far(camera_positions, lo, hi) -> tuple[float, float]:
     return float(near), float(1.05 * far)
 
 
-def write_ply(path: str, points: np.ndarray, colors: np.ndarray) -> None:
-    """Binary little-endian PLY with float xyz and uchar rgb; (n, 3) float32 and (n, 3) uint8."""
+def write_ply(path: str, points: np.ndarray, colors: np.ndarray, normals: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY: float x y z, float nx ny nz (when ``normals`` is given), uchar red green blue.
+
+    points, normals: (n, 3) float32; colors: (n, 3) uint8. The property order is the one 3D Gaussian
+    Splatting's ``fetchPly`` reads (it needs the normals).
+    """
     n = len(points)
+    props = "property float x\nproperty float y\nproperty float z\n"
+    fields = [("p", "<f4", 3)]
+    if normals is not None:
+        props += "property float nx\nproperty float ny\nproperty float nz\n"
+        fields.append(("n", "<f4", 3))
+    fields.append(("c", "u1", 3))
     header = (
         "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
+        f"element vertex {n}\n" + props +
         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
     ).encode("ascii")
-    rec = np.empty(n, dtype=[("p", "<f4", 3), ("c", "u1", 3)])
+    rec = np.empty(n, dtype=fields)
     rec["p"] = points
+    if normals is not None:
+        rec["n"] = normals
     rec["c"] = colors
     tmp = path + ".partial"
     with open(tmp, "wb") as fh:

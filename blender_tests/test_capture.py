@@ -194,7 +194,8 @@ def test_normals_masks_and_point_cloud(cycles_dataset):
         blob = fh.read()
     head, body = blob.split(b"end_header\n", 1)
     count = int(head.split(b"element vertex ")[1].split(b"\n")[0])
-    rec = np.frombuffer(body, dtype=[("p", "<f4", 3), ("c", "u1", 3)], count=count)
+    assert b"property float nx\nproperty float ny\nproperty float nz\nproperty uchar red" in head
+    rec = np.frombuffer(body, dtype=[("p", "<f4", 3), ("n", "<f4", 3), ("c", "u1", 3)], count=count)
     assert count > 100 and on_surface(rec["p"].astype(float), 0.03).mean() > 0.97
     with open(os.path.join(out, "transforms.json")) as fh:
         assert json.load(fh)["ply_file_path"] == "points3d.ply"
