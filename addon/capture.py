@@ -41,7 +41,8 @@ ENGINE_ALIASES = {
 }
 # Paths a capture owns inside its folder; the only ones --overwrite removes.
 DATASET_PATHS = ("train", "val", "test", "depth", "normals", "masks", "points3d.ply", "transforms.json",
-                 "transforms_train.json", "transforms_val.json", "transforms_test.json", export.MANIFEST_DIR)
+                 "transforms_train.json", "transforms_val.json", "transforms_test.json", export.MANIFEST_DIR,
+                 export.NERFSTUDIO_DIR)
 FORMAT = capture_write.FORMAT
 
 

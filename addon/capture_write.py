@@ -70,6 +70,11 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
         common["ply_file_path"] = "points3d.ply"
     if any(fr["split"] == "train" for fr in done):
         export.write_transforms(out, [dict(fr) for fr in done], common)
+        # Captures before nerfstudio/ wrote nerfstudio's file at the root, where instant-ngp loads
+        # it beside the split files (every frame twice). It is this capture's own file: drop it.
+        legacy = os.path.join(out, "transforms.json")
+        if os.path.isfile(legacy):
+            os.remove(legacy)
     info = dict(manifest_info, status="complete" if complete else "incomplete", near=near, far=far)
     export.write_manifest(out, manifest(plan, done_keys, info))
     return near, far

@@ -1,8 +1,10 @@
 """Dataset files: intrinsics from Blender cameras, transforms JSON, point cloud, manifest.
 
 Follows ../shared/CONVENTIONS.md and docs/CONTRACTS.md: ``transforms_{train,val,test}.json`` with
-``file_path`` without extension, a nerfstudio ``transforms.json`` with real file names and split
-lists, every intrinsic, and the manifest in ``nerf_capture/manifest.json`` (out of instant-ngp's way).
+``file_path`` without extension (the only JSON at the root), nerfstudio's ``transforms.json`` with
+real file names and split lists in ``nerfstudio/`` (instant-ngp loads every ``*.json`` of the folder
+it is given: beside the split files it would load every frame twice), every intrinsic, and the
+manifest in ``nerf_capture/manifest.json``.
 Only ``camera_intrinsics`` and ``camera_to_world`` touch bpy objects.
 """
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 
 MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
+NERFSTUDIO_DIR = "nerfstudio"  # holds nerfstudio's transforms.json; its paths are relative to it ("../train/r_0.png")
 SPLITS = ("train", "val", "test")
 
 
@@ -94,10 +97,12 @@ def _atomic_json(path: str, data: dict) -> None:
 
 
 def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str]:
-    """Write transforms_{train,val,test}.json and nerfstudio's transforms.json; return the paths.
+    """Write transforms_{train,val,test}.json and nerfstudio's nerfstudio/transforms.json; return the paths.
 
     ``frames``: dicts with split, name ("r_3"), transform_matrix, intrinsics, and optional
     depth/normal/mask relative paths (with extension). ``common``: aabb, near, far, ply_file_path...
+    Paths in the split files are relative to ``out_dir``; in nerfstudio's file (which nerfstudio
+    resolves against its own folder) they start with ``../``.
     """
     if not frames:
         raise ExportError(f"{out_dir}: no rendered frames to export")
@@ -113,13 +118,14 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
         out_frames = []
         for f in split_frames:
             entry = {"file_path": f"./{split}/{f['name']}", "transform_matrix": f["transform_matrix"]}
-            ns = {"file_path": f"{split}/{f['name']}.png", "transform_matrix": f["transform_matrix"]}
+            ns = {"file_path": f"../{split}/{f['name']}.png", "transform_matrix": f["transform_matrix"]}
             if shared is None:  # per-frame intrinsics: instant-ngp and nerfstudio both read these
                 for k in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"):
                     entry[k] = ns[k] = f["intrinsics"][k]
             for key in ("depth_file_path", "normal_file_path", "mask_path"):
                 if f.get(key):
-                    entry[key] = ns[key] = f[key]
+                    entry[key] = f[key]
+                    ns[key] = "../" + f[key]
             if f.get("frame") is not None:
                 entry["blender_frame"] = ns["blender_frame"] = f["frame"]  # not "time": nerfstudio reads that as dynamic-scene time
             out_frames.append(entry)
@@ -131,9 +137,12 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
         _atomic_json(path, doc)
         written.append(path)
     ns_doc = dict(top)
+    if "ply_file_path" in ns_doc:
+        ns_doc["ply_file_path"] = "../" + ns_doc["ply_file_path"]
     ns_doc.update({f"{s}_filenames": per_split_files[s] for s in SPLITS})
     ns_doc["frames"] = ns_frames
-    path = os.path.join(out_dir, "transforms.json")
+    os.makedirs(os.path.join(out_dir, NERFSTUDIO_DIR), exist_ok=True)
+    path = os.path.join(out_dir, NERFSTUDIO_DIR, "transforms.json")
     _atomic_json(path, ns_doc)
     written.append(path)
     return written
