@@ -447,7 +447,7 @@ class CaptureJob:
         return self.finish()
 
     def summary(self) -> dict:
-        out = {"out": self.out, "status": self.status, "frames": len(self.share or self.frames),
+        out = {"out": self.out, "status": self.status, "frames": len(self.share),
                "rendered": len(self.done_keys) - self.kept, "kept": self.kept,
                "pending": len(self.pending)}
         if self.shard:

@@ -194,3 +194,26 @@ def test_parse_shard_and_round_robin():
     frames = [{"key": i} for i in range(7)]
     shares = [[f["key"] for f in capture_plan.shard_frames(frames, k, 3)] for k in (1, 2, 3)]
     assert shares == [[0, 3, 6], [1, 4], [2, 5]]
+
+
+def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
+    """In-process shards (CaptureJob with settings.shard): 2 frames over 3 shards; shard 3 has none."""
+    from addon import capture, capture_merge, layouts
+
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=1), 16, 16)
+    out = tmp_path / "ds"
+
+    def shard(k):
+        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
+                                                                 res_y=16, shard=(k, 3))).run()
+
+    empty = shard(3)
+    assert (empty["frames"], empty["rendered"], empty["status"], empty["planned"]) == (0, 0, "done", 2)
+    with pytest.raises(capture.CaptureError, match="2 of 2 planned frames"):
+        capture_merge.merge(str(out))
+    assert [shard(k)["rendered"] for k in (1, 2)] == [1, 1]
+    merged = capture_merge.merge(str(out))
+    assert (merged["status"], merged["frames"], merged["shards"]) == ("complete", 2, 3)
+    assert json.loads((out / "transforms_test.json").read_text())["frames"][0]["file_path"] == "./test/r_0"
