@@ -217,3 +217,20 @@ def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
     merged = capture_merge.merge(str(out))
     assert (merged["status"], merged["frames"], merged["shards"]) == ("complete", 2, 3)
     assert json.loads((out / "transforms_test.json").read_text())["frames"][0]["file_path"] == "./test/r_0"
+
+
+def test_a_whole_capture_keeps_the_frames_shards_finished(tmp_path):
+    """Switching from the farm to one machine midway: the whole run keeps every frame a shard recorded."""
+    from addon import capture, layouts
+
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, layouts.LayoutSpec(train=3, val=0, test=1), 16, 16)
+    out = tmp_path / "ds"
+    base = dict(out_dir=str(out), engine="workbench", res_x=16, res_y=16, depth=True)
+    first = capture.CaptureJob(scene, capture.CaptureSettings(**base, shard=(1, 2))).run()
+    assert first["rendered"] == 2  # frames 0 and 2 of 4
+    whole = capture.CaptureJob(scene, capture.CaptureSettings(**base)).run()
+    assert (whole["kept"], whole["rendered"], whole["status"]) == (2, 2, "complete")
+    manifest = json.loads((out / "nerf_capture" / "manifest.json").read_text())
+    assert all(f["done"] and "sha256" in f for f in manifest["frames"].values())
