@@ -1,8 +1,10 @@
 """Dataset files: intrinsics from Blender cameras, transforms JSON, point cloud, manifest.
 
 Follows ../shared/CONVENTIONS.md and docs/CONTRACTS.md: ``transforms_{train,val,test}.json`` with
-``file_path`` without extension, a nerfstudio ``transforms.json`` with real file names and split
-lists, every intrinsic, and the manifest in ``nerf_capture/manifest.json`` (out of instant-ngp's way).
+``file_path`` without extension (the only JSON at the root), nerfstudio's ``transforms.json`` with
+real file names and split lists in ``nerfstudio/`` (instant-ngp loads every ``*.json`` of the folder
+it is given: beside the split files it would load every frame twice), every intrinsic, and the
+manifest in ``nerf_capture/manifest.json``.
 Only ``camera_intrinsics``, ``camera_to_world`` and ``cameras_transforms`` touch bpy objects.
 """
 from __future__ import annotations
@@ -16,6 +18,7 @@ from .core_contract import contract
 
 MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
+NERFSTUDIO_DIR = "nerfstudio"  # holds nerfstudio's transforms.json; its paths are relative to it ("../train/r_0.png")
 SPLITS = ("train", "val", "test")
 
 
@@ -94,16 +97,17 @@ def _atomic_json(path: str, data: dict) -> None:
     os.replace(tmp, path)
 
 
-def _frame_entry(f: dict, folder: str, per_frame_intrinsics: bool, nerfstudio: bool) -> dict:
-    """One frame of a transforms file: ``./folder/name`` (synthetic) or ``folder/name.png`` (nerfstudio)."""
-    path = f"{folder}/{f['name']}.png" if nerfstudio else f"./{folder}/{f['name']}"
+def _frame_entry(f: dict, folder: str, per_frame_intrinsics: bool, nerfstudio: bool, path_prefix: str = "") -> dict:
+    """One frame of a transforms file: ``./folder/name`` (synthetic) or ``folder/name.png`` (nerfstudio),
+    every file path behind ``path_prefix`` (``../`` for nerfstudio's file in its own folder)."""
+    path = f"{path_prefix}{folder}/{f['name']}.png" if nerfstudio else f"./{folder}/{f['name']}"
     entry = {"file_path": path, "transform_matrix": f["transform_matrix"]}
     if per_frame_intrinsics:  # instant-ngp and nerfstudio both read these
         for k in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"):
             entry[k] = f["intrinsics"][k]
     for key in ("depth_file_path", "normal_file_path", "mask_path"):
         if f.get(key):
-            entry[key] = f[key]
+            entry[key] = path_prefix + f[key]
     if f.get("frame") is not None:
         entry["blender_frame"] = f["frame"]  # not "time": nerfstudio reads that as dynamic-scene time
     if f.get("camera"):
@@ -112,7 +116,8 @@ def _frame_entry(f: dict, folder: str, per_frame_intrinsics: bool, nerfstudio: b
 
 
 def transforms_document(frames: list[dict], common: dict, folder: str, nerfstudio: bool = False,
-                        intrinsics_of: list[dict] | None = None, per_frame: bool = False) -> dict:
+                        intrinsics_of: list[dict] | None = None, per_frame: bool = False,
+                        path_prefix: str = "") -> dict:
     """The transforms object of ``frames``, all in ``folder``: the one writer of transforms JSON, for
     the capture's files and the Compare panel's camera files alike.
 
@@ -120,7 +125,8 @@ def transforms_document(frames: list[dict], common: dict, folder: str, nerfstudi
     optional depth/normal/mask relative paths (with extension), ``frame`` (Blender frame) and
     ``camera`` (object name). Intrinsics that all of ``intrinsics_of`` (default ``frames``) share go
     to the top level, else (or with ``per_frame``) they go on every frame. ``nerfstudio``: real file names
-    (``folder/name.png``) instead of ``./folder/name``. ``common``: aabb, near, far, ply_file_path...
+    (``folder/name.png``) instead of ``./folder/name``; ``path_prefix`` goes before every file path of a
+    frame (nerfstudio's file lives in ``nerfstudio/``, one folder below the images). ``common``: aabb, near, far, ply_file_path...
     """
     basis = frames if intrinsics_of is None else intrinsics_of
     if not basis:
@@ -128,15 +134,16 @@ def transforms_document(frames: list[dict], common: dict, folder: str, nerfstudi
     shared = shared_intrinsics(basis)
     top = {k: v for k, v in (shared or basis[0]["intrinsics"]).items() if k not in ("camera_angle_y",)}
     top.update(common)
-    top["frames"] = [_frame_entry(f, folder, per_frame or shared is None, nerfstudio) for f in frames]
+    top["frames"] = [_frame_entry(f, folder, per_frame or shared is None, nerfstudio, path_prefix) for f in frames]
     return top
 
 
 def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str]:
-    """Write transforms_{train,val,test}.json and nerfstudio's transforms.json; return the paths.
+    """Write transforms_{train,val,test}.json and nerfstudio's nerfstudio/transforms.json; return the paths.
 
     ``frames``: as ``transforms_document`` wants them, each with its ``split``. Every file shares one
-    top level, taken from all frames.
+    top level, taken from all frames. Paths in the split files are relative to ``out_dir``; in
+    nerfstudio's file (which nerfstudio resolves against its own folder) they start with ``../``.
     """
     if not frames:
         raise ExportError(f"{out_dir}: no rendered frames to export")
@@ -146,16 +153,20 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
     for split in SPLITS:
         split_frames = [f for f in frames if f["split"] == split]
         doc = transforms_document(split_frames, common, split, intrinsics_of=frames)
-        ns_split = transforms_document(split_frames, common, split, nerfstudio=True, intrinsics_of=frames)["frames"]
+        ns_split = transforms_document(split_frames, common, split, nerfstudio=True, intrinsics_of=frames,
+                                       path_prefix="../")["frames"]
         ns_frames += ns_split
         per_split_files[split] = [e["file_path"] for e in ns_split]
         path = os.path.join(out_dir, f"transforms_{split}.json")
         _atomic_json(path, doc)
         written.append(path)
     ns_doc = transforms_document([], common, "", intrinsics_of=frames)
+    if "ply_file_path" in ns_doc:
+        ns_doc["ply_file_path"] = "../" + ns_doc["ply_file_path"]
     ns_doc.update({f"{s}_filenames": per_split_files[s] for s in SPLITS})
     ns_doc["frames"] = ns_frames
-    path = os.path.join(out_dir, "transforms.json")
+    os.makedirs(os.path.join(out_dir, NERFSTUDIO_DIR), exist_ok=True)
+    path = os.path.join(out_dir, NERFSTUDIO_DIR, "transforms.json")
     _atomic_json(path, ns_doc)
     written.append(path)
     return written
@@ -234,17 +245,28 @@ def near_far(camera_positions, lo, hi) -> tuple[float, float]:
     return float(near), float(1.05 * far)
 
 
-def write_ply(path: str, points: np.ndarray, colors: np.ndarray) -> None:
-    """Binary little-endian PLY with float xyz and uchar rgb; (n, 3) float32 and (n, 3) uint8."""
+def write_ply(path: str, points: np.ndarray, colors: np.ndarray, normals: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY: float x y z, float nx ny nz (when ``normals`` is given), uchar red green blue.
+
+    points, normals: (n, 3) float32; colors: (n, 3) uint8. The property order is the one 3D Gaussian
+    Splatting's ``fetchPly`` reads (it needs the normals).
+    """
     n = len(points)
+    props = "property float x\nproperty float y\nproperty float z\n"
+    fields = [("p", "<f4", 3)]
+    if normals is not None:
+        props += "property float nx\nproperty float ny\nproperty float nz\n"
+        fields.append(("n", "<f4", 3))
+    fields.append(("c", "u1", 3))
     header = (
         "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
+        f"element vertex {n}\n" + props +
         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
     ).encode("ascii")
-    rec = np.empty(n, dtype=[("p", "<f4", 3), ("c", "u1", 3)])
+    rec = np.empty(n, dtype=fields)
     rec["p"] = points
+    if normals is not None:
+        rec["n"] = normals
     rec["c"] = colors
     tmp = path + ".partial"
     with open(tmp, "wb") as fh:
@@ -286,6 +308,44 @@ def read_manifest(out_dir: str) -> dict | None:
         raise ExportError(f"{path}: unreadable capture manifest ({exc}); move the folder aside or pass --overwrite")
 
 
+def _json_lines(obj, levels: int, indent: str = "") -> str:
+    """JSON with one line per entry for the outer ``levels`` of dicts/lists, compact below.
+
+    ``json.dump(indent=...)`` runs Python's pure-Python encoder; the manifest is rewritten after every
+    frame and holds the whole plan, so its inner values go through the C encoder instead.
+    """
+    if levels <= 0 or not isinstance(obj, (dict, list)) or not obj:
+        return json.dumps(obj)
+    inner = indent + " "
+    if isinstance(obj, dict):
+        items = [f"{inner}{json.dumps(str(k))}: {_json_lines(v, levels - 1, inner)}" for k, v in obj.items()]
+        return "{\n" + ",\n".join(items) + "\n" + indent + "}"
+    return "[\n" + ",\n".join(inner + _json_lines(v, levels - 1, inner) for v in obj) + "\n" + indent + "]"
+
+
+_PLAN_TEXT: dict = {}  # (plan_hash, id(plan)) -> its JSON: a capture's plan is fixed while it rewrites the manifest
+
+
 def write_manifest(out_dir: str, manifest: dict) -> None:
+    """Write the capture manifest atomically (one line per frame entry: quick to rewrite, easy to read).
+
+    The capture rewrites it after every frame; its ``plan`` (fixed for the capture, identified by
+    ``plan_hash``) is encoded once, so the per-frame cost does not grow with it.
+    """
     os.makedirs(os.path.join(out_dir, MANIFEST_DIR), exist_ok=True)
-    _atomic_json(manifest_path(out_dir), manifest)
+    plan, key = manifest.get("plan"), (manifest.get("plan_hash"), id(manifest.get("plan")))
+    lines = []
+    for k, v in manifest.items():
+        if k == "plan" and plan is not None and key[0]:
+            if key not in _PLAN_TEXT:
+                _PLAN_TEXT.clear()
+                _PLAN_TEXT[key] = _json_lines(plan, 1, " ")
+            text = _PLAN_TEXT[key]
+        else:
+            text = _json_lines(v, 1, " ")
+        lines.append(f" {json.dumps(str(k))}: {text}")
+    path = manifest_path(out_dir)
+    tmp = path + ".partial"
+    with open(tmp, "w") as fh:
+        fh.write("{\n" + ",\n".join(lines) + "\n}\n")
+    os.replace(tmp, path)

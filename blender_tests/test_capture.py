@@ -194,10 +194,11 @@ def test_normals_masks_and_point_cloud(cycles_dataset):
         blob = fh.read()
     head, body = blob.split(b"end_header\n", 1)
     count = int(head.split(b"element vertex ")[1].split(b"\n")[0])
-    rec = np.frombuffer(body, dtype=[("p", "<f4", 3), ("c", "u1", 3)], count=count)
+    assert b"property float nx\nproperty float ny\nproperty float nz\nproperty uchar red" in head
+    rec = np.frombuffer(body, dtype=[("p", "<f4", 3), ("n", "<f4", 3), ("c", "u1", 3)], count=count)
     assert count > 100 and on_surface(rec["p"].astype(float), 0.03).mean() > 0.97
-    with open(os.path.join(out, "transforms.json")) as fh:
-        assert json.load(fh)["ply_file_path"] == "points3d.ply"
+    with open(os.path.join(out, "nerfstudio", "transforms.json")) as fh:
+        assert json.load(fh)["ply_file_path"] == "../points3d.ply"  # relative to nerfstudio/
 
 
 def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
@@ -216,12 +217,12 @@ def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
     held = [p for k, p in positions.items() if "/train/" not in k]
     assert len(train) == 6 and len(held) == 5
     assert min(np.linalg.norm(a - b) for a in train for b in held) > 1e-3
-    with open(os.path.join(out, "transforms.json")) as fh:
+    with open(os.path.join(out, "nerfstudio", "transforms.json")) as fh:
         ns = json.load(fh)
     assert len(ns["train_filenames"]) == 6 and len(ns["val_filenames"]) == 2 and len(ns["test_filenames"]) == 3
     assert not set(ns["train_filenames"]) & set(ns["test_filenames"] + ns["val_filenames"])
     for fr in ns["frames"]:
-        assert fr["file_path"].endswith(".png") and os.path.isfile(os.path.join(out, fr["file_path"]))
+        assert fr["file_path"].endswith(".png") and os.path.isfile(os.path.join(out, "nerfstudio", fr["file_path"]))
     doc = json.load(open(os.path.join(out, "transforms_train.json")))
     lo, hi = np.asarray(doc["aabb"])
     np.testing.assert_allclose(lo, [-CUBE_HALF, -CUBE_HALF, -CUBE_HALF], atol=1e-5)
@@ -242,6 +243,9 @@ def test_ngp_aabb_scale_is_the_smallest_power_of_two_holding_the_bounds():
 def test_manifest_records_settings_and_no_normalisation(cycles_dataset):
     out, _ = cycles_dataset
     assert not [f for f in os.listdir(out) if f.endswith(".json") and not f.startswith("transforms")]
+    # instant-ngp loads every *.json of the folder: the root holds one transforms set, nothing else
+    assert sorted(f for f in os.listdir(out) if f.endswith(".json")) == [
+        "transforms_test.json", "transforms_train.json", "transforms_val.json"]
     with open(os.path.join(out, "nerf_capture", "manifest.json")) as fh:
         m = json.load(fh)
     assert m["status"] == "complete" and m["blender_version"].startswith("5.0")

@@ -173,7 +173,7 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
     assert not [p for p in mtimes(out) if ".partial" in p]
     resumed = capture.CaptureJob(scene, settings(out, depth=True)).run()
     assert (resumed["kept"], resumed["rendered"], resumed["status"]) == (3, 3, "complete")
-    with open(out / "transforms.json") as fh:
+    with open(out / "nerfstudio" / "transforms.json") as fh:
         assert len(json.load(fh)["frames"]) == 6
 
 

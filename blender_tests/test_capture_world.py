@@ -15,7 +15,7 @@ from PIL import Image
 
 from addon import capture, demo_scenes, layouts
 
-TRANSFORMS = ("transforms_train.json", "transforms_val.json", "transforms_test.json", "transforms.json")
+TRANSFORMS = ("transforms_train.json", "transforms_val.json", "transforms_test.json", "nerfstudio/transforms.json")
 
 
 def _json(path):
@@ -69,7 +69,7 @@ def test_interior_capture_from_inside_the_room(tmp_path):
     world = {"name": "NeRF Demo Room World", "kind": "color", "image": None, "color": [0.05, 0.05, 0.05],
              "strength": 1.0}
     _assert_background_recorded(out, False, world)
-    doc = _json(out / "transforms.json")
+    doc = _json(out / "nerfstudio" / "transforms.json")
     lo, hi = np.asarray(doc["aabb"])
     sx, sy, sz = demo_scenes.ROOM_SIZE
     np.testing.assert_allclose([lo, hi], [[-sx / 2, -sy / 2, 0], [sx / 2, sy / 2, sz]], atol=1e-5)
@@ -106,7 +106,7 @@ def test_switching_the_film_or_an_opaque_world_changes_what_resume_keeps(tmp_pat
     with pytest.raises(capture.CaptureError, match="render settings changed"):
         _capture(scene, out, spec, res=16, film_transparent=False)
     assert _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)["rendered"] == 3
-    assert _records(out)[1]["transforms.json"]["world"]["strength"] == 2.5
+    assert _records(out)[1]["nerfstudio/transforms.json"]["world"]["strength"] == 2.5
 
 
 def _world(name):

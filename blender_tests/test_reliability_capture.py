@@ -10,7 +10,7 @@ import sys
 import bpy
 import pytest
 
-from addon import capture, layouts
+from addon import capture, capture_verify, layouts
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -168,7 +168,7 @@ def test_capture_resume_renders_again_what_fails_verification(tmp_path):
     (out / "depth" / "train" / "r_1.exr").write_bytes(b"")  # empty depth EXR
     again = job().run()
     assert (again["rendered"], again["kept"]) == (2, 3)
-    assert capture._decodes_at(str(png), 24, 16)
+    assert capture_verify.decodes_at(str(png), 24, 16)
     assert (out / "depth" / "train" / "r_1.exr").stat().st_size > 0
 
 

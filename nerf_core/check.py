@@ -22,7 +22,9 @@ from .contract.transforms import IMAGE_EXTS, DatasetError, PoseError, check_pose
 from .imageio import ImageReadError, png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
-NERFSTUDIO_FILE = "transforms.json"
+# nerfstudio's file lives in a subfolder: instant-ngp loads every *.json of the folder it is given, and
+# beside the split files it would load every frame twice (CONVENTIONS.md, "Files and splits").
+NERFSTUDIO_FILE = "nerfstudio/transforms.json"
 REQUIRED_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 
 
@@ -233,7 +235,11 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
 
     # instant-ngp loads every *.json at the root as a transforms file.
     for j in sorted(root.glob("*.json")):
-        if j.name not in SPLIT_FILES and j.name != NERFSTUDIO_FILE:
+        if j.name == "transforms.json":
+            report.error(j.name, "beside transforms_{train,val,test}.json at the dataset root, instant-ngp loads "
+                                 "every frame twice (it reads every *.json here); nerfstudio's file belongs in "
+                                 f"{NERFSTUDIO_FILE} with paths relative to it ('../train/r_0.png')")
+        elif j.name not in SPLIT_FILES:
             report.error(j.name, "stray JSON at the dataset root: instant-ngp loads every *.json here; "
                                  "move it into a subfolder (e.g. nerf_capture/)")
 
@@ -415,8 +421,10 @@ def _check_background(report: CheckReport, root: Path, background: str) -> None:
 def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict]) -> None:
     path = root / NERFSTUDIO_FILE
     if not path.is_file():
-        report.error(NERFSTUDIO_FILE, "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names")
+        report.error(NERFSTUDIO_FILE, "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names "
+                                      "(`--data DATASET/nerfstudio`)")
         return
+    base = path.parent  # nerfstudio resolves file paths against the JSON's own folder
     meta = _load_json(report, path)
     if meta is None:
         return
@@ -439,10 +447,10 @@ def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[st
             report.error(NERFSTUDIO_FILE, f"{fp!r} needs its real file name with the extension (nerfstudio does not add one)",
                          k, fp, "file_path")
             continue
-        img = root / fp
+        img = base / fp
         _check_image(report, NERFSTUDIO_FILE, img, intr, k, fp, "file_path", rgba=False)
         _check_pose(report, NERFSTUDIO_FILE, fr, k, fp)
-        _check_extras(report, NERFSTUDIO_FILE, root, fr, k, fp)
+        _check_extras(report, NERFSTUDIO_FILE, base, fr, k, fp)
         other = split_intrinsics.get(str(img.resolve()))
         if other is not None and intr is not None:
             diff = [key for key in REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]

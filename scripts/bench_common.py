@@ -405,7 +405,8 @@ def derive_dataset(src: str, dst: str, edit_train: Callable[[dict], dict], note:
     """Copy dataset ``src`` to ``dst`` with the train split's JSON rewritten by ``edit_train``.
 
     Images are linked (copied where links are not allowed), so the original is never touched. The
-    nerfstudio ``transforms.json`` is not carried over: it would still list the unedited cameras.
+    nerfstudio ``transforms.json`` (``nerfstudio/``, or the root in older captures) is not carried over: it
+    would still list the unedited cameras.
     The edit is recorded in ``dst/nerf_capture/derived.json`` so a derived dataset is never mistaken
     for a capture.
     """
@@ -414,7 +415,7 @@ def derive_dataset(src: str, dst: str, edit_train: Callable[[dict], dict], note:
     os.makedirs(dst)
     for name in os.listdir(src):
         s, d = os.path.join(src, name), os.path.join(dst, name)
-        if name == "transforms.json" or name == "nerf_capture":
+        if name in ("transforms.json", "nerfstudio", "nerf_capture"):  # nerfstudio's file: root (old) or nerfstudio/
             continue
         if name.startswith("transforms_") and name.endswith(".json"):
             meta = _load_json(s)

@@ -12,6 +12,12 @@ box looking outward, and --opaque keeps the walls' and world's pixels (no transp
 
 Re-running the same command resumes: frames already rendered with the same settings are kept.
 A folder holding something else is refused unless --overwrite. Prints one JSON summary line last.
+
+Render farm: run the same command N times with --shard 1/N ... N/N (at once, on machines sharing
+--out, or one after another); each renders its share of the frames (frame i goes to shard
+i mod N + 1) and writes only its frames and its own state file. Then
+``capture.py --out DATASET --merge`` checks every planned frame and writes the transforms files,
+the point cloud and the manifest (README: "Capturing on a render farm").
 """
 from __future__ import annotations
 
@@ -69,6 +75,18 @@ def argument_errors(args) -> list[str]:
     for flag, v in (("--elevation-min", args.elevation_min), ("--elevation-max", args.elevation_max)):
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
+    if args.shard is not None:
+        from addon import capture_plan
+
+        try:
+            capture_plan.parse_shard(args.shard)
+        except ValueError as exc:
+            errors.append(str(exc))
+        if args.merge:
+            errors.append("--merge joins the shards once they are all done: run it without --shard")
+        if args.overwrite:
+            errors.append("--overwrite cannot go with --shard: shards share the folder and one would delete "
+                          "another's frames; empty the folder once before starting the shards")
     if (args.elevation_min is not None and args.elevation_max is not None
             and args.elevation_min > args.elevation_max):
         errors.append(f"--elevation-min {args.elevation_min} is above --elevation-max {args.elevation_max}")
@@ -114,6 +132,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="accept scaled cameras, dropping their scale (recorded in the manifest)")
     ap.add_argument("--overwrite", action="store_true", help="replace a different dataset in --out")
     ap.add_argument("--resume", action="store_true", help="require an existing capture in --out to continue")
+    ap.add_argument("--shard", metavar="K/N",
+                    help="render only shard K of N (K = 1..N) into the shared --out; then run --merge")
+    ap.add_argument("--merge", action="store_true",
+                    help="after every shard: verify all planned frames in --out and write the dataset's JSON, "
+                         "point cloud and manifest (needs only --out)")
     ap.add_argument("--save-blend", help="also save the scene with its NeRF cameras to this .blend")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
@@ -126,10 +149,15 @@ def main(argv: list[str]) -> int:
         for e in errors:
             print(f"capture: error: {e}", file=sys.stderr)
         return 2
+    if args.merge:
+        from addon import capture_merge
+
+        print(json.dumps(capture_merge.merge(args.out)), flush=True)
+        return 0
     _bootstrap.open_blend(args.blend)
     import bpy
 
-    from addon import capture, export, layouts
+    from addon import capture, capture_plan, export, layouts
     from nerf_core.progressbar import ProgressBar
 
     res_x, res_y = args.resolution
@@ -153,7 +181,7 @@ def main(argv: list[str]) -> int:
         film_transparent=not args.opaque, denoise=args.denoise, depth=args.depth, normals=args.normals,
         masks=args.masks, points=args.points, n_points=args.n_points, overwrite=args.overwrite,
         target=args.target.upper(), normalize_camera_scale=args.normalize_camera_scale, layout=layout_record,
-        seed=args.seed)
+        seed=args.seed, shard=capture_plan.parse_shard(args.shard) if args.shard else None)
     bar = ProgressBar(total=None, label="capture", enabled=not args.quiet)
 
     def progress(done, total, info):

@@ -138,7 +138,11 @@ def make_dataset(
     exr_images: bool = False,
     aabb: bool = True,
 ) -> Path:
-    """Write a small sphere dataset (cameras on a ring at radius 3) in the requested layouts."""
+    """Write a small sphere dataset (cameras on a ring at radius 3) in the requested layouts.
+
+    With both layouts nerfstudio's ``transforms.json`` goes to ``nerfstudio/`` (paths ``../...``), as the
+    capture writes it; with "nerfstudio" alone it is the dataset root's only JSON.
+    """
     root = Path(root)
     fov = 0.9
     fx = fy = 0.5 * w / math.tan(0.5 * fov)
@@ -184,7 +188,15 @@ def make_dataset(
                 ns_frames.append({**fr, "file_path": name})
                 lists[f"{split}_filenames"].append(name)
         ns = {k: v for k, v in intr.items() if k != "camera_angle_x"}
-        (root / "transforms.json").write_text(json.dumps({**ns, **scene, "frames": ns_frames, **lists}, indent=1))
+        ns_dir = root
+        if "synthetic" in layouts:
+            ns_dir = root / "nerfstudio"
+            ns_dir.mkdir(exist_ok=True)
+            up = lambda p: "../" + p  # noqa: E731
+            ns_frames = [{**fr, **{k: up(v) for k, v in fr.items() if k in ("file_path", "depth_file_path")}}
+                         for fr in ns_frames]
+            lists = {k: [up(v) for v in names] for k, names in lists.items()}
+        (ns_dir / "transforms.json").write_text(json.dumps({**ns, **scene, "frames": ns_frames, **lists}, indent=1))
     return root
 
 

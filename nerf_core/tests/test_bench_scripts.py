@@ -263,6 +263,8 @@ def _tiny_dataset(root, n_train=6):
                 "aabb": [[-1, -1, -1], [1, 1, 1]], "frames": frames}
         (root / f"transforms_{split}.json").write_text(json.dumps(meta))
     (root / "transforms.json").write_text("{}")
+    (root / "nerfstudio").mkdir()
+    (root / "nerfstudio" / "transforms.json").write_text("{}")
     return root
 
 
@@ -274,6 +276,7 @@ def test_subset_views_keeps_spread_frames_and_leaves_source(tmp_path):
     assert [f["file_path"] for f in meta["frames"]] == ["./train/r_0", "./train/r_2", "./train/r_4", "./train/r_6"]
     assert bc.count_frames(dst, "test") == 2
     assert not os.path.exists(os.path.join(dst, "transforms.json"))  # would list the unedited cameras
+    assert not os.path.exists(os.path.join(dst, "nerfstudio"))  # the same file where captures now write it
     assert os.path.isfile(os.path.join(dst, "train", "r_7.png"))
     assert (src / "transforms_train.json").read_text() == before
     with pytest.raises(bc.BenchError, match="transforms_train.json has 8"):

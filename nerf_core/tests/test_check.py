@@ -54,16 +54,16 @@ def _angle(meta):
 CASES = {
     "missing camera_angle_x": ("transforms_train.json", lambda m: m.pop("camera_angle_x"), ["transforms_train.json", "camera_angle_x", "missing"]),
     "missing fl_x": ("transforms_test.json", lambda m: m.pop("fl_x"), ["transforms_test.json", "'fl_x'", "missing"]),
-    "missing h": ("transforms.json", lambda m: m.pop("h"), ["transforms.json", "'h'"]),
+    "missing h": ("nerfstudio/transforms.json", lambda m: m.pop("h"), ["transforms.json", "'h'"]),
     "scaled matrix": ("transforms_train.json", _scale, ["transforms_train.json", "frame 2", "transform_matrix", "scaled"]),
     "extension in file_path": ("transforms_train.json", _ext, ["transforms_train.json", "frame 1", "file_path", "extension"]),
     "cx outside": ("transforms_val.json", _shift_out, ["transforms_val.json", "'cx'", "outside"]),
     "inconsistent angle": ("transforms_train.json", _angle, ["transforms_train.json", "camera_angle_x", "fl_x"]),
-    "aabb_scale": ("transforms.json", lambda m: m.update(aabb_scale=3), ["transforms.json", "aabb_scale", "power of two"]),
+    "aabb_scale": ("nerfstudio/transforms.json", lambda m: m.update(aabb_scale=3), ["transforms.json", "aabb_scale", "power of two"]),
     "aabb_scale too big": ("transforms_train.json", lambda m: m.update(aabb_scale=256), ["aabb_scale"]),
-    "nerfstudio name without extension": ("transforms.json", lambda m: m["frames"][0].update(file_path="train/r_0"),
+    "nerfstudio name without extension": ("nerfstudio/transforms.json", lambda m: m["frames"][0].update(file_path="../train/r_0"),
                                           ["transforms.json", "frame 0", "file_path", "extension"]),
-    "split list names unknown file": ("transforms.json", lambda m: m["test_filenames"].append("test/zzz.png"),
+    "split list names unknown file": ("nerfstudio/transforms.json", lambda m: m["test_filenames"].append("test/zzz.png"),
                                       ["transforms.json", "test_filenames", "zzz.png"]),
     "missing depth file": ("transforms_test.json", lambda m: m["frames"][1].update(depth_file_path="nope.exr"),
                            ["transforms_test.json", "frame 1", "depth_file_path", "nope.exr"]),
@@ -105,7 +105,7 @@ def test_held_out_cameras_must_not_be_training_cameras(sphere_dataset):
 def test_stray_json_and_missing_files(sphere_dataset):
     (sphere_dataset / "manifest.json").write_text("{}")
     (sphere_dataset / "transforms_val.json").unlink()
-    (sphere_dataset / "transforms.json").unlink()
+    (sphere_dataset / "nerfstudio" / "transforms.json").unlink()
     _, errors = _errors(sphere_dataset)
     assert _has(errors, "manifest.json", "instant-ngp")
     assert _has(errors, "transforms_val.json", "missing")
@@ -113,9 +113,27 @@ def test_stray_json_and_missing_files(sphere_dataset):
 
 
 def test_intrinsics_must_agree_between_layouts(sphere_dataset):
-    _edit(sphere_dataset / "transforms.json", lambda m: m.update(cy=m["cy"] + 2))
+    _edit(sphere_dataset / "nerfstudio" / "transforms.json", lambda m: m.update(cy=m["cy"] + 2))
     _, errors = _errors(sphere_dataset)
     assert _has(errors, "transforms.json", "frame 0", "cy", "differs")
+
+
+def test_nerfstudio_file_at_the_root_is_refused_for_instant_ngp(sphere_dataset):
+    """instant-ngp loads every *.json of the folder: transforms.json beside the split files doubles
+    every frame (and trains on the test views), so it belongs in nerfstudio/."""
+    (sphere_dataset / "nerfstudio" / "transforms.json").rename(sphere_dataset / "transforms.json")
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "transforms.json", "instant-ngp", "twice", "nerfstudio/transforms.json")
+    assert _has(errors, "nerfstudio/transforms.json", "missing")
+
+
+def test_nerfstudio_paths_resolve_against_their_own_folder(sphere_dataset):
+    # "train/r_1.png" would be right at the root, but nerfstudio reads it from nerfstudio/train/r_1.png
+    _edit(sphere_dataset / "nerfstudio" / "transforms.json",
+          lambda m: (m["frames"][1].update(file_path="train/r_1.png"),
+                     m["train_filenames"].__setitem__(1, "train/r_1.png")))
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "nerfstudio/transforms.json", "frame 1", "train/r_1.png", "does not exist")
 
 
 def test_invalid_json_and_json_report(sphere_dataset, capsys):
