@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from .. import sampling, volrend
+from .. import grad_scaling, sampling, volrend
 from ..fields.mlp import NeRFMLP
 from .base import RadianceModel, register
 
@@ -24,11 +24,14 @@ Tensor = torch.Tensor
 class NeRF(RadianceModel):
     """Mildenhall et al. 2020. Options (all JSON-able): ``width``, ``depth``, ``skip``, ``pos_freqs``,
     ``dir_freqs``, ``n_coarse``, ``n_fine``, ``use_pe``, ``density_noise`` (std of the noise added to raw
-    density while training, a regulariser from the paper; 0 disables it)."""
+    density while training, a regulariser from the paper; 0 disables it), ``grad_reach`` (share of the box
+    diagonal within which a camera's samples learn with distance-scaled gradients, ``nerf_core.grad_scaling``;
+    0 disables it)."""
 
     default_lr = 5e-4
     default_batch_rays = 1024
-    defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, n_coarse=32, n_fine=64, use_pe=True)
+    defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, n_coarse=32, n_fine=64, use_pe=True,
+                    grad_reach=grad_scaling.DEFAULT_REACH_SHARE)
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
@@ -53,25 +56,32 @@ class NeRF(RadianceModel):
         reasons.append(f"MLP width {width} from the texture probe")
         return opts, reasons
 
-    def _render(self, net: NeRFMLP, rays_o, rays_d, edges, background):
+    def _render(self, net: NeRFMLP, rays_o, rays_d, edges, background, training: bool = False):
         t_starts, t_ends = edges[:, :-1], edges[:, 1:]
         mids = 0.5 * (t_starts + t_ends)
         pts = rays_o.unsqueeze(1) + rays_d.unsqueeze(1) * mids.unsqueeze(-1)  # (n_rays, n_samples, 3)
         dirs = rays_d.unsqueeze(1).expand_as(pts)
         sigma, rgb = net(pts.reshape(-1, 3), dirs.reshape(-1, 3))
+        # Cameras inside the box: even out the gradient near each lens (see nerf_core.grad_scaling).
+        # Rays that miss the box have empty intervals at t = 0 and carry no weight: leave them out.
+        dist = torch.where(t_ends > t_starts, mids, torch.full_like(mids, float("inf")))
+        scale = grad_scaling.near_camera_scales(dist.reshape(-1), grad_scaling.reach_for_box(
+            self.aabb, self.options["grad_reach"])) if training else None
+        if scale is not None:
+            sigma, rgb = grad_scaling.scale_gradient(sigma, scale), grad_scaling.scale_gradient(rgb, scale)
         n, s = mids.shape
         return volrend.render_rays_dense(t_starts, t_ends, sigma.reshape(n, s), rgb.reshape(n, s, 3), background)
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         o = self.options
         edges = sampling.stratified_samples(near, far, o["n_coarse"], jitter=training)
-        coarse = self._render(self.coarse, rays_o, rays_d, edges, background)
+        coarse = self._render(self.coarse, rays_o, rays_d, edges, background, training)
         n_samples = rays_o.shape[0] * o["n_coarse"]
         if self.fine is None:
             return {"rgb": coarse["rgb"], "depth": coarse["depth"], "acc": coarse["acc"], "n_samples": n_samples}
         new_t = sampling.importance_samples(edges, coarse["weights"], o["n_fine"], deterministic=not training)
         fine_edges = sampling.merge_edges(edges, new_t)
-        fine = self._render(self.fine, rays_o, rays_d, fine_edges, background)
+        fine = self._render(self.fine, rays_o, rays_d, fine_edges, background, training)
         n_samples += rays_o.shape[0] * (fine_edges.shape[1] - 1)
         return {"rgb": fine["rgb"], "depth": fine["depth"], "acc": fine["acc"], "rgb_coarse": coarse["rgb"],
                 "n_samples": n_samples}
