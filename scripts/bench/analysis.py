@@ -118,6 +118,10 @@ def floater_stats(render_dir: str, dataset: str, split: str = "test", empty_belo
     return {"floater_alpha": float(np.mean(means)), "floater_pixels": float(np.mean(shares)), "n_views": len(means)}
 
 
+# --------------------------------------------------------------------------------------------
+# Spread over seeds
+# --------------------------------------------------------------------------------------------
+
 
 def mean_std(values: Sequence[Optional[float]]) -> tuple[Optional[float], Optional[float], int]:
     """Mean and sample standard deviation of the finite values; (None, None, 0) when there are none."""

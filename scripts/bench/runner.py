@@ -213,7 +213,6 @@ def run_cli(
     return result
 
 
-
 def cli_help(*args: str) -> str:
     """``--help`` text of a CLI (empty when it cannot run), used to detect optional trainer flags."""
     try:
@@ -224,7 +223,6 @@ def cli_help(*args: str) -> str:
     except (OSError, subprocess.TimeoutExpired):
         return ""
     return out.stdout + out.stderr
-
 
 
 # --------------------------------------------------------------------------------------------
