@@ -259,8 +259,9 @@ class VMGrid(RadianceModel):
             # parameter's step to the same size whatever its gradient, so L1 alone would drive both
             # factors of the VM products to zero: a saddle (d(plane*line) = 0 there) that training
             # never leaves, seen as a run stuck at its initial PSNR for its whole budget.
+            use_l1 = self.options["l1_weight"] > 0 and self.formed()  # formed() reads the occupancy grid
             with profiling.stage("field"):
-                if self.options["l1_weight"] > 0 and self.formed():
+                if use_l1:
                     aux = aux + self.options["l1_weight"] * self.field.density_l1()
                 if self.options["tv_weight"] > 0:
                     aux = aux + self.options["tv_weight"] * self.field.density_tv()
