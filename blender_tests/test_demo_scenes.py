@@ -214,8 +214,8 @@ def test_capture_flags_of_each_scene_parse_as_capture_options(monkeypatch):
 
 def test_benchmark_and_demo_capture_real_scenes_with_their_flags(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(os.path.dirname(SCRIPT))
-    import bench_common as bc
     import demo
+    from bench import datasets, runner
 
     assert demo.scene_capture_flags("interior") == demo_scenes.capture_flags("interior")
     assert demo.scene_capture_flags("diffuse") == []
@@ -230,16 +230,16 @@ def test_benchmark_and_demo_capture_real_scenes_with_their_flags(tmp_path, monke
             os.makedirs(out, exist_ok=True)
             for split in ("train", "test"):
                 open(os.path.join(out, f"transforms_{split}.json"), "w").write("{}")
-        return bc.CliResult(args=cmd, returncode=0)
+        return runner.CliResult(args=cmd, returncode=0)
 
-    monkeypatch.setattr(bc, "run_cli", fake_run)
+    monkeypatch.setattr(datasets, "run_cli", fake_run)
     settings = {"resolution": 32, "count": 4}
-    ds_room, _ = bc.ensure_dataset("interior", str(tmp_path), dict(settings))
-    ds_obj, _ = bc.ensure_dataset("diffuse", str(tmp_path), dict(settings))
+    ds_room, _ = datasets.ensure_dataset("interior", str(tmp_path), dict(settings))
+    ds_obj, _ = datasets.ensure_dataset("diffuse", str(tmp_path), dict(settings))
     room_cmd, obj_cmd = calls[1], calls[3]
     assert room_cmd[room_cmd.index("--layout") + 1] == "inside" and "--opaque" in room_cmd
     assert "--opaque" not in obj_cmd and "--layout" not in obj_cmd
     # the flags are in the cache key; an object scene's key is what it always was
-    assert ds_room.endswith("interior-" + bc.settings_key({"scene": "interior", **demo_capture.capture_defaults("interior"),
-                                                           **settings}))
-    assert ds_obj.endswith("diffuse-" + bc.settings_key({"scene": "diffuse", **settings}))
+    assert ds_room.endswith("interior-" + datasets.settings_key({"scene": "interior",
+                                                                 **demo_capture.capture_defaults("interior"), **settings}))
+    assert ds_obj.endswith("diffuse-" + datasets.settings_key({"scene": "diffuse", **settings}))

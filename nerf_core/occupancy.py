@@ -18,6 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from . import profiling
+
 Tensor = torch.Tensor
 
 
@@ -77,6 +79,12 @@ class OccupancyGrid(nn.Module):
             decay: EMA factor; the EMA takes max(decayed old value, new value) so that thin surfaces
                 seen once are not forgotten at the next update.
         """
+        # Charged to the profile's ``sampling`` stage (what the grid serves), ``density_fn``'s own
+        # marks (``field``) excepted.
+        with profiling.stage("sampling"):
+            self._update(density_fn, step_size, alpha_threshold, decay, chunk)
+
+    def _update(self, density_fn, step_size: float, alpha_threshold: float, decay: float, chunk: int) -> None:
         pts = self.cell_centers(jitter=True)
         sig = torch.cat([density_fn(pts[i:i + chunk]).reshape(-1).float() for i in range(0, pts.shape[0], chunk)])
         ema = torch.maximum(self.density_ema.reshape(-1) * decay, sig)

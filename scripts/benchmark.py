@@ -29,125 +29,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Optional, Sequence
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import bench_common as bc  # noqa: E402
+from bench import datasets, report, runner  # noqa: E402  (scripts/bench, found through the line above)
+from bench.analysis import checkpoint_size, psnr_at_table, rows_from_results, size_analysis, summarize_training  # noqa: E402
+from bench.plan import FULL_SCENES, Plan, Series, default_fast_method, make_plan  # noqa: E402
+from bench.profiler import profile_method  # noqa: E402
 
 from nerf_core.progressbar import ProgressBar  # noqa: E402
-
-FULL_SCENES = ["diffuse", "highfreq", "glossy", "thin", "multi", "hdri", "interior"]
-QUICK_SCENES = ["diffuse", "thin"]
-BASE_METHODS = ["nerf", "nerf-nope"]
-
-
-@dataclass
-class Series:
-    """One line on the charts: a method with fixed extra trainer flags, e.g. a size setting."""
-
-    label: str
-    method: str
-    extra: list[str] = field(default_factory=list)
-    size_study: bool = False  # part of the fixed-size vs auto comparison
-
-
-@dataclass
-class Plan:
-    scenes: list[str]
-    series: list[Series]
-    size_scenes: list[str]  # scenes on which the size series run
-    checkpoints: list[float]  # seconds of training time at which test metrics are taken
-    capture: dict
-    profile: bool
-
-    def runs(self) -> list[tuple[str, Series]]:
-        out = []
-        for scene in self.scenes:
-            for s in self.series:
-                if s.size_study and scene not in self.size_scenes:
-                    continue
-                out.append((scene, s))
-        return out
-
-
-def default_fast_method() -> str:
-    try:
-        from nerf_core.methods.catalog import DEFAULT_METHOD  # noqa: WPS433 (only needs the catalog)
-
-        return DEFAULT_METHOD
-    except Exception:  # noqa: BLE001 (catalog not built yet: the benchmark still runs the others)
-        return ""
-
-
-# Fixed sizes of the fast method, from its options (nerf_core/methods/vmgrid.py): the final plane
-# resolution and the density/appearance ranks set the parameter count (~ res^2 x ranks). The method's
-# own default (res_final 160, ranks 16/32) is the largest and runs as the plain method series.
-SIZE_PRESETS = {
-    "vmgrid": {
-        "small": {"res_final": 64, "density_rank": 6, "app_rank": 12},
-        "medium": {"res_final": 100, "density_rank": 10, "app_rank": 20},
-    },
-}
-
-
-def size_series(fast: str, train_help: str, names=("small", "medium")) -> list[Series]:
-    """Fixed sizes of the fast method (``--set`` options) plus ``--size auto``, as separate series.
-
-    Returns [] when the trainer has no ``--size`` flag; presets exist only for methods listed in
-    SIZE_PRESETS (others get just the auto series next to their default size).
-    """
-    if not fast or "--size" not in train_help:
-        return []
-    out = []
-    for name in names:
-        preset = SIZE_PRESETS.get(fast, {}).get(name)
-        if preset:
-            flags = [x for k, v in preset.items() for x in ("--set", f"{k}={v}")]
-            out.append(Series(f"{fast} {name}", fast, flags, size_study=True))
-    out.append(Series(f"{fast} auto", fast, ["--size", "auto"], size_study=True))
-    return out
-
-
-def make_plan(args, train_help: str) -> Plan:
-    fast = default_fast_method()
-    if args.methods:
-        methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    else:
-        methods = BASE_METHODS + ([fast] if fast and fast not in BASE_METHODS else [])
-    if args.scenes:
-        scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
-    else:
-        scenes = QUICK_SCENES if args.quick else FULL_SCENES
-    series = [Series(m, m) for m in methods]
-    if not args.no_sizes and fast:
-        names = tuple(args.sizes.split(",")) if args.sizes else (("small",) if args.quick else ("small", "medium"))
-        series += size_series(fast, train_help, tuple(n for n in names if n != "auto"))
-    total = args.minutes * 60.0
-    if args.checkpoints:
-        checkpoints = sorted(float(x) * 60.0 for x in args.checkpoints.split(","))
-    elif args.quick:
-        # Two points per curve: each checkpoint costs a process start and an evaluation.
-        checkpoints = [total / 2, total]
-    else:
-        checkpoints = [total * f for f in (0.2, 0.4, 1.0)]
-    capture = {
-        "resolution": args.resolution,
-        "count": args.views,
-        "val_count": 1,
-        "test_count": args.test_views,
-        "engine": args.engine,
-        "samples": args.samples,
-    }
-    # Size series on every scene in a full run; only the first scene in --quick keeps it short.
-    if args.size_scenes:
-        size_scenes = [x.strip() for x in args.size_scenes.split(",") if x.strip()]
-    else:
-        size_scenes = scenes[:1] if args.quick else scenes
-    return Plan(scenes, series, size_scenes, checkpoints, capture, not args.no_profile)
 
 
 # --------------------------------------------------------------------------------------------
@@ -166,7 +58,7 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
     one run and evaluation time is never training time. The trainer's final evaluation gives the last
     point. ``independent=True`` trains a fresh run per budget instead ("what budget T gives", costs
     the sum of the budgets). ``on_progress(seconds)`` follows the step events. ``env_extra`` goes to
-    every child (``bc.thread_env`` when runs share the machine).
+    every child (``runner.thread_env`` when runs share the machine).
     Returns ``points`` [{seconds, budget, step, psnr, ssim}], a training summary, ``error`` and paths.
     """
     events_all: list[dict] = []
@@ -176,7 +68,7 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
     budgets = checkpoints if independent else checkpoints[-1:]
     for budget in budgets:
         this_run = os.path.join(run_dir, f"budget_{budget:g}s") if independent else run_dir
-        cmd = bc.nerf_core_cmd("train", dataset, "--out", this_run, "--method", series.method,
+        cmd = runner.nerf_core_cmd("train", dataset, "--out", this_run, "--method", series.method,
                                "--max-seconds", f"{budget:g}", "--seed", str(seed), "--eval-views", str(n_test),
                                # Step events every 10 steps: slow methods (seconds per step on a CPU)
                                # would otherwise move the overall bar once a minute.
@@ -190,7 +82,7 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
             if ev.get("event") == "step" and ev.get("elapsed") is not None:
                 on_progress(offset + float(ev["elapsed"]))
 
-        res = bc.run_cli(cmd, on_event=on_event, log_path=log_path, env_extra=env_extra)
+        res = runner.run_cli(cmd, on_event=on_event, log_path=log_path, env_extra=env_extra)
         events_all.extend(res.events)
         if not res.ok:
             error = f"train to {budget:g}s: {res.error_message()}"
@@ -203,7 +95,7 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
         final = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test" and "eval_wall" not in e]
         metrics = final[-1] if final else None
         if metrics is None:
-            ev = bc.run_cli(bc.nerf_core_cmd("eval", this_run, "--split", "test", "--no-bar"), log_path=log_path,
+            ev = runner.run_cli(runner.nerf_core_cmd("eval", this_run, "--split", "test", "--no-bar"), log_path=log_path,
                             env_extra=env_extra)
             metrics = ev.last_json() if ev.ok else None
             if not metrics or "psnr" not in metrics:
@@ -219,11 +111,11 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
         })
         if independent:
             done_before += budget
-    summary = bc.summarize_training(events_all)
+    summary = summarize_training(events_all)
     last_run = os.path.join(run_dir, f"budget_{checkpoints[-1]:g}s") if independent else run_dir
     ckpt = os.path.join(last_run, "checkpoints", "latest.pt")
     return {"points": points, "train": summary, "error": error or summary.get("error"),
-            "checkpoint": ckpt, "checkpoint_bytes": bc.checkpoint_size(ckpt)}
+            "checkpoint": ckpt, "checkpoint_bytes": checkpoint_size(ckpt)}
 
 
 def model_size(checkpoint: str) -> tuple[Optional[int], Optional[int]]:
@@ -295,53 +187,17 @@ def reusable_results(out: str, plan: Plan, series_names: set[str], run_settings:
 
 
 # --------------------------------------------------------------------------------------------
-# Analysis and output
+# Output
 # --------------------------------------------------------------------------------------------
-
-
-def rows_from_results(results: list[dict]) -> tuple[list[dict], list[dict]]:
-    """(one row per checkpoint, one row per run with its final numbers)."""
-    rows, finals = [], []
-    for r in results:
-        base = {"scene": r["scene"], "series": r["series"], "method": r["method"], "n_params": r["n_params"],
-                "model_bytes": r["model_bytes"], "checkpoint_bytes": r["checkpoint_bytes"],
-                "samples_per_s": r["samples_per_s"], "rollbacks": r["rollbacks"]}
-        for p in r["points"]:
-            rows.append({**base, "train_seconds": p["seconds"], "budget_seconds": p["budget"], "step": p["step"],
-                         "psnr": p["psnr"], "ssim": p["ssim"]})
-        last = r["points"][-1] if r["points"] else {}
-        finals.append({**base, "train_seconds": last.get("seconds"), "steps": last.get("step"),
-                       "psnr": last.get("psnr"), "ssim": last.get("ssim"), "error": r.get("error")})
-    return rows, finals
-
-
-def size_analysis(finals: list[dict], fast: str) -> list[dict]:
-    """Per scene: is the auto-sized fast method on/near the front of the fixed sizes tried?"""
-    out = []
-    for scene in sorted({f["scene"] for f in finals}):
-        runs = [f for f in finals if f["scene"] == scene and f["method"] == fast]
-        auto = [f for f in runs if f["series"].endswith(" auto")]
-        fixed = [f for f in runs if not f["series"].endswith(" auto")]
-        if not auto or not fixed:
-            continue
-        v = bc.auto_size_verdict((auto[0]["n_params"], auto[0]["psnr"]),
-                                 [(f["n_params"], f["psnr"]) for f in fixed])
-        front = bc.pareto_front([(f["n_params"], f["psnr"]) for f in runs])
-        out.append({"scene": scene, "auto_params": auto[0]["n_params"], "auto_psnr": auto[0]["psnr"],
-                    "best_params": (v["best"] or {}).get("params"), "best_psnr": (v["best"] or {}).get("psnr"),
-                    "gap_db": v["gap_db"], "param_ratio": v["param_ratio"], "on_front": v.get("on_front"),
-                    "near_front": v["ok"], "within_0.5dB_at_half": v["within_half"],
-                    "front": ", ".join(runs[i]["series"] for i in front)})
-    return out
 
 
 def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile: Optional[dict],
                   wall: float, machine: dict, run_settings: Optional[dict] = None) -> dict:
     rows, finals = rows_from_results(results)
-    bc.write_csv(os.path.join(out, "results.csv"), rows)
-    bc.write_csv(os.path.join(out, "final.csv"), finals)
+    report.write_csv(os.path.join(out, "results.csv"), rows)
+    report.write_csv(os.path.join(out, "final.csv"), finals)
     sizes = size_analysis(finals, fast)
-    bc.write_json(os.path.join(out, "results.json"), {
+    report.write_json(os.path.join(out, "results.json"), {
         "machine": machine, "wall_seconds": wall, "checkpoints_seconds": plan.checkpoints,
         "capture": plan.capture, "runs": results, "size_study": sizes, "profile": profile,
         **(run_settings or {}),
@@ -351,30 +207,18 @@ def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile:
         curves[(r["scene"], r["series"])] = [(p["seconds"], p["psnr"]) for p in r["points"]]
     charts = []
     if any(curves.values()):
-        charts.append(bc.chart_psnr_vs_time(curves, os.path.join(out, "psnr_vs_time.png"),
+        charts.append(report.chart_psnr_vs_time(curves, os.path.join(out, "psnr_vs_time.png"),
                                             "Test PSNR against training time"))
     pts = [{"scene": f["scene"], "series": f["series"], "params": f["n_params"], "psnr": f["psnr"]}
            for f in finals if f["n_params"] and f["psnr"] is not None]
     if pts:
-        charts.append(bc.chart_psnr_vs_size(pts, os.path.join(out, "psnr_vs_size.png"),
+        charts.append(report.chart_psnr_vs_size(pts, os.path.join(out, "psnr_vs_size.png"),
                                             "Final test PSNR against model size"))
     md = summary_markdown(rows, finals, sizes, profile, plan, wall, machine,
                           reused=[f"{r['scene']}/{r['series']}" for r in results if r.get("reused")])
     with open(os.path.join(out, "summary.md"), "w", encoding="utf-8") as fh:
         fh.write(md)
     return {"rows": rows, "finals": finals, "sizes": sizes, "charts": charts, "markdown": md}
-
-
-def psnr_at_table(rows: list[dict], checkpoints: list[float]) -> list[dict]:
-    """One row per (scene, series) with the PSNR at each checkpoint budget."""
-    table: dict = {}
-    for r in rows:
-        key = (r["scene"], r["series"])
-        entry = table.setdefault(key, {"scene": r["scene"], "series": r["series"], "n_params": r["n_params"],
-                                       "samples_per_s": r["samples_per_s"]})
-        entry[f"psnr@{r['budget_seconds']:g}s"] = r["psnr"]
-        entry["ssim"] = r["ssim"]
-    return [table[k] for k in sorted(table)]
 
 
 def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, machine: dict,
@@ -396,7 +240,7 @@ def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, mach
         "",
         "## Test PSNR (dB) at each checkpoint",
         "",
-        bc.markdown_table(psnr_at_table(rows, plan.checkpoints), cols),
+        report.markdown_table(psnr_at_table(rows, plan.checkpoints), cols),
         "",
     ]
     errors = [f for f in finals if f.get("error")]
@@ -404,213 +248,15 @@ def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, mach
         lines += ["## Failed runs", ""] + [f"- {f['scene']} / {f['series']}: {f['error']}" for f in errors] + [""]
     if sizes:
         lines += ["## Does `--size auto` land on the Pareto front?", "",
-                  bc.markdown_table(sizes, ["scene", "auto_params", "auto_psnr", "best_params", "best_psnr", "gap_db",
+                  report.markdown_table(sizes, ["scene", "auto_params", "auto_psnr", "best_params", "best_psnr", "gap_db",
                                             "param_ratio", "on_front", "within_0.5dB_at_half", "front"]), ""]
     if profile and profile.get("shares"):
         lines += [f"## Where a training step's time goes ({profile.get('method')}, {profile.get('steps')} steps, "
                   f"{profile.get('rays')} rays per step)", "",
-                  bc.markdown_table([{"stage": k, "share_%": 100 * v} for k, v in profile["shares"].items()],
+                  report.markdown_table([{"stage": k, "share_%": 100 * v} for k, v in profile["shares"].items()],
                                     ["stage", "share_%"], digits=1), ""]
     return "\n".join(lines)
 
-
-
-# --------------------------------------------------------------------------------------------
-# Per-stage profile (in-process: the one place this script imports torch and nerf_core directly)
-# --------------------------------------------------------------------------------------------
-
-STAGE_MODULES = {"sampling": ("nerf_core.sampling", "nerf_core.occupancy"), "rendering": ("nerf_core.volrend",)}
-# Submodules whose classes come from these modules have their public methods timed as the stage.
-CLASS_STAGES = {"nerf_core.fields": "field", "nerf_core.encodings": "field", "nerf_core.occupancy": "sampling"}
-
-
-def _class_stage(module_name: str):
-    for prefix, stage in CLASS_STAGES.items():
-        if module_name == prefix or module_name.startswith(prefix + "."):
-            return stage
-    return None
-
-
-class StageTimer:
-    """Exclusive wall time per stage: a call nested in another stage is charged to the inner one."""
-
-    def __init__(self, sync):
-        self.totals: dict = {}
-        self.stack: list = []  # [stage, start, time spent in nested stages]
-        self.sync = sync
-
-    def enter(self, stage):
-        self.sync()
-        self.stack.append([stage, time.perf_counter(), 0.0])
-
-    def exit(self):
-        self.sync()
-        stage, start, nested = self.stack.pop()
-        spent = time.perf_counter() - start
-        self.totals[stage] = self.totals.get(stage, 0.0) + spent - nested
-        if self.stack:
-            self.stack[-1][2] += spent
-
-    def wrap(self, fn, stage):
-        def timed(*a, **kw):
-            self.enter(stage)
-            try:
-                return fn(*a, **kw)
-            finally:
-                self.exit()
-
-        timed.__wrapped_stage__ = fn
-        return timed
-
-
-def _instrument(model, timer: StageTimer):
-    """Wrap the sampling/rendering functions wherever nerf_core modules hold them, and the field modules' methods.
-
-    Returns an undo callable. Functions are matched by identity so ``from .sampling import f`` copies
-    in method modules are wrapped too.
-    """
-    import inspect
-
-    targets = {}
-    for stage, prefixes in STAGE_MODULES.items():
-        for name, mod in list(sys.modules.items()):
-            if mod is None or not any(name == p or name.startswith(p + ".") for p in prefixes):
-                continue
-            for attr, fn in vars(mod).items():
-                if inspect.isfunction(fn) and fn.__module__ == name and not attr.startswith("__"):
-                    targets[fn] = stage
-    undo = []
-    for name, mod in list(sys.modules.items()):
-        if mod is None or not name.startswith("nerf_core"):
-            continue
-        for attr, value in list(vars(mod).items()):
-            if inspect.isfunction(value) and value in targets:
-                setattr(mod, attr, timer.wrap(value, targets[value]))
-                undo.append(lambda m=mod, a=attr, v=value: setattr(m, a, v))
-    # Field (and occupancy-grid) modules: wrap every public method their classes define (forward,
-    # density, color, update, ...), since methods call ``field.density(pts)`` directly rather than
-    # through forward. Nested calls (an encoding inside a field, field density inside a grid update)
-    # are charged to the innermost stage.
-    for sub in model.modules():
-        stage = _class_stage(type(sub).__module__)
-        if sub is model or stage is None:
-            continue
-        names = set()
-        for cls in type(sub).__mro__:
-            if _class_stage(cls.__module__) == stage:
-                names.update(n for n, v in vars(cls).items() if inspect.isfunction(v) and not n.startswith("_"))
-        for name in sorted(names):
-            sub.__dict__[name] = timer.wrap(getattr(sub, name), stage)
-            undo.append(lambda m=sub, n=name: m.__dict__.pop(n, None))
-
-    def restore():
-        for fn in undo:
-            fn()
-
-    return restore
-
-
-def _training_rays(dataset: str, n_rays: int, seed: int = 0):
-    """A random batch of training rays (origins, directions, near, far, rgb, alpha) from the train split,
-    computed from the JSON with the contract's pixel convention so the profile needs no loader API."""
-    import numpy as np
-    from PIL import Image
-
-    rng = np.random.default_rng(seed)
-    with open(os.path.join(dataset, "transforms_train.json"), encoding="utf-8") as fh:
-        meta = json.load(fh)
-    frames = meta["frames"]
-    w, h = int(meta["w"]), int(meta["h"])
-    fx, fy, cx, cy = (float(meta[k]) for k in ("fl_x", "fl_y", "cx", "cy"))
-    images = []
-    for f in frames[: min(len(frames), 8)]:
-        path = os.path.join(dataset, f["file_path"])
-        path = path if os.path.splitext(path)[1] else path + ".png"
-        with Image.open(path) as im:
-            images.append((np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0, np.asarray(f["transform_matrix"])))
-    v = rng.integers(0, len(images), n_rays)
-    i = rng.integers(0, w, n_rays)
-    j = rng.integers(0, h, n_rays)
-    d_cam = np.stack([(i + 0.5 - cx) / fx, -(j + 0.5 - cy) / fy, -np.ones(n_rays)], -1)
-    c2w = np.stack([images[k][1] for k in v])
-    d = np.einsum("nij,nj->ni", c2w[:, :3, :3], d_cam)
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    o = c2w[:, :3, 3]
-    rgba = np.stack([images[k][0][jj, ii] for k, ii, jj in zip(v, i, j)])
-    aabb = np.asarray(meta["aabb"], dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t0 = (aabb[0] - o) / d
-        t1 = (aabb[1] - o) / d
-    tmin = np.nanmax(np.minimum(t0, t1), -1)
-    tmax = np.nanmin(np.maximum(t0, t1), -1)
-    near = np.maximum(tmin, float(meta.get("near", 0.0)))
-    far = np.minimum(tmax, float(meta.get("far", 1e9)))
-    far = np.maximum(far, near + 1e-3)  # rays missing the box: an empty interval the model still accepts
-    return o, d, near, far, rgba, aabb
-
-
-def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 1024) -> dict:
-    """Time ``steps`` training steps of ``method`` split into sampling, field, rendering, the rest of the
-    forward pass, backward and the optimiser step. Returns seconds per stage and their shares."""
-    import torch
-
-    from nerf_core.methods import build_model
-
-    o, d, near, far, rgba, aabb = _training_rays(dataset, n_rays)
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=device)  # noqa: E731
-    rays_o, rays_d, t_near, t_far = as_t(o), as_t(d), as_t(near), as_t(far)
-    # Composite on white, as the trainer and the original loaders do.
-    target = as_t(rgba[:, :3] * rgba[:, 3:] + (1 - rgba[:, 3:]))
-    background = torch.ones_like(target)
-    model = build_model(method, as_t(aabb)).to(device)
-    opt = torch.optim.Adam(model.param_groups(1e-2))
-    timer = StageTimer(sync)
-    restore = _instrument(model, timer)
-    wall = {"backward": 0.0, "optimizer": 0.0, "forward": 0.0, "hook": 0.0}
-    warmup = 2
-    try:
-        for step in range(steps + warmup):
-            if step == warmup:
-                timer.totals.clear()
-                wall = dict.fromkeys(wall, 0.0)
-            sync()
-            t = time.perf_counter()
-            if model.training_hook(step, None):
-                opt = torch.optim.Adam(model.param_groups(1e-2))
-            sync()
-            t_hook = time.perf_counter()
-            out = model.render_rays(rays_o, rays_d, t_near, t_far, background, training=True)
-            loss = torch.mean((out["rgb"] - target) ** 2)
-            if "rgb_coarse" in out:
-                loss = loss + torch.mean((out["rgb_coarse"] - target) ** 2)
-            if "aux_loss" in out:
-                loss = loss + out["aux_loss"]
-            sync()
-            t_fwd = time.perf_counter()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            sync()
-            t_bwd = time.perf_counter()
-            opt.step()
-            sync()
-            t_opt = time.perf_counter()
-            wall["hook"] += t_hook - t
-            wall["forward"] += t_fwd - t_hook
-            wall["backward"] += t_bwd - t_fwd
-            wall["optimizer"] += t_opt - t_bwd
-    finally:
-        restore()
-    stages = {k: timer.totals.get(k, 0.0) for k in ("sampling", "field", "rendering")}
-    # Hook-time sampling (occupancy-grid updates) is charged to sampling; the hook's own rest to "other".
-    stages["other_forward"] = max(0.0, wall["forward"] + wall["hook"] - sum(stages.values()))
-    stages["backward"] = wall["backward"]
-    stages["optimizer"] = wall["optimizer"]
-    total = sum(stages.values()) or 1.0
-    return {"method": method, "steps": steps, "rays": n_rays, "device": str(device),
-            "seconds": stages, "seconds_per_step": total / steps,
-            "shares": {k: v / total for k, v in stages.items()}}
 
 # --------------------------------------------------------------------------------------------
 # Main
@@ -667,10 +313,10 @@ def main(argv=None) -> int:
     os.makedirs(out, exist_ok=True)
     logs = os.path.join(out, "logs")
     os.makedirs(logs, exist_ok=True)
-    machine = bc.machine_info()
+    machine = runner.machine_info()
     machine["jobs"] = args.jobs
-    machine["threads_per_run"] = bc.thread_env(args.jobs).get("OMP_NUM_THREADS", os.cpu_count())
-    train_help = bc.cli_help(*bc.nerf_core_cmd("train"))
+    machine["threads_per_run"] = runner.thread_env(args.jobs).get("OMP_NUM_THREADS", os.cpu_count())
+    train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
         print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is nerf_core/train.py built?\n"
               + train_help[-800:], file=sys.stderr)
@@ -686,20 +332,20 @@ def main(argv=None) -> int:
     per_run = sum(plan.checkpoints) if args.independent else budget
     bar = ProgressBar(total=len(plan.scenes) * capture_cost + len(runs) * per_run, label="benchmark")
     t0 = time.monotonic()
-    datasets: dict = {}
+    captured: dict = {}
     failures = 0
     for scene in plan.scenes:
         bar.set(bar.done, info=f"capture {scene}")
         try:
-            ds, reused = bc.ensure_dataset(scene, os.path.join(out, "datasets"), plan.capture,
-                                           log_path=os.path.join(logs, f"capture_{scene}.log"))
-            datasets[scene] = ds
-        except bc.BenchError as exc:
+            ds, reused = datasets.ensure_dataset(scene, os.path.join(out, "datasets"), plan.capture,
+                                                 log_path=os.path.join(logs, f"capture_{scene}.log"))
+            captured[scene] = ds
+        except runner.BenchError as exc:
             print(f"\nbenchmark: {exc} (log: {os.path.join(logs, f'capture_{scene}.log')})", file=sys.stderr)
             failures += 1
         bar.update(capture_cost)
-    env_extra = bc.thread_env(args.jobs)
-    progress = bc.SharedProgress(bar)
+    env_extra = runner.thread_env(args.jobs)
+    progress = runner.SharedProgress(bar)
     failed: list[str] = []
     run_settings = {"seed": args.seed, "eval_views": args.eval_views, "jobs": args.jobs}
     reused = reusable_results(out, plan, set((args.reuse or "").split(",")) - {""}, run_settings)
@@ -711,15 +357,15 @@ def main(argv=None) -> int:
         if (scene, series.label) in reused:
             progress.finish((scene, series.label), per_run)
             return reused[(scene, series.label)]
-        if scene not in datasets:
+        if scene not in captured:
             progress.finish((scene, series.label), per_run)
             return None
         label = f"{scene}/{series.label}"
         r = train_with_checkpoints(
-            datasets[scene], os.path.join(out, "runs", scene, series.label.replace(" ", "_")), series,
+            captured[scene], os.path.join(out, "runs", scene, series.label.replace(" ", "_")), series,
             plan.checkpoints, args.seed, os.path.join(logs, f"train_{scene}_{series.label.replace(' ', '_')}.log"),
             lambda elapsed: progress.advance(label, min(elapsed, per_run), info=label),
-            n_test=min(bc.count_frames(datasets[scene], "test"), args.eval_views or 10 ** 9),
+            n_test=min(datasets.count_frames(captured[scene], "test"), args.eval_views or 10 ** 9),
             independent=args.independent, env_extra=env_extra)
         tr = r["train"]
         n_params, n_bytes = model_size(r["checkpoint"])
@@ -727,20 +373,20 @@ def main(argv=None) -> int:
             failed.append(label)
             print(f"\nbenchmark: {label}: {r['error']}", file=sys.stderr)
         progress.finish(label, per_run,
-                        info=f"{label} " + (f"{bc.fmt(r['points'][-1]['psnr'])} dB" if r["points"] else "failed"))
+                        info=f"{label} " + (f"{report.fmt(r['points'][-1]['psnr'])} dB" if r["points"] else "failed"))
         return {"scene": scene, "series": series.label, "method": series.method, "flags": series.extra,
                 "points": r["points"], "n_params": n_params or tr["n_params"], "model_bytes": n_bytes,
                 "checkpoint_bytes": r["checkpoint_bytes"], "samples_per_s": tr["samples_per_s"],
                 "steps": tr["steps"], "rollbacks": tr["rollbacks"], "nan": tr["nan"], "error": r["error"],
                 "stage_times": tr.get("stage_times"), "threads": env_extra.get("OMP_NUM_THREADS")}
 
-    results = [r for r in bc.run_parallel([lambda sc=sc, se=se: one_run(sc, se) for sc, se in runs], args.jobs) if r]
+    results = [r for r in runner.run_parallel([lambda sc=sc, se=se: one_run(sc, se) for sc, se in runs], args.jobs) if r]
     failures += len(failed)
     bar.close(info="runs done")
     profile = None
-    if plan.profile and datasets and fast:
+    if plan.profile and captured and fast:
         try:
-            profile = profile_method(next(iter(datasets.values())), fast, steps=8 if args.quick else 20)
+            profile = profile_method(next(iter(captured.values())), fast, steps=8 if args.quick else 20)
         except Exception as exc:  # noqa: BLE001 (a profile failure must not lose the benchmark's results)
             profile = {"error": f"{type(exc).__name__}: {exc}"}
             print(f"benchmark: profile of {fast} failed: {profile['error']}", file=sys.stderr)

@@ -34,7 +34,8 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import bench_common as bc  # noqa: E402
+from bench import analysis, datasets, report, runner  # noqa: E402  (scripts/bench, found through the line above)
+from bench.plan import BASE_METHODS, default_fast_method  # noqa: E402
 
 from nerf_core.progressbar import ProgressBar  # noqa: E402
 
@@ -109,19 +110,19 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
 
     The trainer's own final evaluation on every test view gives PSNR/SSIM (one process fewer than a
     separate ``eval``); ``render`` of the test cameras gives the alpha compared for floaters.
-    ``env_extra`` goes to every child (``bc.thread_env`` when runs share the machine).
+    ``env_extra`` goes to every child (``runner.thread_env`` when runs share the machine).
     """
-    n_test = bc.count_frames(dataset, "test")
-    cmd = bc.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", method, "--max-seconds", f"{seconds:g}",
-                           "--seed", str(seed), "--overwrite", "--eval-views", str(n_test), "--log-every", "10", "--no-bar",
-                           *extra)
+    n_test = datasets.count_frames(dataset, "test")
+    cmd = runner.nerf_core_cmd("train", dataset, "--out", run_dir, "--method", method, "--max-seconds", f"{seconds:g}",
+                               "--seed", str(seed), "--overwrite", "--eval-views", str(n_test), "--log-every", "10",
+                               "--no-bar", *extra)
 
     def on_event(ev):
         if ev.get("event") == "step" and ev.get("elapsed") is not None:
             on_progress(float(ev["elapsed"]))
 
-    res = bc.run_cli(cmd, on_event=on_event, log_path=log_path, env_extra=env_extra)
-    summary = bc.summarize_training(res.events)
+    res = runner.run_cli(cmd, on_event=on_event, log_path=log_path, env_extra=env_extra)
+    summary = analysis.summarize_training(res.events)
     row = {"psnr": None, "ssim": None, "rollbacks": summary["rollbacks"], "nan": summary["nan"],
            "steps": summary["steps"], "train_psnr": summary["train_psnr"], "n_params": summary["n_params"],
            "lr": _base_lr(run_dir), "floater_alpha": None, "floater_pixels": None, "error": None}
@@ -131,8 +132,8 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
     evals = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test"]
     metrics = evals[-1] if evals else None
     if metrics is None:
-        ev = bc.run_cli(bc.nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path,
-                        env_extra=env_extra)
+        ev = runner.run_cli(runner.nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path,
+                            env_extra=env_extra)
         metrics = ev.last_json() if ev.ok else None
         if not metrics or "psnr" not in metrics:
             row["error"] = f"eval: {ev.error_message()}"
@@ -142,11 +143,11 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
         row["nan"] = True  # NaN metrics come out as null
     if render:
         out = os.path.join(run_dir, "test_renders")
-        rr = bc.run_cli(bc.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset, "transforms_test.json"),
-                                         "--out", out, "--split", "test", "--overwrite", "--no-bar"), log_path=log_path,
-                        env_extra=env_extra)
+        rr = runner.run_cli(runner.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset, "transforms_test.json"),
+                                                 "--out", out, "--split", "test", "--overwrite", "--no-bar"),
+                            log_path=log_path, env_extra=env_extra)
         if rr.ok:
-            row.update({k: v for k, v in bc.floater_stats(out, dataset).items() if k != "n_views"})
+            row.update({k: v for k, v in analysis.floater_stats(out, dataset).items() if k != "n_views"})
         else:
             row["render_error"] = rr.error_message()
     return row
@@ -173,10 +174,10 @@ def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dic
     methods = list(dict.fromkeys(k[0] for k in groups))
     settings = []
     for (method, study, setting), rs in sorted(groups.items(), key=lambda kv: methods.index(kv[0][0])):
-        m, sd, n = bc.mean_std([r["psnr"] for r in rs])
-        fm, _, _ = bc.mean_std([r["floater_pixels"] for r in rs])
+        m, sd, n = analysis.mean_std([r["psnr"] for r in rs])
+        fm, _, _ = analysis.mean_std([r["floater_pixels"] for r in rs])
         settings.append({"method": method, "study": study, "setting": setting, "psnr_mean": m, "psnr_std": sd,
-                         "n_ok": n, "n_runs": len(rs), "ssim_mean": bc.mean_std([r["ssim"] for r in rs])[0],
+                         "n_ok": n, "n_runs": len(rs), "ssim_mean": analysis.mean_std([r["ssim"] for r in rs])[0],
                          "floater_pixels": fm, "rollbacks": sum(r["rollbacks"] or 0 for r in rs),
                          "nan": any(r["nan"] for r in rs),
                          "error": next((r["error"] for r in rs if r["error"]), None)})
@@ -191,7 +192,7 @@ def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dic
 
 
 def chart_groups(settings: list[dict], n_train: int | None) -> dict:
-    """{study: {method: [(label, mean, std), ...]}} for ``bc.chart_bars``.
+    """{study: {method: [(label, mean, std), ...]}} for ``report.chart_bars``.
 
     Each method's base run is drawn inside every study, at the place it belongs in that sweep
     (``64`` views, ``x1`` learning rate, ``0deg/0`` pose noise), so a panel reads as a sweep; the
@@ -228,15 +229,15 @@ def write_report(out: str, runs: list[dict], *, machine: dict, capture: dict, sc
                  wall: float) -> str:
     """Judge ``runs`` and write OUT/stability.{csv,json,md,png} and OUT/settings.csv; returns the markdown."""
     settings, table = summarise(runs, threshold, drop)
-    bc.write_csv(os.path.join(out, "stability.csv"), runs)
-    bc.write_csv(os.path.join(out, "settings.csv"), settings)
-    bc.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
+    report.write_csv(os.path.join(out, "stability.csv"), runs)
+    report.write_csv(os.path.join(out, "settings.csv"), settings)
+    report.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
                                                         "scene": scene, "seconds_per_run": seconds, "jobs": jobs,
                                                         "threads_per_run": (env_extra or {}).get("OMP_NUM_THREADS"),
                                                         "threshold_db": threshold, "drop_db": drop, "runs": runs,
                                                         "settings": settings, "breakdown": table, "notes": notes})
     n_train = capture.get("count")
-    chart = bc.chart_bars(chart_groups(settings, n_train), os.path.join(out, "stability.png"),
+    chart = report.chart_bars(chart_groups(settings, n_train), os.path.join(out, "stability.png"),
                           f"Test PSNR per setting ({scene}, {seconds:g} s runs; bars: mean, whiskers: std)",
                           "test PSNR (dB)", threshold=threshold)
     threads = (env_extra or {}).get("OMP_NUM_THREADS")
@@ -249,9 +250,9 @@ def write_report(out: str, runs: list[dict], *, machine: dict, capture: dict, sc
         f"Broken = error, NaN, >= {ROLLBACK_LIMIT} rollbacks, PSNR < {threshold:g} dB or > {drop:g} dB "
         f"below the method's base, or floaters on > {100 * FLOATER_LIMIT:.0f}% of background pixels.", "",
         *[f"Note: {n}" for n in notes], "",
-        "## Breakdown", "", bc.markdown_table(table, ["method", "study", "breaks_at", "settings_tried"]), "",
+        "## Breakdown", "", report.markdown_table(table, ["method", "study", "breaks_at", "settings_tried"]), "",
         "## Every setting (mean and std over seeds)", "",
-        bc.markdown_table(settings, ["method", "study", "setting", "psnr_mean", "psnr_std", "n_ok", "n_runs",
+        report.markdown_table(settings, ["method", "study", "setting", "psnr_mean", "psnr_std", "n_ok", "n_runs",
                                      "floater_pixels", "rollbacks", "broken"]), "",
         f"![stability]({os.path.basename(chart)})", "",
     ])
@@ -328,22 +329,20 @@ def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     if args.report_only:
         return report_only(args)
-    machine = bc.machine_info()  # the load average before this study adds its own
+    machine = runner.machine_info()  # the load average before this study adds its own
     machine["jobs"] = args.jobs
-    sys.path.insert(0, bc.REPO_ROOT)
-    import benchmark  # noqa: WPS433 (shares the method defaults)
 
     out = os.path.abspath(args.out)
     logs = os.path.join(out, "logs")
     os.makedirs(logs, exist_ok=True)
-    train_help = bc.cli_help(*bc.nerf_core_cmd("train"))
+    train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
         print("stability: `python -m nerf_core train --help` failed; is nerf_core/train.py built?\n" + train_help[-800:],
               file=sys.stderr)
         return 2
-    fast = benchmark.default_fast_method()
+    fast = default_fast_method()
     methods = ([m.strip() for m in args.methods.split(",") if m.strip()] if args.methods
-               else benchmark.BASE_METHODS + ([fast] if fast and fast not in benchmark.BASE_METHODS else []))
+               else BASE_METHODS + ([fast] if fast and fast not in BASE_METHODS else []))
     lr = lr_flag(train_help)
     notes = []
     if not lr:
@@ -370,9 +369,9 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     bar.set(0, info=f"capture {args.scene}")
     try:
-        base_ds, _ = bc.ensure_dataset(args.scene, os.path.join(out, "datasets"), capture,
+        base_ds, _ = datasets.ensure_dataset(args.scene, os.path.join(out, "datasets"), capture,
                                        log_path=os.path.join(logs, "capture.log"))
-    except bc.BenchError as exc:
+    except runner.BenchError as exc:
         bar.close()
         print(f"stability: {exc}", file=sys.stderr)
         return 1
@@ -386,13 +385,13 @@ def main(argv=None) -> int:
             name = "_".join(str(x) for x in spec)
             dst = os.path.join(out, "derived", name)
             if spec[0] == "views":
-                derived[spec] = bc.subset_views(base_ds, dst, spec[1])
+                derived[spec] = datasets.subset_views(base_ds, dst, spec[1])
             else:
-                derived[spec] = bc.perturb_poses(base_ds, dst, spec[1], spec[2], seed=0)
+                derived[spec] = datasets.perturb_poses(base_ds, dst, spec[1], spec[2], seed=0)
         return derived[spec]
 
-    env_extra = bc.thread_env(args.jobs)
-    progress = bc.SharedProgress(bar)
+    env_extra = runner.thread_env(args.jobs)
+    progress = runner.SharedProgress(bar)
 
     def one_run(method, study, setting, ds, extra, seed):
         label = f"{method} {study}={setting} seed={seed}"
@@ -402,7 +401,7 @@ def main(argv=None) -> int:
                           lambda elapsed: progress.advance(label, min(elapsed, args.seconds), info=label),
                           env_extra=env_extra)
         row.update({"method": method, "study": study, "setting": setting, "seed": seed})
-        progress.finish(label, per_run, info=f"{label}: {bc.fmt(row['psnr'])} dB")
+        progress.finish(label, per_run, info=f"{label}: {report.fmt(row['psnr'])} dB")
         return row
 
     # Derived datasets are made up front so parallel runs never race to create one.
@@ -410,7 +409,7 @@ def main(argv=None) -> int:
         dataset_for(spec)
     # Phase 1: every run whose flags are known. Phase 2: learning rates given as a plain --lr,
     # which are multiples of the lr each method's base run reported.
-    runs = bc.run_parallel([
+    runs = runner.run_parallel([
         lambda m=method, p=p, seed=seed: one_run(m, p[0], p[1], dataset_for(p[2]), p[3], seed)
         for method in methods for p in plan if p[3] is not None for seed in p[4]], args.jobs)
     later = []
@@ -425,13 +424,13 @@ def main(argv=None) -> int:
             flags = ["--lr", f"{base_lr * float(str(setting)[1:]):g}"]
             later += [lambda m=method, st=study, se=setting, sp=spec, f=flags, seed=seed:
                       one_run(m, st, se, dataset_for(sp), f, seed) for seed in seeds]
-    runs += bc.run_parallel(later, args.jobs)
+    runs += runner.run_parallel(later, args.jobs)
     bar.close()
 
-    report = write_report(out, runs, machine=machine, capture=capture, scene=args.scene, seconds=args.seconds,
-                          threshold=args.threshold, drop=args.drop, jobs=args.jobs, env_extra=env_extra,
-                          notes=notes, wall=time.monotonic() - t0)
-    print(report)
+    markdown = write_report(out, runs, machine=machine, capture=capture, scene=args.scene, seconds=args.seconds,
+                            threshold=args.threshold, drop=args.drop, jobs=args.jobs, env_extra=env_extra,
+                            notes=notes, wall=time.monotonic() - t0)
+    print(markdown)
     return 0
 
 

@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from .. import grad_scaling, sampling, volrend
+from .. import grad_scaling, profiling, sampling, volrend
 from ..fields.mlp import NeRFMLP
 from .base import RadianceModel, register
 
@@ -61,7 +61,9 @@ class NeRF(RadianceModel):
         mids = 0.5 * (t_starts + t_ends)
         pts = rays_o.unsqueeze(1) + rays_d.unsqueeze(1) * mids.unsqueeze(-1)  # (n_rays, n_samples, 3)
         dirs = rays_d.unsqueeze(1).expand_as(pts)
-        sigma, rgb = net(pts.reshape(-1, 3), dirs.reshape(-1, 3))
+        flat_pts, flat_dirs = pts.reshape(-1, 3), dirs.reshape(-1, 3)  # a copy: ``dirs`` is expanded
+        with profiling.stage("field"):
+            sigma, rgb = net(flat_pts, flat_dirs)
         # Cameras inside the box: even out the gradient near each lens (see nerf_core.grad_scaling).
         # Rays that miss the box have empty intervals at t = 0 and carry no weight: leave them out.
         dist = torch.where(t_ends > t_starts, mids, torch.full_like(mids, float("inf")))
@@ -70,17 +72,20 @@ class NeRF(RadianceModel):
         if scale is not None:
             sigma, rgb = grad_scaling.scale_gradient(sigma, scale), grad_scaling.scale_gradient(rgb, scale)
         n, s = mids.shape
-        return volrend.render_rays_dense(t_starts, t_ends, sigma.reshape(n, s), rgb.reshape(n, s, 3), background)
+        with profiling.stage("rendering"):
+            return volrend.render_rays_dense(t_starts, t_ends, sigma.reshape(n, s), rgb.reshape(n, s, 3), background)
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         o = self.options
-        edges = sampling.stratified_samples(near, far, o["n_coarse"], jitter=training)
+        with profiling.stage("sampling"):
+            edges = sampling.stratified_samples(near, far, o["n_coarse"], jitter=training)
         coarse = self._render(self.coarse, rays_o, rays_d, edges, background, training)
         n_samples = rays_o.shape[0] * o["n_coarse"]
         if self.fine is None:
             return {"rgb": coarse["rgb"], "depth": coarse["depth"], "acc": coarse["acc"], "n_samples": n_samples}
-        new_t = sampling.importance_samples(edges, coarse["weights"], o["n_fine"], deterministic=not training)
-        fine_edges = sampling.merge_edges(edges, new_t)
+        with profiling.stage("sampling"):
+            new_t = sampling.importance_samples(edges, coarse["weights"], o["n_fine"], deterministic=not training)
+            fine_edges = sampling.merge_edges(edges, new_t)
         fine = self._render(self.fine, rays_o, rays_d, fine_edges, background, training)
         n_samples += rays_o.shape[0] * (fine_edges.shape[1] - 1)
         return {"rgb": fine["rgb"], "depth": fine["depth"], "acc": fine["acc"], "rgb_coarse": coarse["rgb"],

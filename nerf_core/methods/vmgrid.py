@@ -21,7 +21,7 @@ import math
 
 import torch
 
-from .. import grad_scaling, sampling, volrend
+from .. import grad_scaling, profiling, sampling, volrend
 from ..contraction import contract, outer_box
 from ..fields.tensorf import TensorVMField
 from ..occupancy import OccupancyGrid
@@ -168,7 +168,12 @@ class VMGrid(RadianceModel):
 
     @torch.no_grad()
     def update_occupancy(self) -> None:
-        self.occupancy.update(self.field.density, self.step_size())
+        self.occupancy.update(self._density, self.step_size())
+
+    def _density(self, pts: Tensor) -> Tensor:
+        """Field density (m,) at field-space points (m, 3), marked as the profile's ``field`` stage."""
+        with profiling.stage("field"):
+            return self.field.density(pts)
 
     # ------------------------------------------------------------------ sizing
 
@@ -224,43 +229,51 @@ class VMGrid(RadianceModel):
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         n_rays = rays_o.shape[0]
         step = self.step_size()
-        if self.contracted:
-            t0, t1, ridx = sampling.contracted_samples(rays_o, rays_d, near, self.aabb, step,
-                                                       lambda p: self.occupancy.query(self.warp(p)),
-                                                       jitter=training, max_samples=4096)
-        else:
-            t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
-                                                     jitter=training, max_samples=4096)
+        with profiling.stage("sampling"):
+            if self.contracted:
+                t0, t1, ridx = sampling.contracted_samples(rays_o, rays_d, near, self.aabb, step,
+                                                           lambda p: self.occupancy.query(self.warp(p)),
+                                                           jitter=training, max_samples=4096)
+            else:
+                t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
+                                                         jitter=training, max_samples=4096)
         # Early ray termination: find, without grad, the samples still visible (T > 1e-4).
         with torch.no_grad():
             mids = 0.5 * (t0 + t1)
             pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
-            sig = torch.cat([self.field.density(pts[i:i + self.render_step_chunk])
+            sig = torch.cat([self._density(pts[i:i + self.render_step_chunk])
                              for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
-            trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
+            with profiling.stage("rendering"):
+                trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
             keep = trans > 1e-4
         t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
-        sigma = self.field.density(pts)
+        sigma = self._density(pts)
         gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
             self.aabb, self.options["grad_reach"])) if training else None
-        if gscale is not None:
+        if gscale is not None:  # cameras inside the box: even out the gradient near each lens
             sigma = grad_scaling.scale_gradient(sigma, gscale)
-        weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
-        # Colour only where it can matter: most surviving samples are transparent space before a surface.
-        # Rays that are still almost transparent (all of them at initialisation) get colour at every
-        # sample: treating unevaluated samples as black would teach the density only to darken rays,
-        # and a field on a random background would then never become opaque.
-        acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
+        with profiling.stage("rendering"):
+            weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
+            # Colour only where it can matter: most surviving samples are transparent space before a
+            # surface. Rays that are still almost transparent (all of them at initialisation) get colour
+            # at every sample: treating unevaluated samples as black would teach the density only to
+            # darken rays, and a field on a random background would then never become opaque.
+            acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
         vis = (weights.detach() > 1e-4) | (acc_ray[ridx] < 0.05)
-        rgb_s = self.field.color(pts[vis], rays_d[ridx[vis]])
+        # Gathers stay outside the stage marks: the profile charges them to "other_forward".
+        ridx_vis, mids = ridx[vis], (0.5 * (t0 + t1)).unsqueeze(-1)
+        pts_vis, dirs_vis, weights_vis = pts[vis], rays_d[ridx_vis], weights[vis]
+        with profiling.stage("field"):
+            rgb_s = self.field.color(pts_vis, dirs_vis)
         if gscale is not None:
             rgb_s = grad_scaling.scale_gradient(rgb_s, gscale[vis])
-        rgb = volrend.accumulate_along_rays_packed(weights[vis], ridx[vis], n_rays, rgb_s)
-        acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
-        depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, (0.5 * (t0 + t1)).unsqueeze(-1)).squeeze(-1)
-        depth = depth / acc.clamp_min(1e-6)
-        out = {"rgb": volrend.composite_background(rgb, acc, background.to(rgb.dtype)), "depth": depth, "acc": acc,
-               "n_samples": int(ridx.shape[0])}
+        with profiling.stage("rendering"):
+            rgb = volrend.accumulate_along_rays_packed(weights_vis, ridx_vis, n_rays, rgb_s)
+            acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
+            depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids).squeeze(-1)
+            depth = depth / acc.clamp_min(1e-6)
+            rgb = volrend.composite_background(rgb, acc, background.to(rgb.dtype))
+        out = {"rgb": rgb, "depth": depth, "acc": acc, "n_samples": int(ridx.shape[0])}
         if training:
             self._acc_ema = 0.9 * self._acc_ema + 0.1 * float(acc.detach().mean()) if n_rays else self._acc_ema
             aux = 0.0
@@ -270,13 +283,16 @@ class VMGrid(RadianceModel):
             # parameter's step to the same size whatever its gradient, so L1 alone would drive both
             # factors of the VM products to zero: a saddle (d(plane*line) = 0 there) that training
             # never leaves, seen as a run stuck at its initial PSNR for its whole budget.
-            if self.options["l1_weight"] > 0 and self.formed():
-                aux = aux + self.options["l1_weight"] * self.field.density_l1()
-            if self.options["tv_weight"] > 0:
-                aux = aux + self.options["tv_weight"] * self.field.density_tv()
+            use_l1 = self.options["l1_weight"] > 0 and self.formed()  # formed() reads the occupancy grid
+            with profiling.stage("field"):
+                if use_l1:
+                    aux = aux + self.options["l1_weight"] * self.field.density_l1()
+                if self.options["tv_weight"] > 0:
+                    aux = aux + self.options["tv_weight"] * self.field.density_tv()
             if self.options["dist_weight"] > 0:
                 scale = float((self.aabb[1] - self.aabb[0]).norm())
-                dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
+                with profiling.stage("rendering"):
+                    dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
                 aux = aux + self.options["dist_weight"] * dist.mean()
             if torch.is_tensor(aux):
                 out["aux_loss"] = aux

@@ -1,0 +1,120 @@
+"""What a benchmark run trains: the scenes, the series (a method with fixed flags) and the checkpoints.
+
+``make_plan`` turns ``scripts/benchmark.py``'s flags into a ``Plan``; ``size_series`` adds the fast
+method at fixed sizes and with ``--size auto``, the comparison that shows whether auto-sizing lands
+on the Pareto front. Standard library only at module level; ``default_fast_method`` reads
+nerf_core's method catalog (which imports torch) when called.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+FULL_SCENES = ["diffuse", "highfreq", "glossy", "thin", "multi", "hdri", "interior"]
+QUICK_SCENES = ["diffuse", "thin"]
+BASE_METHODS = ["nerf", "nerf-nope"]
+
+
+@dataclass
+class Series:
+    """One line on the charts: a method with fixed extra trainer flags, e.g. a size setting."""
+
+    label: str
+    method: str
+    extra: list[str] = field(default_factory=list)
+    size_study: bool = False  # part of the fixed-size vs auto comparison
+
+
+@dataclass
+class Plan:
+    scenes: list[str]
+    series: list[Series]
+    size_scenes: list[str]  # scenes on which the size series run
+    checkpoints: list[float]  # seconds of training time at which test metrics are taken
+    capture: dict
+    profile: bool
+
+    def runs(self) -> list[tuple[str, Series]]:
+        out = []
+        for scene in self.scenes:
+            for s in self.series:
+                if s.size_study and scene not in self.size_scenes:
+                    continue
+                out.append((scene, s))
+        return out
+
+
+def default_fast_method() -> str:
+    try:
+        from nerf_core.methods.catalog import DEFAULT_METHOD  # noqa: WPS433 (only needs the catalog)
+
+        return DEFAULT_METHOD
+    except Exception:  # noqa: BLE001 (catalog not built yet: the benchmark still runs the others)
+        return ""
+
+
+# Fixed sizes of the fast method, from its options (nerf_core/methods/vmgrid.py): the final plane
+# resolution and the density/appearance ranks set the parameter count (~ res^2 x ranks). The method's
+# own default (res_final 160, ranks 16/32) is the largest and runs as the plain method series.
+SIZE_PRESETS = {
+    "vmgrid": {
+        "small": {"res_final": 64, "density_rank": 6, "app_rank": 12},
+        "medium": {"res_final": 100, "density_rank": 10, "app_rank": 20},
+    },
+}
+
+
+def size_series(fast: str, train_help: str, names=("small", "medium")) -> list[Series]:
+    """Fixed sizes of the fast method (``--set`` options) plus ``--size auto``, as separate series.
+
+    Returns [] when the trainer has no ``--size`` flag; presets exist only for methods listed in
+    SIZE_PRESETS (others get just the auto series next to their default size).
+    """
+    if not fast or "--size" not in train_help:
+        return []
+    out = []
+    for name in names:
+        preset = SIZE_PRESETS.get(fast, {}).get(name)
+        if preset:
+            flags = [x for k, v in preset.items() for x in ("--set", f"{k}={v}")]
+            out.append(Series(f"{fast} {name}", fast, flags, size_study=True))
+    out.append(Series(f"{fast} auto", fast, ["--size", "auto"], size_study=True))
+    return out
+
+
+def make_plan(args, train_help: str) -> Plan:
+    fast = default_fast_method()
+    if args.methods:
+        methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    else:
+        methods = BASE_METHODS + ([fast] if fast and fast not in BASE_METHODS else [])
+    if args.scenes:
+        scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    else:
+        scenes = QUICK_SCENES if args.quick else FULL_SCENES
+    series = [Series(m, m) for m in methods]
+    if not args.no_sizes and fast:
+        names = tuple(args.sizes.split(",")) if args.sizes else (("small",) if args.quick else ("small", "medium"))
+        series += size_series(fast, train_help, tuple(n for n in names if n != "auto"))
+    total = args.minutes * 60.0
+    if args.checkpoints:
+        checkpoints = sorted(float(x) * 60.0 for x in args.checkpoints.split(","))
+    elif args.quick:
+        # Two points per curve: each checkpoint costs a process start and an evaluation.
+        checkpoints = [total / 2, total]
+    else:
+        checkpoints = [total * f for f in (0.2, 0.4, 1.0)]
+    capture = {
+        "resolution": args.resolution,
+        "count": args.views,
+        "val_count": 1,
+        "test_count": args.test_views,
+        "engine": args.engine,
+        "samples": args.samples,
+    }
+    # Size series on every scene in a full run; only the first scene in --quick keeps it short.
+    if args.size_scenes:
+        size_scenes = [x.strip() for x in args.size_scenes.split(",") if x.strip()]
+    else:
+        size_scenes = scenes[:1] if args.quick else scenes
+    return Plan(scenes, series, size_scenes, checkpoints, capture, not args.no_profile)
