@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import sys
 from dataclasses import dataclass
 from datetime import timedelta
@@ -124,7 +125,7 @@ def all_reduce(tensor: torch.Tensor, op=None) -> torch.Tensor:
     try:
         torch.distributed.all_reduce(tensor, op=torch.distributed.ReduceOp.SUM if op is None else op)
     except RuntimeError as exc:  # gloo: "Connection closed by peer"; NCCL: a remote error or timeout
-        raise PeerLost(f"another rank left the job ({str(exc).splitlines()[0][:200]})") from None
+        raise PeerLost(_peer_lost(exc)) from None
     return tensor
 
 
@@ -134,7 +135,13 @@ def broadcast_module(module: torch.nn.Module, src: int = 0) -> None:
         for t in list(module.parameters()) + list(module.buffers()):
             torch.distributed.broadcast(t.data, src=src)
     except RuntimeError as exc:
-        raise PeerLost(f"another rank left the job ({str(exc).splitlines()[0][:200]})") from None
+        raise PeerLost(_peer_lost(exc)) from None
+
+
+def _peer_lost(exc: BaseException) -> str:
+    """'another rank left the job (Connection closed by peer [127.0.0.1]:46506)' from a backend error."""
+    first = re.sub(r"^\[[^\]]*\]\s*", "", str(exc).strip().splitlines()[0] if str(exc).strip() else "")
+    return f"another rank left the job ({first.split('. ')[0][:160] or type(exc).__name__})"
 
 
 def max_over_ranks(value: float) -> float:
@@ -191,8 +198,17 @@ def state_checksum(module: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
-def report_checksum(module: torch.nn.Module, ctx: Context, step: int) -> None:
+def report_checksum(module: Optional[torch.nn.Module], ctx: Context, step: int) -> None:
     """With ``NERF_CORE_DDP_CHECKSUM=1``: print ``ddp-checksum rank=R step=S sha256=...`` to stderr
-    (a debugging aid and what the tests compare across ranks); nothing otherwise."""
-    if os.environ.get(CHECKSUM_ENV, "") not in ("", "0"):
+    (a debugging aid and what the tests compare across ranks); nothing otherwise or without a module."""
+    if module is not None and os.environ.get(CHECKSUM_ENV, "") not in ("", "0"):
         print(f"ddp-checksum rank={ctx.rank} step={step} sha256={state_checksum(module)}", file=sys.stderr, flush=True)
+
+
+def note_resume(ckpt: dict, ctx: Context) -> None:
+    """Tell the user (rank 0, on stderr) when a run continues on another number of ranks than it
+    was trained with: the rays per step change with it (the learning rate does not)."""
+    was = int((ckpt.get("config") or {}).get("world_size") or 1)
+    if ctx.is_main and was != ctx.world_size:
+        print(f"train: the run was trained on {was} rank(s) and continues on {ctx.world_size}: each step now "
+              f"averages {ctx.world_size} batches instead of {was}", file=sys.stderr)

@@ -33,14 +33,16 @@ class DeferredInterrupts:
 
         with DeferredInterrupts(enabled) as stop:
             ... stop.requested() ...
-    Leaving the block restores the previous handlers, then raises ``KeyboardInterrupt`` if a signal
-    came after the last check (and the block is not already leaving with an exception).
+    Leaving the block restores the previous handlers, then (``reraise``) raises ``KeyboardInterrupt``
+    if a signal came after the last check and the block is not already leaving with an exception.
+    With ``reraise=False`` the block simply shields what it runs (an interrupted run's checkpoint).
     """
 
     SIGNALS = ("SIGINT", "SIGTERM")
 
-    def __init__(self, enabled: bool = True):
+    def __init__(self, enabled: bool = True, reraise: bool = True):
         self.enabled = enabled and threading.current_thread() is threading.main_thread()
+        self.reraise = reraise
         self.signal = None  # name of the first signal received
         self._checked = False
         self._previous = {}
@@ -64,5 +66,5 @@ class DeferredInterrupts:
         for name, previous in self._previous.items():
             signal.signal(getattr(signal, name), previous)
         self._previous = {}
-        if exc_type is None and self.signal is not None and not self._checked:
+        if self.reraise and exc_type is None and self.signal is not None and not self._checked:
             raise KeyboardInterrupt

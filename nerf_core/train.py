@@ -90,6 +90,7 @@ class Trainer:
             if cfg.resume:
                 self.resumed_checkpoint, ckpt = read_resume_checkpoint(self.run)
                 self.cfg = merge_resumed_config(self.cfg, ckpt)
+                distributed.note_resume(ckpt, self.dist)
                 check_run_vs_dataset(self.run, self.cfg.dataset)
             self.dataset_hash = dataset_hash(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
@@ -127,10 +128,10 @@ class Trainer:
         try:
             return self._fit(dataset, ckpt)
         except KeyboardInterrupt as exc:  # also distributed.PeerLost: another rank left the job
-            if hasattr(self, "model"):
-                distributed.report_checksum(self.model, self.dist, getattr(self, "step", 0))
+            distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
             try:
-                path = self._save_checkpoint() if hasattr(self, "opt") else None
+                with DeferredInterrupts(self.dist.active, reraise=False):  # torchrun's SIGTERM follows a lost rank
+                    path = self._save_checkpoint() if hasattr(self, "opt") else None
             except TrainError as err:
                 self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {err}")
                 raise
@@ -326,8 +327,7 @@ class Trainer:
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
             last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
         distributed.report_checksum(self.model, self.dist, self.step)
-        summary = {"step": self.step, "elapsed": self.elapsed, "checkpoint": None, "metrics": {}, "loss": last_loss,
-                   "rollbacks": self.rollbacks}
+        summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
         if not main:
             return summary
         self._preview()
