@@ -119,8 +119,10 @@ class Trainer:
             raise TrainError(msg) from None
         early_log.close()
         if not self.dist.agree(True):  # a rank could not start: every rank stops here, none waits
+            msg = f"rank {self.dist.rank}: another rank could not start the run (its error is above)"
+            self.log.emit("error", message=msg)
             self.log.close()
-            raise TrainError(f"rank {self.dist.rank}: another rank could not start the run (its error is above)")
+            raise TrainError(msg)
         if removed:
             print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
                   + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
@@ -301,8 +303,7 @@ class Trainer:
         if ckpt is not None:
             self._restore(ckpt)
             resumed_from = self.step
-        main = self.dist.is_main
-        if main:
+        if self.dist.is_main:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
             atomic_json(config, self.config_record())
@@ -313,7 +314,7 @@ class Trainer:
                       image_size=[train.width, train.height], background=self.bg_mode,
                       background_reason=self.bg_reason, notes=dataset.notes, world_size=self.dist.world_size)
         for line in ([f"size: {r}" for r in self.size_reasons] + [f"background: {self.bg_mode} ({self.bg_reason})"]
-                     + [f"note: {note}" for note in dataset.notes] if main else []):
+                     + [f"note: {note}" for note in dataset.notes] if self.dist.is_main else []):
             print(f"train: {line}", file=sys.stderr)
 
         if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):
@@ -328,7 +329,7 @@ class Trainer:
             last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
         distributed.report_checksum(self.model, self.dist, self.step)
         summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
-        if not main:
+        if not self.dist.is_main:
             return summary
         self._preview()
         latest = self._save_checkpoint()
