@@ -92,3 +92,22 @@ def for_run(requested: str, recorded: Optional[str], dataset) -> Tuple[str, str]
         return choose(dataset.split("train").images, dataset.film_transparent, where=f"{dataset.root}",
                       cameras_inside=dataset.cameras_inside)
     return requested, "as recorded when the run started" if recorded == requested else "--background given"
+
+
+def for_training(requested: str, ckpt: Optional[dict], dataset) -> Tuple[str, str, list]:
+    """``for_run`` for the trainer: (mode, reason, evaluation background RGB) for a new run
+    (``ckpt`` None) or a resumed one, refusing (TrainError) a mode the dataset or run cannot train."""
+    from .runfolder import TrainError
+
+    train = dataset.split("train")
+    recorded = (ckpt.get("config") or {}).get("background_used") if ckpt is not None else None
+    mode, reason = for_run(requested, recorded, dataset)
+    if mode == "random" and not train.has_alpha:
+        raise TrainError(
+            f"{train.frames[0].image}: --background {mode} needs images with an alpha channel (RGBA); "
+            "this dataset's images are RGB (--background environment learns their background)"
+        )
+    if ckpt is not None and mode == "environment" and "environment" not in ckpt["options"]:
+        raise TrainError("--resume: the run was trained without a learned environment; "
+                         "it cannot continue with --background environment")
+    return mode, reason, [0.0, 0.0, 0.0] if mode == "black" else [1.0, 1.0, 1.0]

@@ -11,6 +11,9 @@ the loop and the rollback, everything else it uses has its own module.
   (``rollback`` event); after too many rollbacks training stops with an ``error`` event.
 * Never destroys data, one writer per run folder (``nerf_core.runfolder``); weights-only
   checkpoints (``nerf_core.checkpoints``). docs/CONTRACTS.md has the files and the events.
+* Data-parallel under ``torchrun`` (``nerf_core.distributed``, ``nerf_core.replicas``): every rank
+  trains the same model on its own rays; only rank 0 touches the run folder. Without torchrun's
+  environment ``self.replicas`` is None and none of that code runs.
 """
 from __future__ import annotations
 
@@ -23,19 +26,20 @@ from typing import Callable, List, Optional
 
 import torch
 
-from . import backgrounds, contract
+from . import backgrounds, contract, distributed
 from .checkpoints import RunError, load_state_resizing, read_resume_checkpoint, save_checkpoint, versions
 from .data import Dataset, DatasetError, RayBatcher, load_dataset
-from .evaluate import evaluate_held_out, update_metrics_file
-from .interrupts import terminate_as_interrupt
+from .interrupts import DeferredInterrupts, terminate_as_interrupt
 from .losses import masked_mse, psnr_from_mse
 from .optim import clone_state, make_optimizer, rebuild_optimizer, rescale_base_lrs, schedule_factor, warmup_steps
 from .previews import Previews
 from .progress import EventLog
 from .progressbar import ProgressBar
+from .replicas import Replicas
 from .runfolder import (TrainError, atomic_json, check_run_folder, check_run_vs_dataset, clear_run_folder,
                         dataset_hash, lock_run_folder, os_reason, record_written)
 from .seeding import rng_state, seed_everything, set_rng_state
+from .train_report import emit_step, final_eval, held_out_eval
 from .train_config import TrainConfig, default_method, merge_resumed_config
 
 __all__ = ["TrainConfig", "TrainError", "Trainer", "train", "default_method"]
@@ -53,38 +57,44 @@ class Trainer:
     # The public entry point: never raises for expected problems without first emitting an error event.
     def fit(self) -> dict:
         self._unlock: Optional[Callable[[], None]] = None
+        self.dist = distributed.init_from_env()  # inactive (no process group) without torchrun
+        self.replicas = Replicas(self.dist, self.cfg.seed) if self.dist.active else None
         try:
             return self._fit_run_folder()
         finally:
             if self._unlock is not None:
                 self._unlock()
+            self.dist.close()
 
     def _fit_run_folder(self) -> dict:
         cfg = self.cfg
-        extra_logs = [cfg.progress] if cfg.progress else []
-        early_log = EventLog(extra_logs, stdout=cfg.stdout_events)
+        main = self.dist.is_main  # only rank 0 writes: events, lock, checkpoints, previews, metrics
+        extra_logs = [cfg.progress] if cfg.progress and main else []
+        early_log = EventLog(extra_logs, stdout=cfg.stdout_events and main)
         self.log = early_log
         try:
             # Before the lock file is made: a run folder that is (or holds, or sits in) the dataset would
             # mix the trainer's files with the user's data, and --overwrite would delete from the dataset.
             check_run_vs_dataset(self.run, cfg.dataset)
-            if self.run.is_dir():
+            if main and self.run.is_dir():
                 # Before anything else, so that a second trainer into a busy run learns who holds it
                 # (rather than that the folder is not empty) and never reads a half-written checkpoint.
                 self._unlock = lock_run_folder(self.run)
-            check_run_folder(self.run, cfg.resume, cfg.overwrite)
+            if main:
+                check_run_folder(self.run, cfg.resume, cfg.overwrite)
             cfg.check()
             from .device import pick_device
 
-            self.device = pick_device(cfg.device)
+            self.device = self.dist.place(pick_device(cfg.device))
             ckpt = None
             if cfg.resume:
                 self.resumed_checkpoint, ckpt = read_resume_checkpoint(self.run)
                 self.cfg = merge_resumed_config(self.cfg, ckpt)
+                distributed.note_resume(ckpt, self.dist)
                 check_run_vs_dataset(self.run, self.cfg.dataset)
             self.dataset_hash = dataset_hash(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
-            if self._unlock is None:
+            if main and self._unlock is None:
                 # A new folder is made only now, so that a run that never starts leaves nothing behind.
                 self.run.mkdir(parents=True, exist_ok=True)
                 self._unlock = lock_run_folder(self.run)
@@ -93,31 +103,42 @@ class Trainer:
         except (TrainError, DatasetError, RunError, ValueError) as exc:
             early_log.emit("error", message=str(exc))
             early_log.close()
+            self.dist.agree(False)
             raise
         progress = Path(contract.progress_path(self.run))
         try:
-            removed = clear_run_folder(self.run) if cfg.overwrite else []
-            self.log = EventLog([progress] + extra_logs, stdout=cfg.stdout_events)
-            record_written(self.run, progress)
+            removed = clear_run_folder(self.run) if cfg.overwrite and main else []
+            self.log = EventLog([progress] + extra_logs if main else [], stdout=cfg.stdout_events and main)
+            if main:
+                record_written(self.run, progress)
         except OSError as exc:
             msg = f"{exc.filename or self.run}: {os_reason(exc)}"
             early_log.emit("error", message=msg)
             early_log.close()
+            self.dist.agree(False)
             raise TrainError(msg) from None
         early_log.close()
+        if not self.dist.agree(True):  # a rank could not start: every rank stops here, none waits
+            msg = f"rank {self.dist.rank}: another rank could not start the run (its error is above)"
+            self.log.emit("error", message=msg)
+            self.log.close()
+            raise TrainError(msg)
         if removed:
             print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
                   + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
         restore = terminate_as_interrupt()
         try:
             return self._fit(dataset, ckpt)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # also distributed.PeerLost: another rank left the job
+            distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
             try:
-                path = self._save_checkpoint() if hasattr(self, "opt") else None
-            except TrainError as exc:
-                self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {exc}")
+                with DeferredInterrupts(self.dist.active, reraise=False):  # torchrun's SIGTERM follows a lost rank
+                    path = self._save_checkpoint() if hasattr(self, "opt") else None
+            except TrainError as err:
+                self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {err}")
                 raise
             self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}"
+                          + (f" ({exc})" if str(exc) else "")
                           + (f"; checkpoint saved, continue with --resume" if path else ""))
             raise
         except (TrainError, DatasetError, RunError, ValueError) as exc:
@@ -136,20 +157,6 @@ class Trainer:
             self.log.close()
 
     # ------------------------------------------------------------------ setup
-
-    def _choose_background(self, dataset: Dataset, ckpt: Optional[dict]) -> None:
-        train = dataset.split("train")
-        recorded = (ckpt.get("config") or {}).get("background_used") if ckpt is not None else None
-        self.bg_mode, self.bg_reason = backgrounds.for_run(self.cfg.background, recorded, dataset)
-        if self.bg_mode == "random" and not train.has_alpha:
-            raise TrainError(
-                f"{train.frames[0].image}: --background {self.bg_mode} needs images with an alpha channel (RGBA); "
-                "this dataset's images are RGB (--background environment learns their background)"
-            )
-        if ckpt is not None and self.bg_mode == "environment" and "environment" not in ckpt["options"]:
-            raise TrainError(f"--resume: the run was trained without a learned environment; "
-                             f"it cannot continue with --background environment")
-        self.eval_bg = [0.0, 0.0, 0.0] if self.bg_mode == "black" else [1.0, 1.0, 1.0]
 
     def _build(self, dataset: Dataset, ckpt: Optional[dict]):
         from .methods import build_model
@@ -208,7 +215,10 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints and rollback
 
-    def _save_checkpoint(self) -> Path:
+    def _save_checkpoint(self) -> Optional[Path]:
+        if not self.dist.is_main:  # the other ranks only keep the schedule (checkpoint_every)
+            self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
+            return None
         state = {
             "format": 1, "method": self.method, "options": self.model.options,
             "aabb": self.model.aabb.detach().cpu(),
@@ -269,7 +279,8 @@ class Trainer:
             "eval_background": self.eval_bg, "aabb": self.model.aabb.detach().cpu().tolist(),
             "aabb_source": ds.aabb_source, "near": ds.near, "far": ds.far, "size_reasons": self.size_reasons,
             "dataset_notes": ds.notes, "n_train_views": len(tr), "image_size": [tr.width, tr.height],
-            "device_used": str(self.device), "versions": versions(),
+            "device_used": str(self.device), "versions": versions(), "world_size": self.dist.world_size,
+            "rays_per_step": self.cfg.batch_rays * self.dist.world_size,
         })
         return rec
 
@@ -279,7 +290,7 @@ class Trainer:
         cfg = self.cfg
         self.dataset = dataset
         train = dataset.split("train")
-        self._choose_background(dataset, ckpt)
+        self.bg_mode, self.bg_reason, self.eval_bg = backgrounds.for_training(cfg.background, ckpt, dataset)
         self._build(dataset, ckpt)
         if cfg.max_steps is None and cfg.max_seconds is None:
             cfg.max_steps = int(getattr(self.model, "default_max_steps", DEFAULT_MAX_STEPS))
@@ -292,36 +303,52 @@ class Trainer:
         if ckpt is not None:
             self._restore(ckpt)
             resumed_from = self.step
-        config = Path(contract.config_path(self.run))
-        record_written(self.run, config)
-        atomic_json(config, self.config_record())
+        if self.dist.is_main:
+            config = Path(contract.config_path(self.run))
+            record_written(self.run, config)
+            atomic_json(config, self.config_record())
         self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
                       device=str(self.device), n_params=self.model.num_parameters(), model=self.model.describe(),
                       size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
                       dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train),
                       image_size=[train.width, train.height], background=self.bg_mode,
-                      background_reason=self.bg_reason, notes=dataset.notes)
-        for r in self.size_reasons:
-            print(f"train: size: {r}", file=sys.stderr)
-        print(f"train: background: {self.bg_mode} ({self.bg_reason})", file=sys.stderr)
-        for note in dataset.notes:
-            print(f"train: note: {note}", file=sys.stderr)
+                      background_reason=self.bg_reason, notes=dataset.notes, world_size=self.dist.world_size)
+        for line in ([f"size: {r}" for r in self.size_reasons] + [f"background: {self.bg_mode} ({self.bg_reason})"]
+                     + [f"note: {note}" for note in dataset.notes] if self.dist.is_main else []):
+            print(f"train: {line}", file=sys.stderr)
 
         if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):
             # (A contracted scene has no ray that misses it: the world beyond the box is geometry too.)
             self._prefit_environment()
+        if self.replicas is not None:  # every rank starts from rank 0's model and the largest elapsed time
+            self.elapsed = self.replicas.start(self.model, self.elapsed)
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
                                  self.eval_bg, cfg.chunk)
         self._eval_marks = sorted(t for t in cfg.eval_at if t > self.elapsed)
-        batcher = RayBatcher(train, self.bg_mode, self.gen, self.device)
+        with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
+            last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
+        distributed.report_checksum(self.model, self.dist, self.step)
+        summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
+        if not self.dist.is_main:
+            return summary
+        self._preview()
+        latest = self._save_checkpoint()
+        metrics = final_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.run, self.step, self.elapsed)
+        self.log.emit("done", step=self.step, elapsed=self.elapsed, checkpoint=str(latest), metrics=metrics)
+        return summary | {"checkpoint": str(latest), "metrics": metrics}
+
+    def _train_loop(self, batcher: RayBatcher, stop: DeferredInterrupts) -> Optional[float]:
+        """Train until the budget is spent; returns the last step's loss. Under torchrun, ``stop``
+        holds a SIGINT/SIGTERM until the step's reduce tells every rank to stop."""
+        cfg, dataset, rep = self.cfg, self.dataset, self.replicas
         self._snapshot()
         self.steps_since_rollback = 0
         self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
         last_preview_elapsed, last_preview_step = self.elapsed, self.step
         interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
         bar_total, bar_unit = cfg.bar_total()
-        bar = ProgressBar(total=bar_total, label="train", enabled=cfg.show_bar)
-        params_changed = False
+        bar = ProgressBar(total=bar_total, label="train", enabled=cfg.show_bar and self.dist.is_main)
+        params_changed = self._ckpt_wall_due = False
         last_loss = last_psnr = None
         first_step = self.step + 1  # always report the first step (also after --resume)
         last_event_wall = time.monotonic()
@@ -330,9 +357,13 @@ class Trainer:
             t0 = time.perf_counter()
             frac = cfg.budget_fraction(self.step, self.elapsed)
             hook_frac = contract.budget_fraction(self.step, self.elapsed, cfg.max_steps, cfg.max_seconds)
+            if rep is not None:  # the hook's random draws (occupancy jitter) must be equal on every rank
+                rep.seed_shared(self.step, self.rollbacks)
             if self.model.training_hook(self.step, hook_frac):
                 self.opt = rebuild_optimizer(self.model, self.opt, self.base_lr * self.lr_scale)
                 params_changed = True
+            if rep is not None:
+                rep.seed_rank(self.gen, self.step, self.rollbacks)
             factor = schedule_factor(self.step, frac, self.warmup)
             for g in self.opt.param_groups:
                 g["lr"] = g["base_lr"] * factor
@@ -347,22 +378,29 @@ class Trainer:
                 loss = loss + masked_mse(out["rgb_coarse"], gt, weight)
             if out.get("aux_loss") is not None:
                 loss = loss + out["aux_loss"]
-            loss_value = float(loss.detach())
-            bad = None
-            if not math.isfinite(loss_value):
-                bad = f"loss is {loss_value}"
-            elif (self.loss_ema is not None and self.steps_since_rollback > 200
-                  and loss_value > 10.0 * self.loss_ema and loss_value - self.loss_ema > 0.01):
-                bad = f"loss {loss_value:.4g} jumped above 10x its running average {self.loss_ema:.4g}"
-            if bad is None:
+            n_samples = int(out.get("n_samples", cfg.batch_rays))
+            if rep is None:
+                loss_value = float(loss.detach())
+                bad = self._bad_loss(loss_value)
+                if bad is None:
+                    self.opt.zero_grad(set_to_none=True)
+                    loss.backward()
+                    bad = self._bad_gradient()
+                self.elapsed += time.perf_counter() - t0
+            else:  # every rank takes the same decisions from the same (reduced) numbers
                 self.opt.zero_grad(set_to_none=True)
                 loss.backward()
-                params = [p for g in self.opt.param_groups for p in g["params"] if p.grad is not None]
-                gnorm = torch.nn.utils.clip_grad_norm_(params, float("inf")) if params else torch.tensor(0.0)
-                if not torch.isfinite(gnorm):
-                    bad = "gradient is NaN or inf"
-            self.elapsed += time.perf_counter() - t0
+                params = [p for g in self.opt.param_groups for p in g["params"]]
+                shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
+                                    self.dist.is_main and self._checkpoint_due(wall_clock=True))
+                self.elapsed += shared.seconds
+                if shared.stop:
+                    raise KeyboardInterrupt
+                loss_value, mse, n_samples, self._ckpt_wall_due = shared.loss, shared.mse, shared.n_samples, shared.checkpoint_due
+                bad = self._bad_loss(loss_value) or self._bad_gradient()
             if bad is not None:
+                if rep is not None:
+                    rep.end_step()
                 self.opt.zero_grad(set_to_none=True)
                 self._rollback(bad)
                 continue
@@ -371,41 +409,60 @@ class Trainer:
             self.step += 1
             self.steps_since_rollback += 1
             self.loss_ema = loss_value if self.loss_ema is None else 0.98 * self.loss_ema + 0.02 * loss_value
-            self.elapsed += time.perf_counter() - t1
+            if rep is not None:
+                rep.end_step()
+            else:
+                self.elapsed += time.perf_counter() - t1
             interval["t"] += time.perf_counter() - t0
-            interval["samples"] += int(out.get("n_samples", cfg.batch_rays))
+            interval["samples"] += n_samples
             interval["loss"] += loss_value
             interval["n"] += 1
-            last_loss, last_psnr = loss_value, psnr_from_mse(mse.detach())
+            last_loss, last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
             bar.set(cfg.bar_done(bar_unit, self.step, self.elapsed), info=f"step {self.step} loss {loss_value:.4f} psnr {last_psnr:.2f}")
 
             if params_changed or self.step % 100 == 0:
                 self._snapshot()
                 params_changed = False
             done = cfg.finished(self.step, self.elapsed)
+            side_work = False  # previews, checkpoints and evaluations: rank 0 writes, the others wait
             while self._eval_marks and self.elapsed >= self._eval_marks[0]:
                 # Speed-against-accuracy curves: evaluate at fixed training times inside one run, so the
                 # learning-rate and growth schedules are the real ones. Evaluation time is not training time.
                 self._eval_marks.pop(0)
-                self._held_out_eval(at_seconds=self.elapsed)
+                if self.dist.is_main:
+                    held_out_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.step, self.elapsed)
+                side_work = True
             # Slow steps (big models on a CPU) still report at least every few seconds.
             if (self.step == first_step or self.step % cfg.log_every == 0 or done
                     or time.monotonic() - last_event_wall >= STEP_EVENT_SECONDS):
                 last_event_wall = time.monotonic()
-                self._emit_step(last_loss, last_psnr, interval)
+                emit_step(self.log, cfg, self.opt, self.step, self.elapsed, last_loss, last_psnr, interval)
                 interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
             if not done and self.previews.due(self.step, last_preview_step, self.elapsed, last_preview_elapsed):
                 self._preview()
                 last_preview_step, last_preview_elapsed = self.step, self.elapsed
+                side_work = True
             if not done and self._checkpoint_due():
                 self._save_checkpoint()
+                side_work = True
+            if side_work and rep is not None:
+                self.previews.cost = rep.after_side_work(self.previews.cost)
         bar.close(info=f"step {self.step} loss {last_loss if last_loss is not None else float('nan'):.4f}")
-        self._preview()
-        latest = self._save_checkpoint()
-        metrics = self._final_eval()
-        self.log.emit("done", step=self.step, elapsed=self.elapsed, checkpoint=str(latest), metrics=metrics)
-        return {"step": self.step, "elapsed": self.elapsed, "checkpoint": str(latest), "metrics": metrics,
-                "loss": last_loss, "rollbacks": self.rollbacks}
+        return last_loss
+
+    def _bad_loss(self, loss_value: float) -> Optional[str]:
+        """Why a step's loss must not be applied (NaN/inf, or a jump far above its running average), or None."""
+        if not math.isfinite(loss_value):
+            return f"loss is {loss_value}"
+        if (self.loss_ema is not None and self.steps_since_rollback > 200
+                and loss_value > 10.0 * self.loss_ema and loss_value - self.loss_ema > 0.01):
+            return f"loss {loss_value:.4g} jumped above 10x its running average {self.loss_ema:.4g}"
+        return None
+
+    def _bad_gradient(self) -> Optional[str]:
+        params = [p for g in self.opt.param_groups for p in g["params"] if p.grad is not None]
+        gnorm = torch.nn.utils.clip_grad_norm_(params, float("inf")) if params else torch.tensor(0.0)
+        return None if torch.isfinite(gnorm) else "gradient is NaN or inf"
 
     def _prefit_environment(self) -> None:
         """Fit the learned world to the train rays that miss the scene box; counted as training time."""
@@ -415,68 +472,27 @@ class Trainer:
         msg, share = prefit_from_split(self.model, self.train, self.dataset.near, self.dataset.far, self.gen,
                                        self.device)
         self.elapsed += time.perf_counter() - started
-        print(f"train: {msg}", file=sys.stderr)
+        if self.dist.is_main:
+            print(f"train: {msg}", file=sys.stderr)
         self.log.emit("note", message=msg, miss_share=share)
 
     # ------------------------------------------------------------------ reporting
 
-    def _emit_step(self, loss: float, psnr: float, interval: dict) -> None:
-        lr = [g for g in self.opt.param_groups if g.get("name") != "environment"][-1]["lr"]
-        sps = interval["samples"] / interval["t"] if interval["t"] > 0 else 0.0
-        self.log.emit("step", step=self.step, loss=loss, psnr=psnr, lr=lr, elapsed=self.elapsed, eta=self.cfg.eta(self.step, self.elapsed),
-                      frac=self.cfg.budget_fraction(self.step, self.elapsed), samples_per_s=sps,
-                      loss_avg=interval["loss"] / max(1, interval["n"]),
-                      lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(self.opt.param_groups)})
-
-    def _checkpoint_due(self) -> bool:
+    def _checkpoint_due(self, wall_clock: bool = False) -> bool:
+        """Step-based (``checkpoint_every``) or by rank 0's wall clock, which under torchrun every rank
+        learns from the step's reduce (``wall_clock=True``: rank 0 asks its own clock)."""
         if self.cfg.checkpoint_every:
-            return self.step - self._last_ckpt_step >= self.cfg.checkpoint_every
+            return not wall_clock and self.step - self._last_ckpt_step >= self.cfg.checkpoint_every
+        if self.replicas is not None and not wall_clock:
+            return self._ckpt_wall_due
         return time.monotonic() - self._last_ckpt_wall >= self.cfg.checkpoint_seconds
 
     def _preview(self) -> None:
+        if not self.dist.is_main:
+            return
         path = self.previews.write(self.model, self.step)
         if path is not None:
             self.log.emit("preview", step=self.step, path=str(path))
-
-    def _held_out_eval(self, at_seconds: float) -> None:
-        """Evaluate ``eval_views`` evenly spaced held-out views (all when unset) and emit an ``eval`` event."""
-        self.model.eval()
-        try:
-            started = time.perf_counter()
-            found = evaluate_held_out(self.model, self.dataset, self.cfg.eval_views, background=self.eval_bg,
-                                      chunk=self.cfg.chunk)
-        finally:
-            self.model.train()
-        if found is None:
-            return
-        split_name, result = found
-        self.log.emit("eval", step=self.step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
-                      n_views=result["n_views"], depth_mae=result.get("depth_mae"), elapsed=at_seconds,
-                      eval_wall=time.perf_counter() - started, n_params=self.model.num_parameters(),
-                      n_bytes=self.model.num_bytes())
-
-    def _final_eval(self) -> dict:
-        cfg = self.cfg
-        if cfg.eval_views == 0 or self.dataset.held_out_split(("test", "val")) is None:
-            return {}
-        budget = cfg.eval_seconds if cfg.eval_seconds is not None else max(30.0, 0.25 * self.elapsed)
-        self.model.eval()
-        try:
-            split_name, result = evaluate_held_out(self.model, self.dataset, cfg.eval_views, seconds=budget,
-                                                   background=self.eval_bg, chunk=cfg.chunk)
-        finally:
-            self.model.train()
-        if result["n_views"] < result["n_views_total"]:
-            result["note"] = (f"evaluated {result['n_views']} of {result['n_views_total']} {split_name} views at full "
-                              f"resolution to stay within {budget:.0f} s; `python -m nerf_core eval {self.run}` "
-                              "evaluates all")
-            print(f"train: {result['note']}", file=sys.stderr)
-        metrics = Path(contract.metrics_path(self.run))
-        record_written(self.run, metrics)
-        update_metrics_file(metrics, split_name, result, self.step)
-        self.log.emit("eval", step=self.step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
-                      n_views=result["n_views"], depth_mae=result.get("depth_mae"))
-        return {k: v for k, v in result.items() if k != "per_view"} | {"split": split_name}
 
 
 def train(cfg: TrainConfig) -> dict:

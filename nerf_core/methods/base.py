@@ -153,6 +153,16 @@ class RadianceModel(nn.Module):
         """
         return False
 
+    def replica_stats(self) -> dict[str, float]:
+        """Running statistics the method keeps from its own training batches (name -> float). Under
+        ``torchrun`` each rank sees other rays, so the trainer averages these over the ranks after
+        every step (``set_replica_stats``) to keep decisions that depend on them equal on every rank.
+        Only running means belong here: their average over the ranks is the mean over all rays."""
+        return {}
+
+    def set_replica_stats(self, stats: dict[str, float]) -> None:
+        """Take the rank-averaged values of ``replica_stats``."""
+
     @classmethod
     def size_options(cls, fine_res: float, texture: float, fine_share: float) -> tuple[dict, list[str]]:
         """``--size auto`` for this method (``nerf_core.sizing.auto_size`` answers the questions,

@@ -125,6 +125,13 @@ class VMGrid(RadianceModel):
         """
         return self.pruned() or self._acc_ema > self.OPAQUE_RAYS
 
+    def replica_stats(self) -> dict[str, float]:
+        # ``_acc_ema`` gates ``formed()``, hence the marching step, the L1 prior and growth.
+        return {"acc_ema": self._acc_ema}
+
+    def set_replica_stats(self, stats: dict[str, float]) -> None:
+        self._acc_ema = float(stats["acc_ema"])
+
     def step_size(self) -> float:
         """Marching step in scene units: ``step_ratio`` voxels, coarser until the occupancy grid prunes.
 
