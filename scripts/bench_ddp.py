@@ -32,7 +32,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402,F401  (puts the checkout on sys.path)
-import bench_common as bc  # noqa: E402
+from bench import report, runner  # noqa: E402  (scripts/bench)
 
 
 def parse_args(argv):
@@ -44,7 +44,7 @@ def parse_args(argv):
     p.add_argument("--method", default="vmgrid")
     p.add_argument("--batch-rays", type=int, help="rays per step per process (default: the method's)")
     p.add_argument("--repeats", type=int, default=1, help="runs per process count; the table shows medians")
-    p.add_argument("--python", default=bc.PYTHON, help="the Python with torch (default: this one)")
+    p.add_argument("--python", default=runner.PYTHON, help="the Python with torch (default: this one)")
     return p.parse_args(argv)
 
 
@@ -98,7 +98,7 @@ def main(argv=None) -> int:
             cmd = command(args, procs, dataset, run)
             commands[procs] = " ".join(cmd)
             print(f"bench_ddp: {procs} process(es), run {k + 1}/{args.repeats}", file=sys.stderr, flush=True)
-            res = bc.run_cli(cmd, env_extra=env, log_path=run + ".log")
+            res = runner.run_cli(cmd, env_extra=env, log_path=run + ".log")
             if res.returncode != 0:
                 raise SystemExit(f"bench_ddp: {' '.join(cmd)} failed ({res.returncode}): "
                                  + "\n".join(res.stderr_tail[-10:]))
@@ -122,7 +122,7 @@ def main(argv=None) -> int:
 
     cores = os.cpu_count() or 1
     contended = any(l is not None and l[0] > cores for l in (load_before, load_after))
-    table = bc.markdown_table(
+    table = report.markdown_table(
         rows, ["procs", "batch", "rays_per_step", "steps_per_s", "rays_per_s", "speedup", "psnr", "wall"],
         ["processes (1 thread each)", "rays/step/rank", "rays/step", "steps/s", "rays/s", "rays/s vs first",
          f"test PSNR at {args.steps} steps", "wall s (with start-up)"])
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
     lines += [table, "", "Commands (`OMP_NUM_THREADS=1`):", ""] + [f"    {c}" for c in commands.values()] + [""]
     with open(os.path.join(args.out, "bench_ddp.md"), "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
-    bc.write_json(os.path.join(args.out, "bench_ddp.json"),
+    report.write_json(os.path.join(args.out, "bench_ddp.json"),
                   {"rows": rows, "runs": raw, "commands": commands, "load_before": load_before,
                    "load_after": load_after, "contended": contended})
     print("\n".join(lines))
