@@ -139,7 +139,7 @@ def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run
     left alone. Returns a note when the images could not be stored as asked, else ''."""
     if layout == "GALLERY":
         planes.import_gallery(views, out_dir, background=runs.run_background(run), scene=scene)
-        made = list(bpy.data.collections[planes.GALLERY_COLLECTION].all_objects)
+        made = [o for o in bpy.data.collections[planes.GALLERY_COLLECTION].all_objects if o.get(planes.TAG)]
     else:
         made = planes.import_camera_aligned(views, distance or auto_distances(views, run), scene=scene)
     settings = getattr(scene, "nerf_train", None)

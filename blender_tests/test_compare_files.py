@@ -209,3 +209,41 @@ def test_absolute_paths_and_unknown_modes(tmp_path):
     assert all(os.path.isabs(img.filepath) for img in images)
     with pytest.raises(ValueError, match="choose one of pack, relative, absolute"):
         image_storage.store(images, "zip")
+
+
+def test_the_compare_panel_leaves_the_users_camera_and_images_alone(tmp_path):
+    from addon import compare, train_props
+
+    train_props.register()
+    try:
+        scene = bpy.context.scene
+        mine = bpy.data.objects.new("My Camera", bpy.data.cameras.new("My Camera"))
+        scene.collection.objects.link(mine)
+        scene.camera = mine
+        scene.render.resolution_x, scene.render.resolution_y = 1920, 1080
+        render, cams = fake_render(tmp_path)
+        # a user's own textured plane inside the gallery collection keeps its image on disk
+        shutil.copy(os.path.join(render, "r_1.png"), tmp_path / "mine.png")
+        user_img = bpy.data.images.load(str(tmp_path / "mine.png"), check_existing=False)
+        mat = bpy.data.materials.new("user")
+        mat.node_tree.nodes.new("ShaderNodeTexImage").image = user_img
+        bpy.ops.mesh.primitive_plane_add()
+        user_plane = bpy.context.object
+        user_plane.data.materials.append(mat)
+        gallery = planes.ensure_collection(planes.GALLERY_COLLECTION, scene)
+        for coll in list(user_plane.users_collection):
+            coll.objects.unlink(user_plane)
+        gallery.objects.link(user_plane)
+        views = planes.views_from_render(render, cams)
+        assert scene.nerf_train.image_storage == "PACK"
+        assert compare.import_views(scene, views, "GALLERY", render, str(tmp_path / "run")) == ""
+        assert compare.import_views(scene, views, "CAMERA", render, str(tmp_path / "run"), 2.0) == ""
+        assert scene.camera == mine and (scene.render.resolution_x, scene.render.resolution_y) == (1920, 1080)
+        assert user_img.packed_file is None
+        shown = [o for o in gallery.objects if o.get(planes.TAG) and o.type == "MESH"]
+        assert len(shown) == 6 and all(i.packed_file is not None for i in image_storage.plane_images(shown))
+        scene.nerf_train.image_storage = "RELATIVE"  # an unsaved .blend: the note says why paths stay absolute
+        note = compare.import_views(scene, views, "CAMERA", render, str(tmp_path / "run"), 2.0)
+        assert "not saved yet" in note
+    finally:
+        train_props.unregister()

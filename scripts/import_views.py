@@ -196,7 +196,7 @@ def main(argv) -> int:
         scene = bpy.context.scene
         if args.layout == "gallery":
             planes.import_gallery(views, scene=scene, set_scene_camera=True)
-            made = bpy.data.collections[planes.GALLERY_COLLECTION].all_objects
+            made = [o for o in bpy.data.collections[planes.GALLERY_COLLECTION].all_objects if o.get(planes.TAG)]
         else:
             distance = args.distance or compare.auto_distances(views, run)
             made = planes.import_camera_aligned(views, distance, scene=scene, set_scene_camera=True)
