@@ -13,7 +13,9 @@ import os
 from dataclasses import dataclass
 from typing import List, Tuple
 
-from . import export, planes, runs, trainer_process
+import bpy
+
+from . import export, image_storage, planes, runs, trainer_process
 from .core_contract import contract
 from .trainer_process import SetupError
 
@@ -130,14 +132,19 @@ def rendered_count(out_dir: str) -> int:
         return 0
 
 
-def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run: str, distance: float = 0.0):
-    """Import ``views`` with ``layout`` ('CAMERA' or 'GALLERY') and list their metrics on the scene."""
+def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run: str, distance: float = 0.0) -> str:
+    """Import ``views`` with ``layout`` ('CAMERA' or 'GALLERY'), keep their images as the Compare
+    panel's ``image_storage`` says (``image_storage``: pack by default) and list their metrics on the
+    scene. The gallery goes beside the scene's objects; the user's active camera and resolution are
+    left alone. Returns a note when the images could not be stored as asked, else ''."""
     if layout == "GALLERY":
-        planes.import_gallery(views, out_dir, origin=tuple(scene.cursor.location),
-                              background=runs.run_background(run), scene=scene)
+        planes.import_gallery(views, out_dir, background=runs.run_background(run), scene=scene)
+        made = [o for o in bpy.data.collections[planes.GALLERY_COLLECTION].all_objects if o.get(planes.TAG)]
     else:
-        planes.import_camera_aligned(views, distance or auto_distances(views, run), scene=scene)
+        made = planes.import_camera_aligned(views, distance or auto_distances(views, run), scene=scene)
     settings = getattr(scene, "nerf_train", None)
+    mode = settings.image_storage.lower() if settings is not None else image_storage.DEFAULT
+    note = image_storage.store(image_storage.plane_images(made), mode)
     if settings is not None:
         settings.view_metrics.clear()
         for view in views:
@@ -146,6 +153,7 @@ def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run
             item.psnr = view.metrics.get("psnr", 0.0)
             item.ssim = view.metrics.get("ssim", 0.0)
             item.has_metrics = bool(view.metrics)
+    return note
 
 
 def auto_distances(views: List[planes.View], run: str) -> List[float]:

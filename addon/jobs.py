@@ -186,13 +186,13 @@ class RenderJob(ProcessJob):
             return self.fail(f"Rendering stopped: {failure}")
         try:
             self.views = planes.views_from_render(self.out, self.cameras)
-            compare.import_views(self.scene, self.views, self.layout, self.out, self.run, self.distance)
+            note = compare.import_views(self.scene, self.views, self.layout, self.out, self.run, self.distance)
         except (ValueError, RuntimeError) as exc:
             return self.fail(str(exc))
         except OSError as exc:
             return self.fail(trainer_process.describe_os_error(exc, self.out))
         self.state = "done"
-        self.message = f"Imported {len(self.views)} view(s) from {self.out}"
+        self.message = f"Imported {len(self.views)} view(s) from {self.out}" + (f"; {note}" if note else "")
         return self.state
 
 

@@ -11,9 +11,15 @@ Two layouts:
 
 Intrinsics and the names of render outputs follow ``nerf_core.contract`` (``core_contract``).
 
+Camera-aligned planes come with their cameras (``view_cameras``: one Blender camera per view, the
+exact inverse of the capture's intrinsics rule, in the child collection ``NeRF View Cameras``); each
+plane is parented to its camera and names it in the custom property ``nerf_camera``. The gallery is
+placed beside the scene's visible objects and framed by an orthographic camera (``gallery_frame``).
+
 Everything created is tagged ``nerf_bridge`` and lives in its own collection; importing again first
-removes what the previous import created there (objects, meshes, materials, images, text curves),
-so re-importing replaces instead of piling up. Objects the user put in the collection are left alone.
+removes what the previous import created there (objects, meshes, cameras, materials, images, text
+curves), so re-importing replaces instead of piling up. Objects the user put in the collection are
+left alone.
 """
 from __future__ import annotations
 
@@ -27,10 +33,13 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from . import gallery_frame, view_cameras
 from .core_contract import contract
 
 VIEWS_COLLECTION = "NeRF Views"
+VIEW_CAMERAS_COLLECTION = "NeRF View Cameras"  # a child of VIEWS_COLLECTION: hiding the views hides both
 GALLERY_COLLECTION = "NeRF Gallery"
+GALLERY_CAMERA = "NeRF Gallery Camera"
 TAG = "nerf_bridge"
 
 
@@ -123,22 +132,25 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
 
 
 # -- collections and cleanup -----------------------------------------------------------------------
-def ensure_collection(name: str, scene=None) -> bpy.types.Collection:
+def ensure_collection(name: str, scene=None, parent=None) -> bpy.types.Collection:
+    """Collection ``name``, linked under ``parent`` (a collection; default the scene's master collection)."""
     scene = scene or bpy.context.scene
+    parent = parent if parent is not None else scene.collection
     coll = bpy.data.collections.get(name)
     if coll is None:
         coll = bpy.data.collections.new(name)
-    if coll.name not in scene.collection.children:
-        scene.collection.children.link(coll)
+    if coll.name not in parent.children:
+        parent.children.link(coll)
     return coll
 
 
 def clear_collection(name: str) -> int:
-    """Remove what earlier imports created in collection ``name``; returns the objects removed."""
+    """Remove what earlier imports created in collection ``name`` and its child collections; returns
+    the objects removed."""
     coll = bpy.data.collections.get(name)
     if coll is None:
         return 0
-    objects = [ob for ob in coll.objects if ob.get(TAG)]
+    objects = [ob for ob in coll.all_objects if ob.get(TAG)]
     datas, materials, images = set(), set(), set()
     for ob in objects:
         if ob.data is not None:
@@ -155,7 +167,12 @@ def clear_collection(name: str) -> int:
         bpy.data.objects.remove(ob, do_unlink=True)
     for data in datas:
         if data.users == 0:
-            (bpy.data.meshes if isinstance(data, bpy.types.Mesh) else bpy.data.curves).remove(data)
+            if isinstance(data, bpy.types.Mesh):
+                bpy.data.meshes.remove(data)
+            elif isinstance(data, bpy.types.Camera):
+                bpy.data.cameras.remove(data)
+            else:
+                bpy.data.curves.remove(data)
     for mat in materials:
         if mat.users == 0:
             bpy.data.materials.remove(mat)
@@ -233,22 +250,46 @@ def _resize_plane(ob: bpy.types.Object, width: float, height: float) -> None:
 
 
 def import_camera_aligned(views: Sequence[View], distance, collection_name: str = VIEWS_COLLECTION,
-                          scene=None) -> List[bpy.types.Object]:
+                          scene=None, set_scene_camera: bool = False) -> List[bpy.types.Object]:
     """Replace the planes in ``collection_name`` with one plane per view inside its camera's frustum,
-    ``distance`` in front of it (one number for all views, or one per view)."""
+    ``distance`` in front of it (one number for all views, or one per view), and one camera per view
+    (``NeRF Cam <view>`` in ``VIEW_CAMERAS_COLLECTION``) that the plane is parented to.
+
+    ``set_scene_camera``: make the first view's camera the scene's camera and the scene's resolution
+    and pixel aspect the views' (what a compare file wants; the add-on leaves the user's scene alone).
+    Returns the planes; ``ob.parent`` is each one's camera.
+    """
     distances = list(distance) if isinstance(distance, (list, tuple)) else [distance] * len(views)
     if len(distances) != len(views) or any(d <= 0 for d in distances):
         raise ValueError(f"plane distances must be positive, one per view; got {distance}")
+    scene = scene or bpy.context.scene
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
+    cam_coll = ensure_collection(VIEW_CAMERAS_COLLECTION, scene, parent=coll)
     made = []
     for view, dist in zip(views, distances):
+        try:
+            cam = view_cameras.make_view_camera(f"NeRF Cam {view.name}", view.c2w, view.intrinsics, cam_coll,
+                                                clip=(min(0.01, dist / 10), max(1000.0, dist * 10)))
+        except ValueError as exc:
+            raise ValueError(f"view {view.name}: {exc}") from None
+        cam["nerf_view"] = view.name
+        _tag(cam, cam.data)
         ob = import_image_plane(view.image, coll, f"NeRF {view.name}")
         matrix, width, height = frustum_plane(view.c2w, view.intrinsics, dist)
         _resize_plane(ob, width, height)
-        ob.matrix_world = matrix
+        # Parented with an identity inverse: the plane's own transform is its place in camera space,
+        # so moving the camera carries the plane along and it stays over the frame.
+        ob.parent = cam
+        ob.matrix_parent_inverse = Matrix.Identity(4)
+        ob.matrix_basis = cam.matrix_world.inverted() @ matrix
         ob["nerf_view"] = view.name
+        ob["nerf_camera"] = cam.name
         made.append(ob)
+    if set_scene_camera and made:
+        scene.camera = made[0].parent
+        view_cameras.use_view_resolution(scene, views[0].intrinsics)
+    bpy.context.view_layer.update()  # children's matrix_world follow their new parents
     return made
 
 
@@ -270,10 +311,28 @@ def load_image_array(path: str) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
-def _text(collection, name: str, body: str, location, size: float) -> bpy.types.Object:
+def _text_material() -> bpy.types.Material:
+    """Near-white, unlit-looking text: Workbench draws ``diffuse_color``, Cycles/EEVEE an emission."""
+    mat = bpy.data.materials.new("NeRF Gallery Text")
+    mat.diffuse_color = (0.95, 0.95, 0.95, 1.0)
+    if mat.node_tree is None:  # Blender 4.x; 5.x materials always have nodes (use_nodes is deprecated)
+        mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.clear()
+    emit = nodes.new("ShaderNodeEmission")
+    emit.inputs["Color"].default_value = (0.95, 0.95, 0.95, 1.0)
+    out = nodes.new("ShaderNodeOutputMaterial")
+    mat.node_tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
+    _tag(mat)
+    return mat
+
+
+def _text(collection, name: str, body: str, location, size: float, material=None) -> bpy.types.Object:
     curve = bpy.data.curves.new(name, "FONT")
     curve.body = body
     curve.size = size
+    if material is not None:
+        curve.materials.append(material)
     ob = bpy.data.objects.new(name, curve)
     ob.location = location
     ob.rotation_euler = (math.pi / 2, 0.0, 0.0)
@@ -282,28 +341,56 @@ def _text(collection, name: str, body: str, location, size: float) -> bpy.types.
     return ob
 
 
-def import_gallery(views: Sequence[View], out_dir: str = "", origin=(0.0, 0.0, 0.0), row_height: float = 1.0,
-                   background=None, collection_name: str = GALLERY_COLLECTION, scene=None) -> List[View]:
+def import_gallery(views: Sequence[View], out_dir: str = "", origin=None, row_height: float = 1.0,
+                   background=None, collection_name: str = GALLERY_COLLECTION, scene=None,
+                   set_scene_camera: bool = False) -> List[View]:
     """Replace the gallery: one row per view (NeRF | Blender | error), upright in the XZ plane facing
     -Y (the front view), rows going down from ``origin``; returns the views.
+
+    ``origin`` None: beside the scene's other visible objects, clear of their bounding box
+    (``gallery_frame.place_beside``). The orthographic camera ``GALLERY_CAMERA`` (in the gallery's
+    collection) frames every tile and text at the scene's aspect; ``set_scene_camera`` also sets the
+    scene's resolution to the gallery's aspect (a tile at its rendered pixel size) and makes that
+    camera the scene's camera (what a compare file wants; the add-on leaves the user's scene alone).
 
     Metrics and heat-maps are the ones ``nerf_core render`` wrote (``views_from_render``), computed
     on the run's evaluation background; ``out_dir`` and ``background`` are accepted for older callers
     and not used (nothing is computed or written here).
     """
+    scene = scene or bpy.context.scene
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
+    _build_gallery(views, coll, Vector(origin or (0.0, 0.0, 0.0)), row_height)
+    built = [ob for ob in coll.objects if ob.get(TAG)]
+    if origin is None:
+        gallery_frame.place_beside(built, gallery_frame.other_objects_box(scene, coll), gap=0.5 * row_height)
+    cam = bpy.data.objects.new(GALLERY_CAMERA, bpy.data.cameras.new(GALLERY_CAMERA))
+    coll.objects.link(cam)
+    _tag(cam, cam.data)
+    box = gallery_frame.bounds(built)
+    if box is not None:
+        if set_scene_camera and views:
+            gallery_frame.fit_resolution(scene, box, pixels_per_unit=views[0].intrinsics["h"] / row_height)
+        gallery_frame.frame_ortho(scene, cam, box)
+    if set_scene_camera:
+        scene.camera = cam
+    return list(views)
+
+
+def _build_gallery(views: Sequence[View], coll, origin: Vector, row_height: float) -> None:
+    """The gallery's tiles and texts in ``coll``, rows going down from ``origin``."""
     gap = 0.1 * row_height
     label = 0.12 * row_height
     upright = Matrix.Rotation(math.pi / 2, 4, "X")
-    origin = Vector(origin)
+    text_mat = _text_material() if views else None
     if views:
         aspect = views[0].intrinsics["w"] / views[0].intrinsics["h"]
         col_w = aspect * row_height
         vmax = next((v.error_vmax for v in views if v.error_vmax), None)
         headers = ("NeRF", "Blender", f"|error| (bright = {vmax:g}+)" if vmax else "|error|")
         for col, title in enumerate(headers):
-            _text(coll, f"Gallery {title.split()[0]}", title, origin + Vector((col * (col_w + gap), 0, gap)), label)
+            _text(coll, f"Gallery {title.split()[0]}", title, origin + Vector((col * (col_w + gap), 0, gap)), label,
+                  text_mat)
     for row, view in enumerate(views):
         z = -row * (row_height + 2 * label + 2 * gap)
         aspect = view.intrinsics["w"] / view.intrinsics["h"]
@@ -323,5 +410,5 @@ def import_gallery(views: Sequence[View], out_dir: str = "", origin=(0.0, 0.0, 0
             body = f"{view.name}   (no metrics in renders.json)"
         else:
             body = f"{view.name}   (no ground truth image)"
-        _text(coll, f"Label {view.name}", body, origin + Vector((0.0, 0.0, z - row_height - label - gap / 2)), label)
-    return list(views)
+        _text(coll, f"Label {view.name}", body, origin + Vector((0.0, 0.0, z - row_height - label - gap / 2)), label,
+              text_mat)

@@ -57,8 +57,14 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
     ], default="TEST")
     layout: EnumProperty(name="Layout", items=[
         ("CAMERA", "Camera-Aligned", "Each image on a plane in its camera's frustum: look through the camera to overlay"),
-        ("GALLERY", "Gallery", "Rows of NeRF | Blender | error heat-map with PSNR/SSIM labels, at the 3D cursor"),
+        ("GALLERY", "Gallery", "Rows of NeRF | Blender | error heat-map with PSNR/SSIM labels, beside the scene's "
+                               "objects; look through 'NeRF Gallery Camera' to see all of it"),
     ], default="GALLERY")
+    image_storage: EnumProperty(name="Images", items=[  # default and why: addon/image_storage.py
+        ("PACK", "Pack", "Store the images inside the .blend: they still show when the run folder moves"),
+        ("RELATIVE", "Relative", "Paths relative to the .blend (save it first; an unsaved file keeps absolute paths)"),
+        ("ABSOLUTE", "Absolute", "Absolute paths into the run folder"),
+    ], default="PACK")
     plane_distance: FloatProperty(name="Plane Distance", default=0.0, min=0.0, unit="LENGTH",
                                   description="Distance of camera-aligned planes from their camera (0: at the scene centre)")
     view_metrics: CollectionProperty(type=NerfViewMetric)

@@ -359,6 +359,7 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
         layout.prop(s, "layout")
         if s.layout == "CAMERA":
             layout.prop(s, "plane_distance")
+        layout.prop(s, "image_storage")
         row = layout.row(align=True)
         row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")

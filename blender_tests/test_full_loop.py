@@ -14,6 +14,7 @@ import time
 import bpy
 import pytest
 from bpy_extras.object_utils import world_to_camera_view
+from mathutils import Vector
 
 from addon import capture, jobs, layouts, planes, runs, train_ui, trainer_process
 
@@ -150,6 +151,35 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     names = {o.name for o in gallery.objects}
     assert {"Gallery NeRF r_0", "Gallery Blender r_0", "Gallery Error r_0", "Label r_1"} <= names
     assert f"PSNR {summary['views'][0]['psnr']:.2f} dB" in bpy.data.objects["Label r_0"].data.body
+    # The file opens looking at the whole gallery, its images inside it (--images pack, the default).
+    assert summary["images"] == "pack" and bpy.context.scene.camera.name == planes.GALLERY_CAMERA
+    tiles = [o for o in gallery.objects if o.type == "MESH"]
+    assert len(tiles) == 6 and all(i.packed_file is not None for i in bpy.data.images if i.name.startswith("r_"))
+    for ob in tiles:
+        for corner in ob.bound_box:
+            ndc = world_to_camera_view(bpy.context.scene, bpy.context.scene.camera, ob.matrix_world @ Vector(corner))
+            assert 0 < ndc.x < 1 and 0 < ndc.y < 1, ob.name
+
+    # The camera layout carries a camera per test view, from renders.json alone: the scene's own
+    # cameras are not in the file (capture.py does not save them), yet looking through the active
+    # camera shows its plane over the frame. Images as paths relative to the .blend.
+    out = os.path.join(root, "compare_camera.blend")
+    cmd = [sys.executable, os.path.join(repo_root, "scripts", "import_views.py"), "--blend", scene_blend,
+           "--run", os.path.join(root, "run"), "--out", out, "--layout", "camera", "--images", "relative"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    bpy.ops.wm.open_mainfile(filepath=out)
+    scene = bpy.context.scene
+    assert scene.camera.name == "NeRF Cam r_0" and (scene.render.resolution_x, scene.render.resolution_y) == (RES, RES)
+    for name in ("r_0", "r_1"):
+        ob, cam = bpy.data.objects[f"NeRF {name}"], bpy.data.objects[f"NeRF Cam {name}"]
+        assert ob.parent == cam and ob["nerf_camera"] == cam.name
+        img = ob.data.materials[0].node_tree.nodes["Image Texture"].image
+        assert img.filepath.startswith("//run/views/test_") and os.path.isfile(bpy.path.abspath(img.filepath))
+        uv = ob.data.uv_layers.active.data
+        for loop in ob.data.loops:
+            ndc = world_to_camera_view(scene, cam, ob.matrix_world @ ob.data.vertices[loop.vertex_index].co)
+            assert (ndc.x, ndc.y) == pytest.approx(tuple(uv[loop.index].uv), abs=1e-4)
 
 
 def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path, registered):

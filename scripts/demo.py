@@ -9,7 +9,9 @@ Steps, each one a real subprocess of the same tools users run (so the demo tests
  4. train a NeRF on the CPU for a short budget         python -m nerf_core train
  5. evaluate on held-out test views                    python -m nerf_core eval
  6. render novel views and import them as image planes
-    beside Blender's renders of the same cameras       scripts/import_views.py (gallery + camera layouts)
+    beside Blender's renders of the same cameras       scripts/import_views.py (gallery + camera layouts:
+                                                       each file opens looking through its own camera,
+                                                       the images packed inside it)
  7. write DIR/metrics.json and print where everything went.
 
 The output folder is never reused: without --out, a new timestamped folder under demo_out/ is made.
@@ -164,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     for key in ("blend", "dataset", "run", "comparison_gallery_blend", "comparison_camera_blend"):
         print(f"  {key:26s} {summary[key]}")
     print(f"  {'metrics':26s} {os.path.join(out, 'metrics.json')}")
+    print("  (open a compare .blend and press Numpad 0 to look through its camera: the whole gallery, or\n"
+          "   test view r_0 with the NeRF's image over it; the other views' cameras are in 'NeRF View Cameras')")
     print(f"  test PSNR {metrics.get('psnr', float('nan')):.2f} dB, SSIM {metrics.get('ssim', float('nan')):.3f} "
           f"over {metrics.get('n_views', '?')} views; total {summary['wall_seconds']:.0f}s")
     return 0

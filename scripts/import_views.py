@@ -8,6 +8,16 @@ Renders the run's test views (``--split``) or the cameras of ``--cameras T.json`
 (camera-aligned planes or a NeRF | Blender | error gallery with PSNR/SSIM), saves ``--out`` and prints
 a JSON summary (mean and per-view PSNR/SSIM) as the last stdout line. Never overwrites the scene
 file, and overwrites an existing ``--out`` only with ``--overwrite``.
+
+What ``--out`` holds, ready to look at:
+* ``--layout camera``: one camera per rendered view (``NeRF Cam <view>``, the view's pose and exact
+  intrinsics from renders.json, so no camera needs to be saved with the capture), the first one the
+  scene's camera, the scene's resolution the views'; each plane is parented to its camera:
+  Numpad 0 (or any camera made active) shows the NeRF's image exactly over the frame.
+* ``--layout gallery``: the gallery beside the scene's objects and ``NeRF Gallery Camera``, an
+  orthographic camera framing it (headers included), as the scene's camera at the gallery's aspect.
+* ``--images pack`` (default; why: addon/image_storage.py) stores the images inside the .blend,
+  ``relative`` as ``//`` paths relative to ``--out``, ``absolute`` as absolute paths.
 """
 from __future__ import annotations
 
@@ -34,6 +44,9 @@ def parse(argv):
                     help="dataset split to render when --cameras is not given (default test)")
     ap.add_argument("--distance", type=float, default=0.0,
                     help="camera layout: plane distance from the camera (default: the scene centre's depth)")
+    ap.add_argument("--images", choices=("pack", "relative", "absolute"), default="pack",
+                    help="how --out keeps the images: inside the .blend (pack, the default: it still shows them "
+                         "when the run folder moves), as paths relative to --out, or as absolute paths")
     ap.add_argument("--render-dir", help="where the renders go (default: a new RUN/views/<split>_NNN folder)")
     ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
                     help="interpreter with torch for nerf_core (default: $NERF_PYTHON, else this Python)")
@@ -159,7 +172,7 @@ def main(argv) -> int:
 
     import bpy
 
-    from addon import compare, planes
+    from addon import compare, image_storage, planes
 
     open_blend(args.blend)
     label = os.path.splitext(os.path.basename(cameras))[0].replace("transforms_", "")
@@ -182,17 +195,24 @@ def main(argv) -> int:
         views = planes.views_from_render(render_dir, cameras)
         scene = bpy.context.scene
         if args.layout == "gallery":
-            planes.import_gallery(views, scene=scene)
+            planes.import_gallery(views, scene=scene, set_scene_camera=True)
+            made = [o for o in bpy.data.collections[planes.GALLERY_COLLECTION].all_objects if o.get(planes.TAG)]
         else:
             distance = args.distance or compare.auto_distances(views, run)
-            planes.import_camera_aligned(views, distance, scene=scene)  # metrics came with renders.json
+            made = planes.import_camera_aligned(views, distance, scene=scene, set_scene_camera=True)
+        # Relative paths are written relative to the open file, and saving rebases them onto --out
+        # (relative_remap); an unsaved scene has no folder of its own, so they start at --out's.
+        note = image_storage.store(image_storage.plane_images(made), args.images,
+                                   "" if bpy.data.filepath else os.path.dirname(out))
+        if note:
+            print(f"import_views: warning: {note}", file=sys.stderr)
     except ValueError as exc:
         fail(str(exc))
     except OSError as exc:
         fail(trainer_process.describe_os_error(exc, render_dir))
     try:
         os.makedirs(os.path.dirname(out), exist_ok=True)
-        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
+        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True, relative_remap=True)
     except (OSError, RuntimeError) as exc:
         if isinstance(exc, OSError):
             fail(trainer_process.describe_os_error(exc, out))
@@ -201,7 +221,7 @@ def main(argv) -> int:
 
     scored = [v for v in views if v.metrics]
     summary = {
-        "out": out, "layout": args.layout, "render_dir": render_dir, "cameras": cameras, "n_views": len(views),
+        "out": out, "layout": args.layout, "images": args.images, "render_dir": render_dir, "cameras": cameras, "n_views": len(views),
         "psnr": _finite(sum(v.metrics["psnr"] for v in scored) / len(scored)) if scored else None,
         "ssim": _finite(sum(v.metrics["ssim"] for v in scored) / len(scored)) if scored else None,
         "views": [{"name": v.name, **{k: _finite(x) for k, x in v.metrics.items()}} for v in views],
