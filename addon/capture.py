@@ -86,6 +86,13 @@ def resolve_engine(name: str) -> str:
     raise CaptureError(f"unknown render engine {name!r}; choose cycles, eevee or workbench")
 
 
+def _empty_tree(path: str) -> bool:
+    """True for a folder holding nothing but (nested) empty folders."""
+    if not os.path.isdir(path) or os.path.islink(path):
+        return False
+    return all(_empty_tree(os.path.join(path, e)) for e in os.listdir(path))
+
+
 class CaptureJob:
     """One capture of ``scene`` into ``settings.out_dir``: ``prepare()``, ``step()`` until False, ``finish()``.
 
@@ -230,7 +237,9 @@ class CaptureJob:
             raise CaptureError(f"output {out} exists and is not a folder")
         if not os.path.isdir(out):
             return None, None
-        entries = sorted(e for e in os.listdir(out) if e != export.MANIFEST_DIR)
+        # Empty folders hold nothing to overwrite; a concurrent shard makes its frame folders a moment
+        # before its state file, and must not look like foreign content to the others.
+        entries = sorted(e for e in os.listdir(out) if e != export.MANIFEST_DIR and not _empty_tree(os.path.join(out, e)))
         try:
             manifest = export.read_manifest(out)
             states = capture_shards.read_states(out, export.MANIFEST_DIR)
