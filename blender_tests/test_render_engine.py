@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import addon
-from addon import capture, demo_scenes, image_metrics, layouts, render_client, render_engine
+from addon import capture, demo_scenes, layouts, render_client, render_engine
+from nerf_core import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
 
 RES = 48
 TRAIN_STEPS = 150
@@ -142,13 +143,13 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
     # 2. Cycles, same camera (shift, 5:4 pixels, 75 %): the NeRF is a fair picture of the scene there.
     _cycles_frame(scene, scene.frame_current, str(tmp_path / "cycles.png"))
     ref = _read_png(str(tmp_path / "cycles.png"))
-    score = image_metrics.psnr(image_metrics.composite(nerf), image_metrics.composite(ref))
+    score = metrics.psnr(metrics.composite(nerf), metrics.composite(ref))
     # The same camera without its lens shift: the threshold is one that a 2 px misalignment fails.
     cam.data.shift_x = 0.0
     _cycles_frame(scene, scene.frame_current, str(tmp_path / "cycles_unshifted.png"))
     cam.data.shift_x = 0.05
-    unshifted = image_metrics.psnr(image_metrics.composite(nerf),
-                                   image_metrics.composite(_read_png(str(tmp_path / "cycles_unshifted.png"))))
+    unshifted = metrics.psnr(metrics.composite(nerf),
+                       metrics.composite(_read_png(str(tmp_path / "cycles_unshifted.png"))))
     print(f"F12 vs Cycles (held-out camera, shift 0.05, pixel aspect 1:1.25): PSNR {score:.2f} dB "
           f"(vs the unshifted camera: {unshifted:.2f} dB)")
     assert score >= MIN_PSNR and unshifted < score - 1.0
@@ -283,7 +284,7 @@ def test_headless_script_renders_an_animation_that_matches_cycles(cube_run, repo
         depth = _exr_passes(str(out / f"{frame:04d}_depth.exr"))["Depth"]
         ref_depth = _cycles_frame(scene, frame, str(tmp_path / f"cycles_{frame}.png"))
         ref = _read_png(str(tmp_path / f"cycles_{frame}.png"))
-        score = image_metrics.psnr(image_metrics.composite(nerf), image_metrics.composite(ref))
+        score = metrics.psnr(metrics.composite(nerf), metrics.composite(ref))
         both = np.isfinite(depth) & (depth < 1e9) & (ref_depth < 1e9)
         assert both.mean() > 0.15, f"frame {frame}: the cube covers too little of the frame"
         depth_err = float(np.median(np.abs(depth[both] - ref_depth[both])))
