@@ -148,13 +148,9 @@ def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
     assert [len(cams[s]) for s in layouts.SPLITS] == [3, 1, 2]
 
 
-def test_animation_layout_samples_every_nth_frame():
-    _add_box()
-    cam = bpy.data.objects.new("Anim", bpy.data.cameras.new("Anim"))
+def test_animation_layout_samples_every_nth_frame(active_camera):
+    cam = active_camera("Anim", frames=(1, 40))
     scene = bpy.context.scene
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    scene.frame_start, scene.frame_end = 1, 40
     for f, x in ((1, -5.0), (40, 5.0)):
         cam.location = (x, -6.0, 1.0)
         cam.keyframe_insert("location", frame=f)
