@@ -186,7 +186,7 @@ class CaptureJob:
         self.render_sig = self._render_signature()
         self.world = world_description(self.scene.world)
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
-        render = _RenderView(self.scene.render, self.s.res_x, self.s.res_y)
+        render = RenderView(self.scene.render, self.s.res_x, self.s.res_y)
         frames = []
         for split in layouts.SPLITS:
             for k, obj in enumerate(cams[split]):
@@ -490,7 +490,7 @@ class CaptureJob:
         capture_shards.write_state(capture_shards.state_path(self.out, export.MANIFEST_DIR, k, n), state)
 
 
-class _RenderView:
+class RenderView:
     """The scene's render settings seen at the capture's resolution (for intrinsics before rendering)."""
 
     def __init__(self, render, res_x, res_y):

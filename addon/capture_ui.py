@@ -13,7 +13,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
                        StringProperty)
 
 from . import capture, demo_scenes, export, jobs, layouts, scene_bounds
-from .ui_common import NerfPanel
+from .ui_common import NerfPanel, property_split, report_and_cancel
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 
@@ -126,8 +126,7 @@ class NERF_OT_generate_cameras(bpy.types.Operator):
         try:
             made = layouts.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_and_cancel(self, exc)
         counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in layouts.SPLITS}
         self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
         return {"FINISHED"}
@@ -182,8 +181,7 @@ class NERF_OT_capture(bpy.types.Operator):
             job = self._make_job(context)
             _manifest, conflict = job.inspect_folder()
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_and_cancel(self, exc)
         if conflict and not self.overwrite:
             self.overwrite = True  # applies only if the user confirms the dialog
             return context.window_manager.invoke_confirm(
@@ -195,8 +193,7 @@ class NERF_OT_capture(bpy.types.Operator):
             job = self._make_job(context)
             job.prepare()
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_and_cancel(self, exc)
         if context.window is None or bpy.app.background:
             # Scripts and tests (no event loop to deliver timer events): render everything now.
             try:
@@ -204,8 +201,7 @@ class NERF_OT_capture(bpy.types.Operator):
                     pass
             except _ERRORS as exc:
                 job.cancel()
-                self.report({"ERROR"}, str(exc))
-                return {"CANCELLED"}
+                return report_and_cancel(self, exc)
             summary = job.finish()
             self.report({"INFO"}, f"captured {summary['frames']} frames into {summary['out']}")
             return {"FINISHED"}
@@ -284,8 +280,7 @@ class NERF_OT_add_demo_scene(bpy.types.Operator):
         try:
             demo_scenes.build(self.name, scene)
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_and_cancel(self, exc)
         return {"FINISHED"}
 
 
@@ -294,10 +289,8 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
     bl_idname = "NERF_PT_capture"
 
     def draw(self, context):
-        layout = self.layout
+        layout = property_split(self.layout)
         s = context.scene.nerf_capture
-        layout.use_property_split = True
-        layout.use_property_decorate = False
         if s.is_running:
             if hasattr(layout, "progress"):
                 layout.progress(factor=s.progress, type="BAR", text=s.status)

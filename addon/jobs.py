@@ -112,6 +112,29 @@ class ProcessJob(Job):
         self.process.kill_if_overdue()
         return self.state
 
+    def update(self) -> str:
+        """Finish a requested stop, else poll the child; once it has exited, ``child_exited``."""
+        if self.state != "running":
+            return self.state
+        stopping = self._check_cancel()
+        if stopping is not None:
+            return stopping
+        self.process.poll()
+        if not self.process.finished():
+            return self.state
+        return self.child_exited()
+
+    def child_exited(self) -> str:
+        """The child has exited: fail with its error (``Training stopped: ...``), else ``succeeded()``."""
+        failure = self.process.failure_message()
+        if failure:
+            return self.fail(f"{self.kind.capitalize()} stopped: {failure}")
+        return self.succeeded()
+
+    def succeeded(self) -> str:
+        """The child exited cleanly: finish the job's own work, set ``done`` and say what was done."""
+        raise NotImplementedError
+
 
 class TrainJob(ProcessJob):
     """``nerf_core check`` on the dataset, then ``nerf_core train``, both in the background."""
@@ -129,29 +152,20 @@ class TrainJob(ProcessJob):
             self.stage = "train"
             self.process = trainer_process.BackgroundProcess(command).start()
 
-    def update(self) -> str:
-        if self.state != "running":
-            return self.state
-        stopping = self._check_cancel()
-        if stopping is not None:
-            return stopping
-        self.process.poll()
-        if self.stage == "check":
-            if not self.process.finished():
-                return self.state
-            if self.process.returncode != 0:
-                lines = [ln for ln in self.process.tail if ln.strip()]
-                detail = "\n".join(lines[-5:]) or f"exit code {self.process.returncode}"
-                return self.fail(f"Dataset {self.dataset} is not usable:\n{detail}")
-            self.stage = "train"
-            self.process = trainer_process.BackgroundProcess(self.command).start()
-            return self.state
-        if self.process.finished():
-            failure = self.process.failure_message()
-            if failure:
-                return self.fail(f"Training stopped: {failure}")
-            self.state = "done"
-            self.message = f"Training finished: {self.run}"
+    def child_exited(self) -> str:
+        if self.stage != "check":
+            return super().child_exited()
+        if self.process.returncode != 0:
+            lines = [ln for ln in self.process.tail if ln.strip()]
+            detail = "\n".join(lines[-5:]) or f"exit code {self.process.returncode}"
+            return self.fail(f"Dataset {self.dataset} is not usable:\n{detail}")
+        self.stage = "train"
+        self.process = trainer_process.BackgroundProcess(self.command).start()
+        return self.state
+
+    def succeeded(self) -> str:
+        self.state = "done"
+        self.message = f"Training finished: {self.run}"
         return self.state
 
 
@@ -172,18 +186,7 @@ class RenderJob(ProcessJob):
     def rendered(self) -> int:
         return compare.rendered_count(self.out)
 
-    def update(self) -> str:
-        if self.state != "running":
-            return self.state
-        stopping = self._check_cancel()
-        if stopping is not None:
-            return stopping
-        self.process.poll()
-        if not self.process.finished():
-            return self.state
-        failure = self.process.failure_message()
-        if failure:
-            return self.fail(f"Rendering stopped: {failure}")
+    def succeeded(self) -> str:
         try:
             self.views = planes.views_from_render(self.out, self.cameras)
             note = compare.import_views(self.scene, self.views, self.layout, self.out, self.run, self.distance)

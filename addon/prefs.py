@@ -9,6 +9,7 @@ import bpy
 from bpy.props import StringProperty
 
 from . import trainer_process
+from .ui_common import report_and_cancel
 
 
 def get_preferences(context=None):
@@ -35,8 +36,7 @@ class NERF_OT_check_python(bpy.types.Operator):
         try:
             python = trainer_process.resolve_interpreter(python_preference(context))
         except trainer_process.SetupError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_and_cancel(self, exc)
         result = trainer_process.probe_interpreter(python)
         self.report({"INFO"}, f"{python}: {result.message}")
         return {"FINISHED"}

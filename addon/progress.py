@@ -26,15 +26,24 @@ def _number(value: Any) -> Optional[float]:
     return float(value)
 
 
+_COUNTS = ("step", "max_steps", "n_params")  # fields that are whole numbers (JSON may write 12.0)
+
+
+def _field_number(ev: Dict[str, Any], name: str) -> Optional[Union[int, float]]:
+    """``ev[name]`` as a number (an int for ``_COUNTS``), None when missing or not a number."""
+    value = _number(ev.get(name))
+    return int(value) if value is not None and name in _COUNTS else value
+
+
 class ProgressParser:
     """State of one training run, built from its progress stream.
 
     Attributes (None until an event says otherwise):
-        method, device, max_steps, max_seconds, n_params: from the ``start`` event.
+        method, device, run (str), max_steps, n_params (int), max_seconds: from the ``start`` event.
         background, background_reason: what stands behind the scene (``environment``: a learned
             world for opaque captures; ``random``: cut-outs on a transparent film) and why.
         notes: messages of ``note`` events (e.g. how the learned world was fitted).
-        step, loss, psnr, lr, elapsed, eta, samples_per_s: from the latest ``step`` event.
+        step (int), loss, psnr, lr, elapsed, eta, samples_per_s (float): from the latest ``step`` event.
         frac: the training-budget fraction in [0, 1] the latest ``step`` event reported (trainers
             before the ``frac`` field: None, and ``fraction()`` computes it from the budgets).
         preview_path: absolute path of the latest preview PNG.
@@ -44,42 +53,30 @@ class ProgressParser:
         done: True after the ``done`` event; ``metrics`` then holds its metrics dict.
         error: the message of an ``error`` event.
         unknown_events: count of JSON objects whose ``event`` this parser does not know.
+        last_event: the latest event object.
         log_tail: the last ``LOG_TAIL_LINES`` raw lines (JSON or not), for crash reports.
     """
 
     KNOWN = contract.EVENTS
+    # The attributes that hold the latest value an event gave (what each holds: the docstring above);
+    # each is None until an event sets it.
+    LATEST = ("method", "device", "run", "max_steps", "max_seconds", "n_params", "background",
+              "background_reason", "step", "loss", "psnr", "lr", "elapsed", "eta", "samples_per_s", "frac",
+              "preview_path", "checkpoint_path", "error", "last_event")
 
     def __init__(self, tail_lines: int = LOG_TAIL_LINES):
         self._decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
         self._pending = ""
         self.log_tail: Deque[str] = deque(maxlen=tail_lines)
         self.n_lines = 0
-        self.method: Optional[str] = None
-        self.device: Optional[str] = None
-        self.run: Optional[str] = None
-        self.max_steps: Optional[int] = None
-        self.max_seconds: Optional[float] = None
-        self.n_params: Optional[int] = None
-        self.background: Optional[str] = None
-        self.background_reason: Optional[str] = None
+        for name in self.LATEST:
+            setattr(self, name, None)
         self.notes: List[str] = []
-        self.step: Optional[int] = None
-        self.loss: Optional[float] = None
-        self.psnr: Optional[float] = None
-        self.lr: Optional[float] = None
-        self.elapsed: Optional[float] = None
-        self.eta: Optional[float] = None
-        self.samples_per_s: Optional[float] = None
-        self.frac: Optional[float] = None
-        self.preview_path: Optional[str] = None
-        self.checkpoint_path: Optional[str] = None
         self.rollbacks: List[Dict[str, Any]] = []
         self.evals: List[Dict[str, Any]] = []
         self.done = False
         self.metrics: Dict[str, Any] = {}
-        self.error: Optional[str] = None
         self.unknown_events = 0
-        self.last_event: Optional[Dict[str, Any]] = None
 
     # -- feeding -----------------------------------------------------------------------------
     def feed(self, chunk: Union[bytes, bytearray, str]) -> List[Dict[str, Any]]:
@@ -122,28 +119,15 @@ class ProgressParser:
         """Update the state from one event object (also used for JSON events that arrive on stderr)."""
         kind = ev["event"]
         if kind == "start":
-            self.method = ev.get("method") if isinstance(ev.get("method"), str) else self.method
-            self.device = ev.get("device") if isinstance(ev.get("device"), str) else self.device
-            self.run = ev.get("run") if isinstance(ev.get("run"), str) else self.run
-            max_steps = _number(ev.get("max_steps"))
-            self.max_steps = int(max_steps) if max_steps is not None else None
-            self.max_seconds = _number(ev.get("max_seconds"))
-            n_params = _number(ev.get("n_params"))
-            self.n_params = int(n_params) if n_params is not None else None
-            for name in ("background", "background_reason"):
-                if isinstance(ev.get(name), str):
-                    setattr(self, name, ev[name])
+            self._take_strings(ev, ("method", "device", "run", "background", "background_reason"))
+            # The budgets are the run's: a start event without them means none (not "as before").
+            for name in ("max_steps", "max_seconds", "n_params"):
+                setattr(self, name, _field_number(ev, name))
         elif kind == "note":
             if isinstance(ev.get("message"), str):
                 self.notes.append(ev["message"])
         elif kind == "step":
-            step = _number(ev.get("step"))
-            if step is not None:
-                self.step = int(step)
-            for name in ("loss", "psnr", "lr", "elapsed", "samples_per_s"):
-                value = _number(ev.get(name))
-                if value is not None:
-                    setattr(self, name, value)
+            self._take_numbers(ev, ("step", "loss", "psnr", "lr", "elapsed", "samples_per_s"))
             # eta may legitimately be null ("unknown"), which must clear a stale estimate.
             self.eta = _number(ev.get("eta"))
             frac = _number(ev.get("frac"))
@@ -156,22 +140,12 @@ class ProgressParser:
                 self.checkpoint_path = ev["path"]
         elif kind == "rollback":
             self.rollbacks.append(ev)
-            step = _number(ev.get("step"))
-            if step is not None:
-                self.step = int(step)
-            lr = _number(ev.get("lr"))
-            if lr is not None:
-                self.lr = lr
+            self._take_numbers(ev, ("step", "lr"))
         elif kind == "eval":
             self.evals.append(ev)
         elif kind == "done":
             self.done = True
-            step = _number(ev.get("step"))
-            if step is not None:
-                self.step = int(step)
-            elapsed = _number(ev.get("elapsed"))
-            if elapsed is not None:
-                self.elapsed = elapsed
+            self._take_numbers(ev, ("step", "elapsed"))
             self.eta = 0.0
             if isinstance(ev.get("checkpoint"), str):
                 self.checkpoint_path = ev["checkpoint"]
@@ -182,6 +156,18 @@ class ProgressParser:
             self.error = message if isinstance(message, str) and message else "trainer reported an error"
         else:
             self.unknown_events += 1
+
+    def _take_numbers(self, ev: Dict[str, Any], names) -> None:
+        """Each field of ``names`` that ``ev`` carries as a number; a missing one keeps the last value."""
+        for name in names:
+            value = _field_number(ev, name)
+            if value is not None:
+                setattr(self, name, value)
+
+    def _take_strings(self, ev: Dict[str, Any], names) -> None:
+        for name in names:
+            if isinstance(ev.get(name), str):
+                setattr(self, name, ev[name])
 
     def fraction(self) -> Optional[float]:
         """Progress in [0, 1]: the latest step event's ``frac`` (the trainer knows its budget best),

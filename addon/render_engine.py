@@ -27,6 +27,7 @@ from bpy.props import IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 
 from . import export, prefs, render_client, runs, trainer_process
+from .ui_common import draw_wrapped
 
 ENGINE_ID = "NERF_BRIDGE"
 PREVIEW_LEVELS = (8, 4, 2, 1)  # the viewport preview's downscale factors, coarse to fine
@@ -316,9 +317,7 @@ class NERF_PT_render_run(bpy.types.Panel):
         layout.prop(s, "checkpoint")
         problem = settings_problem(scene)
         if problem:
-            box = layout.box()
-            for k, line in enumerate(_wrap(problem)):
-                box.label(text=line, icon="ERROR" if k == 0 else "BLANK1")
+            draw_wrapped(layout, problem, "ERROR")
         else:
             info = runs.read_run(bpy.path.abspath(s.run_dir))
             if info is not None:
@@ -327,15 +326,7 @@ class NERF_PT_render_run(bpy.types.Panel):
         layout.prop(s, "preview_percentage")
         warning = colour_warning(scene)
         if warning:
-            box = layout.box()
-            for k, line in enumerate(_wrap(warning)):
-                box.label(text=line, icon="INFO" if k == 0 else "BLANK1")
-
-
-def _wrap(text: str, width: int = 60) -> list:
-    import textwrap
-
-    return textwrap.wrap(text, width) or [text]
+            draw_wrapped(layout, warning, "INFO")
 
 
 def _patch_standard_panels(add: bool) -> None:

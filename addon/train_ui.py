@@ -17,7 +17,7 @@ from . import compare, jobs, planes, prefs, runs, train_props, trainer_process
 from .core_contract import contract
 from .train_props import settings_of
 from .trainer_process import SetupError
-from .ui_common import NerfPanel, abs_path, draw_error, format_seconds
+from .ui_common import NerfPanel, abs_path, draw_error, format_seconds, property_split, report_and_cancel
 
 TRAIN, RENDER = "train", "render"  # this module's keys in the job registry
 _PREVIEWS = None  # bpy.utils.previews collection holding the latest training preview
@@ -85,8 +85,7 @@ def sync_train_settings(job: jobs.TrainJob) -> None:
             f"Step {s.step}" + (f" ({100 * s.fraction:.0f}%)" if s.fraction else ""))
     else:
         s.running = False
-        s.status = job.message.splitlines()[0] if job.message else job.state
-        s.error = job.message if job.state == "failed" else ""
+        _show_outcome(s, job)
 
 
 def sync_render_settings(job: jobs.RenderJob) -> None:
@@ -98,8 +97,13 @@ def sync_render_settings(job: jobs.RenderJob) -> None:
     if job.state == "running":
         s.status = f"Rendering views: {job.rendered()}/{job.n_views}"
     else:
-        s.status = job.message.splitlines()[0] if job.message else job.state
-        s.error = job.message if job.state == "failed" else ""
+        _show_outcome(s, job)
+
+
+def _show_outcome(s, job: jobs.Job) -> None:
+    # The status line gets the headline; the error box the whole message (the log tail names the cause).
+    s.status = job.message.splitlines()[0] if job.message else job.state
+    s.error = job.message if job.state == "failed" else ""
 
 
 def _refresh_after(job: jobs.Job) -> None:
@@ -126,6 +130,24 @@ def refresh_runs(settings) -> None:
         item.name, item.path, item.method = info.name, info.path, info.method
         item.settings = info.settings_summary()
         item.metrics = info.problem or info.metrics_summary()
+
+
+def highlighted_run(settings):
+    """The run list's highlighted item, or None."""
+    return settings.runs[settings.runs_index] if 0 <= settings.runs_index < len(settings.runs) else None
+
+
+def use_highlighted_run(settings) -> bool:
+    """Make the highlighted run the current one, with the dataset it was trained on when its config
+    names one; False when no run is highlighted."""
+    item = highlighted_run(settings)
+    if item is None:
+        return False
+    settings.run_dir = item.path
+    dataset = runs.run_dataset(settings.run_dir)
+    if dataset:
+        settings.dataset_dir = dataset
+    return True
 
 
 def start_render(context) -> jobs.RenderJob:
@@ -165,8 +187,7 @@ class _StartsJob:
             self.start(context)
         except SetupError as exc:
             settings_of(context).error = str(exc)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_and_cancel(self, exc)
         return {"FINISHED"}
 
 
@@ -217,8 +238,7 @@ class NERF_OT_run_new_name(bpy.types.Operator):
     def execute(self, context):
         s = settings_of(context)
         if not s.run_dir:
-            self.report({"ERROR"}, "No run folder is set")
-            return {"CANCELLED"}
+            return report_and_cancel(self, "No run folder is set")
         s.run_dir = trainer_process.suggest_run_name(abs_path(s.run_dir))
         s.error = ""
         return {"FINISHED"}
@@ -242,14 +262,7 @@ class NERF_OT_use_run(bpy.types.Operator):
     bl_label = "Use Run"
 
     def execute(self, context):
-        s = settings_of(context)
-        if not (0 <= s.runs_index < len(s.runs)):
-            return {"CANCELLED"}
-        s.run_dir = s.runs[s.runs_index].path
-        dataset = runs.run_dataset(s.run_dir)
-        if dataset:
-            s.dataset_dir = dataset
-        return {"FINISHED"}
+        return {"FINISHED"} if use_highlighted_run(settings_of(context)) else {"CANCELLED"}
 
 
 class NERF_OT_render_views(_StartsJob, bpy.types.Operator):
@@ -297,10 +310,8 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
     bl_idname = "NERF_PT_train"
 
     def draw(self, context):
-        layout = self.layout
+        layout = property_split(self.layout)
         s = settings_of(context)
-        layout.use_property_split = True
-        layout.use_property_decorate = False
         col = layout.column()
         col.prop(s, "dataset_dir")
         row = col.row(align=True)
@@ -340,8 +351,8 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
         row.label(text="Runs")
         row.operator(NERF_OT_refresh_runs.bl_idname, text="", icon="FILE_REFRESH")
         layout.template_list("NERF_UL_runs", "", s, "runs", s, "runs_index", rows=3)
-        if 0 <= s.runs_index < len(s.runs):
-            item = s.runs[s.runs_index]
+        item = highlighted_run(s)
+        if item is not None:
             layout.label(text=f"{item.method}: {item.settings}")
             layout.operator(NERF_OT_use_run.bl_idname)
 
@@ -351,10 +362,8 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
     bl_idname = "NERF_PT_compare"
 
     def draw(self, context):
-        layout = self.layout
+        layout = property_split(self.layout)
         s = settings_of(context)
-        layout.use_property_split = True
-        layout.use_property_decorate = False
         layout.prop(s, "view_source")
         layout.prop(s, "layout")
         if s.layout == "CAMERA":

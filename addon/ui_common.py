@@ -1,5 +1,6 @@
 """What the add-on's panels share: the N-panel placement (one mixin instead of a copied header per
-panel), time formatting, the error box, and the redraw/status-bar helpers the job follower uses."""
+panel) and its property-split layout, an operator's error report, time formatting, the error box,
+wrapped notes, and the redraw/status-bar helpers the job follower uses."""
 from __future__ import annotations
 
 import os
@@ -14,6 +15,20 @@ class NerfPanel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "NeRF"
+
+
+def property_split(layout):
+    """``layout`` as every NeRF panel draws its settings: labels left of the fields, no animate dots."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
+
+
+def report_and_cancel(op, error) -> set:
+    """What an operator returns when it cannot go on: ``error`` (its message says what to fix) goes
+    to Blender's report as an error, and the operator is cancelled."""
+    op.report({"ERROR"}, str(error))
+    return {"CANCELLED"}
 
 
 def format_seconds(seconds: Optional[float]) -> str:
@@ -34,6 +49,16 @@ def draw_error(layout, text: str) -> None:
     box = layout.box()
     for i, line in enumerate(lines):
         box.label(text=line[:120], icon="ERROR" if i == 0 else "BLANK1")
+
+
+def draw_wrapped(layout, text: str, icon: str, width: int = 60) -> None:
+    """``text`` in a box, wrapped at ``width`` characters (a label does not wrap), ``icon`` on its
+    first line; the others are indented to match."""
+    import textwrap
+
+    box = layout.box()
+    for k, line in enumerate(textwrap.wrap(text, width) or [text]):
+        box.label(text=line, icon=icon if k == 0 else "BLANK1")
 
 
 def abs_path(path: str) -> str:

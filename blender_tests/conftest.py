@@ -24,3 +24,19 @@ def empty_blend():
 @pytest.fixture
 def repo_root() -> str:
     return REPO_ROOT
+
+
+@pytest.fixture
+def active_camera():
+    """Factory: ``active_camera(name, frames=(start, end))`` adds a 2-unit box at the origin and a new
+    camera, links it and makes it the scene's camera over that frame range; returns the camera. The
+    layouts that read the scene's camera (``animation``) start from this."""
+    def make(name: str, frames=(1, 40)):
+        bpy.ops.mesh.primitive_cube_add(size=2.0)
+        scene = bpy.context.scene
+        cam = bpy.data.objects.new(name, bpy.data.cameras.new(name))
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        scene.frame_start, scene.frame_end = frames
+        return cam
+    return make

@@ -9,7 +9,7 @@ import pytest
 from mathutils import Matrix
 
 from addon import export, layouts
-from addon.capture import _RenderView
+from addon.capture import RenderView
 
 
 def _elevations(points, centre=(0, 0, 0)):
@@ -97,7 +97,7 @@ def test_auto_radius_frames_the_scene_bounds(res):
     corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     tightest = 1.0
     for cam in cams:
-        intr = export.camera_intrinsics(cam, _RenderView(bpy.context.scene.render, *res))
+        intr = export.camera_intrinsics(cam, RenderView(bpy.context.scene.render, *res))
         w2c = np.linalg.inv(np.asarray(cam.matrix_world))
         x, y, z = (w2c @ corners.T)[:3]
         u = intr["cx"] + intr["fl_x"] * x / -z
@@ -148,13 +148,9 @@ def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
     assert [len(cams[s]) for s in layouts.SPLITS] == [3, 1, 2]
 
 
-def test_animation_layout_samples_every_nth_frame():
-    _add_box()
-    cam = bpy.data.objects.new("Anim", bpy.data.cameras.new("Anim"))
+def test_animation_layout_samples_every_nth_frame(active_camera):
+    cam = active_camera("Anim", frames=(1, 40))
     scene = bpy.context.scene
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    scene.frame_start, scene.frame_end = 1, 40
     for f, x in ((1, -5.0), (40, 5.0)):
         cam.location = (x, -6.0, 1.0)
         cam.keyframe_insert("location", frame=f)

@@ -80,14 +80,10 @@ def test_a_ring_at_the_pole_is_refused_before_any_camera_changes():
     assert sorted(o.name for o in layouts.nerf_collection(bpy.context.scene).objects) == names  # untouched
 
 
-def test_a_still_camera_sampled_by_animation_is_refused():
-    _box()
-    cam = bpy.data.objects.new("Still", bpy.data.cameras.new("Still"))
+def test_a_still_camera_sampled_by_animation_is_refused(active_camera):
+    cam = active_camera("Still", frames=(1, 30))
     scene = bpy.context.scene
-    scene.collection.objects.link(cam)
-    scene.camera = cam
     cam.location = (0.0, -6.0, 1.0)
-    scene.frame_start, scene.frame_end = 1, 30
     with pytest.raises(layouts.LayoutError, match="same pose.*frame step"):
         layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=0, test=0), 32, 32)
 

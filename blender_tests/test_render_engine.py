@@ -20,7 +20,7 @@ import pytest
 
 import addon
 from addon import capture, demo_scenes, layouts, render_client, render_engine
-from nerf_core import metrics
+from nerf_core import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
 
 RES = 48
 TRAIN_STEPS = 150
@@ -149,7 +149,7 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
     _cycles_frame(scene, scene.frame_current, str(tmp_path / "cycles_unshifted.png"))
     cam.data.shift_x = 0.05
     unshifted = metrics.psnr(metrics.composite(nerf),
-                                   metrics.composite(_read_png(str(tmp_path / "cycles_unshifted.png"))))
+                       metrics.composite(_read_png(str(tmp_path / "cycles_unshifted.png"))))
     print(f"F12 vs Cycles (held-out camera, shift 0.05, pixel aspect 1:1.25): PSNR {score:.2f} dB "
           f"(vs the unshifted camera: {unshifted:.2f} dB)")
     assert score >= MIN_PSNR and unshifted < score - 1.0

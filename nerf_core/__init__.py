@@ -5,7 +5,8 @@ shared rules in standard library + numpy, inside Blender without torch). Modules
 
 - ``contract`` (the shared rules in code: run-folder names, budget fraction, event lines, transforms
   files, the intrinsics rule, output names; no torch);
-- ``cameras`` (rays), ``data`` (dataset loading, ``RayBatcher`` for training batches), ``dataset_checks``;
+- ``cameras`` (rays), ``data`` (dataset loading, ``RayBatcher`` for training batches), ``scene_box`` (the box of a
+  dataset without ``aabb``, an interior's margin), ``dataset_checks``;
 - ``encodings``, ``fields``, ``sampling``, ``occupancy``, ``volrend`` (volume rendering),
   ``contraction``, ``backgrounds``, ``environment``, ``grad_scaling``, ``methods`` (named models), ``sizing``;
 - ``losses`` (photometric loss, regularisers), ``metrics`` (PSNR, SSIM, depth error, error maps);

@@ -12,7 +12,7 @@ import re
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, Iterator, List, Optional
 
 import numpy as np
 
@@ -179,6 +179,24 @@ def _check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict
         report.error(fname, f"{img.name} is {w}x{h} but w x h says {int(intr['w'])}x{int(intr['h'])}", k, fpath, field_name)
 
 
+def _frame_entries(report: CheckReport, fname: str, meta: dict, seen: set) -> Iterator[tuple]:
+    """``(k, frame, file_path, intrinsics or None)`` for each frame of ``meta`` that is an object with
+    a ``file_path``, its intrinsics checked (``seen``: intrinsics already checked); the other frames
+    are reported and skipped."""
+    for k, fr in enumerate(meta["frames"]):
+        if not isinstance(fr, dict):
+            report.error(fname, "not an object", k)
+            continue
+        fp = fr.get("file_path")
+        if not isinstance(fp, str) or not fp:
+            report.error(fname, "missing", k, None, "file_path")
+            continue
+        intr = _intrinsics(report, fname, meta, fr, k, fp, need_angle=False)
+        if intr is not None:
+            _check_intrinsics_consistency(report, fname, intr, k, fp, seen)
+        yield k, fr, fp, intr
+
+
 def _check_pose(report: CheckReport, fname: str, fr: dict, k: int, fpath: str) -> Optional[np.ndarray]:
     if "transform_matrix" not in fr:
         report.error(fname, "missing", k, fpath, "transform_matrix")
@@ -261,17 +279,7 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
                          field="camera_angle_x")
         report.n_frames[split] = len(meta["frames"])
         poses[split] = []
-        for k, fr in enumerate(meta["frames"]):
-            if not isinstance(fr, dict):
-                report.error(fname, "not an object", k)
-                continue
-            fp = fr.get("file_path")
-            if not isinstance(fp, str) or not fp:
-                report.error(fname, "missing", k, None, "file_path")
-                continue
-            intr = _intrinsics(report, fname, meta, fr, k, fp, need_angle=False)
-            if intr is not None:
-                _check_intrinsics_consistency(report, fname, intr, k, fp, seen)
+        for k, fr, fp, intr in _frame_entries(report, fname, meta, seen):
             if Path(fp).suffix.lower() in IMAGE_EXTS:
                 report.error(fname, f"{fp!r} has an extension; loaders of this layout add '.png' themselves "
                                     f"(write {str(Path(fp).with_suffix(''))!r})", k, fp, "file_path")
@@ -431,18 +439,8 @@ def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[st
     _check_meta_common(report, NERFSTUDIO_FILE, meta)
     names = set()
     seen: set = set()
-    for k, fr in enumerate(meta["frames"]):
-        if not isinstance(fr, dict):
-            report.error(NERFSTUDIO_FILE, "not an object", k)
-            continue
-        fp = fr.get("file_path")
-        if not isinstance(fp, str) or not fp:
-            report.error(NERFSTUDIO_FILE, "missing", k, None, "file_path")
-            continue
+    for k, fr, fp, intr in _frame_entries(report, NERFSTUDIO_FILE, meta, seen):
         names.add(str(Path(fp)))
-        intr = _intrinsics(report, NERFSTUDIO_FILE, meta, fr, k, fp, need_angle=False)
-        if intr is not None:
-            _check_intrinsics_consistency(report, NERFSTUDIO_FILE, intr, k, fp, seen)
         if Path(fp).suffix.lower() not in IMAGE_EXTS:
             report.error(NERFSTUDIO_FILE, f"{fp!r} needs its real file name with the extension (nerfstudio does not add one)",
                          k, fp, "file_path")

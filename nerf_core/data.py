@@ -31,6 +31,7 @@ from .contract.intrinsics import resolve_intrinsics
 from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
 from .dataset_checks import check_train_count, dataset_problems, depth_scale, parse_aabb, scene_fields  # noqa: F401
 from .metrics import composite
+from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
 
 
@@ -274,102 +275,6 @@ def load_split(
             setattr(split, attr, torch.from_numpy(np.stack([_load_extra(attr, fr, h, w, downscale, depth_scale)
                                                             for fr in frames])))
     return split
-
-
-# ----------------------------------------------------------------------------------------------
-# scene box
-
-
-def estimate_aabb(cameras: Cameras, far: Optional[float] = None,
-                  seen: Optional[torch.Tensor] = None) -> tuple[torch.Tensor, str]:
-    """A scene box from the cameras alone, for datasets that give no ``aabb``.
-
-    Inward-facing captures: the box is centred on the point closest (least squares) to all optical
-    axes, with half-size 0.5 x the median camera distance to that point (the synthetic scenes fit
-    in +-1.5 with cameras at radius 4 -> +-2). Cameras that look outward or the same way (an
-    interior, a street; the least squares is ill-posed or behind them): a box holding every camera
-    and what they see, from ``seen`` (m, 3) surface points back-projected from depth maps when the
-    dataset has them (``depth_points``), else ``far`` (or twice the camera spread) ahead of each camera.
-    """
-    o = cameras.origins.double().numpy()
-    d = cameras.forward.double().numpy()
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    A = proj.sum(0)
-    b = np.einsum("nij,nj->i", proj, o)
-    if np.linalg.cond(A) < 1e3:
-        centre = np.linalg.solve(A, b)
-        in_front = np.einsum("ni,ni->n", centre[None] - o, d)
-        if np.all(in_front > 0):
-            radius = float(np.median(np.linalg.norm(o - centre, axis=1)))
-            half = 0.5 * radius
-            box = np.stack([centre - half, centre + half])
-            note = (f"no 'aabb' in the dataset: estimated a box centred at {np.round(centre, 3).tolist()} "
-                    f"(where the cameras look) of half-size {half:.3g} (0.5 x median camera distance)")
-            return torch.tensor(box, dtype=torch.float32), note
-    if seen is not None and len(seen) >= 16:
-        pts = seen.double().numpy()
-        # Robust extent of what the cameras see (a few stray depth pixels must not blow the box up).
-        lo, hi = np.percentile(pts, 0.5, axis=0), np.percentile(pts, 99.5, axis=0)
-        lo, hi = np.minimum(lo, o.min(0)), np.maximum(hi, o.max(0))
-        pad = 0.05 * (hi - lo)
-        box = np.stack([lo - pad, hi + pad])
-        note = ("no 'aabb' in the dataset and the cameras do not look at a common centre: estimated a box holding "
-                f"every camera and the {len(pts)} surface points their depth maps show")
-        return torch.tensor(box, dtype=torch.float32), note
-    spread = float(np.linalg.norm(o.max(0) - o.min(0))) or 1.0
-    depth = float(far) if far else 2.0 * spread
-    ahead = o + d * depth
-    pts = np.concatenate([o, ahead])
-    lo, hi = pts.min(0), pts.max(0)
-    pad = 0.05 * (hi - lo).max()
-    box = np.stack([lo - pad, hi + pad])
-    note = ("no 'aabb' in the dataset and the cameras do not look at a common centre: using a box spanning the "
-            f"cameras and {depth:.3g} units in front of them; add 'aabb' to the transforms file for better results")
-    return torch.tensor(box, dtype=torch.float32), note
-
-
-def depth_points(split: "Split", max_points: int = 100_000, seed: int = 0) -> Optional[torch.Tensor]:
-    """Up to ``max_points`` (m, 3) world points back-projected from a split's depth maps (planar
-    z-depth; 0 or inf = no surface), or None without depth."""
-    from .cameras import rays_for_pixels
-
-    if split.depth is None or len(split) == 0:
-        return None
-    z = split.depth.reshape(-1)
-    valid = torch.nonzero(torch.isfinite(z) & (z > 0)).squeeze(-1)
-    if valid.numel() == 0:
-        return None
-    gen = torch.Generator().manual_seed(seed)
-    pick = valid[torch.randperm(valid.numel(), generator=gen)[:max_points]]
-    hw = split.height * split.width
-    view, pix = pick // hw, pick % hw
-    rays_o, rays_d, z_per_t = rays_for_pixels(split.cameras, view, pix % split.width, pix // split.width)
-    return rays_o + rays_d * (z[pick] / z_per_t)[:, None]
-
-
-INSIDE_PAD = 0.05  # share of the box's extent added on each side when the cameras stand inside it
-
-
-def pad_box_for_interior(aabb: torch.Tensor, origins: torch.Tensor) -> tuple[torch.Tensor, Optional[str]]:
-    """Grow ``aabb`` (2, 3) by ``INSIDE_PAD`` per side when most camera ``origins`` (n, 3) are inside it.
-
-    Cameras inside the box mean an interior: the box is the room's bounds, so its walls, floor and
-    ceiling lie exactly on the box's faces, where a grid has half a cell of support and rays end. The
-    surfaces the images show most then sit where the model is weakest, and the transmittance that the
-    walls fail to stop leaks into the background. A margin puts them inside. Returns the box and a
-    note (None when unchanged).
-    """
-    if origins.numel() == 0:
-        return aabb, None
-    inside = ((origins >= aabb[0]) & (origins <= aabb[1])).all(dim=-1)
-    if float(inside.float().mean()) < 0.5:
-        return aabb, None
-    pad = INSIDE_PAD * (aabb[1] - aabb[0])
-    note = (f"{int(inside.sum())} of {len(origins)} train cameras stand inside the scene box (an interior): "
-            f"grew the box by {100 * INSIDE_PAD:.0f} % of its size on each side so that walls, floor and ceiling "
-            "on its faces lie inside it")
-    return torch.stack([aabb[0] - pad, aabb[1] + pad]), note
 
 
 # ----------------------------------------------------------------------------------------------

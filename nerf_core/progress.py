@@ -7,22 +7,12 @@ training subprocess, so every line must be a complete JSON object flushed at onc
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from pathlib import Path
 from typing import IO, Iterable, Iterator, List, Optional
 
-
-def _clean(value):
-    # json.dumps writes NaN/Infinity, which strict JSON readers (and JavaScript) reject.
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    return value
+from . import contract
 
 
 class EventLog:
@@ -42,7 +32,7 @@ class EventLog:
         self.events: List[dict] = []  # kept for callers (tests, the trainer's summary)
 
     def emit(self, event: str, **fields) -> dict:
-        record = {"event": event, "time": time.time(), **_clean(fields)}
+        record = {"event": event, "time": time.time(), **contract.json_safe(fields)}
         line = json.dumps(record, allow_nan=False)
         for f in ([self.stream] if self.stream is not None else []) + self._files:
             f.write(line + "\n")
@@ -63,17 +53,11 @@ class EventLog:
 
 
 def parse_events(lines: Iterable[str]) -> Iterator[dict]:
-    """Yield the event objects among ``lines``, skipping anything that is not a JSON event."""
+    """Yield the event objects among ``lines`` (``contract.parse_event_line``), skipping anything else."""
     for line in lines:
-        line = line.strip()
-        if not line.startswith("{"):
-            continue
-        try:
-            obj = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(obj, dict) and "event" in obj:
-            yield obj
+        event = contract.parse_event_line(line)
+        if event is not None:
+            yield event
 
 
 def read_events(path: Path | str) -> List[dict]:

@@ -6,10 +6,13 @@ Every script in ``scripts/`` runs two ways with the same flags:
     python scripts/X.py [--blend scene.blend] ARGS              (the ``bpy`` module from PyPI)
 
 ``script_args()`` returns ARGS in both cases; ``open_blend()`` loads ``--blend`` when the script runs
-as plain Python (under Blender the file on the command line is already open).
+as plain Python (under Blender the file on the command line is already open). The preamble the
+scripts share is here too: ``scene_parser`` (a parser with ``--blend``), ``add_python_option`` and
+``torch_python`` (the interpreter that runs nerf_core), and ``fail`` (one error line, exit code 2).
 """
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 
@@ -35,6 +38,36 @@ def script_args() -> list[str]:
     if inside_blender():
         return []
     return sys.argv[1:]
+
+
+def scene_parser(prog: str, description: str, blend_help: str) -> argparse.ArgumentParser:
+    """The parser of a script that works on a scene, its ``--blend`` option already added."""
+    ap = argparse.ArgumentParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--blend", help=f"{blend_help} (plain Python; under Blender the open file is used)")
+    return ap
+
+
+def add_python_option(ap: argparse.ArgumentParser, used_by: str) -> None:
+    """``--python``: the interpreter with torch for ``used_by`` (default $NERF_PYTHON, else this Python)."""
+    ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
+                    help=f"interpreter with torch for {used_by} (default: $NERF_PYTHON, else this Python)")
+
+
+def fail(prog: str, message: str) -> None:
+    """A script's expected failure: one ``prog: error: message`` line on stderr, exit code 2."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    exit_code(2)
+
+
+def torch_python(prog: str, requested: str) -> str:
+    """The interpreter that runs nerf_core for a script: ``requested`` (``--python``), else
+    $NERF_PYTHON, else this Python; when it cannot import torch, ``fail`` says what to pass."""
+    from addon import trainer_process
+
+    try:
+        return trainer_process.resolve_interpreter(requested, addon_dir=os.path.join(REPO_ROOT, "addon"))
+    except trainer_process.SetupError as exc:
+        fail(prog, f"{exc} (or pass --python / set NERF_PYTHON)")
 
 
 def open_blend(path: str | None) -> None:

@@ -92,15 +92,10 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
                 mark = min(checkpoints, key=lambda c: abs(c - float(ev["elapsed"])))
                 points.append({"seconds": float(ev["elapsed"]), "budget": mark, "step": int(ev["step"]),
                                "psnr": ev.get("psnr"), "ssim": ev.get("ssim")})
-        final = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test" and "eval_wall" not in e]
-        metrics = final[-1] if final else None
+        metrics, why = runner.final_test_metrics(res, this_run, log_path, env_extra)
         if metrics is None:
-            ev = runner.run_cli(runner.nerf_core_cmd("eval", this_run, "--split", "test", "--no-bar"), log_path=log_path,
-                            env_extra=env_extra)
-            metrics = ev.last_json() if ev.ok else None
-            if not metrics or "psnr" not in metrics:
-                error = f"eval after {budget:g}s: {ev.error_message()}"
-                break
+            error = f"eval after {budget:g}s: {why}"
+            break
         done = [e for e in res.events if e.get("event") == "done"]
         points.append({
             "seconds": float(done[-1].get("elapsed", budget)) if done else budget,

@@ -96,9 +96,7 @@ def argument_errors(args) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     from addon import layouts
 
-    ap = argparse.ArgumentParser(prog="capture.py", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--blend", help="scene to open (plain Python; under Blender the open file is used)")
+    ap = _bootstrap.scene_parser("capture.py", __doc__.split("\n\n")[0], "scene to open")
     ap.add_argument("--out", required=True, help="dataset folder to write")
     ap.add_argument("--layout", default="hemisphere", choices=layouts.LAYOUTS)
     ap.add_argument("--count", type=int, default=100, help="train views (generated layouts)")

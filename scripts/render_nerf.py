@@ -15,34 +15,30 @@ already display-referred); the scene file is never saved. Existing outputs are r
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _bootstrap import REPO_ROOT, exit_code, open_blend, script_args  # noqa: E402
+import _bootstrap  # noqa: E402
+from _bootstrap import add_python_option, exit_code, open_blend, scene_parser, script_args  # noqa: E402
 
 
 def parse(argv):
-    ap = argparse.ArgumentParser(prog="render_nerf.py", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--blend", help="scene to render (plain Python; under Blender the open file is used)")
+    ap = scene_parser("render_nerf.py", __doc__, "scene to render")
     ap.add_argument("--run", required=True, help="training run folder (has checkpoints/latest.pt)")
     ap.add_argument("--checkpoint", default="", help="checkpoint instead of RUN/checkpoints/latest.pt")
     ap.add_argument("--out", required=True, help="output folder for FFFF.png (and FFFF_depth.exr)")
     ap.add_argument("--frames", metavar="A:B", help="first and last frame, inclusive (default: the scene's range)")
     ap.add_argument("--depth", action="store_true", help="also write FFFF_depth.exr (multilayer EXR with the Depth pass)")
-    ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
-                    help="interpreter with torch for the render process (default: $NERF_PYTHON, else this Python)")
+    add_python_option(ap, "the render process")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
     return ap.parse_args(argv)
 
 
 def fail(message: str) -> None:
-    print(f"render_nerf: error: {message}", file=sys.stderr)
-    exit_code(2)
+    _bootstrap.fail("render_nerf", message)
 
 
 def frame_range(text, scene) -> list:
@@ -81,10 +77,7 @@ def main(argv) -> int:
     problem = render_client.run_problem(run, os.path.abspath(args.checkpoint) if args.checkpoint else "")
     if problem:
         fail(f"--run: {problem}")
-    try:
-        python = trainer_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
-    except trainer_process.SetupError as exc:
-        fail(f"{exc} (or pass --python / set NERF_PYTHON)")
+    python = _bootstrap.torch_python("render_nerf", args.python)
     os.environ["NERF_PYTHON"] = python  # the engine's interpreter when no add-on preference names one
 
     import bpy

@@ -129,15 +129,10 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
     if not res.ok:
         row["error"] = res.error_message()
         return row
-    evals = [e for e in res.events if e.get("event") == "eval" and e.get("split") == "test"]
-    metrics = evals[-1] if evals else None
+    metrics, why = runner.final_test_metrics(res, run_dir, log_path, env_extra)
     if metrics is None:
-        ev = runner.run_cli(runner.nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path,
-                            env_extra=env_extra)
-        metrics = ev.last_json() if ev.ok else None
-        if not metrics or "psnr" not in metrics:
-            row["error"] = f"eval: {ev.error_message()}"
-            return row
+        row["error"] = f"eval: {why}"
+        return row
     row["psnr"], row["ssim"] = metrics.get("psnr"), metrics.get("ssim")
     if row["psnr"] is None:
         row["nan"] = True  # NaN metrics come out as null

@@ -7,7 +7,7 @@ blocked. One home for each rule; nothing else spells these names out.
 Sections:
 - run folder paths (``RUN/config.json``, ``RUN/checkpoints/latest.pt``, ...);
 - the training budget fraction;
-- progress events (one JSON object per line).
+- progress events (one JSON object per line) and strict JSON (``json_safe``: no NaN/inf).
 Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``contract.latest_checkpoint``):
 - ``transforms``: reading transforms files (JSON, frames, poses, the dataset path rule, splits);
 - ``intrinsics``: the one focal-length rule, ``resolve_intrinsics``;
@@ -108,9 +108,10 @@ def budget_fraction(step: Optional[float], elapsed: Optional[float], max_steps: 
 EVENTS = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error", "note")
 
 
-def parse_event_line(line: str) -> Optional[Dict[str, Any]]:
-    """The event object on one line of the trainer's stream, or None for anything else (blank
-    lines, library warnings, truncated JSON, JSON without a string ``event``)."""
+def parse_json_line(line: str) -> Optional[Dict[str, Any]]:
+    """The JSON object on one line of a nerf_core command's stdout, or None for anything else (blank
+    lines, library warnings, truncated JSON, a JSON value that is not an object). Events are such
+    objects; so is the summary ``eval``/``render``/``check`` print as their last line."""
     line = line.strip()
     if not line.startswith("{"):
         return None
@@ -118,6 +119,25 @@ def parse_event_line(line: str) -> Optional[Dict[str, Any]]:
         obj = json.loads(line)
     except ValueError:
         return None
-    if not isinstance(obj, dict) or not isinstance(obj.get("event"), str):
+    return obj if isinstance(obj, dict) else None
+
+
+def parse_event_line(line: str) -> Optional[Dict[str, Any]]:
+    """The event object on one line of the trainer's stream, or None for anything else (what
+    ``parse_json_line`` refuses, and JSON without a string ``event``)."""
+    obj = parse_json_line(line)
+    if obj is None or not isinstance(obj.get("event"), str):
         return None
     return obj
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, inf) inside dicts, lists and tuples replaced by None:
+    ``json.dumps`` would write NaN/Infinity, which strict JSON readers (and JavaScript) reject."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value

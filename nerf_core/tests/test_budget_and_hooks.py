@@ -21,10 +21,10 @@ SMALL_GRID = dict(res_init=16, res_final=32, upsample_at=[0.25], density_rank=8,
 
 
 def test_step_events_and_the_method_hook_get_the_same_budget_fraction(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.methods.base import _REGISTRY
+    from nerf_core.methods.base import method_class
 
     seen = []
-    monkeypatch.setattr(_REGISTRY["test-grid"], "training_hook", lambda self, step, frac: seen.append((step, frac)))
+    monkeypatch.setattr(method_class("test-grid"), "training_hook", lambda self, step, frac: seen.append((step, frac)))
     run = tmp_path / "run"
     train(TrainConfig(dataset=str(sphere_dataset), out=str(run), method="test-grid", max_steps=20, batch_rays=64,
                       stdout_events=False, show_bar=False, log_every=5, eval_views=0))

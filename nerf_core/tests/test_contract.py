@@ -43,6 +43,24 @@ def test_parse_event_line():
         assert contract.parse_event_line(bad) is None
 
 
+def test_parse_json_line_keeps_objects_without_an_event():
+    # eval prints its metrics as a plain JSON object: a line the benchmark reads, not an event.
+    assert contract.parse_json_line(' {"psnr": 24.5}\n') == {"psnr": 24.5}
+    assert contract.parse_json_line('{"event": 3}') == {"event": 3}
+    for bad in ("", "warning: x", '{"event": "st', "[1]", '"text"'):
+        assert contract.parse_json_line(bad) is None
+
+
+def test_json_safe_nulls_every_non_finite_float():
+    import json
+
+    nan, inf = float("nan"), float("inf")
+    value = {"a": nan, "b": [1.5, -inf, {"c": inf}], "d": (2, nan), "e": "nan", "f": 3}
+    assert contract.json_safe(value) == {"a": None, "b": [1.5, None, {"c": None}], "d": [2, None], "e": "nan", "f": 3}
+    json.dumps(contract.json_safe(value), allow_nan=False)  # strict JSON now: would raise otherwise
+    assert contract.json_safe(nan) is None and contract.json_safe(True) is True
+
+
 # -- intrinsics: the one focal-length rule ---------------------------------------------------------
 def test_resolve_intrinsics_precedence_by_hand():
     import math

@@ -11,7 +11,8 @@ import torch
 
 from nerf_core import backgrounds
 from nerf_core.cameras import Cameras, ray_bounds, rays_for_view
-from nerf_core.data import load_dataset, pad_box_for_interior
+from nerf_core.data import load_dataset
+from nerf_core.scene_box import pad_box_for_interior
 from nerf_core.environment import EnvironmentMap, directions_to_uv, prefit, sample_latlong, size_for_focal
 from nerf_core.imageio import read_png, write_png
 from nerf_core.methods import build_model

@@ -94,14 +94,14 @@ class _Killed(BaseException):
 
 
 def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_says(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.methods.base import _REGISTRY
+    from nerf_core.methods.base import method_class
 
     def hook(self, step, frac):
         if step == 2:
             raise _Killed
         return False
 
-    monkeypatch.setattr(_REGISTRY["test-grid"], "training_hook", hook)
+    monkeypatch.setattr(method_class("test-grid"), "training_hook", hook)
     run = tmp_path / "run"
     with pytest.raises(_Killed):
         train(_cfg(sphere_dataset, run, preview_every=1))

@@ -181,9 +181,9 @@ def test_nan_gradient_with_finite_loss_also_rolls_back(sphere_dataset, tmp_path)
 
 
 def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.methods.base import _REGISTRY
+    from nerf_core.methods.base import method_class
 
-    cls = _REGISTRY["test-grid"]
+    cls = method_class("test-grid")
 
     def hook(self, step, frac):
         if step == 7 and not getattr(self, "_interrupted", False):

@@ -9,6 +9,9 @@ import json
 import math
 from typing import Optional, Sequence
 
+import _bootstrap  # noqa: F401  (puts the repository on sys.path, for nerf_core; as in runner)
+from nerf_core import contract  # standard library + numpy: no torch
+
 from .analysis import pareto_front
 
 
@@ -41,17 +44,9 @@ def _cell(value):
 
 
 def write_json(path: str, obj) -> None:
-    def clean(v):
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        return v
-
+    """``obj`` as strict JSON: NaN and inf become null (``nerf_core.contract.json_safe``)."""
     with open(path, "w", encoding="utf-8") as fh:
-        json.dump(clean(obj), fh, indent=1)
+        json.dump(contract.json_safe(obj), fh, indent=1)
 
 
 def fmt(value, digits: int = 2) -> str:

@@ -3,15 +3,16 @@
 The studies drive the same command lines users run (``scripts/make_demo_scene.py``,
 ``scripts/capture.py``, ``python -m nerf_core train/eval/render``) as subprocesses, so what they
 measure is what users get. This module owns starting them (``run_cli``, ``nerf_core_cmd``,
-``script_cmd``), reading their progress events (``parse_event(s)``, ``CliResult``), sharing the
+``script_cmd``), reading their progress events (``parse_events``, ``CliResult``) and a run's final
+test metrics (``final_test_metrics``), sharing the
 cores between parallel runs (``thread_env``, ``run_parallel``, ``SharedProgress``) and describing
 the machine the numbers came from (``machine_info``).
 
-Standard library only: importing it must not start torch.
+Standard library and ``nerf_core.contract`` (standard library + numpy) only: importing it must not
+start torch.
 """
 from __future__ import annotations
 
-import json
 import os
 import platform
 import subprocess
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable, Optional, Sequence
 
 from _bootstrap import REPO_ROOT  # scripts/ is on sys.path wherever ``bench`` is importable
+from nerf_core import contract  # standard library + numpy: no torch
 
 PYTHON = sys.executable
 
@@ -32,20 +34,10 @@ class BenchError(RuntimeError):
     """A step of a study failed; the message names the command, scene or file."""
 
 
-def parse_event(line: str) -> Optional[dict]:
-    """One progress line -> event dict, or None for lines that are not JSON events (library warnings)."""
-    line = line.strip()
-    if not line.startswith("{"):
-        return None
-    try:
-        obj = json.loads(line)
-    except ValueError:
-        return None
-    return obj if isinstance(obj, dict) else None
-
-
 def parse_events(lines: Iterable[str]) -> list[dict]:
-    return [ev for ev in (parse_event(line) for line in lines) if ev is not None]
+    """The JSON objects among ``lines``: events, and the summary ``eval`` prints last
+    (``nerf_core.contract.parse_json_line``); library warnings and partial lines are skipped."""
+    return [ev for ev in map(contract.parse_json_line, lines) if ev is not None]
 
 
 @dataclass
@@ -178,7 +170,7 @@ def run_cli(
                     if log:
                         log.write(line)
                         log.flush()  # the log is what one reads while a long run is still going
-                    ev = parse_event(line)
+                    ev = contract.parse_json_line(line)
                     if ev is not None:
                         result.events.append(ev)
                         if on_event:
@@ -211,6 +203,24 @@ def run_cli(
             pass
     result.wall = time.monotonic() - start
     return result
+
+
+def final_test_metrics(train: CliResult, run_dir: str, log_path: Optional[str] = None,
+                       env_extra: Optional[dict] = None) -> tuple[Optional[dict], Optional[str]]:
+    """A finished training run's test PSNR/SSIM: ``(metrics, None)``, or ``(None, why)``.
+
+    The trainer's own final ``eval`` event on the test split when it sent one (saves a process; the
+    ``--eval-at`` evaluations during training carry ``eval_wall`` and are not final), else the last
+    JSON line of a separate ``nerf_core eval RUN --split test``.
+    """
+    final = [e for e in train.events if e.get("event") == "eval" and e.get("split") == "test" and "eval_wall" not in e]
+    if final:
+        return final[-1], None
+    ev = run_cli(nerf_core_cmd("eval", run_dir, "--split", "test", "--no-bar"), log_path=log_path, env_extra=env_extra)
+    metrics = ev.last_json() if ev.ok else None
+    if not metrics or "psnr" not in metrics:
+        return None, ev.error_message()
+    return metrics, None
 
 
 def cli_help(*args: str) -> str:

@@ -72,3 +72,24 @@ def test_shared_progress_adds_live_runs_to_finished_work():
     assert bar.done == 45
     p.advance("b", 20)
     assert bar.done == 60
+
+
+def test_final_test_metrics_takes_the_trainers_final_eval_not_an_eval_at_one(tmp_path):
+    events = [{"event": "eval", "split": "test", "psnr": 20.0, "eval_wall": 1.5},  # --eval-at, mid-run
+              {"event": "eval", "split": "val", "psnr": 21.0},
+              {"event": "eval", "split": "test", "psnr": 24.0, "ssim": 0.9},
+              {"event": "done", "step": 10}]
+    train = runner.CliResult(args=["train"], returncode=0, events=events)
+    metrics, why = runner.final_test_metrics(train, str(tmp_path / "never_read"))
+    assert why is None and metrics["psnr"] == 24.0 and metrics["ssim"] == 0.9
+
+
+def test_final_test_metrics_falls_back_to_eval_and_says_why_it_failed(tmp_path):
+    # Only a mid-run evaluation: the run's own eval is asked for, and on a folder with no run it fails.
+    train = runner.CliResult(args=["train"], returncode=0,
+                             events=[{"event": "eval", "split": "test", "psnr": 20.0, "eval_wall": 1.5}])
+    missing = tmp_path / "no_run"
+    metrics, why = runner.final_test_metrics(train, str(missing), log_path=str(tmp_path / "log.txt"))
+    assert metrics is None
+    assert str(missing) in why and "Traceback" not in why  # one line naming the folder
+    assert "eval" in (tmp_path / "log.txt").read_text()  # the eval command was run and logged
