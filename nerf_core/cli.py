@@ -38,34 +38,35 @@ def _seconds_list(text: str) -> list[float]:
     return sorted(values)
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return v
+def _checked_number(cast, noun: str, ok, rule: str):
+    """An argparse ``type``: ``cast(text)`` that ``ok`` accepts; otherwise a one-line error saying why."""
+    def parse(text: str):
+        try:
+            v = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+        if not ok(v):
+            raise argparse.ArgumentTypeError(f"{rule}, got {text}")
+        return v
+    return parse
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return v
+_positive_float = _checked_number(float, "a number", lambda v: v > 0, "must be positive")
+_positive_int = _checked_number(int, "an integer", lambda v: v > 0, "must be positive")
+_nonneg_int = _checked_number(int, "an integer", lambda v: v >= 0, "must be >= 0")
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return v
+def _add_model_args(p, split_help: str, downscale, chunk_help: str) -> None:
+    """The arguments ``render`` and ``eval`` share: the run, which views, and how to run the model.
+    ``downscale``: (argparse type, verb for its help)."""
+    kind, verb = downscale
+    p.add_argument("run", metavar="RUN", help="run folder written by `train`")
+    p.add_argument("--split", default="test", help=split_help)
+    p.add_argument("--downscale", type=kind, default=kind("1"), metavar="F", help=f"{verb} at 1/F resolution")
+    p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
+    p.add_argument("--chunk", type=_positive_int, default=8192, help=chunk_help)
+    p.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
+    p.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
 
 
 def parse_option_value(value: str):
@@ -169,28 +170,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="render novel views of a trained run", formatter_class=fmt,
                        description="Render RGBA PNGs (alpha = opacity), planar depth EXRs and renders.json.")
-    r.add_argument("run", metavar="RUN", help="run folder written by `train`")
+    _add_model_args(r, split_help="split to render when --cameras is a dataset folder or split transforms.json",
+                    downscale=(_positive_float, "render"), chunk_help="rays per model call (lower it to save memory)")
     r.add_argument("--cameras", metavar="TRANSFORMS.json",
                    help="dataset folder, transforms file (either layout) or JSON list of cameras; default: the run's dataset")
     r.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    r.add_argument("--split", default="test", help="split to render when --cameras is a dataset folder or split transforms.json")
     r.add_argument("--overwrite", action="store_true", help="replace existing outputs in DIR")
-    r.add_argument("--downscale", type=_positive_float, default=1.0, metavar="F", help="render at 1/F resolution")
-    r.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    r.add_argument("--chunk", type=_positive_int, default=8192, help="rays per model call (lower it to save memory)")
-    r.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
-    r.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
 
     e = sub.add_parser("eval", help="evaluate a run on held-out views (PSNR, SSIM, depth error)", formatter_class=fmt,
                        description="Prints one line per view, then one JSON object as the last line of stdout.")
-    e.add_argument("run", metavar="RUN", help="run folder written by `train`")
-    e.add_argument("--split", default="test", help="split to evaluate (test or val)")
+    _add_model_args(e, split_help="split to evaluate (test or val)", downscale=(_positive_int, "evaluate"),
+                    chunk_help="rays per model call")
     e.add_argument("--views", type=_positive_int, metavar="N", help="evaluate N evenly spaced views only")
-    e.add_argument("--downscale", type=_positive_int, default=1, metavar="F", help="evaluate at 1/F resolution")
-    e.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    e.add_argument("--chunk", type=_positive_int, default=8192, help="rays per model call")
-    e.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
-    e.add_argument("--no-bar", action="store_true", help="no progress bar on stderr")
 
     c = sub.add_parser("check", help="validate a dataset folder against the dataset conventions", formatter_class=fmt,
                        description="Exit 0 when valid; otherwise exit 1 and list every problem with its file/frame/field.")
