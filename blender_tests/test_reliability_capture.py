@@ -25,6 +25,8 @@ SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
     (["--resolution", "32", "--resolution-y", "0"], "--resolution-y"),
     (["--count", "0"], "--count"),
     (["--val-count", "-1"], "--val-count"),
+    (["--val-count", "0"], "--val-count"),  # an empty split: train and check would refuse the dataset
+    (["--test-count", "0"], "--test-count"),
     (["--samples", "0"], "--samples"),
     (["--focal-length", "0"], "--focal-length"),
     (["--radius", "-1"], "--radius"),

@@ -62,6 +62,11 @@ def argument_errors(args) -> list[str]:
             errors.append(f"{flag}: must be >= 0, got {v}")
     if args.count < 1 and not args.keep_cameras:
         errors.append(f"--count: a capture needs at least 1 train view, got {args.count}")
+    for flag, v in (("--val-count", args.val_count), ("--test-count", args.test_count)):
+        # An empty split file is refused by `train` and `check` (the original NeRF loader and 3DGS read
+        # every split): a capture must not write a dataset our own tools reject.
+        if v == 0 and not args.keep_cameras:
+            errors.append(f"{flag}: a dataset needs at least 1 view in each split (train, val, test), got 0")
     for flag, v, lo in (("--samples", args.samples, 1), ("--frame-step", args.frame_step, 1),
                         ("--n-points", args.n_points, 1), ("--rings", args.rings, 1)):
         if v < lo:
