@@ -11,6 +11,7 @@ Imports only the standard library and that module (no bpy, no torch).
 from __future__ import annotations
 
 import codecs
+import math
 from collections import deque
 from typing import Any, Deque, Dict, List, Optional, Union
 
@@ -32,7 +33,9 @@ _COUNTS = ("step", "max_steps", "n_params")  # fields that are whole numbers (JS
 def _field_number(ev: Dict[str, Any], name: str) -> Optional[Union[int, float]]:
     """``ev[name]`` as a number (an int for ``_COUNTS``), None when missing or not a number."""
     value = _number(ev.get(name))
-    return int(value) if value is not None and name in _COUNTS else value
+    if name in _COUNTS:  # a count of inf/NaN (JSON "Infinity" from a foreign writer) is no count
+        return int(value) if value is not None and math.isfinite(value) else None
+    return value
 
 
 class ProgressParser:

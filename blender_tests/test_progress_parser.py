@@ -130,3 +130,13 @@ def test_fraction_of_a_trainer_without_frac_uses_the_budgets():
     assert p.frac is None and p.fraction() == 0.25
     p.feed(json.dumps({"event": "done", "time": 1.0, "step": 60, "elapsed": 6.0}) + "\n")
     assert p.fraction() == 1.0  # stopped early, but done is done
+
+
+def test_non_finite_counts_are_ignored_not_a_crash():
+    # Python's json reads "Infinity"/"NaN"; a foreign writer may send them. int(inf) would raise inside
+    # Blender's timer and stop the panel updating.
+    p = ProgressParser()
+    p.feed('{"event": "start", "max_steps": Infinity}\n{"event": "step", "step": 5, "loss": 0.1}\n')
+    p.feed('{"event": "step", "step": NaN, "loss": 0.2}\n{"event": "step", "step": Infinity}\n')
+    assert p.max_steps is None
+    assert p.step == 5 and p.loss == 0.2
