@@ -63,8 +63,8 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
         ("SCENE", "Whole Scene", "Aim at and frame everything visible"),
         ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
     train_count: IntProperty(name="Train", default=100, min=1, soft_max=1000)
-    val_count: IntProperty(name="Val", default=10, min=1, soft_max=200)  # train/check refuse an empty split
-    test_count: IntProperty(name="Test", default=20, min=1, soft_max=400)
+    val_count: IntProperty(name="Val", default=10, min=0, soft_max=200)
+    test_count: IntProperty(name="Test", default=20, min=0, soft_max=400)
     radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
                           description="Camera distance from the target centre; 0 = auto (target fills the frame)")
     elevation_min: FloatProperty(name="Min Elevation", default=0.0, min=-90.0, max=90.0)
