@@ -1,22 +1,25 @@
 """Speed against accuracy: train every method on the demo scenes and chart test PSNR against time and size.
 
     python scripts/benchmark.py [--quick] --out DIR [--methods a,b] [--scenes x,y] [--minutes M]
-                                [--resolution R] [--views N] [--test-views N] [--checkpoints 1,2,5]
-                                [--no-sizes] [--no-profile]
+                                [--resolution R] [--views N] [--test-views N] [--checkpoints log|1,2,5]
+                                [--no-sizes] [--no-profile] [--report-only]
 
 What it does, through the same command lines users run:
  1. builds each demo scene (scripts/make_demo_scene.py) and captures it (scripts/capture.py) into
     DIR/datasets, reusing a capture whose settings match;
  2. trains each method on each scene (``python -m nerf_core train``) and measures held-out test PSNR
-    and SSIM (``python -m nerf_core eval``) at checkpoints in *training* time (default 1, 2 and 5
-    minutes: the issue-3 numbers). Each run is one training run with ``--eval-at`` the earlier
+    and SSIM (``python -m nerf_core eval``) at checkpoints in *training* time: by default log-spaced,
+    10 s doubling up to the budget, plus 1, 2, 5 and 10 minutes where they fit (5 minutes: 10, 20,
+    40, 60, 80, 120, 160, 300 s). Each run is one training run with ``--eval-at`` the earlier
     checkpoints, so evaluation time is never counted as training time and the schedules are real;
  3. runs the fast method at fixed sizes and with ``--size auto`` as separate series, to show whether
     auto-sizing lands on the Pareto front of the sizes tried;
  4. profiles a few training steps in-process to split step time into sampling, field, rendering,
     backward and optimiser (unless ``--no-profile``);
  5. writes DIR/results.csv, DIR/results.json (every checkpoint), DIR/final.csv, DIR/summary.md and
-    the charts DIR/psnr_vs_time.png and DIR/psnr_vs_size.png.
+    the charts DIR/psnr_vs_time.png (log time axis; nerf and nerf-nope drawn as a pair) and
+    DIR/psnr_vs_size.png. ``--report-only`` redraws the charts and summary.md from DIR/results.json
+    without training.
 
 Defaults are the issue-3 setup: 200x200 images, 100 train and 20 test views, 5 minutes per run, on
 the diffuse, highfreq, glossy, thin and multi scenes (objects on a transparent film) and the hdri
@@ -35,8 +38,9 @@ from typing import Optional, Sequence
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench import datasets, report, runner  # noqa: E402  (scripts/bench, found through the line above)
-from bench.analysis import checkpoint_size, psnr_at_table, rows_from_results, size_analysis, summarize_training  # noqa: E402
-from bench.plan import FULL_SCENES, Plan, Series, default_fast_method, make_plan  # noqa: E402
+from bench.analysis import (checkpoint_size, eval_at_points, pair_gap_table, psnr_at_table,  # noqa: E402
+                            rows_from_results, size_analysis, summarize_training)
+from bench.plan import FULL_SCENES, Plan, Series, default_fast_method, make_plan, parse_checkpoints  # noqa: E402
 from bench.profiler import profile_method  # noqa: E402
 
 from nerf_core.progressbar import ProgressBar  # noqa: E402
@@ -87,11 +91,7 @@ def train_with_checkpoints(dataset: str, run_dir: str, series: Series, checkpoin
         if not res.ok:
             error = f"train to {budget:g}s: {res.error_message()}"
             break
-        for ev in res.events:
-            if ev.get("event") == "eval" and ev.get("split") == "test" and "eval_wall" in ev:
-                mark = min(checkpoints, key=lambda c: abs(c - float(ev["elapsed"])))
-                points.append({"seconds": float(ev["elapsed"]), "budget": mark, "step": int(ev["step"]),
-                               "psnr": ev.get("psnr"), "ssim": ev.get("ssim")})
+        points += eval_at_points(res.events, [] if independent else checkpoints[:-1])
         metrics, why = runner.final_test_metrics(res, this_run, log_path, env_extra)
         if metrics is None:
             error = f"eval after {budget:g}s: {why}"
@@ -188,6 +188,7 @@ def reusable_results(out: str, plan: Plan, series_names: set[str], run_settings:
 
 def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile: Optional[dict],
                   wall: float, machine: dict, run_settings: Optional[dict] = None) -> dict:
+    """Every run's numbers to OUT/results.{csv,json} and final.csv, then ``draw_report``."""
     rows, finals = rows_from_results(results)
     report.write_csv(os.path.join(out, "results.csv"), rows)
     report.write_csv(os.path.join(out, "final.csv"), finals)
@@ -197,6 +198,13 @@ def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile:
         "capture": plan.capture, "runs": results, "size_study": sizes, "profile": profile,
         **(run_settings or {}),
     })
+    return draw_report(out, results, plan.checkpoints, plan.capture, sizes, profile, wall, machine)
+
+
+def draw_report(out: str, results: list[dict], checkpoints: list[float], capture: dict, sizes: list[dict],
+                profile: Optional[dict], wall: float, machine: dict) -> dict:
+    """The charts (OUT/psnr_vs_time.png, OUT/psnr_vs_size.png) and OUT/summary.md from ``results``."""
+    rows, finals = rows_from_results(results)
     curves = {}
     for r in results:
         curves[(r["scene"], r["series"])] = [(p["seconds"], p["psnr"]) for p in r["points"]]
@@ -209,16 +217,18 @@ def write_outputs(out: str, results: list[dict], plan: Plan, fast: str, profile:
     if pts:
         charts.append(report.chart_psnr_vs_size(pts, os.path.join(out, "psnr_vs_size.png"),
                                             "Final test PSNR against model size"))
-    md = summary_markdown(rows, finals, sizes, profile, plan, wall, machine,
+    md = summary_markdown(rows, finals, sizes, profile, checkpoints, capture, wall, machine,
                           reused=[f"{r['scene']}/{r['series']}" for r in results if r.get("reused")])
     with open(os.path.join(out, "summary.md"), "w", encoding="utf-8") as fh:
         fh.write(md)
     return {"rows": rows, "finals": finals, "sizes": sizes, "charts": charts, "markdown": md}
 
 
-def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, machine: dict,
-                     reused: Sequence[str] = ()) -> str:
-    cols = ["scene", "series"] + [f"psnr@{c:g}s" for c in plan.checkpoints] + ["ssim", "n_params", "samples_per_s"]
+def summary_markdown(rows, finals, sizes, profile, checkpoints: Sequence[float], capture: dict, wall: float,
+                     machine: dict, reused: Sequence[str] = ()) -> str:
+    cols = ["scene", "series"] + [f"psnr@{c:g}s" for c in checkpoints] + ["ssim", "n_params", "samples_per_s"]
+    table = psnr_at_table(rows, list(checkpoints))
+    gaps = pair_gap_table(table, list(checkpoints), *report.PAIR)
     lines = [
         "# Benchmark results",
         "",
@@ -227,17 +237,22 @@ def summary_markdown(rows, finals, sizes, profile, plan: Plan, wall: float, mach
         f"total wall time {wall / 60:.1f} min. "
         + (f"{machine['jobs']} runs at a time, {machine.get('threads_per_run')} thread(s) each."
            if machine.get("jobs", 1) > 1 else "One run at a time, all cores."),
-        f"Capture: {plan.capture['resolution']}x{plan.capture['resolution']} px, {plan.capture['count']} train / "
-        f"{plan.capture['test_count']} test views. Checkpoints at {', '.join(f'{c:g}' for c in plan.checkpoints)} "
+        f"Capture: {capture.get('resolution')}x{capture.get('resolution')} px, {capture.get('count')} train / "
+        f"{capture.get('test_count')} test views. Checkpoints at {', '.join(f'{c:g}' for c in checkpoints)} "
         "seconds of training time (evaluation time excluded).",
         *([f"Reused from this folder's previous results.json (`--reuse`, settings matched): {', '.join(reused)}. "
            "Their wall time is not in the total."] if reused else []),
         "",
         "## Test PSNR (dB) at each checkpoint",
         "",
-        report.markdown_table(psnr_at_table(rows, plan.checkpoints), cols),
+        report.markdown_table(table, cols),
         "",
     ]
+    if gaps:
+        gap_cols = [f"{c:g}s" for c in checkpoints]
+        lines += [f"## {report.PAIR[0]} \u2212 {report.PAIR[1]} (dB) at each checkpoint", "",
+                  "Positive where positional encoding is ahead of the same MLP on raw coordinates.", "",
+                  report.markdown_table(gaps, ["scene"] + gap_cols, digits=2), ""]
     errors = [f for f in finals if f.get("error")]
     if errors:
         lines += ["## Failed runs", ""] + [f"- {f['scene']} / {f['series']}: {f['error']}" for f in errors] + [""]
@@ -265,8 +280,11 @@ def parse_args(argv):
     ap.add_argument("--methods", help="comma-separated methods (default: nerf, nerf-nope and the fast method)")
     ap.add_argument("--scenes", help=f"comma-separated demo scenes (default: {','.join(FULL_SCENES)})")
     ap.add_argument("--minutes", type=float, help="training budget per run in minutes (default 5; quick 0.67)")
-    ap.add_argument("--checkpoints", help="comma-separated minutes at which to evaluate (default 20%%, 40%%, 100%%; "
-                                          "quick 50%%, 100%%)")
+    ap.add_argument("--checkpoints", metavar="log|MINUTES",
+                    help="training times at which to score each run, inside one run (--eval-at): 'log' (the default) "
+                         "is 10 s doubling up to the budget plus 1, 2, 5 and 10 min where they fit (5 min: 10, 20, 40, "
+                         "60, 80, 120, 160, 300 s); or comma-separated minutes like 1,2,5, the last being the budget. "
+                         "Each point costs an evaluation of --eval-views views (not training time). Quick: 50%%, 100%%")
     ap.add_argument("--resolution", type=int, help="capture resolution in pixels (default 200; quick 48)")
     ap.add_argument("--views", type=int, help="train views (default 100; quick 20)")
     ap.add_argument("--test-views", type=int, help="held-out test views (default 20; quick 3)")
@@ -286,6 +304,8 @@ def parse_args(argv):
     ap.add_argument("--no-profile", action="store_true", help="skip the per-stage time profile")
     ap.add_argument("--reuse", help="comma-separated series to take from OUT/results.json instead of training again, "
                                     "where their settings match (after a code change that does not touch them)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="train nothing: redraw the charts and summary.md from OUT/results.json")
     ap.add_argument("--independent", action="store_true",
                     help="a fresh run per checkpoint budget instead of one run with --eval-at (exact per-budget schedules, "
                          "costs the sum of the budgets)")
@@ -299,12 +319,42 @@ def parse_args(argv):
         ap.error("--minutes must be positive")
     if args.jobs < 1:
         ap.error("--jobs must be at least 1")
+    try:
+        parse_checkpoints(args.checkpoints, args.minutes * 60.0, quick)
+    except ValueError as exc:
+        ap.error(str(exc))
     return args
+
+
+def report_only(out: str) -> int:
+    """Redraw the charts and summary.md from the runs stored in OUT/results.json; nothing is trained."""
+    path = os.path.join(out, "results.json")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            stored = json.load(fh)
+        runs = stored["runs"]
+        checkpoints = [float(c) for c in stored["checkpoints_seconds"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"benchmark: --report-only needs the results of an earlier benchmark in {path}: "
+              f"{type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    try:
+        written = draw_report(out, runs, checkpoints, stored.get("capture") or {}, stored.get("size_study") or [],
+                              stored.get("profile"), stored.get("wall_seconds") or 0.0, stored.get("machine") or {})
+    except (KeyError, TypeError) as exc:  # a hand-edited or foreign file: name it, no traceback
+        print(f"benchmark: {path}: a run lacks a field the report needs ({type(exc).__name__}: {exc})", file=sys.stderr)
+        return 1
+    print(written["markdown"])
+    print(f"benchmark: redrew {out}/summary.md" + "".join(f", {os.path.basename(c)}" for c in written["charts"])
+          + f" from {path}", file=sys.stderr)
+    return 0
 
 
 def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     out = os.path.abspath(args.out)
+    if args.report_only:
+        return report_only(out)
     os.makedirs(out, exist_ok=True)
     logs = os.path.join(out, "logs")
     os.makedirs(logs, exist_ok=True)

@@ -186,8 +186,16 @@ def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dic
     return settings, breakdown_table(settings)
 
 
+def breakdown_rules(settings: list[dict], drop: float) -> dict:
+    """{method: base mean PSNR - ``drop``}: the level below which ``breakdown_reason`` calls a run of
+    that method broken relative to its own base (methods without a base PSNR are left out)."""
+    return {s["method"]: s["psnr_mean"] - drop for s in settings
+            if s["study"] == "base" and s.get("psnr_mean") is not None}
+
+
 def chart_groups(settings: list[dict], n_train: int | None) -> dict:
-    """{study: {method: [(label, mean, std), ...]}} for ``report.chart_bars``.
+    """{study: {method: [(label, mean, std), ...]}} for ``report.chart_bars``; a broken setting's
+    point has a 4th element, True, and is drawn hatched.
 
     Each method's base run is drawn inside every study, at the place it belongs in that sweep
     (``64`` views, ``x1`` learning rate, ``0deg/0`` pose noise), so a panel reads as a sweep; the
@@ -196,8 +204,8 @@ def chart_groups(settings: list[dict], n_train: int | None) -> dict:
     base_label = {"views": str(n_train) if n_train else "all", "lr": "x1", "pose_noise": "0deg/0"}
     groups: dict = {}
     for s in settings:
-        groups.setdefault(s["study"], {}).setdefault(s["method"], []).append((str(s["setting"]), s["psnr_mean"],
-                                                                               s["psnr_std"]))
+        point = (str(s["setting"]), s["psnr_mean"], s["psnr_std"]) + ((True,) if s.get("broken") else ())
+        groups.setdefault(s["study"], {}).setdefault(s["method"], []).append(point)
     base = groups.get("base", {})
     for study, per_method in groups.items():
         if study not in base_label:
@@ -205,8 +213,7 @@ def chart_groups(settings: list[dict], n_train: int | None) -> dict:
         for method, pts in per_method.items():
             if method not in base:
                 continue
-            _, m, sd = base[method][0]
-            pts.append((base_label[study], m, sd))
+            pts.append((base_label[study], *base[method][0][1:]))
             pts.sort(key=lambda p: _sweep_key(p[0]))
     if len(groups) > 1:
         groups.pop("base", None)  # shown inside every other panel already
@@ -234,7 +241,8 @@ def write_report(out: str, runs: list[dict], *, machine: dict, capture: dict, sc
     n_train = capture.get("count")
     chart = report.chart_bars(chart_groups(settings, n_train), os.path.join(out, "stability.png"),
                           f"Test PSNR per setting ({scene}, {seconds:g} s runs; bars: mean, whiskers: std)",
-                          "test PSNR (dB)", threshold=threshold)
+                          "test PSNR (dB)", threshold=threshold, rules=breakdown_rules(settings, drop),
+                          rule_label=f"breakdown rule: method's base \u2212 {drop:g} dB (its colour)")
     threads = (env_extra or {}).get("OMP_NUM_THREADS")
     md = "\n".join([
         "# Stability: where each method breaks down", "",

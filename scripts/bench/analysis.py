@@ -1,9 +1,9 @@
 """The numbers a study draws from its runs: training summaries, floaters, mean/spread, Pareto fronts.
 
-``summarize_training`` reads one run's progress events; ``floater_stats`` compares rendered with
-ground-truth alpha; ``mean_std`` summarises seeds; ``pareto_front`` and ``auto_size_verdict`` judge
-size against accuracy; ``rows_from_results``, ``psnr_at_table`` and ``size_analysis`` turn the
-benchmark's runs into its tables. Only the standard library at module level (numpy/pillow on use).
+``summarize_training`` reads one run's progress events and ``eval_at_points`` its evaluations at
+checkpoints; ``floater_stats`` compares rendered with ground-truth alpha; ``mean_std`` summarises
+seeds; ``pareto_front`` and ``auto_size_verdict`` judge size against accuracy; ``rows_from_results``,
+``psnr_at_table``, ``pair_gap_table`` and ``size_analysis`` turn the benchmark's runs into its tables. Only the standard library at module level (numpy/pillow on use).
 """
 from __future__ import annotations
 
@@ -60,6 +60,26 @@ def summarize_training(events: Sequence[dict]) -> dict:
         rates.sort()
         out["samples_per_s"] = rates[len(rates) // 2]
     return out
+
+
+def eval_at_points(events: Sequence[dict], marks: Sequence[float]) -> list[dict]:
+    """The ``--eval-at`` evaluations among a run's ``events`` as points {seconds, budget, step, psnr, ssim}.
+
+    The trainer evaluates once per mark, in order (twice at one step when a slow step crosses two
+    marks), so the k-th test evaluation that carries ``eval_wall`` belongs to the k-th of ``marks``
+    (sorted seconds). Matching by nearest time instead would give close log-spaced marks the wrong
+    label after one slow step. Evaluations beyond the marks are ignored.
+    """
+    points = []
+    todo = iter(sorted(marks))
+    for ev in events:
+        if ev.get("event") == "eval" and ev.get("split") == "test" and "eval_wall" in ev:
+            mark = next(todo, None)
+            if mark is None:
+                break
+            points.append({"seconds": float(ev["elapsed"]), "budget": mark, "step": int(ev["step"]),
+                           "psnr": ev.get("psnr"), "ssim": ev.get("ssim")})
+    return points
 
 
 def checkpoint_size(path: str) -> Optional[int]:
@@ -235,3 +255,26 @@ def psnr_at_table(rows: list[dict], checkpoints: list[float]) -> list[dict]:
         entry[f"psnr@{r['budget_seconds']:g}s"] = r["psnr"]
         entry["ssim"] = r["ssim"]
     return [table[k] for k in sorted(table)]
+
+
+def pair_gap_table(table: list[dict], checkpoints: list[float], first: str = "nerf",
+                   second: str = "nerf-nope") -> list[dict]:
+    """Per scene that has both series, ``first`` minus ``second`` test PSNR (dB) at each checkpoint.
+
+    ``table``: ``psnr_at_table`` rows. Returns [{"scene", "<c>s": gap or None, ...}] with one
+    ``"<c>s"`` key per checkpoint (None where either run has no PSNR there), sorted by scene.
+    """
+    by = {(r["scene"], r["series"]): r for r in table}
+    out = []
+    for scene in sorted({r["scene"] for r in table}):
+        a, b = by.get((scene, first)), by.get((scene, second))
+        if a is None or b is None:
+            continue
+        row = {"scene": scene}
+        for c in checkpoints:
+            key = f"psnr@{c:g}s"
+            pa, pb = a.get(key), b.get(key)
+            ok = pa is not None and pb is not None and math.isfinite(pa) and math.isfinite(pb)
+            row[f"{c:g}s"] = pa - pb if ok else None
+        out.append(row)
+    return out

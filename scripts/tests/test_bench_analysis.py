@@ -94,3 +94,32 @@ def test_floater_stats_on_hand_made_renders(tmp_path, tiny_dataset):
     assert s["n_views"] == 2
     assert s["floater_pixels"] == pytest.approx((0 + 3 / 12) / 2)
     assert s["floater_alpha"] == pytest.approx((0 + (3 + 100 / 255) / 12) / 2)
+
+
+def test_eval_at_points_label_evaluations_in_mark_order():
+    # A slow step crossing 10 s and 20 s evaluates twice at 23.5 s: by nearest time both would be
+    # "20 s"; in order they are 10 s and 20 s. The final evaluation (no eval_wall) and other splits
+    # are not checkpoint evaluations.
+    events = [{"event": "step", "step": 3, "elapsed": 9.0},
+              {"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0, "ssim": 0.3},
+              {"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0, "ssim": 0.3},
+              {"event": "eval", "split": "val", "step": 9, "elapsed": 41.0, "eval_wall": 1.0, "psnr": 1.0},
+              {"event": "eval", "split": "test", "step": 9, "elapsed": 41.0, "eval_wall": 1.0, "psnr": 14.0, "ssim": 0.4},
+              {"event": "eval", "split": "test", "step": 20, "elapsed": 80.0, "psnr": 16.0}]
+    points = analysis.eval_at_points(events, [40.0, 10.0, 20.0])
+    assert [(p["budget"], p["seconds"], p["step"], p["psnr"]) for p in points] == [
+        (10.0, 23.5, 4, 12.0), (20.0, 23.5, 4, 12.0), (40.0, 41.0, 9, 14.0)]
+    assert analysis.eval_at_points(events, [10.0]) == points[:1]
+    assert analysis.eval_at_points(events, []) == []
+
+
+def test_pair_gap_table_subtracts_at_each_checkpoint():
+    table = [{"scene": "a", "series": "nerf", "psnr@10s": 15.0, "psnr@20s": 19.5},
+             {"scene": "a", "series": "nerf-nope", "psnr@10s": 15.5, "psnr@20s": 17.0},
+             {"scene": "a", "series": "grid", "psnr@10s": 30.0, "psnr@20s": 31.0},
+             {"scene": "b", "series": "nerf", "psnr@10s": 15.0, "psnr@20s": 16.0},
+             {"scene": "c", "series": "nerf", "psnr@10s": 15.0, "psnr@20s": None},
+             {"scene": "c", "series": "nerf-nope", "psnr@10s": 14.0, "psnr@20s": 16.0}]
+    gaps = analysis.pair_gap_table(table, [10.0, 20.0])
+    assert gaps == [{"scene": "a", "10s": pytest.approx(-0.5), "20s": pytest.approx(2.5)},  # b lacks nerf-nope
+                    {"scene": "c", "10s": pytest.approx(1.0), "20s": None}]

@@ -69,3 +69,35 @@ def test_reuse_takes_only_matching_finished_runs_of_named_series(tmp_path, capsy
     assert "seed" in capsys.readouterr().err
     (tmp_path / "results.json").write_text(json.dumps({**stored, "capture": {**plan.capture, "resolution": 1}}))
     assert benchmark.reusable_results(str(tmp_path), plan, {"nerf"}, settings) == {}
+
+
+def test_log_checkpoints_double_from_10s_and_keep_the_minute_marks():
+    # 5 min: doubling gives 10, 20, 40, 80, 160 (320 > 300); marks 60, 120 and the budget 300 are kept;
+    # no doubling point lies within 15 % of a kept one (80 vs 60: 33 %, 160 vs 120: 33 %).
+    assert bench_plan.log_checkpoints(300.0) == [10, 20, 40, 60, 80, 120, 160, 300]
+    # 10 min: doubling adds 320, which is 6.7 % from the 5-minute mark and goes; 600 is the budget.
+    assert bench_plan.log_checkpoints(600.0) == [10, 20, 40, 60, 80, 120, 160, 300, 600]
+    # 90 s: 80 is 11 % from the budget and goes; 60 is inside the budget and stays.
+    assert bench_plan.log_checkpoints(90.0) == [10, 20, 40, 60, 90]
+    # 30 min: 640 is 6.7 % from 600 and goes, 1280 is 29 % from 1800 and stays.
+    assert bench_plan.log_checkpoints(1800.0) == [10, 20, 40, 60, 80, 120, 160, 300, 600, 1280, 1800]
+    # Budgets at or under the first point: the budget alone.
+    assert bench_plan.log_checkpoints(10.0) == [10] and bench_plan.log_checkpoints(6.0) == [6]
+    with pytest.raises(ValueError):
+        bench_plan.log_checkpoints(0.0)
+
+
+def test_checkpoints_flag_log_minutes_and_default(capsys):
+    def plan_for(*flags):
+        return bench_plan.make_plan(benchmark.parse_args(["--out", "x", "--methods", "nerf", "--no-sizes", *flags]),
+                                    "--max-seconds")
+
+    assert plan_for().checkpoints == [10, 20, 40, 60, 80, 120, 160, 300]  # default: log-spaced, 5 min
+    assert plan_for("--checkpoints", "log", "--minutes", "2").checkpoints == [10, 20, 40, 60, 80, 120]
+    assert plan_for("--checkpoints", "5,1,2").checkpoints == [60, 120, 300]  # minutes, sorted
+    assert plan_for("--quick", "--checkpoints", "log").checkpoints == [10, 20, 40]
+    for bad in ("1,x", "0,5", "-1", "nan"):
+        with pytest.raises(SystemExit):
+            benchmark.parse_args(["--out", "x", "--checkpoints", bad])
+        err = capsys.readouterr().err
+        assert "--checkpoints" in err and "Traceback" not in err

@@ -92,3 +92,53 @@ def test_stability_seed_and_job_flags():
     assert (args.base_seeds, args.other_seeds, args.jobs) == (3, 1, 2)
     args = stability.parse_args(["--out", "x", "--seeds", "2"])
     assert (args.base_seeds, args.other_seeds) == (2, 2)
+
+
+def test_breakdown_rules_sit_at_each_methods_base_minus_drop():
+    settings = [{"method": "grid", "study": "base", "setting": "default", "psnr_mean": 39.69},
+                {"method": "grid", "study": "views", "setting": 4, "psnr_mean": 32.72},
+                {"method": "nerf", "study": "base", "setting": "default", "psnr_mean": 19.55},
+                {"method": "bad", "study": "base", "setting": "default", "psnr_mean": None}]
+    rules = stability.breakdown_rules(settings, drop=3.0)
+    assert rules == {"grid": pytest.approx(36.69), "nerf": pytest.approx(16.55)}
+
+
+def test_chart_groups_mark_broken_settings():
+    settings = [
+        {"method": "m", "study": "base", "setting": "default", "psnr_mean": 30.0, "psnr_std": 0.1, "broken": ""},
+        {"method": "m", "study": "views", "setting": 4, "psnr_mean": 20.0, "psnr_std": 0.2,
+         "broken": "PSNR -10.0 dB vs base (1/1 seeds)"},
+    ]
+    groups = stability.chart_groups(settings, n_train=64)
+    assert groups["views"]["m"] == [("4", 20.0, 0.2, True), ("64", 30.0, 0.1)]
+
+
+def test_stability_chart_draws_the_rule_of_each_method_in_each_panel(tmp_path, monkeypatch):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    runs = [_run("grid", "base", "default", 0, 30.0), _run("grid", "base", "default", 1, 32.0),
+            _run("grid", "views", 4, 0, 26.0), _run("grid", "lr", "x10", 0, 29.5),
+            _run("nerf", "base", "default", 0, 20.0), _run("nerf", "views", 4, 0, 19.0)]
+    (tmp_path / "stability.json").write_text(json.dumps({
+        "runs": runs, "capture": {"resolution": 48, "count": 64, "test_count": 4}, "scene": "diffuse",
+        "seconds_per_run": 60, "threshold_db": 15.0, "drop_db": 3.0, "machine": {"cpus": 2}}))
+    assert stability.main(["--out", str(tmp_path), "--report-only", "--drop", "2.5"]) == 0
+    fig = kept[-1]
+    panels = {ax.get_title(): ax for ax in fig.axes if ax.get_title()}
+    assert set(panels) == {"views", "lr"}
+
+    def flat_lines(ax):
+        return sorted(round(float(ln.get_ydata()[0]), 6) for ln in ax.get_lines()
+                      if len(ln.get_ydata()) == 2 and ln.get_ydata()[0] == ln.get_ydata()[1])
+
+    # grid's base is the mean of 30 and 32; the rule is 2.5 dB under it; nerf's is 20 - 2.5.
+    assert flat_lines(panels["views"]) == [15.0, 17.5, 28.5]
+    assert flat_lines(panels["lr"]) == [15.0, 28.5]  # nerf has no lr runs, so no nerf rule there
+    # grid at 4 views (26.0 < 28.5) is broken and hatched; grid at x10 (29.5) is not.
+    hatched = [round(p.get_height(), 6) for ax in panels.values() for p in ax.patches if p.get_hatch() and p.get_height()]
+    assert hatched == [26.0]
