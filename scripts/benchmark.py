@@ -279,12 +279,14 @@ def parse_args(argv):
     ap.add_argument("--quick", action="store_true", help="2 scenes, 48 px, 20 views, 40 s per run: under 10 min")
     ap.add_argument("--methods", help="comma-separated methods (default: nerf, nerf-nope and the fast method)")
     ap.add_argument("--scenes", help=f"comma-separated demo scenes (default: {','.join(FULL_SCENES)})")
-    ap.add_argument("--minutes", type=float, help="training budget per run in minutes (default 5; quick 0.67)")
+    ap.add_argument("--minutes", type=float, help="training budget per run in minutes (default 5; quick 0.67); "
+                                                  "--checkpoints given as minutes sets it to their last instead")
     ap.add_argument("--checkpoints", metavar="log|MINUTES",
                     help="training times at which to score each run, inside one run (--eval-at): 'log' (the default) "
                          "is 10 s doubling up to the budget plus 1, 2, 5 and 10 min where they fit (5 min: 10, 20, 40, "
                          "60, 80, 120, 160, 300 s); or comma-separated minutes like 1,2,5, the last being the budget. "
-                         "Each point costs an evaluation of --eval-views views (not training time). Quick: 50%%, 100%%")
+                         "Each point costs an evaluation of --eval-views views (not training time). --quick without "
+                         "this flag: 50%% and 100%% of the budget")
     ap.add_argument("--resolution", type=int, help="capture resolution in pixels (default 200; quick 48)")
     ap.add_argument("--views", type=int, help="train views (default 100; quick 20)")
     ap.add_argument("--test-views", type=int, help="held-out test views (default 20; quick 3)")
