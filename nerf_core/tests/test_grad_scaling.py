@@ -68,7 +68,12 @@ def test_vmgrid_leaves_cameras_outside_the_box_alone(monkeypatch):
 
 
 def test_nerf_scales_both_passes_near_a_camera_inside_the_box(monkeypatch):
-    # coarse and fine pass, density and colour each: four scaled tensors
-    seen = _recorded_scales(monkeypatch, [0.0, 0.0, 0.0], method="nerf", n_coarse=8, n_fine=8, width=16)
+    # hierarchical: coarse and fine pass, density and colour each: four scaled tensors
+    small = dict(method="nerf", n_coarse=8, n_fine=8, width=16, sampler="hierarchical")
+    seen = _recorded_scales(monkeypatch, [0.0, 0.0, 0.0], **small)
     assert len(seen) == 4 and all(float(s.min()) < 0.05 for s in seen)
-    assert _recorded_scales(monkeypatch, [0.0, 0.0, 6.0], method="nerf", n_coarse=8, n_fine=8, width=16) == []
+    assert _recorded_scales(monkeypatch, [0.0, 0.0, 6.0], **small) == []
+    # occupancy sampler: one network, density and colour
+    seen = _recorded_scales(monkeypatch, [0.0, 0.0, 0.0], method="nerf", width=16)
+    assert len(seen) == 2 and all(float(s.min()) < 0.05 for s in seen)
+    assert _recorded_scales(monkeypatch, [0.0, 0.0, 6.0], method="nerf", width=16) == []

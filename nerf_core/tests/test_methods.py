@@ -150,7 +150,11 @@ def test_render_rays_contract_for_every_method():
         assert out["rgb"].shape == (16, 3) and out["depth"].shape == (16,) and out["acc"].shape == (16,)
         assert isinstance(out["n_samples"], int) and out["n_samples"] > 0
         if name.startswith("nerf"):
-            assert out["rgb_coarse"].shape == (16, 3)
+            assert "rgb_coarse" not in out and model.fine is None  # one network behind the occupancy grid
+            hier = build_model(name, BOX, **SMALL_NERF, sampler="hierarchical")
+            assert hier.occupancy is None
+            out = hier.render_rays(o, d, near, far, torch.ones(16, 3), True)
+            assert out["rgb"].shape == (16, 3) and out["rgb_coarse"].shape == (16, 3)
         names = {g.get("name") for g in model.param_groups(1e-3)}
         if name == "vmgrid":
             groups = {g["name"]: g["lr"] for g in model.param_groups(1e-3)}
@@ -172,6 +176,56 @@ def test_grown_vmgrid_checkpoint_reloads_through_build_model():
     o, d, near, far, _ = sphere_scene(n_cams=1, size=4)
     outs = [m.render_rays(o, d, near, far, torch.ones(16, 3), False)["rgb"] for m in (model, rebuilt, old)]
     assert torch.allclose(outs[0], outs[1]) and torch.allclose(outs[0], outs[2])
+
+
+def test_nerf_occupancy_grid_prunes_empty_space_and_rendering_skips_it():
+    model, out, psnr = overfit("nerf", 150, 128, lr=3e-3, **SMALL_NERF)
+    assert psnr > 20.0
+    # The sphere fills ~11 % of the box: after training most cells are known to be empty...
+    assert model.occupancy.occupied_fraction < 0.6
+    # ...and rays only sample near it: the pruned grid's fine step costs fewer samples than the
+    # unpruned warm-up step would over the whole box.
+    o, d, near, far, _ = sphere_scene()
+    pruned = out["n_samples"]
+    model.occupancy.reset()
+    with torch.no_grad():
+        full = model.render_rays(o, d, near, far, torch.ones(o.shape[0], 3), False)["n_samples"]
+    assert pruned < 0.5 * full * model.options["warmup_step_scale"]
+    with pytest.raises(ValueError, match="sampler"):
+        build_model("nerf", BOX, sampler="proposal")
+
+
+def test_nerf_early_ray_termination_while_training_changes_only_invisible_samples():
+    model, _, _ = overfit("nerf", 120, 128, lr=3e-3, **SMALL_NERF)
+    with torch.no_grad():  # a denser field: rays become opaque inside the occupied cells
+        model.coarse.sigma_head.bias += 4.0
+    o, d, near, far, _ = sphere_scene(n_cams=2)
+    bg = torch.ones(o.shape[0], 3)
+    outs = {}
+    for ert in (False, True):
+        model.options["train_ert"] = ert
+        torch.manual_seed(1)  # the same jittered samples
+        outs[ert] = model.render_rays(o, d, near, far, bg, True)
+    # Samples behind T < 1e-4 carry less than 1e-4 of a ray's colour: dropping them changes nothing visible,
+    # and on the opaque sphere there are such samples to drop.
+    assert outs[True]["n_samples"] < outs[False]["n_samples"]
+    assert torch.allclose(outs[True]["rgb"], outs[False]["rgb"], atol=2e-4)
+
+
+def test_nerf_checkpoint_from_before_the_occupancy_sampler_loads_as_hierarchical():
+    torch.manual_seed(0)
+    old = build_model("nerf", BOX, **SMALL_NERF, sampler="hierarchical")
+    state = old.state_dict()
+    options = {k: v for k, v in old.options.items() if k not in ("sampler", "march_steps", "warmup_step_scale",
+                                                                    "occ_res", "occ_every")}
+    model = build_model("nerf", BOX, **options)  # what load_run does with an old config
+    model.load_state_dict(state)
+    assert model.options["sampler"] == "hierarchical" and model.occupancy is None
+    o, d, near, far, _ = sphere_scene(n_cams=1, size=4)
+    with torch.no_grad():
+        a = old.render_rays(o, d, near, far, torch.ones(16, 3), False)["rgb"]
+        b = model.render_rays(o, d, near, far, torch.ones(16, 3), False)["rgb"]
+    assert torch.equal(a, b)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
