@@ -97,6 +97,12 @@ def render_view(
     }
 
 
+def render_rate(seconds: float, rays: int) -> dict:
+    """The timing fields ``render`` and ``eval`` report: ``render_seconds`` (wall time spent in the model
+    rendering, without start-up, model loading, image files or metrics), ``rays`` and ``rays_per_s``."""
+    return {"render_seconds": seconds, "rays": int(rays), "rays_per_s": rays / seconds if seconds > 0 else None}
+
+
 # Bytes per pixel that rendering a whole view holds at once: ray origins/directions and their pixel
 # grid, per-ray bounds, the chunk outputs and their concatenation, the RGBA result and its PNG bytes.
 BYTES_PER_PIXEL = 160
@@ -284,9 +290,14 @@ def render_to_dir(
     bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
     opaque = getattr(model, "environment", None) is not None
     bg = torch.as_tensor(metrics_background, dtype=torch.float32)
+    render_seconds, rays = 0.0, 0
     for v, stem in enumerate(stems):
         files = render_files(stem)
+        started = time.perf_counter()
         res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
+        seconds = time.perf_counter() - started
+        render_seconds += seconds
+        rays += int(cameras.width[v]) * int(cameras.height[v])
         rgba = straight_rgba(res, opaque)
         write_png(out / files["image"], rgba)
         write_exr(out / files["depth"], {"Z": res["z_depth"].numpy()})
@@ -298,6 +309,7 @@ def render_to_dir(
             "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
             "w": int(cameras.width[v]), "h": int(cameras.height[v]),
             "camera_angle_x": float(cameras.fov_x()[v]),
+            "render_seconds": seconds,
         }
         gt_split, why_not = _ground_truth(gt_frames[v], cameras, v, gt_downscale)
         if gt_split is not None:
@@ -322,7 +334,8 @@ def render_to_dir(
     meta = {"frames": frames, "depth": "planar z-depth in scene units, EXR channel Z, 0 where nothing was hit",
             "alpha": ("1: opaque, the learned environment is composited behind the scene" if opaque else
                       "accumulated opacity; colour is straight (not premultiplied)"),
-            "background": "environment" if opaque else "transparent", "created": time.time()}
+            "background": "environment" if opaque else "transparent", "created": time.time(),
+            **render_rate(render_seconds, rays)}
     if any("psnr" in f for f in frames):
         meta["metrics_background"] = [float(c) for c in bg.tolist()]
         meta["error_map_vmax"] = HEATMAP_VMAX

@@ -162,3 +162,20 @@ def test_render_of_cameras_without_images_has_no_metrics(trained_run, tmp_path):
     frames = json.loads((out / "renders.json").read_text())["frames"]
     assert frames and all("psnr" not in f and "error_map" not in f and "metrics_skipped" not in f for f in frames)
     assert not (out / "errors").exists()
+
+
+def test_render_and_eval_report_their_rendering_time(trained_run, tmp_path, capsys):
+    # renders.json and eval's summary carry the time spent rendering (nothing else), the rays rendered
+    # (every pixel of every view: 2 test views of 24 x 20) and their ratio; scripts/bench_render.py reads them.
+    ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "timed"
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]) == 0
+    meta = json.loads((out / "renders.json").read_text())
+    assert meta["rays"] == 2 * 24 * 20
+    assert all(f["render_seconds"] > 0 for f in meta["frames"])
+    assert meta["render_seconds"] == pytest.approx(sum(f["render_seconds"] for f in meta["frames"]))
+    assert meta["rays_per_s"] == pytest.approx(meta["rays"] / meta["render_seconds"])
+    capsys.readouterr()
+    assert main(["eval", str(run), "--split", "test", "--no-bar"]) == 0
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert last["rays"] == 2 * 24 * 20 and last["render_seconds"] > 0
+    assert last["rays_per_s"] == pytest.approx(last["rays"] / last["render_seconds"])
