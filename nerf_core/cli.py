@@ -171,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render novel views of a trained run", formatter_class=fmt,
                        description="Render RGBA PNGs (alpha = opacity), planar depth EXRs and renders.json.")
     _add_model_args(r, split_help="split to render when --cameras is a dataset folder or split transforms.json",
-                    downscale=(_positive_float, "render"), chunk_help="rays per model call (lower it to save memory)")
+                    downscale=(_positive_float, "render"),
+                    chunk_help="most rays per model call (lower it to save memory; CPU calls are smaller)")
     r.add_argument("--cameras", metavar="TRANSFORMS.json",
                    help="dataset folder, transforms file (either layout) or JSON list of cameras; default: the run's dataset")
     r.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -180,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("eval", help="evaluate a run on held-out views (PSNR, SSIM, depth error)", formatter_class=fmt,
                        description="Prints one line per view, then one JSON object as the last line of stdout.")
     _add_model_args(e, split_help="split to evaluate (test or val)", downscale=(_positive_int, "evaluate"),
-                    chunk_help="rays per model call")
+                    chunk_help="most rays per model call (CPU calls are smaller)")
     e.add_argument("--views", type=_positive_int, metavar="N", help="evaluate N evenly spaced views only")
 
     c = sub.add_parser("check", help="validate a dataset folder against the dataset conventions", formatter_class=fmt,

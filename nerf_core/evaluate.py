@@ -52,15 +52,19 @@ def evaluate_split(
     """Render ``views`` of a ``data.Split`` and compare with its images.
 
     Ground truth is composited onto ``background`` (white, like the original NeRF evaluation) and
-    the model renders onto the same colour. Returns ``psnr``, ``ssim``, ``n_views``, ``per_view``
-    and ``depth_mae`` when the split has depth.
+    the model renders onto the same colour. Returns ``psnr``, ``ssim``, ``n_views``, ``per_view``,
+    the rendering time (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and
+    ``depth_mae`` when the split has depth.
     """
-    from .render import render_view
+    from .render import render_rate, render_view
 
     views = list(range(len(split))) if views is None else list(views)
     per_view: List[dict] = []
+    render_seconds = 0.0
     for v in views:
+        started = time.perf_counter()
         res = render_view(model, split.cameras, v, background=background, near=near, far=far, chunk=chunk)
+        render_seconds += time.perf_counter() - started
         scores, _ = score_view(res["rgb"], split, v, background, res["z_depth"])
         entry = {"view": v, "name": split.frames[v].stem, **scores}
         per_view.append(entry)
@@ -74,6 +78,7 @@ def evaluate_split(
         "width": split.width,
         "height": split.height,
         "per_view": per_view,
+        **render_rate(render_seconds, len(per_view) * split.width * split.height),
     }
     if split.depth is not None:
         out["depth_mae"] = mean_finite([e.get("depth_mae") for e in per_view])
@@ -92,6 +97,8 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
     as many as fit in ``seconds`` at the time view 0 took (at least one). The end-of-training
     evaluation, which must not take longer than a share of the training itself.
     """
+    from .render import render_rate
+
     n = len(split)
     t0 = time.perf_counter()
     first = evaluate_split(model, split, [0], background=background, near=near, far=far, chunk=chunk)
@@ -105,7 +112,8 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
         return first
     more = evaluate_split(model, split, rest, background=background, near=near, far=far, chunk=chunk)
     per_view = first["per_view"] + more["per_view"]
-    result = dict(first, per_view=per_view, n_views=len(per_view))
+    result = dict(first, per_view=per_view, n_views=len(per_view),
+                  **render_rate(first["render_seconds"] + more["render_seconds"], first["rays"] + more["rays"]))
     for key in ("psnr", "ssim", "depth_mae"):
         if key in first:
             result[key] = mean_finite([e.get(key) for e in per_view])
@@ -189,4 +197,5 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
                "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method")}
     if "depth_mae" in result:
         summary["depth_mae"] = result["depth_mae"]
+    summary.update({k: result[k] for k in ("render_seconds", "rays", "rays_per_s")})
     return summary

@@ -34,23 +34,45 @@ from .progressbar import ProgressBar
 # rendering
 
 
+# On the CPU a model call is fastest when its samples' intermediate tensors stay in cache: measured
+# at one thread on trained runs, vmgrid renders 1.28x faster in calls of 1024 rays than of 8192 and
+# no faster below 512; nerf (128 samples per ray) 1.21x faster at 1024 rays than at 4096, 1.44x again
+# at 512, 1.27x at 256, 1.11x at 128: ~16k samples per call. Calls are at most CPU_MAX_CALL_RAYS rays,
+# fewer when the previous call reported more than CPU_SAMPLES_PER_CALL samples.
+CPU_SAMPLES_PER_CALL = 1 << 14
+CPU_MAX_CALL_RAYS = 512
+CPU_MIN_CALL_RAYS = 64  # below this the per-call Python overhead dominates
+
+
 @torch.no_grad()
 def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int = 8192,
                         on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
-    """Evaluation rendering of (m, 3) rays in chunks of ``chunk`` rays to bound memory.
+    """Evaluation rendering of (m, 3) rays in model calls of at most ``chunk`` rays to bound memory.
 
+    On the CPU calls are smaller: at most ``CPU_MAX_CALL_RAYS`` rays and about ``CPU_SAMPLES_PER_CALL``
+    samples, from the ``n_samples`` the model returned for the previous call (per-ray results do not
+    depend on the call size).
     Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
-    ``on_chunk(done, m)`` is called after each chunk (progress; it may raise to stop early).
+    ``on_chunk(done, m)`` is called after each call (progress; it may raise to stop early).
     """
     out: Dict[str, List[torch.Tensor]] = {"rgb": [], "depth": [], "acc": []}
-    bg = background.expand(rays_o.shape[0], 3) if background.dim() == 1 else background
-    for s in range(0, rays_o.shape[0], chunk):
-        e = s + chunk
+    m = rays_o.shape[0]
+    bg = background.expand(m, 3) if background.dim() == 1 else background
+    cpu = rays_o.device.type == "cpu"
+    cap = min(chunk, CPU_MAX_CALL_RAYS) if cpu else chunk
+    step = cap
+    s = 0
+    while s < m:
+        e = min(s + step, m)
         res = model.render_rays(rays_o[s:e], rays_d[s:e], near[s:e], far[s:e], bg[s:e], training=False)
         for k in out:
             out[k].append(res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1) if k != "rgb" else res[k].detach().float())
+        if cpu and "n_samples" in res:
+            per_ray = max(1.0, float(res["n_samples"]) / (e - s))
+            step = int(min(cap, max(CPU_MIN_CALL_RAYS, CPU_SAMPLES_PER_CALL / per_ray)))
+        s = e
         if on_chunk is not None:
-            on_chunk(min(e, rays_o.shape[0]), rays_o.shape[0])
+            on_chunk(e, m)
     return {k: torch.cat(v) for k, v in out.items()}
 
 
@@ -95,6 +117,12 @@ def render_view(
         "depth": dist.reshape(h, w),
         "z_depth": z.reshape(h, w),
     }
+
+
+def render_rate(seconds: float, rays: int) -> dict:
+    """The timing fields ``render`` and ``eval`` report: ``render_seconds`` (wall time spent in the model
+    rendering, without start-up, model loading, image files or metrics), ``rays`` and ``rays_per_s``."""
+    return {"render_seconds": seconds, "rays": int(rays), "rays_per_s": rays / seconds if seconds > 0 else None}
 
 
 # Bytes per pixel that rendering a whole view holds at once: ray origins/directions and their pixel
@@ -284,9 +312,14 @@ def render_to_dir(
     bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
     opaque = getattr(model, "environment", None) is not None
     bg = torch.as_tensor(metrics_background, dtype=torch.float32)
+    render_seconds, rays = 0.0, 0
     for v, stem in enumerate(stems):
         files = render_files(stem)
+        started = time.perf_counter()
         res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
+        seconds = time.perf_counter() - started
+        render_seconds += seconds
+        rays += int(cameras.width[v]) * int(cameras.height[v])
         rgba = straight_rgba(res, opaque)
         write_png(out / files["image"], rgba)
         write_exr(out / files["depth"], {"Z": res["z_depth"].numpy()})
@@ -298,6 +331,7 @@ def render_to_dir(
             "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
             "w": int(cameras.width[v]), "h": int(cameras.height[v]),
             "camera_angle_x": float(cameras.fov_x()[v]),
+            "render_seconds": seconds,
         }
         gt_split, why_not = _ground_truth(gt_frames[v], cameras, v, gt_downscale)
         if gt_split is not None:
@@ -322,7 +356,8 @@ def render_to_dir(
     meta = {"frames": frames, "depth": "planar z-depth in scene units, EXR channel Z, 0 where nothing was hit",
             "alpha": ("1: opaque, the learned environment is composited behind the scene" if opaque else
                       "accumulated opacity; colour is straight (not premultiplied)"),
-            "background": "environment" if opaque else "transparent", "created": time.time()}
+            "background": "environment" if opaque else "transparent", "created": time.time(),
+            **render_rate(render_seconds, rays)}
     if any("psnr" in f for f in frames):
         meta["metrics_background"] = [float(c) for c in bg.tolist()]
         meta["error_map_vmax"] = HEATMAP_VMAX

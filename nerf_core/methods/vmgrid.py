@@ -21,7 +21,7 @@ import math
 
 import torch
 
-from .. import grad_scaling, profiling, sampling, volrend
+from .. import grad_scaling, profiling, ray_termination, sampling, volrend
 from ..contraction import contract, outer_box
 from ..fields.tensorf import TensorVMField
 from ..occupancy import OccupancyGrid
@@ -92,6 +92,7 @@ class VMGrid(RadianceModel):
                                    density_scale=density_scale)
         self.occupancy = OccupancyGrid(field_box, opts["occ_res"])
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
+        self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
         self._acc_ema = 0.0  # running mean opacity of training rays (see ``formed``)
         self._last_growth_step = 0
 
@@ -177,6 +178,14 @@ class VMGrid(RadianceModel):
     def update_occupancy(self) -> None:
         self.occupancy.update(self._density, self.step_size())
 
+    def _density_of(self, pts: Tensor):
+        """sample indices (j,) -> density (j,) at those of the field-space points ``pts`` (k, 3), in
+        chunks of ``render_step_chunk`` samples (the no-grad render path's ``density_fn``)."""
+        def density(sel: Tensor) -> Tensor:
+            return torch.cat([self._density(pts[sel[i:i + self.render_step_chunk]])
+                              for i in range(0, max(1, sel.shape[0]), self.render_step_chunk)])
+        return density
+
     def _density(self, pts: Tensor) -> Tensor:
         """Field density (m,) at field-space points (m, 3), marked as the profile's ``field`` stage."""
         with profiling.stage("field"):
@@ -244,23 +253,33 @@ class VMGrid(RadianceModel):
             else:
                 t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
                                                          jitter=training, max_samples=4096)
-        # Early ray termination: find, without grad, the samples still visible (T > 1e-4).
-        with torch.no_grad():
-            mids = 0.5 * (t0 + t1)
-            pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
-            sig = torch.cat([self._density(pts[i:i + self.render_step_chunk])
-                             for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
+        mids = 0.5 * (t0 + t1)
+        pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
+        gscale = None
+        if torch.is_grad_enabled():
+            # Early ray termination: find, without grad, the samples still visible (T > 1e-4), then
+            # recompute their density with grad.
+            with torch.no_grad():
+                sig = torch.cat([self._density(pts[i:i + self.render_step_chunk])
+                                 for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
+                with profiling.stage("rendering"):
+                    trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
+                keep = trans > 1e-4
+            t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
+            sigma = self._density(pts)
+            gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
+                self.aabb, self.options["grad_reach"])) if training else None
+            if gscale is not None:  # cameras inside the box: even out the gradient near each lens
+                sigma = grad_scaling.scale_gradient(sigma, gscale)
             with profiling.stage("rendering"):
-                trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
-            keep = trans > 1e-4
-        t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
-        sigma = self._density(pts)
-        gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
-            self.aabb, self.options["grad_reach"])) if training else None
-        if gscale is not None:  # cameras inside the box: even out the gradient near each lens
-            sigma = grad_scaling.scale_gradient(sigma, gscale)
+                weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
+        else:
+            # Nothing to differentiate (render, eval): the same kept samples and weights, without the
+            # density of samples behind opaque surfaces or a second density pass over the survivors.
+            keep, weights = ray_termination.visible_samples(
+                t0, t1, ridx, n_rays, self._density_of(pts), t_min=1e-4, round_size=self.render_round_size)
+            t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
         with profiling.stage("rendering"):
-            weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
             # Colour only where it can matter: most surviving samples are transparent space before a
             # surface. Rays that are still almost transparent (all of them at initialisation) get colour
             # at every sample: treating unevaluated samples as black would teach the density only to

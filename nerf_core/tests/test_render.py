@@ -162,3 +162,63 @@ def test_render_of_cameras_without_images_has_no_metrics(trained_run, tmp_path):
     frames = json.loads((out / "renders.json").read_text())["frames"]
     assert frames and all("psnr" not in f and "error_map" not in f and "metrics_skipped" not in f for f in frames)
     assert not (out / "errors").exists()
+
+
+def test_render_and_eval_report_their_rendering_time(trained_run, tmp_path, capsys):
+    # renders.json and eval's summary carry the time spent rendering (nothing else), the rays rendered
+    # (every pixel of every view: 2 test views of 24 x 20) and their ratio; scripts/bench_render.py reads them.
+    ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "timed"
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]) == 0
+    meta = json.loads((out / "renders.json").read_text())
+    assert meta["rays"] == 2 * 24 * 20
+    assert all(f["render_seconds"] > 0 for f in meta["frames"])
+    assert meta["render_seconds"] == pytest.approx(sum(f["render_seconds"] for f in meta["frames"]))
+    assert meta["rays_per_s"] == pytest.approx(meta["rays"] / meta["render_seconds"])
+    capsys.readouterr()
+    assert main(["eval", str(run), "--split", "test", "--no-bar"]) == 0
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert last["rays"] == 2 * 24 * 20 and last["render_seconds"] > 0
+    assert last["rays_per_s"] == pytest.approx(last["rays"] / last["render_seconds"])
+
+
+class _Counting(torch.nn.Module):
+    """A fake model reporting ``per_ray`` samples per ray (``None``: no ``n_samples``); records call sizes."""
+
+    def __init__(self, per_ray):
+        super().__init__()
+        self.per_ray, self.calls = per_ray, []
+
+    def render_rays(self, rays_o, rays_d, near, far, background, training):
+        n = rays_o.shape[0]
+        self.calls.append(n)
+        out = {"rgb": rays_d.abs(), "depth": near + 1.0, "acc": torch.full((n,), 0.5)}
+        if self.per_ray is not None:
+            out["n_samples"] = n * self.per_ray
+        return out
+
+
+def test_cpu_calls_are_sized_by_the_samples_the_method_reports():
+    from nerf_core import render as r
+
+    m = 3000
+    rays_d = torch.nn.functional.normalize(torch.randn(m, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    rays_o, near, far = torch.zeros(m, 3), torch.linspace(0, 1, m), torch.full((m,), 2.0)
+    bg = torch.ones(3)
+    # 128 samples per ray: after the first call (at most CPU_MAX_CALL_RAYS rays), 16384 / 128 = 128 rays a call.
+    heavy = _Counting(128)
+    res = r.render_rays_chunked(heavy, rays_o, rays_d, near, far, bg, chunk=8192)
+    assert heavy.calls[0] == r.CPU_MAX_CALL_RAYS == 512
+    assert set(heavy.calls[1:-1]) == {r.CPU_SAMPLES_PER_CALL // 128} and sum(heavy.calls) == m
+    torch.testing.assert_close(res["rgb"], rays_d.abs())
+    torch.testing.assert_close(res["depth"], near + 1.0)
+    # Very many samples per ray: never below CPU_MIN_CALL_RAYS; no samples at all: the cap.
+    huge = _Counting(10 ** 6)
+    r.render_rays_chunked(huge, rays_o, rays_d, near, far, bg)
+    assert set(huge.calls[1:-1]) == {r.CPU_MIN_CALL_RAYS}
+    for model in (_Counting(0), _Counting(None)):
+        r.render_rays_chunked(model, rays_o, rays_d, near, far, bg)
+        assert set(model.calls[:-1]) == {512}
+    # ``chunk`` stays the upper bound (memory).
+    small = _Counting(1)
+    r.render_rays_chunked(small, rays_o, rays_d, near, far, bg, chunk=100)
+    assert max(small.calls) == 100

@@ -1,4 +1,5 @@
-"""The benchmark and stability studies' shared machinery (``scripts/benchmark.py``, ``scripts/stability.py``).
+"""The benchmark and stability studies' shared machinery (``scripts/benchmark.py``, ``scripts/stability.py``,
+``scripts/bench_render.py``).
 
 Imported as ``bench`` with ``scripts/`` on sys.path (the entry scripts put it there):
 
@@ -7,7 +8,8 @@ Imported as ``bench`` with ``scripts/`` on sys.path (the entry scripts put it th
 - ``analysis``: training summaries, floaters, mean/spread, Pareto fronts, the benchmark's tables;
 - ``report``: CSV/JSON/markdown writers and the charts;
 - ``plan``: what a benchmark run trains (scenes, series, checkpoints, size presets);
-- ``profiler``: the in-process per-stage profile of a training step.
+- ``profiler``: the in-process per-stage profile of a training step;
+- ``render_speed``: training against rendering rays/s (``scripts/bench_render.py``).
 
 Only ``profiler`` (when called) and ``plan.default_fast_method`` import torch.
 """
