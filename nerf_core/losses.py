@@ -33,3 +33,14 @@ def total_variation_2d(planes: Tensor) -> Tensor:
 def l1_sparsity(*tensors: Tensor) -> Tensor:
     """Sum of mean absolute values: pushes factorised density towards zero where nothing needs it."""
     return sum(t.abs().mean() for t in tensors)
+
+
+def backward(loss: Tensor) -> None:
+    """``loss.backward()``, or nothing when no parameter took part in the loss.
+
+    A batch whose rays all miss the scene box (or every occupied cell) is rendered as pure background:
+    its loss is a constant, and autograd would raise "element 0 of tensors does not require grad".
+    Such a batch teaches nothing; the optimiser step that follows skips parameters without a gradient.
+    """
+    if loss.requires_grad:
+        loss.backward()

@@ -30,7 +30,7 @@ from . import backgrounds, contract, distributed
 from .checkpoints import RunError, load_state_resizing, read_resume_checkpoint, save_checkpoint, versions
 from .data import Dataset, DatasetError, RayBatcher, load_dataset
 from .interrupts import DeferredInterrupts, terminate_as_interrupt
-from .losses import masked_mse, psnr_from_mse
+from .losses import backward, masked_mse, psnr_from_mse
 from .optim import clone_state, make_optimizer, rebuild_optimizer, rescale_base_lrs, schedule_factor, warmup_steps
 from .previews import Previews
 from .progress import EventLog
@@ -384,12 +384,12 @@ class Trainer:
                 bad = self._bad_loss(loss_value)
                 if bad is None:
                     self.opt.zero_grad(set_to_none=True)
-                    loss.backward()
+                    backward(loss)
                     bad = self._bad_gradient()
                 self.elapsed += time.perf_counter() - t0
             else:  # every rank takes the same decisions from the same (reduced) numbers
                 self.opt.zero_grad(set_to_none=True)
-                loss.backward()
+                backward(loss)
                 params = [p for g in self.opt.param_groups for p in g["params"]]
                 shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
                                     self.dist.is_main and self._checkpoint_due(wall_clock=True))

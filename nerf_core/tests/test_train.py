@@ -228,3 +228,17 @@ def test_eval_at_evaluates_at_training_times_inside_one_run(sphere_dataset, tmp_
     assert evals[0]["step"] < evals[1]["step"]
     for e in evals:
         assert e["split"] == "test" and e["n_views"] == 1 and math.isfinite(e["psnr"]) and e["n_params"] > 0
+
+
+@pytest.mark.parametrize("method", ["vmgrid", "nerf"])
+def test_a_batch_that_misses_the_scene_trains_on(tmp_path, dataset_factory, method):
+    """Rays that all miss the box render pure background: a constant loss with no gradient. Regression:
+    the trainer called ``loss.backward()`` on it and stopped with autograd's "does not require grad"."""
+    ds = dataset_factory(tmp_path / "ds", n_train=3, n_test=1, w=8, h=6)
+    for split in ("train", "val", "test"):  # a box far behind every camera
+        path = ds / f"transforms_{split}.json"
+        meta = json.loads(path.read_text())
+        meta["aabb"] = [[40.0, 40.0, 40.0], [41.0, 41.0, 41.0]]
+        path.write_text(json.dumps(meta))
+    out = train(_cfg(ds, tmp_path / "run", method=method, max_steps=3, batch_rays=32, eval_views=0))
+    assert out["step"] == 3
