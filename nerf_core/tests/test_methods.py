@@ -214,13 +214,15 @@ def test_nerf_early_ray_termination_while_training_changes_only_invisible_sample
 
 def test_nerf_checkpoint_from_before_the_occupancy_sampler_loads_as_hierarchical():
     torch.manual_seed(0)
-    old = build_model("nerf", BOX, **SMALL_NERF, sampler="hierarchical")
+    old = build_model("nerf", BOX, **SMALL_NERF, sampler="hierarchical", density_activation="softplus")
     state = old.state_dict()
-    options = {k: v for k, v in old.options.items() if k not in ("sampler", "march_steps", "warmup_step_scale",
-                                                                    "occ_res", "occ_every")}
+    # the options such a checkpoint recorded: none of the occupancy sampler's, no density activation
+    options = {k: v for k, v in old.options.items() if k in ("width", "depth", "skip", "pos_freqs", "dir_freqs",
+                                                             "use_pe", "n_coarse", "n_fine", "grad_reach")}
     model = build_model("nerf", BOX, **options)  # what load_run does with an old config
     model.load_state_dict(state)
     assert model.options["sampler"] == "hierarchical" and model.occupancy is None
+    assert model.options["density_activation"] == "softplus"
     o, d, near, far, _ = sphere_scene(n_cams=1, size=4)
     with torch.no_grad():
         a = old.render_rays(o, d, near, far, torch.ones(16, 3), False)["rgb"]
@@ -236,3 +238,16 @@ def test_methods_run_on_cuda():
         model.training_hook(16, 16 / 100)
         out = model.render_rays(o, d, near, far, torch.ones(16, 3, device="cuda"), True)
         assert out["rgb"].is_cuda
+
+
+def test_nerf_density_activations_hand_computed():
+    from nerf_core.fields.mlp import NeRFMLP
+
+    raw = torch.tensor([-20.0, 0.0, 1.0, 3.0, 40.0])
+    exp_net = NeRFMLP(BOX, density_activation="exp")
+    soft_net = NeRFMLP(BOX, density_activation="softplus")
+    # both shifted by -1; exp clamped at +-15 so an outlier cannot overflow
+    assert torch.allclose(exp_net._activate(raw), torch.tensor([math.exp(-15), math.exp(-1), 1.0, math.exp(2), math.exp(15)]))
+    assert torch.allclose(soft_net._activate(raw), torch.log1p(torch.exp(raw - 1.0)))
+    with pytest.raises(ValueError, match="density_activation"):
+        NeRFMLP(BOX, density_activation="relu")
