@@ -57,9 +57,10 @@ def training_rate(events: Iterable[dict], rays_per_step: int) -> dict:
     """Training rays/s over the second half of a run's training time, from its progress events.
 
     Uses the ``step`` and ``done`` events' ``step`` and ``elapsed`` (training seconds: previews,
-    checkpoints and evaluation not counted): from the first event at or after half the final
-    ``elapsed`` to the last one, rays/s = steps x ``rays_per_step`` / seconds. Returns
-    ``rays_per_s`` (None when the second half holds fewer than two events with progress between them),
+    checkpoints and evaluation not counted): from the last event at or before half the final
+    ``elapsed`` (so the span always covers the second half, even when a short or slow run logged
+    no step inside it) to the last one, rays/s = steps x ``rays_per_step`` / seconds. Returns
+    ``rays_per_s`` (None when there are fewer than two events with progress between them),
     ``from_step``, ``to_step``, ``seconds`` and ``rollbacks`` (a rollback repeats steps, so a rate with
     rollbacks in it is low).
     """
@@ -75,8 +76,8 @@ def training_rate(events: Iterable[dict], rays_per_step: int) -> dict:
     if not points:
         return out
     end = max(e for _, e in points)
-    half = [p for p in points if p[1] >= end / 2]
-    (s0, e0), (s1, e1) = half[0], half[-1]
+    before = [p for p in points if p[1] <= end / 2]
+    (s0, e0), (s1, e1) = (before[-1] if before else points[0]), points[-1]
     out.update(from_step=s0, to_step=s1, seconds=e1 - e0)
     if s1 > s0 and e1 > e0:
         out["rays_per_s"] = (s1 - s0) * int(rays_per_step) / (e1 - e0)

@@ -39,6 +39,11 @@ def test_training_rate_is_taken_over_the_second_half_of_training_time():
     # Half of 8 s is 4 s: from step 30 at 4 s to step 45 at 8 s, 15 steps of 1024 rays in 4 s.
     assert rate["rays_per_s"] == pytest.approx(15 * 1024 / 4.0)
     assert (rate["from_step"], rate["to_step"], rate["seconds"], rate["rollbacks"]) == (30, 45, 4.0, 1)
+    # A short run whose second half logged no step (regression: CI's 2-second run gave None): the span
+    # starts at the last event before the half, from step 10 at 1 s to step 12 at 8 s.
+    short = render_speed.training_rate([{"event": "step", "step": 10, "elapsed": 1.0},
+                                        {"event": "done", "step": 12, "elapsed": 8.0}], 1024)
+    assert short["rays_per_s"] == pytest.approx(2 * 1024 / 7.0) and short["from_step"] == 10
     # Nothing to measure: one event, or no step events at all.
     assert render_speed.training_rate([{"event": "done", "step": 5, "elapsed": 3.0}], 1024)["rays_per_s"] is None
     assert render_speed.training_rate([{"event": "error", "message": "x"}], 1024)["rays_per_s"] is None
