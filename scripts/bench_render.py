@@ -97,27 +97,27 @@ def bench_method(args, method: str, run: str | None, out: str, env: dict, comman
     row.update(train_rays_per_s=rate["rays_per_s"], train_window=rate, steps=rate["to_step"],
                rays_per_step=int(config["rays_per_step"]))
 
-    renders = os.path.join(out, "renders", method)
-    cmd = [py, "-m", "nerf_core", "render", run, "--cameras", args.dataset, "--split", "test", "--out", renders, "--no-bar"]
-    commands.append(" ".join(shlex.quote(c) for c in cmd))
-    print(f"{PROG}: rendering the test views of {method}", file=sys.stderr, flush=True)
-    res = runner.run_cli(cmd, env_extra=env, log_path=os.path.join(out, f"render_{method}.log"))
-    if not res.ok:
-        return dict(row, error=f"render failed: {res.error_message()}")
-    with open(os.path.join(renders, "renders.json"), encoding="utf-8") as fh:
-        rend = render_speed.render_rate(json.load(fh))
-    row.update(render_rays_per_s=rend["rays_per_s"], render_window=rend)
+    def render(cameras: list[str], kind: str, what: str):
+        """``render RUN --cameras ...`` into OUT/<kind>/<method>: its renders.json, or an error line."""
+        folder = os.path.join(out, kind, method)
+        cmd = [py, "-m", "nerf_core", "render", run, "--cameras", *cameras, "--out", folder, "--no-bar"]
+        commands.append(" ".join(shlex.quote(c) for c in cmd))
+        print(f"{PROG}: rendering {what} of {method}", file=sys.stderr, flush=True)
+        res = runner.run_cli(cmd, env_extra=env, log_path=os.path.join(out, f"{kind}_{method}.log"))
+        if not res.ok:
+            return None, f"{what} failed: {res.error_message()}"
+        with open(os.path.join(folder, "renders.json"), encoding="utf-8") as fh:
+            return json.load(fh), None
 
-    frame_dir = os.path.join(out, "frame", method)
-    cmd = [py, "-m", "nerf_core", "render", run, "--cameras", os.path.join(out, "frame_camera.json"), "--out",
-           frame_dir, "--no-bar"]
-    commands.append(" ".join(shlex.quote(c) for c in cmd))
-    print(f"{PROG}: rendering one {args.frame_size} frame of {method}", file=sys.stderr, flush=True)
-    res = runner.run_cli(cmd, env_extra=env, log_path=os.path.join(out, f"frame_{method}.log"))
-    if not res.ok:
-        return dict(row, error=f"{args.frame_size} frame failed: {res.error_message()}")
-    with open(os.path.join(frame_dir, "renders.json"), encoding="utf-8") as fh:
-        row["frame_seconds"] = float(json.load(fh)["frames"][0]["render_seconds"])
+    renders, error = render([args.dataset, "--split", "test"], "renders", "the test views")
+    if error:
+        return dict(row, error=error)
+    rend = render_speed.render_rate(renders)
+    row.update(render_rays_per_s=rend["rays_per_s"], render_window=rend)
+    frame, error = render([os.path.join(out, "frame_camera.json")], "frame", f"one {args.frame_size} frame")
+    if error:
+        return dict(row, error=error)
+    row["frame_seconds"] = float(frame["frames"][0]["render_seconds"])
     return row
 
 

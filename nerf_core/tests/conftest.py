@@ -223,3 +223,14 @@ def dataset_factory():
     """``make_dataset`` for tests that need a variant (imported through a fixture because
     ``from conftest import`` is ambiguous when several test folders have a conftest.py)."""
     return make_dataset
+
+
+@pytest.fixture
+def one_thread():
+    """torch on one thread for the test. Small batches gain little from a second thread and, on a
+    shared CPU, OpenMP barriers make two threads several times slower than one. Use it as
+    ``pytestmark = pytest.mark.usefixtures("one_thread")``."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

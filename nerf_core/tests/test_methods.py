@@ -83,14 +83,7 @@ SMALL_GRID = dict(res_init=16, res_final=32, upsample_at=[0.25], density_rank=8,
                   occ_res=16, min_stage_steps=20)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # These batches are small: a second thread buys little and, on a shared CPU, OpenMP barriers make
-    # two threads several times slower than one.
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # small batches (see conftest.one_thread)
 
 
 def test_catalog_lists_the_methods_and_a_fast_default():

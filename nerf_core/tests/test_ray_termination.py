@@ -12,12 +12,7 @@ from nerf_core.ray_termination import visible_samples
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # small batches (see conftest.one_thread)
 
 
 def _full_pass(t0, t1, sigma, ridx, n_rays, t_min=1e-4):
