@@ -69,7 +69,7 @@ class OccupancyGrid(nn.Module):
 
     @torch.no_grad()
     def update(self, density_fn: Callable[[Tensor], Tensor], step_size: float, alpha_threshold: float = 1e-3,
-               decay: float = 0.95, chunk: int = 1 << 18) -> None:
+               decay: float = 0.95, chunk: int = 1 << 18, dilate: bool = True) -> None:
         """Re-evaluate density in every cell and refresh the binary mask.
 
         Args:
@@ -82,9 +82,10 @@ class OccupancyGrid(nn.Module):
         # Charged to the profile's ``sampling`` stage (what the grid serves), ``density_fn``'s own
         # marks (``field``) excepted.
         with profiling.stage("sampling"):
-            self._update(density_fn, step_size, alpha_threshold, decay, chunk)
+            self._update(density_fn, step_size, alpha_threshold, decay, chunk, dilate)
 
-    def _update(self, density_fn, step_size: float, alpha_threshold: float, decay: float, chunk: int) -> None:
+    def _update(self, density_fn, step_size: float, alpha_threshold: float, decay: float, chunk: int,
+                dilate: bool) -> None:
         pts = self.cell_centers(jitter=True)
         sig = torch.cat([density_fn(pts[i:i + chunk]).reshape(-1).float() for i in range(0, pts.shape[0], chunk)])
         ema = torch.maximum(self.density_ema.reshape(-1) * decay, sig)
@@ -97,7 +98,8 @@ class OccupancyGrid(nn.Module):
             self.n_resets += 1
             self.binary.fill_(True)
             return
-        occ = F.max_pool3d(occ[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
+        if dilate:
+            occ = F.max_pool3d(occ[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
         self.binary.copy_(occ > 0)
 
     @torch.no_grad()

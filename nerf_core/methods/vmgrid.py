@@ -38,6 +38,20 @@ class VMGrid(RadianceModel):
         upsample_at: fractions of the training budget at which to grow (log-spaced sizes).
         density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
         occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
+        occ_alpha, occ_decay, occ_dilate_formed: how tightly the occupancy grid hugs the geometry
+            (``OccupancyGrid.update``). A cell stays occupied while one marching step there would be more
+            opaque than ``occ_alpha``; its remembered density keeps ``occ_decay`` of itself per update; the
+            one-cell dilation that lets forming geometry spread stops once ``formed()`` unless
+            ``occ_dilate_formed``. The old values (1e-3, 0.95, dilating always) kept a shell of empty
+            cells around every surface and the early fog for the whole run: on the multi demo scene
+            (200 px, 5 min, one core) 63 % of the samples that survived early termination were nearly
+            transparent (alpha < 1e-3) and 44 % lay in dilation-only cells; in the interior the grid
+            kept the fog in the air, 75 % of the room. With the new values the same 5 minutes gave
+            36.7 against 36.1 dB on multi (2771 against 1690 steps), 35.9 against 35.4 dB on thin (4431
+            against 1739 steps) and 30.3 against 28.4 dB in the interior (714 against 311 steps).
+        color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
+            on rays still almost transparent, see ``render_rays``); 1e-3 instead of 1e-4 halves the
+            colour evaluations on multi (36.9 against 36.7 dB, 3662 against 2771 steps in 5 min).
         step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss); the
             density L1 starts once the occupancy grid prunes (see ``render_rays``).
         alpha_init: opacity of one marching step of the initial grid at initialisation (nearly
@@ -64,9 +78,11 @@ class VMGrid(RadianceModel):
     warmup_steps = 20
     defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
-                    occ_res=64, occ_every=16, step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
+                    occ_res=64, occ_every=16, occ_alpha=0.01, occ_decay=0.5, occ_dilate_formed=False,
+                    step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
-                    contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE)
+                    contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
+                    color_weight=1e-3)
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
@@ -176,7 +192,9 @@ class VMGrid(RadianceModel):
 
     @torch.no_grad()
     def update_occupancy(self) -> None:
-        self.occupancy.update(self._density, self.step_size())
+        self.occupancy.update(self._density, self.step_size(), alpha_threshold=float(self.options["occ_alpha"]),
+                              decay=float(self.options["occ_decay"]),
+                              dilate=bool(self.options["occ_dilate_formed"]) or not self.formed())
 
     def _density_of(self, pts: Tensor):
         """sample indices (j,) -> density (j,) at those of the field-space points ``pts`` (k, 3), in
@@ -285,7 +303,7 @@ class VMGrid(RadianceModel):
             # at every sample: treating unevaluated samples as black would teach the density only to
             # darken rays, and a field on a random background would then never become opaque.
             acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
-        vis = (weights.detach() > 1e-4) | (acc_ray[ridx] < 0.05)
+        vis = (weights.detach() > self.options["color_weight"]) | (acc_ray[ridx] < 0.05)
         # Gathers stay outside the stage marks: the profile charges them to "other_forward".
         ridx_vis, mids = ridx[vis], (0.5 * (t0 + t1)).unsqueeze(-1)
         pts_vis, dirs_vis, weights_vis = pts[vis], rays_d[ridx_vis], weights[vis]

@@ -102,6 +102,24 @@ def test_vmgrid_overfits_the_sphere_and_grows():
     assert torch.all((out["acc"] >= 0) & (out["acc"] <= 1 + 1e-5))
 
 
+def test_vmgrid_occupancy_dilates_only_until_geometry_forms():
+    """Before ``formed()`` the grid keeps a one-cell shell around density (forming geometry may spread);
+    after, only cells whose own density passes ``occ_alpha`` stay, so surfaces get no empty shell."""
+    model, _, _ = overfit("vmgrid", 120, 384, **SMALL_GRID)
+    assert model.formed()
+    occ = model.occupancy
+    thr = -math.log1p(-model.options["occ_alpha"]) / model.step_size()
+    torch.manual_seed(1)
+    model.update_occupancy()
+    assert torch.equal(occ.binary, occ.density_ema > thr)  # no dilation once formed
+    assert occ.binary.any()
+    model.options["occ_dilate_formed"] = True
+    torch.manual_seed(1)
+    model.update_occupancy()
+    shell = occ.binary & ~(occ.density_ema > thr)
+    assert shell.sum() > 0.2 * occ.binary.sum()  # the old behaviour: a dilation shell
+
+
 def test_vmgrid_density_l1_waits_for_geometry():
     """The L1 prior must not start before the occupancy grid prunes.
 

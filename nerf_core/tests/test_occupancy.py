@@ -50,3 +50,20 @@ def test_emptied_grid_recovers_and_ema_remembers():
     g.binary.fill_(False)
     g.update(lambda p: torch.zeros(p.shape[0]), step_size=0.02)
     assert g.binary.all() and g.n_resets == 1
+
+
+def test_update_without_dilation_keeps_only_cells_that_hold_density():
+    dilated, tight = OccupancyGrid(BOX, resolution=16), OccupancyGrid(BOX, resolution=16)
+    torch.manual_seed(0)
+    dilated.update(ball, step_size=0.02, decay=0.0)
+    torch.manual_seed(0)  # the same jittered cell points for both
+    tight.update(ball, step_size=0.02, decay=0.0, dilate=False)
+    # Exactly the cells whose point fell in the ball; the dilated grid holds them and a one-cell shell.
+    centres_in_ball = (tight.cell_centers(jitter=False).norm(dim=-1) < 0.4 - 2 / 16 * 3 ** 0.5).reshape(16, 16, 16)
+    assert tight.binary[centres_in_ball].all()
+    assert (tight.binary & ~dilated.binary).sum() == 0
+    assert dilated.binary.sum() > 1.5 * tight.binary.sum()
+    # No occupied cell lies wholly outside the ball: its nearest corner is inside the radius.
+    lo = tight.cell_centers(jitter=False) - 1 / 16
+    nearest = torch.maximum(lo, torch.minimum(torch.zeros(3), lo + 2 / 16))
+    assert (nearest.norm(dim=-1).reshape(16, 16, 16)[tight.binary] < 0.4).all()
