@@ -41,17 +41,20 @@ class VMGrid(RadianceModel):
         occ_alpha, occ_decay, occ_dilate_formed: how tightly the occupancy grid hugs the geometry
             (``OccupancyGrid.update``). A cell stays occupied while one marching step there would be more
             opaque than ``occ_alpha``; its remembered density keeps ``occ_decay`` of itself per update; the
-            one-cell dilation that lets forming geometry spread stops once ``formed()`` unless
-            ``occ_dilate_formed``. The old values (1e-3, 0.95, dilating always) kept a shell of empty
-            cells around every surface and the early fog for the whole run: on the multi demo scene
-            (200 px, 5 min, one core) 63 % of the samples that survived early termination were nearly
-            transparent (alpha < 1e-3) and 44 % lay in dilation-only cells; in the interior the grid
-            kept the fog in the air, 75 % of the room. With the new values the same 5 minutes gave
-            36.7 against 36.1 dB on multi (2771 against 1690 steps), 35.9 against 35.4 dB on thin (4431
-            against 1739 steps) and 30.3 against 28.4 dB in the interior (714 against 311 steps).
+            one-cell dilation that lets forming geometry spread continues after ``formed()`` unless
+            ``occ_dilate_formed`` is off. The defaults keep a shell of empty cells round every surface and
+            the early fog for a 5-minute run: on the multi demo scene (200 px) 63 % of the samples that
+            survive early termination are nearly transparent (alpha < 1e-3), 44 % in dilation-only cells.
+            Tighter grids, 5 min on one core, two runs side by side, against the defaults: decay 0.5 and
+            no dilation once formed gave multi 36.72 against 36.08 dB (2771 against 1690 steps) and thin
+            35.89 against 35.43; with occ_alpha 0.01 as well, the interior 30.31 against 28.43 (714
+            against 311 steps; occ_alpha 0.01 alone: 27.84), but diffuse 39.64 against 41.57: with no shell
+            and a short memory, cells that a surface crosses only in a corner drop out when their one
+            random density probe misses, and the sphere shows holes. So it is an option, not the default.
         color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
-            on rays still almost transparent, see ``render_rays``); 1e-3 instead of 1e-4 halves the
-            colour evaluations on multi (36.9 against 36.7 dB, 3662 against 2771 steps in 5 min).
+            on rays still almost transparent, see ``render_rays``); skipped samples add no colour, so a
+            larger value darkens rays slightly (1e-3 halved the colour work on multi but capped diffuse
+            near 40 dB).
         step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss); the
             density L1 starts once the occupancy grid prunes (see ``render_rays``).
         alpha_init: opacity of one marching step of the initial grid at initialisation (nearly
@@ -78,11 +81,11 @@ class VMGrid(RadianceModel):
     warmup_steps = 20
     defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
-                    occ_res=64, occ_every=16, occ_alpha=0.01, occ_decay=0.5, occ_dilate_formed=False,
+                    occ_res=64, occ_every=16, occ_alpha=1e-3, occ_decay=0.95, occ_dilate_formed=True,
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-3)
+                    color_weight=1e-4)
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
