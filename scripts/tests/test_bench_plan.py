@@ -79,8 +79,8 @@ def test_log_checkpoints_double_from_10s_and_keep_the_minute_marks():
     assert bench_plan.log_checkpoints(600.0) == [10, 20, 40, 60, 80, 120, 160, 300, 600]
     # 90 s: 80 is 11 % from the budget and goes; 60 is inside the budget and stays.
     assert bench_plan.log_checkpoints(90.0) == [10, 20, 40, 60, 90]
-    # 30 min: 640 is 6.7 % from 600 and goes, 1280 is 29 % from 1800 and stays.
-    assert bench_plan.log_checkpoints(1800.0) == [10, 20, 40, 60, 80, 120, 160, 300, 600, 1280, 1800]
+    # 30 min: 640 is 6.7 % from 600 and goes, the 15-minute mark is kept, 1280 is 29 % from 1800 and stays.
+    assert bench_plan.log_checkpoints(1800.0) == [10, 20, 40, 60, 80, 120, 160, 300, 600, 900, 1280, 1800]
     # Budgets at or under the first point: the budget alone.
     assert bench_plan.log_checkpoints(10.0) == [10] and bench_plan.log_checkpoints(6.0) == [6]
     with pytest.raises(ValueError):
