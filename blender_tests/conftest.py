@@ -40,3 +40,24 @@ def active_camera():
         scene.frame_start, scene.frame_end = frames
         return cam
     return make
+
+
+@pytest.fixture(scope="session")
+def cube_and_ball_blend():
+    """Factory: ``cube_and_ball_blend(path, light="SUN")`` saves a small lit scene (a 1.5-unit cube at the
+    origin and a 0.35-radius ball beside it) to ``path`` and leaves an empty file open; returns the path.
+    The capture tests that run scripts in subprocesses start from it."""
+    def make(path, light: str = "SUN"):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.mesh.primitive_cube_add(size=1.5)
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(1.3, 0.4, 0.5))
+        lamp = bpy.data.objects.new(light.title(), bpy.data.lights.new(light.title(), light))
+        if light == "AREA":
+            lamp.data.energy = 500.0
+            lamp.location = (2.0, -2.0, 3.0)
+        bpy.context.scene.collection.objects.link(lamp)
+        bpy.ops.wm.save_as_mainfile(filepath=str(path))
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        return path
+
+    return make

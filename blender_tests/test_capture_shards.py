@@ -34,17 +34,10 @@ def _run(*args, timeout=300):
 
 
 @pytest.fixture(scope="module")
-def captures(tmp_path_factory):
+def captures(tmp_path_factory, cube_and_ball_blend):
     """(whole, merged, unmerged copy of the shards' folder, blend) of one scene and one command line."""
     root = tmp_path_factory.mktemp("shards")
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.mesh.primitive_cube_add(size=1.5)
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(1.3, 0.4, 0.5))
-    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
-    bpy.context.scene.collection.objects.link(sun)
-    blend = root / "scene.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blend = cube_and_ball_blend(root / "scene.blend")
     whole, sharded = root / "whole", root / "sharded"
     proc = _run("--blend", blend, "--out", whole, *ARGS)
     assert proc.returncode == 0, proc.stderr

@@ -13,7 +13,6 @@ import os
 import subprocess
 import sys
 
-import bpy
 import pytest
 
 PY = sys.executable
@@ -27,18 +26,9 @@ def _run(script, *args, timeout=300):
 
 
 @pytest.fixture(scope="module")
-def capture(tmp_path_factory):
+def capture(tmp_path_factory, cube_and_ball_blend):
     root = tmp_path_factory.mktemp("ceiling")
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.mesh.primitive_cube_add(size=1.5)
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.35, location=(1.3, 0.4, 0.5))
-    light = bpy.data.objects.new("Area", bpy.data.lights.new("Area", "AREA"))
-    light.data.energy = 500.0
-    light.location = (2.0, -2.0, 3.0)
-    bpy.context.scene.collection.objects.link(light)
-    blend = root / "scene.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blend = cube_and_ball_blend(root / "scene.blend", light="AREA")
     ds = root / "ds"
     proc = _run(CAPTURE, "--blend", blend, "--out", ds, "--count", "3", "--val-count", "1", "--test-count", "3",
                 "--resolution", "32", "--engine", "cycles", "--samples", "4", "--layout", "sphere", "--radius", "6",
