@@ -48,13 +48,15 @@ class VMGrid(RadianceModel):
             Tighter grids, 5 min on one core, two runs side by side, against the defaults: decay 0.5 and
             no dilation once formed gave multi 36.72 against 36.08 dB (2771 against 1690 steps) and thin
             35.89 against 35.43; with occ_alpha 0.01 as well, the interior 30.31 against 28.43 (714
-            against 311 steps; occ_alpha 0.01 alone: 27.84), but diffuse 39.64 against 41.57: with no shell
-            and a short memory, cells that a surface crosses only in a corner drop out when their one
-            random density probe misses, and the sphere shows holes. So it is an option, not the default.
+            against 311 steps; occ_alpha 0.01 alone: 27.84), but diffuse 39.64 against 41.57: the
+            sphere shows holes. The likely reason (not isolated): with no shell and a short memory, a
+            cell that a surface only clips drops out when its one random density probe misses. So it
+            is an option, not the default.
         color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
             on rays still almost transparent, see ``render_rays``); skipped samples add no colour, so a
-            larger value darkens rays slightly (1e-3 halved the colour work on multi but capped diffuse
-            near 40 dB).
+            larger value darkens rays slightly. With the tight grid above, 1e-3 halved the colour work on
+            multi (36.91 against 36.72 dB, 3662 against 2771 steps); it was not measured alone on the
+            other scenes, so the default stays 1e-4.
         step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss); the
             density L1 starts once the occupancy grid prunes (see ``render_rays``).
         alpha_init: opacity of one marching step of the initial grid at initialisation (nearly
