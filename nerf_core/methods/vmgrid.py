@@ -8,6 +8,9 @@ Per batch of rays:
    (early ray termination: inside objects and behind surfaces costs nothing more);
 3. with grad, recompute density on the survivors, compositing weights (packed ``volrend``), and evaluate
    the colour MLP only where a sample's weight exceeds 1e-4.
+Rendering without grad (``render``, ``eval``) keeps the same samples, evaluates density front to back
+(``ray_termination``) and reads the field through lookup tables laid out for reading
+(``fields.vm_lookup``): 1.41x the rays/s on the multi demo scene at one thread, images equal to 5e-5.
 
 Coarse-to-fine: the planes start at ``res_init`` and are resampled up to ``res_final`` at fixed fractions
 of the training budget (the fraction the trainer hands to ``training_hook``, ``contract.budget_fraction``);
@@ -201,12 +204,14 @@ class VMGrid(RadianceModel):
                               decay=float(self.options["occ_decay"]),
                               dilate=bool(self.options["occ_dilate_formed"]) or not self.formed())
 
-    def _density_of(self, pts: Tensor):
+    def _density_of(self, pts: Tensor, lookup):
         """sample indices (j,) -> density (j,) at those of the field-space points ``pts`` (k, 3), in
-        chunks of ``render_step_chunk`` samples (the no-grad render path's ``density_fn``)."""
+        chunks of ``render_step_chunk`` samples, read from the field's ``lookup`` tables (the no-grad
+        render path's ``density_fn``)."""
         def density(sel: Tensor) -> Tensor:
-            return torch.cat([self._density(pts[sel[i:i + self.render_step_chunk]])
-                              for i in range(0, max(1, sel.shape[0]), self.render_step_chunk)])
+            with profiling.stage("field"):
+                return torch.cat([lookup.density(pts[sel[i:i + self.render_step_chunk]])
+                                  for i in range(0, max(1, sel.shape[0]), self.render_step_chunk)])
         return density
 
     def _density(self, pts: Tensor) -> Tensor:
@@ -279,6 +284,7 @@ class VMGrid(RadianceModel):
         mids = 0.5 * (t0 + t1)
         pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
         gscale = None
+        color_fn = self.field.color
         if torch.is_grad_enabled():
             # Early ray termination: find, without grad, the samples still visible (T > 1e-4), then
             # recompute their density with grad.
@@ -298,9 +304,12 @@ class VMGrid(RadianceModel):
                 weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
         else:
             # Nothing to differentiate (render, eval): the same kept samples and weights, without the
-            # density of samples behind opaque surfaces or a second density pass over the survivors.
+            # density of samples behind opaque surfaces or a second density pass over the survivors,
+            # and every lookup from tables laid out for reading (``fields.vm_lookup``).
+            lookup = self.field.lookup()
+            color_fn = lookup.color
             keep, weights = ray_termination.visible_samples(
-                t0, t1, ridx, n_rays, self._density_of(pts), t_min=1e-4, round_size=self.render_round_size)
+                t0, t1, ridx, n_rays, self._density_of(pts, lookup), t_min=1e-4, round_size=self.render_round_size)
             t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
         with profiling.stage("rendering"):
             # Colour only where it can matter: most surviving samples are transparent space before a
@@ -313,7 +322,7 @@ class VMGrid(RadianceModel):
         ridx_vis, mids = ridx[vis], (0.5 * (t0 + t1)).unsqueeze(-1)
         pts_vis, dirs_vis, weights_vis = pts[vis], rays_d[ridx_vis], weights[vis]
         with profiling.stage("field"):
-            rgb_s = self.field.color(pts_vis, dirs_vis)
+            rgb_s = color_fn(pts_vis, dirs_vis)
         if gscale is not None:
             rgb_s = grad_scaling.scale_gradient(rgb_s, gscale[vis])
         with profiling.stage("rendering"):

@@ -120,13 +120,19 @@ def test_vmgrid_renders_the_same_image_without_grad_with_less_density_work():
         opt.step()
     model.eval()
     evaluated = []
-    density = model.field.density
+    # The training path reads the field itself, the no-grad path its lookup tables (cached, so the
+    # instance patched here is the one render_rays gets).
+    lookup = model.field.lookup()
+    density, lookup_density = model.field.density, lookup.density
 
-    def counting(x):
-        evaluated.append(x.shape[0])
-        return density(x)
+    def counting(fn):
+        def count(x):
+            evaluated.append(x.shape[0])
+            return fn(x)
+        return count
 
-    model.field.density = counting
+    model.field.density = counting(density)
+    lookup.density = counting(lookup_density)
     bg = torch.ones_like(rgb)
     with torch.enable_grad():  # the training path: full first pass, density recomputed on the survivors
         ref = model.render_rays(o, d, near, far, bg, False)
