@@ -35,6 +35,7 @@ class OccupancyGrid(nn.Module):
         # Everything starts occupied: before the first update nothing is known about the scene.
         self.register_buffer("binary", torch.ones(r, r, r, dtype=torch.bool))
         self.n_resets = 0
+        self._near: tuple | None = None  # (key, dilated mask) cached by ``query_near``
 
     @property
     def occupied_fraction(self) -> float:
@@ -58,6 +59,23 @@ class OccupancyGrid(nn.Module):
         """(m, 3) points -> (m,) bool: inside the box and in an occupied cell."""
         idx, inside = self._cell_index(pts)
         return self.binary.reshape(-1)[idx] & inside
+
+    def near_reach(self) -> float:
+        """How far from a point ``query_near`` looks: one cell along each axis covers every point
+        within the smallest cell edge (a hair less, for rounding)."""
+        return 0.999 * float(self.cell_size().min())
+
+    @torch.no_grad()
+    def query_near(self, pts: Tensor) -> Tensor:
+        """(m, 3) points -> (m,) bool: an occupied cell lies within ``near_reach()`` of the point (its
+        cell or one of the 26 around it; points outside the box count from the nearest cell). False
+        means no point that near can be occupied (``sampling.occupied_samples`` skips on it)."""
+        key = (id(self.binary), self.binary._version, self.binary.device)
+        if self._near is None or self._near[0] != key:
+            near = F.max_pool3d(self.binary[None, None].float(), kernel_size=3, stride=1, padding=1)[0, 0] > 0
+            self._near = (key, near)
+        idx, _ = self._cell_index(pts)
+        return self._near[1].reshape(-1)[idx]
 
     def cell_centers(self, jitter: bool) -> Tensor:
         """(resolution^3, 3) points, one per cell (uniformly random inside the cell if ``jitter``)."""

@@ -95,7 +95,8 @@ def merge_edges(edges: Tensor, new_t: Tensor) -> Tensor:
 
 def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, step_size: float,
                      occupied_fn, jitter: bool, max_samples: int = 1024,
-                     generator: Optional[torch.Generator] = None) -> Tuple[Tensor, Tensor, Tensor]:
+                     generator: Optional[torch.Generator] = None, near_fn=None,
+                     near_reach: float = 0.0) -> Tuple[Tensor, Tensor, Tensor]:
     """March every ray at a fixed step and keep only samples whose midpoint is in an occupied cell.
 
     Args:
@@ -104,6 +105,13 @@ def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, 
         occupied_fn: maps points (m, 3) -> (m,) bool, e.g. ``OccupancyGrid.query``.
         jitter: shift each ray's samples by a random fraction of a step (training).
         max_samples: cap on the number of steps per ray.
+        near_fn, near_reach: optional, to skip empty stretches without testing each step there:
+            ``near_fn`` maps points (m, 3) -> (m,) bool and must be True wherever ``occupied_fn`` could
+            be True within distance ``near_reach`` (``OccupancyGrid.query_near`` and its
+            ``near_reach()``). Each ray is then probed once per run of steps that fits within that
+            reach of the probe, and only runs whose probe says yes are tested step by step. The
+            result is the same as without them; only the number of points tested drops (on a trained
+            demo scene the step-by-step test took a fifth of the render time).
 
     Returns:
         packed ``t_starts`` (k,), ``t_ends`` (k,), ``ray_indices`` (k,) long, sorted by ray then distance.
@@ -111,20 +119,47 @@ def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, 
     n_rays = rays_o.shape[0]
     span = (far - near).clamp_min(0)
     n_steps = int(min(max_samples, max(1, int(torch.ceil(span.max() / step_size).item()) if n_rays else 1)))
-    offs = torch.arange(n_steps, device=rays_o.device, dtype=rays_o.dtype)
     if jitter:
         shift = torch.rand(n_rays, 1, device=rays_o.device, dtype=rays_o.dtype, generator=generator)
     else:
         shift = torch.full((n_rays, 1), 0.5, device=rays_o.device, dtype=rays_o.dtype)
-    t_mid = near.unsqueeze(-1) + (offs + shift) * step_size  # (n_rays, n_steps)
-    inside = t_mid < far.unsqueeze(-1)
-    ray_idx, step_idx = inside.nonzero(as_tuple=True)
-    t = t_mid[ray_idx, step_idx]
+    # A run of `run` steps has its probe half-way between its first and last step, (run - 1) / 2 steps
+    # from either end; rays_d need not be unit, so the reach is measured with the longest direction.
+    d_max = float(rays_d.norm(dim=-1).max()) if n_rays and near_fn is not None else 0.0
+    run = int(2 * near_reach / (step_size * d_max)) + 1 if d_max > 0 else 1
+    if run >= 3 and n_steps > run:
+        ray_idx, step_idx = _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, rays_d, near_fn)
+        t = near[ray_idx] + (step_idx.to(rays_o.dtype) + shift[ray_idx, 0]) * step_size
+        inside = t < far[ray_idx]
+        ray_idx, t = ray_idx[inside], t[inside]
+    else:
+        offs = torch.arange(n_steps, device=rays_o.device, dtype=rays_o.dtype)
+        t_mid = near.unsqueeze(-1) + (offs + shift) * step_size  # (n_rays, n_steps)
+        inside = t_mid < far.unsqueeze(-1)
+        ray_idx, step_idx = inside.nonzero(as_tuple=True)
+        t = t_mid[ray_idx, step_idx]
     pts = rays_o[ray_idx] + rays_d[ray_idx] * t.unsqueeze(-1)
     keep = occupied_fn(pts)
     ray_idx, t = ray_idx[keep], t[keep]
     half = 0.5 * step_size
     return (t - half).clamp_min(near[ray_idx]), (t + half).clamp_max(far[ray_idx]), ray_idx
+
+
+def _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, rays_d, near_fn):
+    """(ray, step) index pairs (k,), (k,) of every step in a run of ``run`` steps whose probe ``near_fn``
+    accepts, sorted by ray then step (``occupied_samples``)."""
+    dev, dt = rays_o.device, rays_o.dtype
+    n_runs = (n_steps + run - 1) // run
+    first = torch.arange(n_runs, device=dev, dtype=dt) * run  # each run's first step
+    started = near.unsqueeze(-1) + (first + shift) * step_size < far.unsqueeze(-1)  # (n_rays, n_runs)
+    r_idx, run_idx = started.nonzero(as_tuple=True)
+    t_probe = near[r_idx] + (run_idx.to(dt) * run + 0.5 * (run - 1) + shift[r_idx, 0]) * step_size
+    hit = near_fn(rays_o[r_idx] + rays_d[r_idx] * t_probe.unsqueeze(-1))
+    r_idx, run_idx = r_idx[hit], run_idx[hit]
+    steps = (run_idx.unsqueeze(-1) * run + torch.arange(run, device=dev)).reshape(-1)
+    ray_idx = r_idx.repeat_interleave(run)
+    ok = steps < n_steps
+    return ray_idx[ok], steps[ok]
 
 
 def contracted_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, aabb: Tensor, step_size: float,

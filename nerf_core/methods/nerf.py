@@ -164,7 +164,9 @@ class NeRF(RadianceModel):
         n_rays = rays_o.shape[0]
         with profiling.stage("sampling"):
             t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, self.step_size(),
-                                                     self.occupancy.query, jitter=training, max_samples=4096)
+                                                     self.occupancy.query, jitter=training, max_samples=4096,
+                                                     near_fn=self.occupancy.query_near,
+                                                     near_reach=self.occupancy.near_reach())
             mids = 0.5 * (t0 + t1)
             pts = rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1)
         if training:

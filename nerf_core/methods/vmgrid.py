@@ -280,7 +280,9 @@ class VMGrid(RadianceModel):
                                                            jitter=training, max_samples=4096)
             else:
                 t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
-                                                         jitter=training, max_samples=4096)
+                                                         jitter=training, max_samples=4096,
+                                                         near_fn=self.occupancy.query_near,
+                                                         near_reach=self.occupancy.near_reach())
         mids = 0.5 * (t0 + t1)
         pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
         gscale = None

@@ -67,3 +67,51 @@ def test_update_without_dilation_keeps_only_cells_that_hold_density():
     lo = tight.cell_centers(jitter=False) - 1 / 16
     nearest = torch.maximum(lo, torch.minimum(torch.zeros(3), lo + 2 / 16))
     assert (nearest.norm(dim=-1).reshape(16, 16, 16)[tight.binary] < 0.4).all()
+
+
+def test_marching_with_the_near_probe_gives_the_same_samples_with_fewer_tests():
+    """``occupied_samples`` with ``near_fn`` probes runs of steps before testing each step: the output
+    must equal testing every step, on a sparse grid with isolated single cells (no dilation, so a run
+    can clip a lone cell's corner), non-unit directions, rays starting inside the box, and jitter."""
+    box = torch.tensor([[-1.0, -0.5, -2.0], [1.0, 0.5, 2.0]])  # cells of three different sizes
+    g = OccupancyGrid(box, resolution=16)
+    gen = torch.Generator().manual_seed(0)
+    g.binary.copy_(torch.rand(16, 16, 16, generator=gen) < 0.01)
+    n = 3000
+    o = torch.randn(n, 3, generator=gen) * torch.tensor([2.0, 1.0, 4.0])
+    d = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=-1)
+    d = d * (0.5 + torch.rand(n, 1, generator=gen))  # not unit: reach is in scene units, t is not
+    near, far, _ = sampling.ray_aabb_intersect(o, d, box)
+    tested = []
+
+    def counting(fn):
+        def count(p):
+            tested.append(p.shape[0])
+            return fn(p)
+        return count
+
+    for jitter in (False, True):
+        ref = sampling.occupied_samples(o, d, near, far, 0.01, counting(g.query), jitter=jitter,
+                                        generator=torch.Generator().manual_seed(1))
+        full = sum(tested)
+        tested.clear()
+        out = sampling.occupied_samples(o, d, near, far, 0.01, counting(g.query), jitter=jitter,
+                                        generator=torch.Generator().manual_seed(1), near_fn=counting(g.query_near),
+                                        near_reach=g.near_reach())
+        assert ref[2].numel() > 300  # rays do cross occupied cells
+        for a, b in zip(ref, out):
+            assert torch.equal(a, b)
+        assert sum(tested) < 0.5 * full, (sum(tested), full)
+        tested.clear()
+
+
+def test_query_near_sees_the_neighbouring_cells_and_follows_updates():
+    g = OccupancyGrid(BOX, resolution=8)
+    g.binary.zero_()
+    g.binary[4, 4, 4] = True  # cell [0, 0.25)^3
+    c = g.cell_size()[0].item()
+    inside = torch.tensor([[0.1, 0.1, 0.1]])
+    assert g.query_near(inside) and g.query_near(inside - c) and g.query_near(inside + c)
+    assert not g.query_near(inside - 2 * c).any() and not g.query_near(inside + 2 * c).any()
+    g.binary.zero_()  # an update in place: the cached neighbourhood follows
+    assert not g.query_near(inside).any()
