@@ -86,12 +86,15 @@ class OccupancyGrid(nn.Module):
         return self.aabb[0] + (ijk + off) / r * (self.aabb[1] - self.aabb[0])
 
     @torch.no_grad()
-    def update(self, density_fn: Callable[[Tensor], Tensor], step_size: float, alpha_threshold: float = 1e-3,
-               decay: float = 0.95, chunk: int = 1 << 18, dilate: bool = True) -> None:
+    def update(self, density_fn: Callable[[Tensor], Tensor] | None, step_size: float, alpha_threshold: float = 1e-3,
+               decay: float = 0.95, chunk: int = 1 << 18, dilate: bool = True,
+               cell_density: Tensor | None = None) -> None:
         """Re-evaluate density in every cell and refresh the binary mask.
 
         Args:
-            density_fn: points (m, 3) -> densities (m,) (called without grad, in chunks).
+            density_fn: points (m, 3) -> densities (m,) (called without grad, in chunks) at one random
+                point per cell; or None when ``cell_density`` gives each cell's density (r, r, r) instead
+                (e.g. the field's largest value in the cell, ``TensorVMField.density_cell_max``).
             step_size: the marching step of the renderer; a cell is occupied when a sample there would
                 have alpha = 1 - exp(-sigma * step_size) above ``alpha_threshold``.
             decay: EMA factor; the EMA takes max(decayed old value, new value) so that thin surfaces
@@ -100,12 +103,15 @@ class OccupancyGrid(nn.Module):
         # Charged to the profile's ``sampling`` stage (what the grid serves), ``density_fn``'s own
         # marks (``field``) excepted.
         with profiling.stage("sampling"):
-            self._update(density_fn, step_size, alpha_threshold, decay, chunk, dilate)
+            self._update(density_fn, step_size, alpha_threshold, decay, chunk, dilate, cell_density)
 
     def _update(self, density_fn, step_size: float, alpha_threshold: float, decay: float, chunk: int,
-                dilate: bool) -> None:
-        pts = self.cell_centers(jitter=True)
-        sig = torch.cat([density_fn(pts[i:i + chunk]).reshape(-1).float() for i in range(0, pts.shape[0], chunk)])
+                dilate: bool, cell_density: Tensor | None) -> None:
+        if cell_density is not None:
+            sig = cell_density.reshape(-1).float()
+        else:
+            pts = self.cell_centers(jitter=True)
+            sig = torch.cat([density_fn(pts[i:i + chunk]).reshape(-1).float() for i in range(0, pts.shape[0], chunk)])
         ema = torch.maximum(self.density_ema.reshape(-1) * decay, sig)
         self.density_ema.copy_(ema.reshape(self.density_ema.shape))
         sigma_thr = -torch.log1p(torch.tensor(-alpha_threshold)).item() / step_size

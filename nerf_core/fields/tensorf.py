@@ -21,7 +21,7 @@ from torch import nn
 
 from ..encodings import PositionalEncoding
 from ..losses import l1_sparsity, total_variation_2d
-from .vm_lookup import VMLookup
+from .vm_lookup import VMLookup, dense_density
 
 Tensor = torch.Tensor
 
@@ -140,6 +140,24 @@ class TensorVMField(nn.Module):
             self._lookup = None  # free the old tables before building the new ones
             self._lookup = (key, VMLookup(self))
         return self._lookup[1]
+
+    @torch.no_grad()
+    def density_cell_max(self, cells: int) -> Tensor:
+        """(cells, cells, cells) [x, y, z]: for each cell of a ``cells``^3 grid over the box, the
+        largest density at the nodes of the field cells it overlaps: a bound that no point in the cell
+        exceeds (for the occupancy grid: no random probe that can miss a thin surface). Density is a
+        monotone function of the trilinearly interpolated raw value (``vm_lookup.dense_density``),
+        whose largest value in a field cell is at one of its corners."""
+        raw = dense_density(self.density_planes, self.density_lines).permute(2, 1, 0)  # [x, y, z]
+        n = self.resolution
+        for axis in range(3):
+            parts = []
+            for c in range(cells):
+                lo = (c * (n - 1)) // cells
+                hi = -((-(c + 1) * (n - 1)) // cells)  # ceil
+                parts.append(raw.narrow(axis, lo, hi - lo + 1).amax(dim=axis, keepdim=True))
+            raw = torch.cat(parts, dim=axis)
+        return self.density_scale * F.softplus(raw + self.density_shift)
 
     def density_l1(self) -> Tensor:
         """Mean absolute value of the density factors (a sparsity prior that clears floaters)."""

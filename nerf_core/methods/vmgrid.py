@@ -55,6 +55,13 @@ class VMGrid(RadianceModel):
             sphere shows holes. The likely reason (not isolated): with no shell and a short memory, a
             cell that a surface only clips drops out when its one random density probe misses. So it
             is an option, not the default.
+        occ_probe: how an occupancy update reads a cell's density: "random", the density at one random
+            point in the cell (nerfacc's way; a thin surface that only clips the cell is missed when the
+            point misses it), or "max", a bound no point in the cell exceeds
+            (``TensorVMField.density_cell_max``: the largest density at the corners of the field cells
+            it overlaps, from the dense density volume; 68 ms at res 160 into 64^3 cells, less than the
+            random probe's 262k density lookups). With "max" a cell is never dropped while its field
+            still holds density there, so the tight settings above lose nothing to missed probes.
         color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
             on rays still almost transparent, see ``render_rays``); skipped samples add no colour, so a
             larger value darkens rays slightly. With the tight grid above, 1e-3 halved the colour work on
@@ -90,7 +97,7 @@ class VMGrid(RadianceModel):
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-4)
+                    color_weight=1e-4, occ_probe="random")
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
@@ -100,6 +107,8 @@ class VMGrid(RadianceModel):
         if opts["resolution"] is None:
             opts["resolution"] = opts["res_init"]
         opts["upsample_at"] = [float(f) for f in opts["upsample_at"]]
+        if opts["occ_probe"] not in ("random", "max"):
+            raise ValueError(f"vmgrid: occ_probe must be 'random' or 'max', got {opts['occ_probe']!r}")
         super().__init__(aabb, **opts)
         # Density shift from alpha_init at the *initial* grid's step, so a rebuilt model gets the same one.
         extent = (self.aabb[1] - self.aabb[0]).double()
@@ -200,9 +209,13 @@ class VMGrid(RadianceModel):
 
     @torch.no_grad()
     def update_occupancy(self) -> None:
-        self.occupancy.update(self._density, self.step_size(), alpha_threshold=float(self.options["occ_alpha"]),
-                              decay=float(self.options["occ_decay"]),
-                              dilate=bool(self.options["occ_dilate_formed"]) or not self.formed())
+        cell_max = None
+        if self.options["occ_probe"] == "max":
+            with profiling.stage("field"):
+                cell_max = self.field.density_cell_max(self.occupancy.resolution)
+        self.occupancy.update(None if cell_max is not None else self._density, self.step_size(),
+                              alpha_threshold=float(self.options["occ_alpha"]), decay=float(self.options["occ_decay"]),
+                              dilate=bool(self.options["occ_dilate_formed"]) or not self.formed(), cell_density=cell_max)
 
     def _density_of(self, pts: Tensor, lookup):
         """sample indices (j,) -> density (j,) at those of the field-space points ``pts`` (k, 3), in

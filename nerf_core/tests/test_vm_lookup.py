@@ -1,4 +1,6 @@
 """The read-only lookup tables of the VM field (``fields.vm_lookup``) give the field's own values."""
+import math
+
 import pytest
 import torch
 
@@ -75,3 +77,52 @@ def test_lookup_is_cached_until_a_grid_changes():
     f.load_state_dict(state)  # copied in place
     assert f.lookup() is not lk3
     assert "_lookup" not in "".join(f.state_dict())  # never saved in checkpoints
+
+
+def test_density_cell_max_bounds_every_point_of_each_cell_and_is_reached():
+    f = _field(res=13)  # field nodes that do not line up with the cells
+    cells = 5
+    cm = f.density_cell_max(cells)
+    assert cm.shape == (cells, cells, cells)
+    g = torch.Generator().manual_seed(2)
+    ijk = torch.stack(torch.meshgrid(*[torch.arange(cells)] * 3, indexing="ij"), dim=-1).reshape(-1, 3)
+    best = torch.zeros(cells ** 3)
+    with torch.no_grad():
+        for _ in range(200):  # many random points per cell, corners and faces included by chance
+            u = (ijk + torch.rand(ijk.shape, generator=g)) / cells
+            s = f.density(BOX[0] + u * (BOX[1] - BOX[0]))
+            assert (s <= cm.reshape(-1) * (1 + 1e-5) + 1e-5).all()  # never above the cell's maximum
+            best = torch.maximum(best, s)
+    # ... and it is the largest density at the field's nodes of the field cells that each cell overlaps
+    # (where trilinear interpolation has its extremes), worked out here node by node.
+    n = f.resolution
+    node = torch.stack(torch.meshgrid(*[torch.arange(n)] * 3, indexing="ij"), dim=-1).reshape(-1, 3)
+    with torch.no_grad():
+        s_node = f.density(BOX[0] + node / (n - 1) * (BOX[1] - BOX[0])).reshape(n, n, n)
+    for c in ijk.tolist():
+        lo = [(k * (n - 1)) // cells for k in c]
+        hi = [math.ceil((k + 1) * (n - 1) / cells) for k in c]
+        by_hand = s_node[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1].max()
+        assert torch.allclose(cm[tuple(c)], by_hand, rtol=1e-4), c
+    assert (best / cm.reshape(-1)).median() > 0.5  # a bound random points in the cell come near
+
+
+def test_vmgrid_occupancy_from_cell_maxima():
+    from nerf_core.methods import build_model
+
+    with pytest.raises(ValueError, match="occ_probe"):
+        build_model("vmgrid", BOX, occ_probe="corners")
+    model = build_model("vmgrid", BOX, res_init=12, occ_res=8, occ_probe="max", occ_decay=0.0, occ_dilate_formed=False)
+    with torch.no_grad():
+        model.field.density_planes.zero_()
+        model.field.density_lines.zero_()
+        model.field.density_planes[0, 0, 5, 3] = 200.0  # one bump in plane (x, y) ...
+        model.field.density_lines[0, 0, 7, 0] = 1.0  # ... times one node of line z
+    model.update_occupancy()  # the first update dilates (nothing formed yet)
+    model.update_occupancy()
+    assert model.formed()
+    # Density rises above the floor only within one field cell of node (x, y, z) = (3, 5, 7) of 11
+    # cells: the occupancy cells (of 8) that overlap (2/11, 4/11) x (4/11, 6/11) x (6/11, 8/11).
+    expected = torch.zeros(8, 8, 8, dtype=torch.bool)
+    expected[1:3, 2:5, 4:6] = True
+    assert torch.equal(model.occupancy.binary, expected)
