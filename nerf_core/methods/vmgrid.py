@@ -41,31 +41,30 @@ class VMGrid(RadianceModel):
         upsample_at: fractions of the training budget at which to grow (log-spaced sizes).
         density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
         occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
-        occ_alpha, occ_decay, occ_dilate_formed: how tightly the occupancy grid hugs the geometry
-            (``OccupancyGrid.update``). A cell stays occupied while one marching step there would be more
-            opaque than ``occ_alpha``; its remembered density keeps ``occ_decay`` of itself per update; the
-            one-cell dilation that lets forming geometry spread continues after ``formed()`` unless
-            ``occ_dilate_formed`` is off. The defaults keep a shell of empty cells round every surface and
-            the early fog for a 5-minute run: on the multi demo scene (200 px) 63 % of the samples that
-            survive early termination are nearly transparent (alpha < 1e-3), 44 % in dilation-only cells.
-            Tighter grids, 5 min on one core, two runs side by side, against the defaults: decay 0.5 and
-            no dilation once formed gave multi 36.72 against 36.08 dB (2771 against 1690 steps) and thin
-            35.89 against 35.43; with occ_alpha 0.01 as well, the interior 30.31 against 28.43 (714
-            against 311 steps; occ_alpha 0.01 alone: 27.84), but diffuse 39.64 against 41.57: the
-            sphere shows holes. The likely reason (not isolated): with no shell and a short memory, a
-            cell that a surface only clips drops out when its one random density probe misses. So it
-            is an option, not the default.
-        occ_probe: how an occupancy update reads a cell's density: "random", the density at one random
-            point in the cell (nerfacc's way; a thin surface that only clips the cell is missed when the
-            point misses it), or "max", a bound no point in the cell exceeds
-            (``TensorVMField.density_cell_max``: the largest density at the corners of the field cells
-            it overlaps, from the dense density volume; 68 ms at res 160 into 64^3 cells, less than the
-            random probe's 262k density lookups). With "max" a cell is never dropped while its field
-            still holds density there, so the tight settings above lose nothing to missed probes.
+        occ_alpha, occ_decay, occ_dilate_formed, occ_probe: how tightly the occupancy grid hugs the
+            geometry (``OccupancyGrid.update``). A cell stays occupied while one marching step there would
+            be more opaque than ``occ_alpha``; its remembered density keeps ``occ_decay`` of itself per
+            update; the one-cell dilation that lets forming geometry spread continues after ``formed()``
+            only if ``occ_dilate_formed``. ``occ_probe`` is how an update reads a cell's density:
+            "random", at one random point in the cell (nerfacc's way), or "max", a bound that no point in
+            the cell exceeds (``TensorVMField.density_cell_max``: the largest density at the corners of
+            the field cells it overlaps, from the dense density volume; 68 ms at res 160 into 64^3 cells,
+            less than 262k random-point lookups).
+            The defaults are tight: density above alpha 0.01, a short memory (0.5), no shell once
+            formed, read with "max". The old defaults (1e-3, 0.95, a shell, "random") left 63 % of the
+            samples surviving early termination on the multi demo scene nearly transparent (alpha <
+            1e-3), 44 % in shell-only cells. Tight with "random" holed the diffuse sphere (39.64 against
+            41.57 dB): with no shell and a short memory, a cell that a surface only clips dropped out when
+            its one probe missed; "max" cannot miss. Tight against old, 5 min on one core, two runs
+            side by side per scene (200 px demo captures; PSNR dB, steps):
+                diffuse 40.50 / 40.33 (1954 / 1969)    glossy 35.25 / 35.16 (2051 / 1904)
+                multi 35.68 / 34.60 (2625 / 1594)      thin 34.86 / 33.38 (5030 / 1873)
+                highfreq 32.15 / 32.03 (3029 / 2949)   hdri 30.03 / 29.39 (3218 / 1434)
+                interior 29.12 / 28.40 (520 / 310)
         color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
             on rays still almost transparent, see ``render_rays``); skipped samples add no colour, so a
-            larger value darkens rays slightly. With the tight grid above, 1e-3 halved the colour work on
-            multi (36.91 against 36.72 dB, 3662 against 2771 steps); it was not measured alone on the
+            larger value darkens rays slightly. With a tight grid ("random" probe), 1e-3 halved the colour
+            work on multi (36.91 against 36.72 dB, 3662 against 2771 steps); it was not measured on the
             other scenes, so the default stays 1e-4.
         step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss); the
             density L1 starts once the occupancy grid prunes (see ``render_rays``).
@@ -93,11 +92,11 @@ class VMGrid(RadianceModel):
     warmup_steps = 20
     defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
                     density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
-                    occ_res=64, occ_every=16, occ_alpha=1e-3, occ_decay=0.95, occ_dilate_formed=True,
+                    occ_res=64, occ_every=16, occ_alpha=1e-2, occ_decay=0.5, occ_dilate_formed=False,
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-4, occ_probe="random")
+                    color_weight=1e-4, occ_probe="max")
 
     def __init__(self, aabb: Tensor, **options):
         unknown = set(options) - set(self.defaults)
