@@ -5,10 +5,13 @@
 Reads, from this folder:
 - ``baseline.json``: {scene: [[seconds, psnr, step], ...]}: vmgrid's default at commit 21beb97, the
   curve of each scene's benchmark run (the defaults are unchanged since);
-- ``ceilings/<scene>.json``: ``scripts/noise_ceiling.py`` on the same captures.
+- ``ceilings/<scene>.json``: ``scripts/noise_ceiling.py`` on the same captures;
+- ``tight_grid.json`` (if present, same layout as ``baseline.json``): the same benchmark after the
+  occupancy grid became tight by default (commit 5f20430).
 
-One row per scene: the 1- and 5-minute PSNR, issue 15's target (5-minute PSNR + 3 dB), and the
-ceiling band from two Cycles renders of a view (left edge) to a noise-free model (right edge, +3 dB).
+One row per scene: the 1- and 5-minute PSNR, issue 15's target (5-minute PSNR + 3 dB), the tight
+grid's 5-minute PSNR, and the ceiling band from two Cycles renders of a view (left edge) to a
+noise-free model (right edge, +3 dB).
 """
 from __future__ import annotations
 
@@ -32,10 +35,15 @@ def load(folder: str):
             with open(p, encoding="utf-8") as fh:
                 c = json.load(fh)
             ceil[s] = (c["psnr_two_renders"], c["model_ceiling"])
-    return one, five, ceil
+    tight = {}
+    p = os.path.join(folder, "tight_grid.json")
+    if os.path.isfile(p):
+        with open(p, encoding="utf-8") as fh:
+            tight = {s: pts[-1][1] for s, pts in json.load(fh).items()}
+    return one, five, ceil, tight
 
 
-def draw(one, five, ceil, out: str) -> None:
+def draw(one, five, ceil, tight, out: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -52,15 +60,19 @@ def draw(one, five, ceil, out: str) -> None:
                 label="target: 5 min + 3 dB" if y == 0 else None)
         ax.annotate("", xy=(five[s], y), xytext=(one[s], y),
                     arrowprops=dict(arrowstyle="->", color="#555555", lw=1.2), zorder=3)
-        ax.plot(one[s], y, "o", color="#9ecae1", ms=7, zorder=4, label="1 min" if y == 0 else None)
-        ax.plot(five[s], y, "o", color="#1f77b4", ms=8, zorder=5, label="5 min" if y == 0 else None)
+        ax.plot(one[s], y, "o", color="#9ecae1", ms=7, zorder=4, label="1 min, defaults of 21beb97" if y == 0 else None)
+        ax.plot(five[s], y, "o", color="#1f77b4", ms=8, zorder=5, label="5 min, defaults of 21beb97" if y == 0 else None)
+        if s in tight:
+            ax.plot(tight[s], y, "D", color="#2ca02c", ms=7, zorder=6,
+                    label="5 min, tight occupancy grid (5f20430), another day's run" if y == 0 else None)
         if s in ceil:
-            ax.text(max(five[s] + 3, ceil[s][1]) + 0.4, y, f"{ceil[s][1] - five[s]:.1f} dB to the ceiling",
+            best = max(five[s], tight.get(s, five[s]))
+            ax.text(max(five[s] + 3, ceil[s][1]) + 0.4, y, f"{ceil[s][1] - best:.1f} dB to the ceiling",
                     va="center", fontsize=8.5)
     ax.set_yticks(range(len(scenes)), scenes)
     ax.invert_yaxis()
     ax.set_xlabel("test PSNR (dB), 200 px captures at 16 Cycles samples, one core per run")
-    ax.set_title("vmgrid (default) at 1 and 5 minutes against the Cycles noise ceiling")
+    ax.set_title("vmgrid at 1 and 5 minutes against the Cycles noise ceiling")
     lo = min(one.values()) - 1.5
     hi = max([v[1] for v in ceil.values()] + [five[s] + 3 for s in scenes]) + 5.5
     ax.set_xlim(lo, hi)
