@@ -38,7 +38,8 @@ from .progressbar import ProgressBar
 # at one thread on trained runs, vmgrid renders 1.28x faster in calls of 1024 rays than of 8192 and
 # no faster below 512; nerf (128 samples per ray) 1.21x faster at 1024 rays than at 4096, 1.44x again
 # at 512, 1.27x at 256, 1.11x at 128: ~16k samples per call. Calls are at most CPU_MAX_CALL_RAYS rays,
-# fewer when the previous call reported more than CPU_SAMPLES_PER_CALL samples.
+# fewer when the previous call reported more than CPU_SAMPLES_PER_CALL samples. A method whose samples
+# are cheaper sets its own ray cap as ``cpu_call_rays`` (vmgrid: 2048, see there).
 CPU_SAMPLES_PER_CALL = 1 << 14
 CPU_MAX_CALL_RAYS = 512
 CPU_MIN_CALL_RAYS = 64  # below this the per-call Python overhead dominates
@@ -49,8 +50,8 @@ def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int
                         on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
     """Evaluation rendering of (m, 3) rays in model calls of at most ``chunk`` rays to bound memory.
 
-    On the CPU calls are smaller: at most ``CPU_MAX_CALL_RAYS`` rays and about ``CPU_SAMPLES_PER_CALL``
-    samples, from the ``n_samples`` the model returned for the previous call (per-ray results do not
+    On the CPU calls are smaller: at most ``CPU_MAX_CALL_RAYS`` rays (or the model's ``cpu_call_rays``)
+    and about ``CPU_SAMPLES_PER_CALL`` samples, from the ``n_samples`` the model returned for the previous call (per-ray results do not
     depend on the call size).
     Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
     ``on_chunk(done, m)`` is called after each call (progress; it may raise to stop early).
@@ -59,7 +60,7 @@ def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int
     m = rays_o.shape[0]
     bg = background.expand(m, 3) if background.dim() == 1 else background
     cpu = rays_o.device.type == "cpu"
-    cap = min(chunk, CPU_MAX_CALL_RAYS) if cpu else chunk
+    cap = min(chunk, int(getattr(model, "cpu_call_rays", CPU_MAX_CALL_RAYS))) if cpu else chunk
     step = cap
     s = 0
     while s < m:

@@ -146,3 +146,13 @@ def test_vmgrid_renders_the_same_image_without_grad_with_less_density_work():
         assert (out[k] - ref[k].detach()).abs().max().item() < 1e-5, k
     assert out["n_samples"] == ref["n_samples"]
     assert sum(evaluated) < 0.8 * full, (sum(evaluated), full)
+    # Per-ray results do not depend on how many rays a call holds (render.render_rays_chunked reads
+    # the method's cpu_call_rays): one call of all 1024 rays against calls of 100.
+    from nerf_core.render import render_rays_chunked
+    with torch.no_grad():
+        whole = render_rays_chunked(model, o, d, near, far, bg)
+        model.cpu_call_rays = 100
+        split = render_rays_chunked(model, o, d, near, far, bg)
+    for k in ("rgb", "acc", "depth"):
+        assert (whole[k] - split[k]).abs().max().item() < 1e-5, k
+    assert (whole["rgb"] - out["rgb"]).abs().max().item() < 1e-5

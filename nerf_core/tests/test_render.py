@@ -222,3 +222,12 @@ def test_cpu_calls_are_sized_by_the_samples_the_method_reports():
     small = _Counting(1)
     r.render_rays_chunked(small, rays_o, rays_d, near, far, bg, chunk=100)
     assert max(small.calls) == 100
+    # A model with cheap samples raises its own ray cap; the samples rule still applies.
+    light = _Counting(4)
+    light.cpu_call_rays = 2048
+    r.render_rays_chunked(light, rays_o, rays_d, near, far, bg)
+    assert light.calls[:2] == [2048, 3000 - 2048]
+    light8 = _Counting(64)
+    light8.cpu_call_rays = 2048
+    r.render_rays_chunked(light8, rays_o, rays_d, near, far, bg)
+    assert light8.calls[0] == 2048 and set(light8.calls[1:-1]) == {r.CPU_SAMPLES_PER_CALL // 64}
