@@ -121,7 +121,8 @@ def main(argv=None) -> int:
     import torch  # only for the record of the version
 
     cores = os.cpu_count() or 1
-    contended = any(l is not None and l[0] > cores for l in (load_before, load_after))
+    contended = runner.contended(load_before[0] if load_before else None, load_after[0] if load_after else None,
+                                 max(procs_list))
     table = report.markdown_table(
         rows, ["procs", "batch", "rays_per_step", "steps_per_s", "rays_per_s", "speedup", "psnr", "wall"],
         ["processes (1 thread each)", "rays/step/rank", "rays/step", "steps/s", "rays/s", "rays/s vs first",
@@ -132,8 +133,7 @@ def main(argv=None) -> int:
              f"Load average (1 min) before/after: {load_before[0] if load_before else '?':.2f} / "
              f"{load_after[0] if load_after else '?':.2f}.", ""]
     if contended:
-        lines += ["**Contended machine**: the load average exceeded the core count, so these timings are not speed "
-                  "claims; re-run on a quiet machine.", ""]
+        lines += [runner.CONTENDED_NOTE, ""]
     lines += [table, "", "Commands (`OMP_NUM_THREADS=1`):", ""] + [f"    {c}" for c in commands.values()] + [""]
     with open(os.path.join(args.out, "bench_ddp.md"), "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))

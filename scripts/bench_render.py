@@ -17,7 +17,7 @@ DIR/runs/M --method M --max-seconds S``), or takes the run given by ``--runs M=R
 Writes DIR/render_speed.json and DIR/render_speed.md (the table, the machine, threads, torch
 version, load average and the exact commands). Nothing is overwritten: existing output folders are
 refused. Timings on a machine shared with other jobs are not speed claims; the page says so when
-the load average exceeds the core count.
+the load average shows other jobs (``bench.runner.contended``).
 """
 from __future__ import annotations
 
@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     cores = os.cpu_count() or 1
     info = {"dataset": args.dataset, "machine": runner.machine_info(), "threads": threads,
             "frame_size": f"{width}x{height}", "load_before": load_before, "load_after": load_after,
-            "contended": any(v is not None and v > cores for v in (load_before, load_after)),
+            "contended": runner.contended(load_before, load_after, int(args.threads or cores)),
             "command": " ".join(shlex.quote(a) for a in [sys.executable, os.path.abspath(__file__), *sys.argv[1:]]),
             "commands": commands}
     rows = render_speed.speed_rows(results)

@@ -19,6 +19,7 @@ import _bootstrap  # noqa: F401  (puts the repository on sys.path, for nerf_core
 from nerf_core.contract.intrinsics import resolve_intrinsics
 from nerf_core.contract.transforms import DatasetError, frame_infos
 
+from . import runner
 from .report import fmt, markdown_table
 
 
@@ -149,8 +150,7 @@ def markdown(rows: Sequence[dict], info: dict) -> str:
              f"torch {m.get('torch', '?')}; threads: {info.get('threads', '?')}; load average (1 min) before/after: "
              f"{fmt(info.get('load_before'))} / {fmt(info.get('load_after'))}.", ""]
     if info.get("contended"):
-        lines += ["**Contended machine**: the load average exceeded the core count, so these timings are not speed "
-                  "claims; re-run on a quiet machine.", ""]
+        lines += [runner.CONTENDED_NOTE, ""]
     lines += [table, ""]
     for r in rows:
         if r.get("error"):

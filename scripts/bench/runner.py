@@ -240,6 +240,23 @@ def cli_help(*args: str) -> str:
 # --------------------------------------------------------------------------------------------
 
 
+def contended(load_before, load_after, own_threads: int) -> bool:
+    """Whether other jobs shared the machine with a timing run, from the 1-minute load averages.
+
+    The run's own threads raise the load average to about ``own_threads`` by its end, so only more
+    than that (plus half a core of slack) counts; at the start anything above half the cores does.
+    A value of None (no load average on this system) says nothing.
+    """
+    cores = os.cpu_count() or 1
+    return ((load_before is not None and load_before > cores / 2)
+            or (load_after is not None and load_after > own_threads + 0.5))
+
+
+CONTENDED_NOTE = ("**Contended machine**: the load average says that other jobs ran beside this benchmark "
+                  "(above half the cores at the start, or above its own threads + 0.5 at the end), so these "
+                  "timings are not speed claims; re-run on a quiet machine.")
+
+
 def machine_info() -> dict:
     """Where the numbers came from: CPU model, cores, load, Python/torch versions."""
     info = {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()}

@@ -93,3 +93,15 @@ def test_final_test_metrics_falls_back_to_eval_and_says_why_it_failed(tmp_path):
     assert metrics is None
     assert str(missing) in why and "Traceback" not in why  # one line naming the folder
     assert "eval" in (tmp_path / "log.txt").read_text()  # the eval command was run and logged
+
+
+def test_contended_allows_the_benchmarks_own_load_but_not_other_jobs(monkeypatch):
+    monkeypatch.setattr(runner.os, "cpu_count", lambda: 2)
+    # Quiet start, and at the end the 2 threads of the benchmark itself: not contended.
+    assert not runner.contended(0.0, 2.01, own_threads=2)
+    assert not runner.contended(None, None, own_threads=2)
+    # Another job before the start, or more load at the end than the benchmark's own threads.
+    assert runner.contended(1.2, 2.0, own_threads=2)
+    assert runner.contended(0.0, 2.6, own_threads=2)
+    assert runner.contended(0.0, 1.6, own_threads=1)
+    assert not runner.contended(0.0, 1.4, own_threads=1)
