@@ -48,9 +48,12 @@ def test_the_capture_seed_reproduces_the_views_and_another_seed_measures_noise(c
     assert [e["view"] for e in per_view] == [0, 2]
     assert all(e["psnr_two_renders"] > 60 for e in per_view), per_view
     other = root / "other.json"
-    proc = _run(CEILING, "--blend", blend, "--dataset", ds, "--views", "2", "--seed", "5", "--out", other)
+    kept = root / "renders"
+    proc = _run(CEILING, "--blend", blend, "--dataset", ds, "--views", "2", "--seed", "5", "--out", other,
+                "--keep-renders", kept)
     assert proc.returncode == 0, proc.stderr
     res = json.loads(other.read_text())
+    assert sorted(p.name for p in kept.iterdir()) == ["v0.png", "v2.png"]
     assert 15 < res["psnr_two_renders"] < 60, res  # 4 samples: visibly noisy, still the same picture
     assert math.isclose(res["model_ceiling"], res["psnr_two_renders"] + 10 * math.log10(2), abs_tol=2e-3)
     assert "a noise-free model scores about" in proc.stdout
@@ -65,3 +68,10 @@ def test_bad_input_is_one_line_naming_the_file(capture, tmp_path):
     kept.write_text("{}")
     proc = _run(CEILING, "--blend", blend, "--dataset", ds, "--out", kept)
     assert proc.returncode == 2 and "--overwrite" in proc.stderr and kept.read_text() == "{}"
+    # --keep-renders never writes into an existing folder.
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "v0.png").write_bytes(b"user data")
+    proc = _run(CEILING, "--blend", blend, "--dataset", ds, "--keep-renders", folder)
+    assert proc.returncode == 2 and str(folder) in proc.stderr and "Traceback" not in proc.stderr
+    assert (folder / "v0.png").read_bytes() == b"user data"

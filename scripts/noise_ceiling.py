@@ -97,10 +97,15 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--views", type=int, default=5, help="test views to render, evenly spread (default 5, as eval --views 5)")
     ap.add_argument("--seed", type=int, default=1, help="Cycles seed of the new renders (the capture used the scene's, 0 by default)")
     ap.add_argument("--out", help="JSON file to write (default: print only); an existing file is kept unless --overwrite")
+    ap.add_argument("--keep-renders", metavar="DIR",
+                    help="keep the new renders there (vVIEW.png, RGBA as captured), e.g. to see where the noise lies; "
+                         "the folder must not exist yet")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
     if args.out and os.path.exists(args.out) and not args.overwrite:
         _bootstrap.fail(PROG, f"{args.out} exists; pass --overwrite to replace it")
+    if args.keep_renders and os.path.exists(args.keep_renders):
+        _bootstrap.fail(PROG, f"{args.keep_renders} exists; --keep-renders writes a new folder")
     manifest_path = os.path.join(args.dataset, "nerf_capture", "manifest.json")
     test_path = os.path.join(args.dataset, "transforms_test.json")
     for p in (manifest_path, test_path):
@@ -127,7 +132,11 @@ def main(argv: list[str]) -> int:
     scene.collection.objects.link(cam_obj)
     views = contract.evenly_spaced(len(frames), max(1, min(args.views, len(frames))))
     per_view = []
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = scratch
+        if args.keep_renders:
+            os.makedirs(args.keep_renders)
+            tmp = args.keep_renders
         for v in views:
             frame = frames[v]
             out = os.path.join(tmp, f"v{v}.png")
