@@ -242,3 +242,20 @@ def test_a_batch_that_misses_the_scene_trains_on(tmp_path, dataset_factory, meth
         path.write_text(json.dumps(meta))
     out = train(_cfg(ds, tmp_path / "run", method=method, max_steps=3, batch_rays=32, eval_views=0))
     assert out["step"] == 3
+
+
+def test_vmgrid_evaluation_during_training_sees_the_current_weights(sphere_dataset, tmp_path):
+    """Regression: vmgrid's no-grad lookup tables were cached by the grids' version counters, which the
+    trainer's fused Adam does not move, so every preview and evaluation after the first rendered the
+    grids as they were then (about 1 dB low after 5 minutes). The final evaluation in the training
+    process must equal ``eval`` of the checkpoint it wrote."""
+    from nerf_core.evaluate import evaluate_run
+
+    run = tmp_path / "run"
+    # A preview every 10 steps builds the tables early; 30 more steps of training follow.
+    out = train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=40, batch_rays=256, preview_every=10,
+                     options={"res_init": 16, "res_final": 16, "upsample_at": [], "occ_res": 16}))
+    logged = [e for e in read_events(run / "progress.jsonl") if e["event"] == "eval"][-1]
+    again = evaluate_run(run, max_views=1)
+    assert logged["step"] == out["step"] == 40
+    assert again["psnr"] == pytest.approx(logged["psnr"], abs=1e-4)

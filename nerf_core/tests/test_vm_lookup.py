@@ -79,6 +79,27 @@ def test_lookup_is_cached_until_a_grid_changes():
     assert "_lookup" not in "".join(f.state_dict())  # never saved in checkpoints
 
 
+@pytest.mark.parametrize("fused", [True, False])
+def test_an_optimiser_step_makes_the_tables_stale_even_without_a_version_bump(fused):
+    # The trainer's Adam is fused (nerf_core.optim), and a fused step writes the weights without moving
+    # their version counters: the tables must still follow, or previews and evaluations during
+    # training render old grids.
+    f = _field()
+    x = _points(200)
+    opt = torch.optim.Adam(f.grid_parameters(), lr=0.1, fused=fused)
+    lk = f.lookup()
+    versions = [p._version for p in f.grid_parameters()]
+    f.density(x).sum().backward()
+    opt.step()
+    if fused:
+        assert [p._version for p in f.grid_parameters()] == versions  # what made the cache stale
+    lk2 = f.lookup()
+    assert lk2 is not lk
+    with torch.no_grad():
+        assert torch.allclose(lk2.density(x), f.density(x), rtol=1e-4, atol=1e-5)
+    assert f.lookup() is lk2  # and cached again until the next step
+
+
 def test_density_cell_max_bounds_every_point_of_each_cell_and_is_reached():
     f = _field(res=13)  # field nodes that do not line up with the cells
     cells = 5
