@@ -56,11 +56,12 @@ class VMGrid(RadianceModel):
             1e-3), 44 % in shell-only cells. Tight with "random" holed the diffuse sphere (39.64 against
             41.57 dB): with no shell and a short memory, a cell that a surface only clips dropped out when
             its one probe missed; "max" cannot miss. Tight against old, 5 min on one core, two runs
-            side by side per scene (200 px demo captures; PSNR dB, steps):
-                diffuse 40.50 / 40.33 (1954 / 1969)    glossy 35.25 / 35.16 (2051 / 1904)
-                multi 35.68 / 34.60 (2625 / 1594)      thin 34.86 / 33.38 (5030 / 1873)
-                highfreq 32.15 / 32.03 (3029 / 2949)   hdri 30.03 / 29.39 (3218 / 1434)
-                interior 29.12 / 28.40 (520 / 310)
+            side by side per scene (200 px demo captures; PSNR dB of ``eval --views 5`` on the final
+            checkpoint, steps; docs/benchmarks/vmgrid200/summary.md):
+                diffuse 42.10 / 41.89 (1954 / 1969)    glossy 36.50 / 36.33 (2051 / 1904)
+                multi 36.67 / 35.77 (2625 / 1594)      thin 36.00 / 35.51 (5030 / 1873)
+                highfreq 32.81 / 32.86 (3029 / 2949)   hdri 30.32 / 29.73 (3218 / 1434)
+                interior 29.61 / 28.39 (520 / 310)
         color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
             on rays still almost transparent, see ``render_rays``); skipped samples add no colour, so a
             larger value darkens rays slightly. With a tight grid ("random" probe), 1e-3 halved the colour

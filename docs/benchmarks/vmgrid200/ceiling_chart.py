@@ -7,7 +7,7 @@ Reads, from this folder:
   curve of each scene's benchmark run (the defaults are unchanged since);
 - ``ceilings/<scene>.json``: ``scripts/noise_ceiling.py`` on the same captures;
 - ``tight_grid.json`` (if present, same layout as ``baseline.json``): the same benchmark after the
-  occupancy grid became tight by default (commit 5f20430).
+  occupancy grid became tight by default (commit 5f20430), run after the evaluation fix 2c017ef.
 
 One row per scene: the 1- and 5-minute PSNR, issue 15's target (5-minute PSNR + 3 dB), the tight
 grid's 5-minute PSNR, and the ceiling band from two Cycles renders of a view (left edge) to a
@@ -64,7 +64,7 @@ def draw(one, five, ceil, tight, out: str) -> None:
         ax.plot(five[s], y, "o", color="#1f77b4", ms=8, zorder=5, label="5 min, defaults of 21beb97" if y == 0 else None)
         if s in tight:
             ax.plot(tight[s], y, "D", color="#2ca02c", ms=7, zorder=6,
-                    label="5 min, tight occupancy grid (5f20430), another day's run" if y == 0 else None)
+                    label="5 min, tight occupancy grid (5f20430)" if y == 0 else None)
         if s in ceil:
             best = max(five[s], tight.get(s, five[s]))
             ax.text(max(five[s] + 3, ceil[s][1]) + 0.4, y, f"{ceil[s][1] - best:.1f} dB to the ceiling",
