@@ -146,6 +146,13 @@ class TensorVMField(nn.Module):
         feat = self.basis(f.reshape(-1, f.shape[-1]).t())  # (m, app_dim)
         return torch.sigmoid(self.mlp(torch.cat([feat, self.view_enc(d)], dim=-1)))
 
+    def __getstate__(self):
+        # The lookup cache is derived data holding weak references, which cannot be pickled:
+        # torch.save(model) of a whole module leaves it out, and the copy rebuilds it on demand.
+        state = self.__dict__.copy()
+        state["_lookup"] = None
+        return state
+
     def lookup(self) -> VMLookup:
         """Lookup tables of the current weights for rendering without gradients (``vm_lookup``):
         the same densities and colours as :meth:`density` and :meth:`color`, several times faster.

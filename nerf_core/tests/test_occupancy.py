@@ -116,3 +116,12 @@ def test_query_near_sees_the_neighbouring_cells_and_follows_updates():
     assert not g.query_near(inside - 2 * c).any() and not g.query_near(inside + 2 * c).any()
     g.binary.zero_()  # an update in place: the cached neighbourhood follows
     assert not g.query_near(inside).any()
+    full = torch.ones_like(g.binary)
+    g.binary = full  # a replaced mask (as a device move does): followed too
+    assert g.query_near(inside + 2 * c).all()
+    import io
+
+    buf = io.BytesIO()
+    torch.save(g, buf)  # the cache (weak reference) is left out of a pickled grid
+    buf.seek(0)
+    assert torch.load(buf, weights_only=False).query_near(inside + 2 * c).all()

@@ -147,3 +147,22 @@ def test_vmgrid_occupancy_from_cell_maxima():
     expected = torch.zeros(8, 8, 8, dtype=torch.bool)
     expected[1:3, 2:5, 4:6] = True
     assert torch.equal(model.occupancy.binary, expected)
+
+
+def test_a_field_with_cached_tables_pickles_and_its_copy_rebuilds_them():
+    import copy
+    import io
+
+    f = _field()
+    x = _points(100)
+    lk = f.lookup()
+    buf = io.BytesIO()
+    torch.save(f, buf)  # a whole module, as some users save models; the cache holds weak references
+    buf.seek(0)
+    g = torch.load(buf, weights_only=False)
+    assert g._lookup is None and f.lookup() is lk  # the original keeps its tables
+    h = copy.deepcopy(f)
+    with torch.no_grad():
+        for other in (g, h):
+            assert other.lookup() is not lk
+            assert torch.allclose(other.lookup().density(x), f.density(x), rtol=1e-4, atol=1e-5)
