@@ -12,7 +12,6 @@ nothing every cell is marked occupied again, so rendering never gets stuck retur
 """
 from __future__ import annotations
 
-import weakref
 from typing import Callable
 
 import torch
@@ -20,6 +19,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from . import profiling
+from .derived_cache import DerivedCache
 
 Tensor = torch.Tensor
 
@@ -36,7 +36,8 @@ class OccupancyGrid(nn.Module):
         # Everything starts occupied: before the first update nothing is known about the scene.
         self.register_buffer("binary", torch.ones(r, r, r, dtype=torch.bool))
         self.n_resets = 0
-        self._near: tuple | None = None  # (weak ref to binary, stamp, dilated mask) cached by ``query_near``
+        # The dilated mask ``query_near`` reads; the mask is never written by an optimiser.
+        self._near: DerivedCache[Tensor] = DerivedCache(follow_optimizers=False)
 
     @property
     def occupied_fraction(self) -> float:
@@ -66,26 +67,15 @@ class OccupancyGrid(nn.Module):
         within the smallest cell edge (a hair less, for rounding)."""
         return 0.999 * float(self.cell_size().min())
 
-    def __getstate__(self):
-        # The dilated-mask cache holds a weak reference, which cannot be pickled; it is rebuilt on demand.
-        state = self.__dict__.copy()
-        state["_near"] = None
-        return state
-
     @torch.no_grad()
     def query_near(self, pts: Tensor) -> Tensor:
         """(m, 3) points -> (m,) bool: an occupied cell lies within ``near_reach()`` of the point (its
         cell or one of the 26 around it; points outside the box count from the nearest cell). False
         means no point that near can be occupied (``sampling.occupied_samples`` skips on it)."""
-        # The mask changes only in place (update, reset, loading: all move its version counter) or by
-        # replacement (a device move), caught by the weak reference; never by an optimiser.
-        stamp = (self.binary._version, self.binary.device)
-        cached = self._near
-        if cached is None or cached[0]() is not self.binary or cached[1] != stamp:
-            near = F.max_pool3d(self.binary[None, None].float(), kernel_size=3, stride=1, padding=1)[0, 0] > 0
-            self._near = (weakref.ref(self.binary), stamp, near)
+        near = self._near.get([self.binary], lambda: F.max_pool3d(
+            self.binary[None, None].float(), kernel_size=3, stride=1, padding=1)[0, 0] > 0)
         idx, _ = self._cell_index(pts)
-        return self._near[2].reshape(-1)[idx]
+        return near.reshape(-1)[idx]
 
     def cell_centers(self, jitter: bool) -> Tensor:
         """(resolution^3, 3) points, one per cell (uniformly random inside the cell if ``jitter``)."""

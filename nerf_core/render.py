@@ -51,8 +51,8 @@ def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int
     """Evaluation rendering of (m, 3) rays in model calls of at most ``chunk`` rays to bound memory.
 
     On the CPU calls are smaller: at most ``CPU_MAX_CALL_RAYS`` rays (or the model's ``cpu_call_rays``)
-    and about ``CPU_SAMPLES_PER_CALL`` samples, from the ``n_samples`` the model returned for the previous call (per-ray results do not
-    depend on the call size).
+    and about ``CPU_SAMPLES_PER_CALL`` samples, from the ``n_samples`` the model returned for the
+    previous call (per-ray results do not depend on the call size).
     Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
     ``on_chunk(done, m)`` is called after each call (progress; it may raise to stop early).
     """

@@ -15,30 +15,14 @@ non-cubic box; cheaper than ragged planes, see above).
 """
 from __future__ import annotations
 
-import weakref
-
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.optim.optimizer import register_optimizer_step_post_hook
 
+from ..derived_cache import DerivedCache
 from ..encodings import PositionalEncoding
 from ..losses import l1_sparsity, total_variation_2d
 from .vm_lookup import VMLookup, dense_density
-
-# Optimiser steps taken in this process, by any optimiser: part of the lookup tables' cache key.
-# A parameter's version counter alone misses updates: fused Adam (the trainer's, ``nerf_core.optim``)
-# writes the weights without moving it, and stale tables rendered every preview and evaluation
-# during training from the grids as they were after the last growth step.
-_optimizer_steps = 0
-
-
-def _count_optimizer_step(optimizer, args, kwargs) -> None:
-    global _optimizer_steps
-    _optimizer_steps += 1
-
-
-register_optimizer_step_post_hook(_count_optimizer_step)
 
 Tensor = torch.Tensor
 
@@ -86,7 +70,7 @@ class TensorVMField(nn.Module):
             nn.Linear(mlp_width, 3),
         )
         nn.init.constant_(self.mlp[-1].bias, 0.0)
-        self._lookup: tuple | None = None  # (weak refs to the grids, stamp, VMLookup) cached by ``lookup``; never saved
+        self._lookup: DerivedCache[VMLookup] = DerivedCache(follow_optimizers=True)  # never saved
 
     # ------------------------------------------------------------------ parameters
 
@@ -146,27 +130,12 @@ class TensorVMField(nn.Module):
         feat = self.basis(f.reshape(-1, f.shape[-1]).t())  # (m, app_dim)
         return torch.sigmoid(self.mlp(torch.cat([feat, self.view_enc(d)], dim=-1)))
 
-    def __getstate__(self):
-        # The lookup cache is derived data holding weak references, which cannot be pickled:
-        # torch.save(model) of a whole module leaves it out, and the copy rebuilds it on demand.
-        state = self.__dict__.copy()
-        state["_lookup"] = None
-        return state
-
     def lookup(self) -> VMLookup:
         """Lookup tables of the current weights for rendering without gradients (``vm_lookup``):
         the same densities and colours as :meth:`density` and :meth:`color`, several times faster.
-        Cached until a grid parameter is replaced (growth), changed in place (loading, or any op that
-        moves its version counter) or an optimiser steps anywhere in the process (fused optimisers do
-        not move version counters), so a render rebuilds them once, not per call."""
-        grids = self.grid_parameters()
-        stamp = (_optimizer_steps, tuple((p._version, p.device, p.dtype) for p in grids))
-        cached = self._lookup
-        # The parameters themselves by weak reference, not by id(): a new one may reuse a freed id.
-        if cached is None or cached[1] != stamp or any(r() is not p for r, p in zip(cached[0], grids)):
-            self._lookup = None  # free the old tables before building the new ones
-            self._lookup = (tuple(weakref.ref(p) for p in grids), stamp, VMLookup(self))
-        return self._lookup[2]
+        Cached until a grid parameter is replaced (growth), changed in place (loading) or written by
+        an optimiser step (``derived_cache``), so a render rebuilds them once, not per call."""
+        return self._lookup.get(self.grid_parameters(), lambda: VMLookup(self))
 
     @torch.no_grad()
     def density_cell_max(self, cells: int) -> Tensor:

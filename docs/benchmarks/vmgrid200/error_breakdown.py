@@ -31,6 +31,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from nerf_core.checkpoints import load_run  # noqa: E402
 from nerf_core.data import load_cameras, load_split  # noqa: E402
 from nerf_core.imageio import read_png  # noqa: E402
+from nerf_core.methods import available_methods  # noqa: E402
 from nerf_core.render import render_view  # noqa: E402
 
 KINDS = ("background", "silhouette", "texture edge", "flat")
@@ -99,7 +100,7 @@ def table(rows) -> str:
 def run_name(run: str) -> str:
     """The run folder's name, or its parent's where the folder is named for the method (SCENE/vmgrid)."""
     parts = os.path.normpath(os.path.abspath(run)).split(os.sep)
-    return parts[-2] if parts[-1] in ("vmgrid", "nerf", "nerf-nope") and len(parts) > 1 else parts[-1]
+    return parts[-2] if parts[-1] in available_methods() and len(parts) > 1 else parts[-1]
 
 
 COLOURS = {"background": "#d9d9d9", "silhouette": "#d62728", "texture edge": "#ff7f0e", "flat": "#1f77b4"}
