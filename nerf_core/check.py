@@ -307,7 +307,9 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
                     break
 
     _check_nerfstudio(report, root, frame_intrinsics)
-    _check_background(report, root, background)
+    opaque = _check_background(report, root, background)
+    if opaque:
+        _check_world_coverage(report, root)
     _check_loadable(report, root)
     _check_paths(report, root)
     return report
@@ -370,9 +372,12 @@ def _relative(root: Path, file: str) -> str:
 BACKGROUND_PROBE_IMAGES = 16  # evenly spaced train images read to tell opaque from cut-out captures
 
 
-def _check_background(report: CheckReport, root: Path, background: str) -> None:
+def _check_background(report: CheckReport, root: Path, background: str) -> Optional[bool]:
     """Warn when opaque images meet a background mode that cannot show their background, and when the
-    declared ``film_transparent`` contradicts the images (``nerf_core.backgrounds`` owns the rules)."""
+    declared ``film_transparent`` contradicts the images (``nerf_core.backgrounds`` owns the rules).
+
+    Returns whether the train images are opaque (their background is the world), or None when the
+    images could not be read."""
     import torch
 
     from .backgrounds import BACKGROUNDS, FIXED_BACKGROUNDS, TRANSPARENT_SHARE, choose, transparent_share
@@ -383,12 +388,12 @@ def _check_background(report: CheckReport, root: Path, background: str) -> None:
         try:
             meta = json.loads((root / fname).read_text(encoding="utf-8"))
         except (OSError, ValueError):
-            return  # reported above
+            return None  # reported above
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
-        return
+        return None
     if background not in BACKGROUNDS:
         report.error(fname, f"background mode {background!r} is not one of {', '.join(BACKGROUNDS)}")
-        return
+        return None
     frames = meta["frames"]
     pick = evenly_spaced(len(frames), BACKGROUND_PROBE_IMAGES)
     images = []
@@ -404,14 +409,14 @@ def _check_background(report: CheckReport, root: Path, background: str) -> None:
         if px is not None and px.ndim == 3 and px.dtype == np.uint8:
             images.append(torch.from_numpy(np.array(px)))
     if not images or len({tuple(im.shape) for im in images}) != 1:
-        return
+        return None
     stack = torch.stack(images)
     film = meta.get("film_transparent")
     share = transparent_share(stack)
     opaque = share < TRANSPARENT_SHARE
     if film is not None and not isinstance(film, bool):
         report.error(fname, f"must be true or false, got {film!r}", field="film_transparent")
-        return
+        return bool(opaque)
     if film is True and opaque:
         report.warn(fname, "declares a transparent film, but the train images have no transparent pixel "
                            "(train learns their background as an environment)", field="film_transparent")
@@ -424,6 +429,47 @@ def _check_background(report: CheckReport, root: Path, background: str) -> None:
                            f"{mode} puts a fixed or random colour there: the model would have to paint the background "
                            "onto geometry inside the scene box. Use --background environment (what auto picks for "
                            "opaque images)", field="background")
+    return bool(opaque)
+
+
+UNSEEN_WORLD_WARN = 0.02  # share of a held-out view's pixels on unseen world that earns a warning
+
+
+def _check_world_coverage(report: CheckReport, root: Path) -> None:
+    """Warn about held-out views that look at parts of the world no train view shows
+    (``nerf_core.world_coverage``): those pixels cannot be learnt, so the view will score low."""
+    from .data import cameras_of_frames
+    from .dataset_checks import parse_aabb, scene_fields
+    from .scene_box import estimate_aabb
+    from .world_coverage import covered_directions, unseen_world_share
+
+    try:
+        _, _, infos, scene = frame_infos(root)
+        _, far, _, _ = scene_fields(scene)
+        train = cameras_of_frames(infos["train"])
+        aabb = (parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene
+                else estimate_aabb(train, far)[0])
+    except (DatasetError, ImageReadError, OSError, ValueError):
+        return  # the loader's own checks report why
+    covered = None
+    for split in ("val", "test"):
+        frames = infos.get(split) or []
+        if not frames:
+            continue
+        try:
+            held = cameras_of_frames(frames)
+        except (DatasetError, ImageReadError, OSError, ValueError):
+            continue
+        if covered is None:
+            covered = covered_directions(train)
+        for k, fr in enumerate(frames):
+            share = unseen_world_share(held, k, covered, aabb)
+            if share >= UNSEEN_WORLD_WARN:
+                report.warn(_relative(root, str(fr.json_file)),
+                            f"{100 * share:.0f} % of this view's pixels look at parts of the world behind the scene "
+                            "that no train view shows; no model can learn them, so the view will score low there. "
+                            "Train views that look in those directions (often lower cameras, nearer the horizon) "
+                            "fix it", fr.index, fr.file_path)
 
 
 def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict]) -> None:

@@ -157,6 +157,29 @@ def update_metrics_file(path: Path, split: str, result: dict, step: Optional[int
     return data
 
 
+UNSEEN_WORLD_NOTE = 0.02  # share of a view on unseen world that the per-view line mentions
+
+
+def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dict:
+    """{view: share of its pixels that look at world directions no train view shows}
+    (``nerf_core.world_coverage``), for a model with a learned world; {} otherwise or when the
+    train cameras cannot be read."""
+    if getattr(model, "environment", None) is None:
+        return {}
+    from .contract.transforms import DatasetError
+    from .data import load_cameras
+    from .world_coverage import covered_directions, unseen_world_share
+
+    try:
+        train, _ = load_cameras(dataset_path, "train")
+    except (DatasetError, OSError, ValueError):
+        return {}
+    covered = covered_directions(train)
+    aabb = getattr(model, "aabb", None)
+    return {v: unseen_world_share(split.cameras, v, covered, None if aabb is None else aabb.detach().cpu().float())
+            for v in views}
+
+
 def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: int = 1,
                  chunk: int = 8192, checkpoint=None, print_fn=print, show_progress: bool = True) -> dict:
     """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
@@ -178,12 +201,17 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     n = len(sp) if not max_views else min(len(sp), int(max_views))
     views = evenly_spaced(len(sp), n)
     bg = config.get("eval_background", [1.0, 1.0, 1.0])
+    unseen = unseen_world_shares(model, dataset_path, sp, views)
     bar = ProgressBar(total=len(views), label=f"eval {split}", enabled=show_progress)
 
     def show(entry):
         line = f"view {entry['view']:3d} {entry['name']}: psnr {entry['psnr']:.2f} ssim {entry['ssim']:.4f}"
         if entry.get("depth_mae") is not None:
             line += f" depth_mae {entry['depth_mae']:.4f}"
+        share = unseen.get(entry["view"], 0.0)
+        if share >= UNSEEN_WORLD_NOTE:
+            # Say why a view scores low when the reason is the capture, not the model.
+            line += f" ({100 * share:.0f} % looks at world no train view shows)"
         print_fn(line)
         bar.update(1, info=entry["name"])
 
@@ -197,5 +225,8 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
                "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method")}
     if "depth_mae" in result:
         summary["depth_mae"] = result["depth_mae"]
+    low = {sp.stems[v]: round(share, 4) for v, share in unseen.items() if share >= UNSEEN_WORLD_NOTE}
+    if low:
+        summary["unseen_world"] = low  # view name -> share of its pixels on world no train view shows
     summary.update({k: result[k] for k in ("render_seconds", "rays", "rays_per_s")})
     return summary
