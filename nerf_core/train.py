@@ -425,12 +425,16 @@ class Trainer:
                 params_changed = False
             done = cfg.finished(self.step, self.elapsed)
             side_work = False  # previews, checkpoints and evaluations: rank 0 writes, the others wait
-            while self._eval_marks and self.elapsed >= self._eval_marks[0]:
+            crossed = [t for t in self._eval_marks if self.elapsed >= t]
+            if crossed:
                 # Speed-against-accuracy curves: evaluate at fixed training times inside one run, so the
                 # learning-rate and growth schedules are the real ones. Evaluation time is not training time.
-                self._eval_marks.pop(0)
+                # A slow step can cross several marks; the model is the same for all of them, so it is
+                # evaluated once and the event names every mark it stands for.
+                del self._eval_marks[:len(crossed)]
                 if self.dist.is_main:
-                    held_out_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.step, self.elapsed)
+                    held_out_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.step, self.elapsed,
+                                  marks=crossed)
                 side_work = True
             # Slow steps (big models on a CPU) still report at least every few seconds.
             if (self.step == first_step or self.step % cfg.log_every == 0 or done

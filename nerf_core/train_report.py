@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
+from typing import Optional, Sequence
 
 from . import contract
 from .evaluate import evaluate_held_out, update_metrics_file
@@ -23,8 +24,12 @@ def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float
              lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(opt.param_groups)})
 
 
-def held_out_eval(log, model, dataset, cfg, background, step: int, at_seconds: float) -> None:
-    """Evaluate ``cfg.eval_views`` evenly spaced held-out views (all when unset); an ``eval`` event."""
+def held_out_eval(log, model, dataset, cfg, background, step: int, at_seconds: float,
+                  marks: Optional[Sequence[float]] = None) -> None:
+    """Evaluate ``cfg.eval_views`` evenly spaced held-out views (all when unset); an ``eval`` event.
+
+    ``marks``: the ``--eval-at`` times (seconds) this evaluation stands for, recorded in the event as
+    ``eval_at`` (several when one slow step crossed more than one)."""
     model.eval()
     try:
         started = time.perf_counter()
@@ -36,7 +41,8 @@ def held_out_eval(log, model, dataset, cfg, background, step: int, at_seconds: f
     split_name, result = found
     log.emit("eval", step=step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
              n_views=result["n_views"], depth_mae=result.get("depth_mae"), elapsed=at_seconds,
-             eval_wall=time.perf_counter() - started, n_params=model.num_parameters(), n_bytes=model.num_bytes())
+             eval_wall=time.perf_counter() - started, n_params=model.num_parameters(), n_bytes=model.num_bytes(),
+             **({"eval_at": [float(t) for t in marks]} if marks else {}))
 
 
 def final_eval(log, model, dataset, cfg, background, run: Path, step: int, elapsed: float) -> dict:

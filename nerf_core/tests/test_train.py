@@ -228,6 +228,16 @@ def test_eval_at_evaluates_at_training_times_inside_one_run(sphere_dataset, tmp_
     assert evals[0]["step"] < evals[1]["step"]
     for e in evals:
         assert e["split"] == "test" and e["n_views"] == 1 and math.isfinite(e["psnr"]) and e["n_params"] > 0
+    assert [e["eval_at"] for e in evals] == [[0.2], [0.6]]
+
+
+def test_a_step_that_crosses_several_eval_marks_evaluates_once(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    # No step is shorter than 10 ns, so one step crosses both of the first two marks.
+    train(_cfg(sphere_dataset, run, max_steps=None, max_seconds=1.0, eval_at=[0.3, 0.30000001, 0.6]))
+    evals = [e for e in read_events(run / "progress.jsonl") if e["event"] == "eval" and "eval_wall" in e]
+    assert [e["eval_at"] for e in evals] == [[0.3, 0.30000001], [0.6]]
+    assert evals[0]["step"] < evals[1]["step"]
 
 
 @pytest.mark.parametrize("method", ["vmgrid", "nerf"])

@@ -65,20 +65,28 @@ def summarize_training(events: Sequence[dict]) -> dict:
 def eval_at_points(events: Sequence[dict], marks: Sequence[float]) -> list[dict]:
     """The ``--eval-at`` evaluations among a run's ``events`` as points {seconds, budget, step, psnr, ssim}.
 
-    The trainer evaluates once per mark, in order (twice at one step when a slow step crosses two
-    marks), so the k-th test evaluation that carries ``eval_wall`` belongs to the k-th of ``marks``
-    (sorted seconds). Matching by nearest time instead would give close log-spaced marks the wrong
-    label after one slow step. Evaluations beyond the marks are ignored.
+    The trainer evaluates once per step that crosses marks, in order; its event lists the marks it
+    stands for in ``eval_at`` (several when one slow step crossed more than one), and each of them
+    becomes a point. Events without ``eval_at`` (older runs, which evaluated once per mark) belong to
+    the marks in order: the k-th test evaluation that carries ``eval_wall`` to the k-th of ``marks``.
+    Matching by nearest time instead would give close log-spaced marks the wrong label after one slow
+    step. Evaluations beyond the marks are ignored.
     """
     points = []
-    todo = iter(sorted(marks))
+    todo = sorted(marks)
     for ev in events:
+        if not todo:
+            break
         if ev.get("event") == "eval" and ev.get("split") == "test" and "eval_wall" in ev:
-            mark = next(todo, None)
-            if mark is None:
-                break
-            points.append({"seconds": float(ev["elapsed"]), "budget": mark, "step": int(ev["step"]),
-                           "psnr": ev.get("psnr"), "ssim": ev.get("ssim")})
+            stands_for = ev.get("eval_at")
+            if isinstance(stands_for, list) and stands_for:
+                mine = [t for t in todo if any(abs(t - float(m)) < 1e-6 for m in stands_for)] or todo[:1]
+            else:
+                mine = todo[:1]
+            todo = [t for t in todo if t not in mine]
+            for mark in mine:
+                points.append({"seconds": float(ev["elapsed"]), "budget": mark, "step": int(ev["step"]),
+                               "psnr": ev.get("psnr"), "ssim": ev.get("ssim")})
     return points
 
 

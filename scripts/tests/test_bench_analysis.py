@@ -113,6 +113,17 @@ def test_eval_at_points_label_evaluations_in_mark_order():
     assert analysis.eval_at_points(events, []) == []
 
 
+def test_eval_at_points_expand_an_evaluation_that_stands_for_several_marks():
+    # The trainer evaluates once when a slow step crosses 10 s and 20 s, and says so in eval_at.
+    events = [{"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0,
+               "ssim": 0.3, "eval_at": [10.0, 20.0]},
+              {"event": "eval", "split": "test", "step": 9, "elapsed": 41.0, "eval_wall": 1.0, "psnr": 14.0,
+               "ssim": 0.4, "eval_at": [40.0]}]
+    points = analysis.eval_at_points(events, [40.0, 10.0, 20.0])
+    assert [(p["budget"], p["seconds"], p["step"], p["psnr"]) for p in points] == [
+        (10.0, 23.5, 4, 12.0), (20.0, 23.5, 4, 12.0), (40.0, 41.0, 9, 14.0)]
+
+
 def test_pair_gap_table_subtracts_at_each_checkpoint():
     table = [{"scene": "a", "series": "nerf", "psnr@10s": 15.0, "psnr@20s": 19.5},
              {"scene": "a", "series": "nerf-nope", "psnr@10s": 15.5, "psnr@20s": 17.0},
