@@ -63,8 +63,9 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
         ("SCENE", "Whole Scene", "Aim at and frame everything visible"),
         ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
     train_count: IntProperty(name="Train", default=100, min=1, soft_max=1000)
-    val_count: IntProperty(name="Val", default=10, min=0, soft_max=200)
-    test_count: IntProperty(name="Test", default=20, min=0, soft_max=400)
+    # At least 1 each: `train` and `check` refuse a dataset with an empty split (layouts.held_out_problem).
+    val_count: IntProperty(name="Val", default=10, min=1, soft_max=200)
+    test_count: IntProperty(name="Test", default=20, min=1, soft_max=400)
     radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
                           description="Camera distance from the target centre; 0 = auto (target fills the frame)")
     elevation_min: FloatProperty(name="Min Elevation", default=0.0, min=-90.0, max=90.0)
@@ -164,6 +165,10 @@ class NERF_OT_capture(bpy.types.Operator):
         s = context.scene.nerf_capture
         if self.generate and not any(layouts.capture_cameras(context.scene).values()):
             layouts.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        cams = layouts.capture_cameras(context.scene)
+        problem = layouts.held_out_problem(cams) if cams["train"] else None  # no train: CaptureJob says so
+        if problem:
+            raise capture.CaptureError(problem)
         return capture.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
 
     def _progress(self, context):

@@ -322,6 +322,20 @@ def capture_cameras(scene) -> dict[str, list]:
     return out
 
 
+def held_out_problem(cams: dict[str, list]) -> str | None:
+    """Why a camera set (``capture_cameras``) cannot make a dataset our tools accept, or None.
+
+    ``train`` and ``check`` refuse an empty split (the original NeRF loader and 3DGS read every split),
+    so a capture with no val or no test camera would write a dataset nobody can train on.
+    """
+    empty = [s for s in ("val", "test") if not cams.get(s)]
+    if not empty:
+        return None
+    return (f"the {COLLECTION_NAME!r} collection has no {' and no '.join(empty)} camera: a dataset needs at least "
+            "1 view in each split (train, val, test), or `train` and `check` refuse it. Generate the layout again "
+            f"with Val and Test of 1 or more, or tag a camera with nerf_split = {empty[0]!r}")
+
+
 def _user_cameras(scene, coll):
     return sorted((o for o in scene.objects if o.type == "CAMERA" and (coll is None or o.name not in coll.all_objects)),
                   key=lambda o: o.name)

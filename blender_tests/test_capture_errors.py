@@ -221,7 +221,7 @@ def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
 
 
 def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
-    scene = scene_with_cameras(train=3, val=0, test=1)
+    scene = scene_with_cameras(train=3, val=1, test=1)
     cam = layouts.capture_cameras(scene)["train"][0]
     cam.matrix_world = Matrix(layouts.look_at((0.5, -4.0, 1.0), (0, 0, 0)))  # a user edit
     blend = tmp_path / "cams.blend"
@@ -236,10 +236,22 @@ def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
     assert len(doc["frames"]) == 3
     assert [row[3] for row in doc["frames"][0]["transform_matrix"][:3]] == pytest.approx([0.5, -4.0, 1.0])
     proc = subprocess.run(base + ["--resume", "--keep-cameras"], capture_output=True, text=True, timeout=180)
-    assert proc.returncode == 0 and json.loads(proc.stdout.splitlines()[-1])["kept"] == 4
+    assert proc.returncode == 0 and json.loads(proc.stdout.splitlines()[-1])["kept"] == 5
     proc = subprocess.run(base[:5] + [str(tmp_path / "new"), "--resume", "--quiet"], capture_output=True, text=True,
                           timeout=180)
     assert proc.returncode == 2 and "no capture to continue" in proc.stderr
+
+
+def test_script_keep_cameras_refuses_a_collection_without_val_or_test_cameras(tmp_path):
+    scene_with_cameras(train=3, val=0, test=1)
+    blend = tmp_path / "cams.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out = tmp_path / "ds"
+    proc = subprocess.run([PY, SCRIPT, "--blend", str(blend), "--out", str(out), "--resolution", "16", "--engine",
+                           "workbench", "--quiet", "--keep-cameras"], capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "no 'val' camera" in proc.stderr or "no val camera" in proc.stderr
+    assert not out.exists()  # nothing written that `train` would refuse
 
 
 def test_pass_files_round_trip_and_unreadable_ones_are_named(tmp_path):

@@ -78,6 +78,19 @@ def test_operator_errors_are_reported_not_raised_deep(registered, tmp_path):
         bpy.ops.nerf.capture()  # generates the layout first, which fails the same way
 
 
+def test_the_panel_cannot_capture_a_dataset_without_val_or_test_views(registered, tmp_path):
+    bpy.ops.mesh.primitive_cube_add()
+    s = bpy.context.scene.nerf_capture
+    s.val_count = 0  # the property clamps: the panel cannot ask for an empty split
+    assert s.val_count == 1
+    # A collection made elsewhere (a script, an older file) without test cameras is refused, naming it.
+    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
+    s.output_dir, s.engine = str(tmp_path / "ds"), "workbench"
+    with pytest.raises(RuntimeError, match="no test camera"):
+        bpy.ops.nerf.capture()
+    assert not (tmp_path / "ds").exists()
+
+
 def _fake_modal_operator(job):
     """The job follower's modal method bound to a stand-in instance (no event loop runs headless),
     following ``job`` as the Capture operator hands it over."""
@@ -100,7 +113,7 @@ def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
 
     bpy.ops.mesh.primitive_cube_add()
     s = bpy.context.scene.nerf_capture
-    s.train_count, s.val_count, s.test_count = 3, 1, 0
+    s.train_count, s.val_count, s.test_count = 3, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
     job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
@@ -113,8 +126,8 @@ def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
     with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
         assert json.load(fh)["status"] == "incomplete"
     if how == "finish":
-        results = [op.modal(ctx, SimpleNamespace(type="TIMER")) for _ in range(3)]
-        assert results[-1] == {"FINISHED"} and s.status.startswith("done: 4 frames")
+        results = [op.modal(ctx, SimpleNamespace(type="TIMER")) for _ in range(4)]
+        assert results[-1] == {"FINISHED"} and s.status.startswith("done: 5 frames")
         expected = "complete"
     else:
         if how == "button":

@@ -31,10 +31,10 @@ def _follower():
     return op, lambda event_type: jobs.NERF_OT_follow_jobs.modal(op, ctx, SimpleNamespace(type=event_type))
 
 
-def _prepared_capture(tmp_path, frames=3):
+def _prepared_capture(tmp_path, frames=2):
     bpy.ops.mesh.primitive_cube_add()
     s = bpy.context.scene.nerf_capture
-    s.train_count, s.val_count, s.test_count = frames, 1, 0
+    s.train_count, s.val_count, s.test_count = frames, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
     job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)

@@ -173,8 +173,12 @@ def main(argv: list[str]) -> int:
         elevation_min=args.elevation_min, elevation_max=args.elevation_max, seed=args.seed, rings=args.rings,
         turns=args.turns, frame_step=args.frame_step, focal_length=args.focal_length, target=args.target.upper())
     if args.keep_cameras:
-        if not any(layouts.capture_cameras(scene).values()):
+        kept = layouts.capture_cameras(scene)
+        if not any(kept.values()):
             raise capture.CaptureError(f"--keep-cameras: scene has no cameras in {layouts.COLLECTION_NAME!r}")
+        problem = layouts.held_out_problem(kept) if kept["train"] else None
+        if problem:
+            raise capture.CaptureError(f"--keep-cameras: {problem}")
         layout_record = {"layout": "existing 'NeRF Cameras' collection"}
     else:
         layouts.create_cameras(scene, spec, res_x, res_y)
