@@ -35,10 +35,21 @@ MIN_BINS = 64  # longitude cells of the coarsest grid (a 5.6 degree cell)
 MAX_BINS = 2048  # and of the finest (0.18 degree): finer costs memory and says nothing more
 
 
-def bins_for_cameras(cameras: Cameras) -> int:
-    """Longitude cells of a grid whose cell spans about two pixels of the median train camera."""
+TRAIN_RAYS_PER_VIEW = 40_000  # rays per train view that ``covered_directions`` traces at most
+HELD_OUT_RAYS_PER_VIEW = 10_000  # and ``unseen_world_share`` per held-out view
+
+
+def bins_for_cameras(cameras: Cameras, stride: int = 1) -> int:
+    """Longitude cells of a grid whose cell spans about two traced pixels (every ``stride``-th pixel)
+    of the median train camera, so that neighbouring traced rays leave no empty cell between them."""
     focal = float(torch.median(torch.minimum(cameras.fx, cameras.fy)))
-    return int(min(MAX_BINS, max(MIN_BINS, round(2.0 * math.pi * focal / 2.0))))
+    return int(min(MAX_BINS, max(MIN_BINS, round(2.0 * math.pi * focal / (2.0 * stride)))))
+
+
+def auto_stride(cameras: Cameras, rays_per_view: int) -> int:
+    """The pixel stride that traces at most about ``rays_per_view`` rays of the largest view."""
+    pixels = float((cameras.width * cameras.height).max())
+    return max(1, math.ceil(math.sqrt(pixels / rays_per_view)))
 
 
 def _pixel_grid(cameras: Cameras, view: int, stride: int) -> tuple[Tensor, Tensor, Tensor]:
@@ -82,14 +93,16 @@ def _dilate(mask: Tensor) -> Tensor:
     return out
 
 
-def covered_directions(train: Cameras, n_u: Optional[int] = None, stride: int = 1) -> Tensor:
+def covered_directions(train: Cameras, n_u: Optional[int] = None, stride: Optional[int] = None) -> Tensor:
     """(n_u / 2, n_u) bool lat-long grid: the directions some train ray takes (grown by one cell).
 
     Every train ray counts, including those that hit the scene, so the grid errs towards "seen"
     (a ray blocked by an object did not see the world; we do not know that from cameras alone).
-    ``stride`` > 1 uses every stride-th pixel in each direction, for very large captures.
+    ``stride``: trace every stride-th pixel in each direction (default: at most about
+    ``TRAIN_RAYS_PER_VIEW`` rays a view); the default ``n_u`` makes the cells match it.
     """
-    n_u = int(n_u or bins_for_cameras(train))
+    stride = int(stride or auto_stride(train, TRAIN_RAYS_PER_VIEW))
+    n_u = int(n_u or bins_for_cameras(train, stride))
     seen = torch.zeros((n_u // 2) * n_u, dtype=torch.bool)
     for view in range(len(train)):
         v, i, j = _pixel_grid(train, view, stride)
@@ -99,7 +112,7 @@ def covered_directions(train: Cameras, n_u: Optional[int] = None, stride: int = 
 
 
 def unseen_world_share(held_out: Cameras, view: int, covered: Tensor, aabb: Optional[Tensor] = None,
-                       stride: int = 2) -> float:
+                       stride: Optional[int] = None) -> float:
     """Share in [0, 1] of ``view``'s pixels that see the world in a direction no train ray took.
 
     Args:
@@ -107,8 +120,10 @@ def unseen_world_share(held_out: Cameras, view: int, covered: Tensor, aabb: Opti
         covered: ``covered_directions`` of the train cameras, (n_v, n_u) bool.
         aabb: (2, 3) scene box; a pixel whose ray passes through it may see the scene instead of the
             world, so only rays that miss it count. ``None``: every ray counts.
-        stride: every stride-th pixel in each direction is tested.
+        stride: every stride-th pixel in each direction is tested (default: at most about
+            ``HELD_OUT_RAYS_PER_VIEW`` of them).
     """
+    stride = int(stride or auto_stride(held_out[view], HELD_OUT_RAYS_PER_VIEW))
     v, i, j = _pixel_grid(held_out, view, stride)
     rays_o, rays_d, _ = rays_for_pixels(held_out, v, i, j)
     rays_o, rays_d = rays_o.float(), rays_d.float()

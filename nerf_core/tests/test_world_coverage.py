@@ -144,3 +144,14 @@ def test_eval_says_which_views_look_at_unseen_world(tmp_path, dataset_factory):
     assert "looks at world no train view shows" in lines[1] and lines[1].startswith("view   1 r_1")
     assert "no train view" not in lines[0]
     assert summary["unseen_world"]["r_1"] >= 0.5 and "r_0" not in summary["unseen_world"]
+
+
+def test_large_views_are_traced_sparsely_without_leaving_gaps():
+    from nerf_core.world_coverage import TRAIN_RAYS_PER_VIEW, auto_stride
+
+    big = _camera(0.0, w=1000, h=1000)
+    assert auto_stride(big, TRAIN_RAYS_PER_VIEW) == 5  # 40 000 of the million pixels
+    covered = covered_directions(big)
+    # Every pixel of the same view, and of one turned by a fraction of a degree, lies in a seen cell.
+    assert unseen_world_share(big, 0, covered, stride=1) == 0.0
+    assert unseen_world_share(_camera(0.3, pitch_deg=0.2, w=1000, h=1000), 0, covered, stride=1) == 0.0
