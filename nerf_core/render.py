@@ -263,6 +263,31 @@ def straight_rgba(res: Dict[str, torch.Tensor], opaque: bool) -> np.ndarray:
     return torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
 
 
+def dataset_files(*paths) -> Dict[Path, str]:
+    """{resolved file: 'FILE: frame K (PATH)'} of every image, depth, normal and mask file of the datasets
+    (folders or transforms files) at ``paths``, all splits; a path that is not a dataset adds nothing.
+    ``render`` never writes over these, even with --overwrite."""
+    from .contract.transforms import SPLITS, frame_infos
+
+    out: Dict[Path, str] = {}
+    for path in paths:
+        if not path:
+            continue
+        try:
+            _, _, infos, _ = frame_infos(path, SPLITS)
+        except (DatasetError, OSError, ValueError):
+            continue
+        for frames in infos.values():
+            for fr in frames:
+                for f in (fr.image, fr.depth, fr.normal, fr.mask):
+                    if f is not None:
+                        try:
+                            out.setdefault(Path(f).resolve(), fr.where)
+                        except (OSError, RuntimeError):  # a symlink loop: not a file we could overwrite
+                            pass
+    return out
+
+
 def render_to_dir(
     model,
     cameras: Cameras,
@@ -278,8 +303,12 @@ def render_to_dir(
     ground_truth: Optional[List[Optional[FrameInfo]]] = None,
     metrics_background=(1.0, 1.0, 1.0),
     gt_downscale: int = 1,
+    protected: Optional[Dict[Path, str]] = None,
 ) -> Path:
     """Render every camera into ``out``; returns the path of ``renders.json``.
+
+    ``protected``: files never to write over, even with ``overwrite`` (``dataset_files``: a dataset's
+    own images); a target among them is refused (RunError naming it and its frame).
 
     ``ground_truth``: per camera, the transforms frame whose image is its ground truth (None: none).
     Views with one get ``psnr`` and ``ssim`` in renders.json, computed exactly as ``eval`` does
@@ -299,6 +328,14 @@ def render_to_dir(
         targets += [out / files["image"], out / files["depth"]]
         if fr is not None:
             targets.append(out / files["error_map"])
+    for t in targets:
+        try:
+            frame = (protected or {}).get(t.resolve())
+        except (OSError, RuntimeError):
+            frame = None
+        if frame is not None:
+            raise RunError(f"--out {out}: would write {t.name} over the dataset's own file ({frame}); "
+                           "renders never replace a dataset's images, even with --overwrite. Choose another --out")
     existing = [t for t in targets if t.exists()]
     if existing and not overwrite:
         names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
@@ -393,4 +430,5 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         show_progress=show_progress,
         ground_truth=frames if gt_downscale else None,
         metrics_background=config.get("eval_background", [1.0, 1.0, 1.0]), gt_downscale=gt_downscale or 1,
+        protected=dataset_files(cameras_path, config.get("dataset")),
     )

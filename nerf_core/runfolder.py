@@ -95,6 +95,17 @@ def _inside(run: Path, rel: str) -> Optional[Path]:
     return run / rel
 
 
+def _written_by_a_trainer(run: Path) -> bool:
+    """Whether a folder without RUN/.written.json is a run from before that list: its config.json is
+    a trainer's (a JSON object naming the method and the dataset). A user's own folder that happens
+    to hold a config.json or metrics.json is not."""
+    try:
+        cfg = json.loads((run / contract.CONFIG).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(cfg, dict) and isinstance(cfg.get("method"), str) and "dataset" in cfg
+
+
 def trainer_written(run: Path) -> List[Path]:
     """Files in ``run`` that a previous training wrote (the only ones --overwrite may delete).
 
@@ -114,6 +125,8 @@ def trainer_written(run: Path) -> List[Path]:
         if (run / WRITTEN_LIST).is_file():
             found.append(run / WRITTEN_LIST)
         return found
+    if not _written_by_a_trainer(run):
+        return found  # not a run at all: nothing in it is ours to delete
     for p in sorted(run.rglob("*")) if run.is_dir() else []:
         rel = p.relative_to(run).as_posix()
         if p.is_file() and not p.is_symlink() and LEGACY_WRITTEN.fullmatch(rel):
@@ -166,6 +179,17 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
     # The writer lock (RUN_LOCK) is not content: a trainer starting a new run creates it before it
     # re-checks the folder, and a trainer killed with SIGKILL may leave it behind, unlocked.
     names = sorted(p.name for p in run.iterdir() if p.name != RUN_LOCK) if run.is_dir() else []
+    if names and overwrite and read_written(run) is None and not _written_by_a_trainer(run):
+        # Not a run (no .written.json, no trainer's config.json): --overwrite may delete nothing here,
+        # and the new run would write over the user's files of the same names.
+        clash = [f for f in run_contents(run) if LEGACY_WRITTEN.fullmatch(f) or PRE_CHECKPOINT.fullmatch(f)]
+        if clash:
+            shown = ", ".join(clash[:6]) + (", ..." if len(clash) > 6 else "")
+            raise TrainError(
+                f"{run}: is not a run folder written by train (no {WRITTEN_LIST}, and its {contract.CONFIG} is not a "
+                f"trainer's), but holds files a run would write over ({shown}); --overwrite only replaces a run. "
+                "Choose another --out"
+            )
     if names and not overwrite:
         shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
         raise TrainError(

@@ -202,6 +202,28 @@ def test_overwrite_of_a_run_without_a_list_removes_only_exact_trainer_names(sphe
     assert not (run / "checkpoints" / "step_0000003.pt").exists()
 
 
+def test_overwrite_of_a_folder_that_is_not_a_run_deletes_nothing(sphere_dataset, tmp_path):
+    # A user's project folder with files that share a run's names, but no .written.json and a
+    # config.json that is not a trainer's: --overwrite must neither delete nor write over them.
+    folder = tmp_path / "project"
+    folder.mkdir()
+    mine = {"config.json": '{"my": "project settings"}', "metrics.json": "{}", "progress.jsonl": "x\n",
+            "notes.txt": "keep"}
+    for name, text in mine.items():
+        (folder / name).write_text(text)
+    proc = _cli("train", sphere_dataset, "--out", folder, "--method", "test-grid", "--max-steps", "2", "--no-bar",
+                "--overwrite")
+    _clear_error(proc, str(folder), "not a run folder", "config.json")
+    for name, text in mine.items():
+        assert (folder / name).read_text() == text, name
+    # A folder with only unrelated files is fine: the run goes beside them.
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("keep")
+    train(_cfg(sphere_dataset, other, max_steps=2, overwrite=True))
+    assert (other / "notes.txt").read_text() == "keep" and (other / "checkpoints" / "latest.pt").is_file()
+
+
 # ---------------------------------------------------------------------------------------------- 4. out vs dataset
 
 

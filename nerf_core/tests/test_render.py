@@ -39,6 +39,28 @@ def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, caps
     assert Image.open(out / "r_0.png").size == (12, 10)
 
 
+@pytest.mark.parametrize("cameras", ["dataset", "run's dataset", "other split"])
+def test_render_never_writes_over_the_datasets_own_images(trained_run, tmp_path, capsys, cameras):
+    import shutil
+
+    ds = Path(shutil.copytree(trained_run["dataset"], tmp_path / "ds"))
+    run = trained_run["run"]
+    before = {p: p.read_bytes() for p in ds.rglob("*.png")}
+    args = ["render", str(run), "--out", str(ds / "test"), "--overwrite", "--no-bar"]
+    if cameras == "dataset":
+        args += ["--cameras", str(ds)]
+    elif cameras == "other split":  # test cameras rendered into the train images' folder
+        args = ["render", str(run), "--cameras", str(ds), "--out", str(ds / "train"), "--overwrite", "--no-bar"]
+    else:  # no --cameras: the run's own dataset (the shared fixture's), rendered into that dataset
+        ds = trained_run["dataset"]
+        before = {p: p.read_bytes() for p in ds.rglob("*.png")}
+        args[3] = str(ds / "test")
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "dataset's own file" in err and "r_0.png" in err and "frame 0" in err and "Traceback" not in err
+    assert {p: p.read_bytes() for p in ds.rglob("*.png")} == before
+
+
 def test_render_png_alpha_and_depth_agree_with_the_model(trained_run, tmp_path):
     from nerf_core.checkpoints import load_run
 
