@@ -18,7 +18,7 @@ import numpy as np
 
 from .contract.intrinsics import focal_from_fov
 from .contract.naming import evenly_spaced
-from .contract.transforms import IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos
+from .contract.transforms import IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos, parse_json_file
 from .imageio import ImageReadError, png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
@@ -74,14 +74,20 @@ class CheckReport:
                 "warnings": [str(p) for p in self.warnings], "frames": self.n_frames}
 
 
+def _resolved(path: Path) -> Path:
+    """``path.resolve()``, or the absolute path where resolving fails (a symlink loop: the image
+    check reports that file)."""
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):
+        return path.absolute()
+
+
 def _load_json(report: CheckReport, path: Path) -> Optional[dict]:
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        report.error(path.name, f"cannot read ({exc})")
-        return None
-    except json.JSONDecodeError as exc:
-        report.error(path.name, f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}")
+        meta = parse_json_file(path)
+    except DatasetError as exc:
+        report.error(path.name, str(exc).split(": ", 1)[-1])
         return None
     if not isinstance(meta, dict):
         report.error(path.name, "expected a JSON object")
@@ -290,9 +296,9 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
             m = _check_pose(report, fname, fr, k, fp)
             _check_extras(report, fname, root, fr, k, fp)
             if m is not None:
-                poses[split].append((k, fp, m, img.resolve()))
+                poses[split].append((k, fp, m, _resolved(img)))
             if intr is not None:
-                frame_intrinsics[str(img.resolve())] = intr
+                frame_intrinsics[str(_resolved(img))] = intr
 
     # Held-out cameras must be new viewpoints.
     for split in ("val", "test"):
@@ -357,6 +363,8 @@ def _check_loadable(report: CheckReport, root: Path) -> None:
             fname = Path(m["file"]).name
             if any(f"field '{fld}'" in m["rest"] for (fn, fld) in fields if fn == fname):
                 continue
+            if any(Path(p.file).name == fname and p.message == m["rest"] for p in report.errors):
+                continue  # the same problem, already reported by the convention checks
             report.error(_relative(root, m["file"]), m["rest"])
         else:
             report.error(str(root), msg)
@@ -386,8 +394,8 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
     meta = None
     if (root / fname).is_file():
         try:
-            meta = json.loads((root / fname).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            meta = parse_json_file(root / fname)
+        except DatasetError:
             return None  # reported above
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         return None
@@ -495,7 +503,7 @@ def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[st
         _check_image(report, NERFSTUDIO_FILE, img, intr, k, fp, "file_path", rgba=False)
         _check_pose(report, NERFSTUDIO_FILE, fr, k, fp)
         _check_extras(report, NERFSTUDIO_FILE, base, fr, k, fp)
-        other = split_intrinsics.get(str(img.resolve()))
+        other = split_intrinsics.get(str(_resolved(img)))
         if other is not None and intr is not None:
             diff = [key for key in REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]
             if diff:

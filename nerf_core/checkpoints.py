@@ -165,6 +165,11 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
         config = json.loads(cfg_path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
+    except (OSError, UnicodeDecodeError, RecursionError) as exc:
+        raise RunError(f"{cfg_path}: cannot read ({exc.__class__.__name__}: {exc})") from exc
+    if not isinstance(config, dict):
+        raise RunError(f"{cfg_path}: expected the JSON object that `train` writes, got a {type(config).__name__}; "
+                       f"is {run} a run folder?")
     ck = Path(checkpoint) if checkpoint else Path(contract.latest_checkpoint(run))
     ckpt = read_checkpoint(ck)
     return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt

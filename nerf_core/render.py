@@ -26,7 +26,7 @@ from .checkpoints import CheckpointRefused, RunError, load_run, model_from_check
 from .contract import config_path
 from .contract.intrinsics import resolve_intrinsics
 from .contract.naming import frame_stem, render_files, unique_stems
-from .contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, read_transforms
+from .contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, parse_json_file, read_transforms
 from .progressbar import ProgressBar
 
 
@@ -166,7 +166,7 @@ def check_view_memory(w: int, h: int, where: str) -> None:
 def _camera_list(data, src: Path) -> tuple[Cameras, List[str]]:
     """Cameras from a JSON list: each item a 4x4 matrix (intrinsics from the top level) or a dict
     with ``transform_matrix`` plus intrinsics (``contract.resolve_intrinsics``; ``w`` and ``h`` required)."""
-    items, glob = (data, {}) if isinstance(data, list) else (data.get("cameras"), data)
+    items, glob = (data, {}) if isinstance(data, list) else (data.get("cameras"), data) if isinstance(data, dict) else (None, {})
     if not isinstance(items, list) or not items:
         raise DatasetError(f"{src}: expected a list of cameras (or an object with 'frames' or 'cameras')")
     mats, params = [], []
@@ -201,12 +201,7 @@ def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[s
     else:
         if not path.is_file():
             raise DatasetError(f"{path}: cameras file not found")
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError) as exc:
-            raise DatasetError(f"{path}: cannot read ({exc})") from exc
-        except json.JSONDecodeError as exc:
-            raise DatasetError(f"{path}: invalid JSON at line {exc.lineno}: {exc.msg}") from exc
+        data = parse_json_file(path)
         from .camera_path import cameras_from_camera_path, is_camera_path
 
         if is_camera_path(data):  # nerfstudio's camera_path.json (viewer, Blender add-on)

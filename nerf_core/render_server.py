@@ -214,7 +214,11 @@ class RenderServer:
         except ValueError as exc:
             self.emit("error", id=None, message=f"input line is not JSON ({exc}): {line.strip()[:80]!r}")
             return True
-        if isinstance(obj, dict) and "cmd" in obj:
+        if not isinstance(obj, dict):
+            self.emit("error", id=None, message=f"a request must be a JSON object, got {type(obj).__name__}: "
+                                                f"{line.strip()[:80]!r}")
+            return True
+        if "cmd" in obj:
             if obj["cmd"] == "quit":
                 return False
             self.emit("error", id=obj.get("id"), message=f"unknown cmd {obj['cmd']!r} (known: quit)")

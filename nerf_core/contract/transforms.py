@@ -76,18 +76,27 @@ def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3)
     return m
 
 
-def read_json(path: Path | str) -> dict:
-    """A transforms file's top-level object (DatasetError naming the file when it cannot be read)."""
+def parse_json_file(path: Path | str):
+    """The JSON value in ``path``; DatasetError naming the file when it cannot be read or parsed
+    (missing, unreadable, not UTF-8, invalid, or nested too deeply for the parser)."""
     path = Path(path)
     try:
         with open(path, encoding="utf-8") as f:
-            meta = json.load(f)
+            return json.load(f)
     except FileNotFoundError as exc:
         raise DatasetError(f"{path}: file not found") from exc
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read ({exc})") from exc
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
+    except RecursionError:
+        raise DatasetError(f"{path}: JSON nested too deeply to read (thousands of levels of [ or {{)") from None
+
+
+def read_json(path: Path | str) -> dict:
+    """A transforms file's top-level object (DatasetError naming the file when it cannot be read)."""
+    path = Path(path)
+    meta = parse_json_file(path)
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object with 'frames'")
     return meta

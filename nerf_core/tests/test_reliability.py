@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -417,3 +418,47 @@ def test_paths_outside_the_dataset_are_read_with_a_note_and_bad_path_types_are_r
     (ds / "transforms_train.json").write_text(json.dumps(meta))
     with pytest.raises(DatasetError, match=r"transforms_train.json: frame 1 \(./train/r_1\): field 'mask_path' must be a non-empty string"):
         load_dataset(ds)
+
+
+# ---------------------------------------------------------------------------------------------- malformed files
+
+
+def test_json_nested_too_deeply_is_named_not_a_recursion_traceback(sphere_dataset, trained_run, tmp_path):
+    deep = "[" * 200_000 + "]" * 200_000
+    meta = json.loads((sphere_dataset / "transforms_train.json").read_text())
+    (sphere_dataset / "transforms_train.json").write_text(json.dumps(meta)[:-1] + ', "junk": ' + deep + "}")
+    for proc in (_cli("check", sphere_dataset), _cli("train", sphere_dataset, "--out", tmp_path / "run",
+                                                     "--method", "test-grid", "--max-steps", "2", "--no-bar")):
+        said = proc.stdout + proc.stderr  # check reports on stdout, train on stderr
+        assert proc.returncode != 0 and "Traceback" not in said, said[-2000:]
+        assert "transforms_train.json" in said and "nested too deeply" in said
+    cams = tmp_path / "cams.json"
+    cams.write_text(deep)
+    _clear_error(_cli("render", trained_run["run"], "--cameras", cams, "--out", tmp_path / "r"), str(cams), "nested")
+
+
+def test_a_camera_file_holding_a_bare_value_is_named(trained_run, tmp_path):
+    cams = tmp_path / "cams.json"
+    cams.write_text('"hello"')
+    _clear_error(_cli("render", trained_run["run"], "--cameras", cams, "--out", tmp_path / "r"), str(cams),
+                 "expected a list of cameras")
+
+
+def test_an_image_in_a_symlink_loop_is_named_by_check(sphere_dataset):
+    img = sphere_dataset / "train" / "r_3.png"
+    img.unlink()
+    os.symlink(sphere_dataset / "train" / "x.png", img)
+    os.symlink(img, sphere_dataset / "train" / "x.png")
+    proc = _cli("check", sphere_dataset)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr + proc.stdout, proc.stderr[-2000:]
+    assert "frame 3" in proc.stdout and "r_3.png" in proc.stdout
+
+
+@pytest.mark.parametrize("command", ["eval", "render", "serve"])
+def test_a_run_whose_config_is_not_an_object_is_named(trained_run, tmp_path, command):
+    import shutil
+
+    run = Path(shutil.copytree(trained_run["run"], tmp_path / "run"))
+    (run / "config.json").write_text("[]")
+    args = [command, run] + (["--out", tmp_path / "r"] if command == "render" else [])
+    _clear_error(_cli(*args), str(run / "config.json"), "expected the JSON object")

@@ -81,6 +81,13 @@ def test_bad_requests_get_one_error_line_each_and_the_server_goes_on(trained_run
     assert events[-1]["id"] == 9 and not (tmp_path / "never.npy").exists()  # nothing after quit
 
 
+def test_a_request_that_is_json_but_not_an_object_is_answered_and_the_server_goes_on(trained_run, tmp_path):
+    events = _serve(trained_run["run"], ["42", "[1, 2]", "null", '"text"', json.dumps(_req(1, tmp_path / "ok.npy"))])
+    assert [e["event"] for e in events] == ["ready"] + ["error"] * 4 + ["result"]
+    assert all("must be a JSON object" in e["message"] for e in events[1:5])
+    assert "got int" in events[1]["message"] and "got list" in events[2]["message"]
+
+
 def test_a_newer_request_of_the_same_group_replaces_a_waiting_one(trained_run, tmp_path):
     lines = [json.dumps(_req(k, tmp_path / f"v{k}.npy", group="viewport")) for k in (1, 2, 3)]
     lines.append(json.dumps(_req(4, tmp_path / "final.npy")))  # no group: always rendered
