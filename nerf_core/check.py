@@ -18,7 +18,8 @@ import numpy as np
 
 from .contract.intrinsics import focal_from_fov
 from .contract.naming import evenly_spaced
-from .contract.transforms import IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos, parse_json_file
+from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, check_camera_model, check_pose, frame_infos,
+                                  parse_json_file)
 from .imageio import ImageReadError, png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
@@ -197,6 +198,7 @@ def _frame_entries(report: CheckReport, fname: str, meta: dict, seen: set) -> It
         if not isinstance(fp, str) or not fp:
             report.error(fname, "missing", k, None, "file_path")
             continue
+        _camera_model(report, fname, fr, k, fp)
         intr = _intrinsics(report, fname, meta, fr, k, fp, need_angle=False)
         if intr is not None:
             _check_intrinsics_consistency(report, fname, intr, k, fp, seen)
@@ -228,7 +230,18 @@ def _check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int,
                 report.warn(fname, f"{p.name}: depth should be EXR (float) or 16-bit PNG (millimetres)", k, fpath, key)
 
 
+def _camera_model(report: CheckReport, fname: str, src: dict, k: Optional[int] = None, fpath: Optional[str] = None) -> None:
+    """Report a camera that is not a pinhole without distortion (``contract.check_camera_model``)."""
+    try:
+        check_camera_model(src, fname)
+    except DatasetError as exc:
+        msg = str(exc).split(": ", 1)[-1]
+        key = msg.split("'")[1] if msg.startswith("field '") else None
+        report.error(fname, msg[len(f"field '{key}' "):] if key else msg, k, fpath, key)
+
+
 def _check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:
+    _camera_model(report, fname, meta)
     if "aabb_scale" in meta:
         v = meta["aabb_scale"]
         ok = isinstance(v, (int, float)) and v >= 1 and float(v).is_integer() and (int(v) & (int(v) - 1)) == 0 and v <= 128

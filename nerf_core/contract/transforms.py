@@ -102,8 +102,38 @@ def read_json(path: Path | str) -> dict:
     return meta
 
 
+# Pinhole models: what every ray here is (``cameras.camera_directions``). OPENCV is a pinhole plus
+# distortion, accepted while its distortion is zero (what our capture writes, CONVENTIONS.md).
+PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "PERSPECTIVE")
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+
+
+def check_camera_model(src: dict, where: str) -> None:
+    """Refuse (DatasetError) a camera that is not a pinhole without distortion: its rays would be
+    wrong everywhere but the image centre, and training would go on without a word."""
+    model = src.get("camera_model")
+    if model is not None and (not isinstance(model, str) or model.upper() not in PINHOLE_MODELS):
+        raise DatasetError(f"{where}: field 'camera_model' is {model!r}; only pinhole cameras are supported "
+                           f"({', '.join(PINHOLE_MODELS)}). Undistort or reproject the images to a pinhole camera "
+                           "first (e.g. COLMAP's image_undistorter)")
+    for key in DISTORTION_KEYS:
+        value = src.get(key)
+        if value is None:
+            continue
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise DatasetError(f"{where}: field {key!r} is not a number ({value!r})") from None
+        if number != 0.0:
+            raise DatasetError(f"{where}: field {key!r} is {value!r}: lens distortion is not supported, and ignoring "
+                               "it would bend every ray. Undistort the images first (e.g. COLMAP's image_undistorter) "
+                               "and write zero distortion")
+
+
 def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
-    """The intrinsic fields (``INTRINSIC_KEYS``) present in ``src``, as validated floats."""
+    """The intrinsic fields (``INTRINSIC_KEYS``) present in ``src``, as validated floats; refuses a
+    camera model other than a pinhole without distortion (``check_camera_model``)."""
+    check_camera_model(src, where)
     out = {}
     for key in INTRINSIC_KEYS:
         if key in src and src[key] is not None:
