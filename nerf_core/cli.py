@@ -8,6 +8,7 @@ extra methods before a command runs.
 from __future__ import annotations
 
 import argparse
+import math
 import importlib
 import json
 import os
@@ -30,11 +31,14 @@ def _load_plugins() -> None:
 
 def _seconds_list(text: str) -> list[float]:
     try:
-        values = [float(v) for v in text.split(",") if v.strip()]
+        parts = text.split(",")
+        if any(not v.strip() for v in parts):
+            raise ValueError("an empty entry")
+        values = [float(v) for v in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated seconds like 60,120,300, got {text!r}") from None
-    if any(v <= 0 for v in values):
-        raise argparse.ArgumentTypeError(f"times must be positive, got {text}")
+    if any(not (math.isfinite(v) and v > 0) for v in values):
+        raise argparse.ArgumentTypeError(f"times must be finite numbers of seconds > 0, got {text}")
     return sorted(values)
 
 

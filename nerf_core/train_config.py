@@ -5,6 +5,8 @@ rebuilds it on ``--resume`` from the saved one and the few settings a user may c
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Optional
 
@@ -87,12 +89,34 @@ class TrainConfig:
         """Refuse settings no run can use (TrainError naming the flag)."""
         if self.background not in BACKGROUNDS:
             raise TrainError(f"--background {self.background!r}: choose one of {', '.join(BACKGROUNDS)}")
-        for name in ("max_steps", "max_seconds"):
+        for name in ("max_steps", "max_seconds", "lr"):
             v = getattr(self, name)
-            if v is not None and v <= 0:
-                raise TrainError(f"--{name.replace('_', '-')} must be positive, got {v}")
-        if self.batch_rays is not None and self.batch_rays < 1:
-            raise TrainError(f"--batch-rays must be positive, got {self.batch_rays}")
+            if v is not None and not (math.isfinite(v) and v > 0):  # NaN and inf are refused too
+                raise TrainError(f"--{name.replace('_', '-')} must be a finite number > 0, got {v}")
+        if self.batch_rays is not None and not 1 <= self.batch_rays <= MAX_BATCH_RAYS:
+            raise TrainError(f"--batch-rays must lie in 1..{MAX_BATCH_RAYS}, got {self.batch_rays}")
+        if not 0 <= self.seed < 2 ** 63:
+            raise TrainError(f"--seed must lie in 0..2^63-1, got {self.seed}")
+        bad = [t for t in self.eval_at if not (math.isfinite(t) and t > 0)]
+        if bad:
+            raise TrainError(f"--eval-at: training times must be finite numbers of seconds > 0, got {bad[0]}")
+        if self.method is not None and not self.method.strip():
+            raise TrainError("--method is empty; leave it out for the default method, or name one")
+        from .methods.base import method_class
+
+        cls = method_class(self.method or default_method())
+        if cls is None:
+            from .methods.base import available_methods
+
+            raise TrainError(f"unknown method {self.method!r}; choose one of {', '.join(available_methods())}")
+        if hasattr(cls, "validate_options"):
+            try:
+                cls.validate_options(self.options)
+            except ValueError as exc:
+                raise TrainError(f"--set: {exc}") from None
+
+MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
+
 
 # What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.
 RESUME_MAY_CHANGE = {"max_steps", "max_seconds", "device", "progress", "stdout_events", "show_bar", "resume", "out",

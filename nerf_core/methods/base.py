@@ -6,6 +6,8 @@ implement ``render_rays`` and register itself with ``@register("name")``.
 """
 from __future__ import annotations
 
+import math
+
 from typing import Callable, Dict, Optional
 
 import torch
@@ -61,6 +63,51 @@ def method_class(name: str) -> Optional[type]:
 def _load_builtin_methods() -> None:
     # Imported lazily so that importing the registry never pulls in every method's dependencies.
     from . import catalog  # noqa: F401  (registers the built-in methods)
+
+
+MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
+
+
+def check_options(name: str, defaults: dict, options: dict, positive=(), fractions=(), grids=()) -> None:
+    """Refuse (ValueError naming the option) ``--set`` values of the wrong kind for their default.
+
+    The kind comes from the default: a bool option takes true/false, an int option a whole number
+    >= 0, a float option a finite number >= 0, a list of numbers a list of finite numbers. Options in
+    ``positive`` must be > 0, in ``fractions`` lie in (0, 1), and in ``grids`` (resolutions, cells
+    per axis) lie in 2..MAX_GRID_RES. String options are checked by their methods.
+    """
+    def bad(key, want):
+        return ValueError(f"{name}: option {key!r} must be {want}, got {options[key]!r}")
+
+    for key, value in options.items():
+        if key not in defaults:
+            continue  # unknown names are the methods' own message
+        default = defaults[key]
+        if isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise bad(key, "true or false")
+            continue
+        if isinstance(default, int) or (default is None and key in grids):
+            if value is None and default is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise bad(key, "a whole number >= 0")
+        elif isinstance(default, float):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise bad(key, "a finite number >= 0")
+        elif isinstance(default, list):
+            if (not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                                   or not math.isfinite(v) for v in value)):
+                raise bad(key, "a list of numbers, e.g. [0.1,0.2]")
+            continue
+        else:
+            continue
+        if key in positive and value <= 0:
+            raise bad(key, "greater than 0")
+        if key in fractions and not 0 < value < 1:
+            raise bad(key, "between 0 and 1 (exclusive)")
+        if key in grids and not 2 <= value <= MAX_GRID_RES:
+            raise bad(key, f"between 2 and {MAX_GRID_RES} cells per axis")
 
 
 class RadianceModel(nn.Module):

@@ -37,7 +37,7 @@ import torch
 from .. import grad_scaling, profiling, sampling, volrend
 from ..fields.mlp import NeRFMLP
 from ..occupancy import OccupancyGrid
-from .base import RadianceModel, register
+from .base import RadianceModel, check_options, register
 
 Tensor = torch.Tensor
 
@@ -84,14 +84,23 @@ class NeRF(RadianceModel):
                     occ_decay=0.8, occ_alpha=0.01, train_ert=False,
                     n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE)
 
-    def __init__(self, aabb: Tensor, **options):
-        unknown = set(options) - set(self.defaults)
+    @classmethod
+    def validate_options(cls, options: dict) -> None:
+        """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
+        a run folder is made (``TrainConfig.check``) and when a model is built."""
+        unknown = set(options) - set(cls.defaults)
         if unknown:
-            raise ValueError(f"{self.method_name}: unknown options {sorted(unknown)}; known: {sorted(self.defaults)}")
+            raise ValueError(f"{cls.method_name}: unknown options {sorted(unknown)}; known: {sorted(cls.defaults)}")
+        check_options(cls.method_name, cls.defaults, options,
+                      positive=("width", "depth", "march_steps", "warmup_step_scale", "occ_every", "n_coarse"),
+                      fractions=("occ_decay", "occ_alpha"), grids=("occ_res",))
+        if options.get("sampler", cls.defaults["sampler"]) not in SAMPLERS:
+            raise ValueError(f"{cls.method_name}: option 'sampler' must be one of {', '.join(SAMPLERS)}, "
+                             f"got {options['sampler']!r}")
+
+    def __init__(self, aabb: Tensor, **options):
+        self.validate_options(options)
         opts = {**self.defaults, **options}
-        if opts["sampler"] not in SAMPLERS:
-            raise ValueError(f"{self.method_name}: option 'sampler' must be one of {', '.join(SAMPLERS)}, "
-                             f"got {opts['sampler']!r}")
         super().__init__(aabb, **opts)
         net = dict(use_pe=opts["use_pe"], pos_freqs=opts["pos_freqs"], dir_freqs=opts["dir_freqs"],
                    width=opts["width"], depth=opts["depth"], skip=opts["skip"],

@@ -28,7 +28,7 @@ from .. import grad_scaling, profiling, ray_termination, sampling, volrend
 from ..contraction import contract, outer_box
 from ..fields.tensorf import TensorVMField
 from ..occupancy import OccupancyGrid
-from .base import RadianceModel, register
+from .base import RadianceModel, check_options, register
 
 Tensor = torch.Tensor
 
@@ -105,16 +105,33 @@ class VMGrid(RadianceModel):
                     color_weight=1e-4, occ_probe="max")
 
     def __init__(self, aabb: Tensor, **options):
-        unknown = set(options) - set(self.defaults)
-        if unknown:
-            raise ValueError(f"vmgrid: unknown options {sorted(unknown)}; known: {sorted(self.defaults)}")
+        self.validate_options(options)
         opts = {**self.defaults, **options}
         if opts["resolution"] is None:
             opts["resolution"] = opts["res_init"]
         opts["upsample_at"] = [float(f) for f in opts["upsample_at"]]
-        if opts["occ_probe"] not in ("random", "max"):
-            raise ValueError(f"vmgrid: occ_probe must be 'random' or 'max', got {opts['occ_probe']!r}")
         super().__init__(aabb, **opts)
+        self._build(opts)
+
+    @classmethod
+    def validate_options(cls, options: dict) -> None:
+        """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
+        a run folder is made (``TrainConfig.check``) and when a model is built."""
+        unknown = set(options) - set(cls.defaults)
+        if unknown:
+            raise ValueError(f"vmgrid: unknown options {sorted(unknown)}; known: {sorted(cls.defaults)}")
+        check_options("vmgrid", cls.defaults, options,
+                      positive=("density_rank", "app_rank", "app_dim", "mlp_width", "occ_every", "step_ratio",
+                                "grid_lr_scale", "budget_steps", "warmup_step_scale"),
+                      fractions=("occ_alpha", "alpha_init", "occ_decay"),
+                      grids=("res_init", "res_final", "resolution", "occ_res"))
+        if any(not 0 < f < 1 for f in options.get("upsample_at", [])):
+            raise ValueError(f"vmgrid: option 'upsample_at' holds fractions of the budget in (0, 1), "
+                             f"got {options['upsample_at']!r}")
+        if options.get("occ_probe", "max") not in ("random", "max"):
+            raise ValueError(f"vmgrid: occ_probe must be 'random' or 'max', got {options['occ_probe']!r}")
+
+    def _build(self, opts: dict) -> None:
         # Density shift from alpha_init at the *initial* grid's step, so a rebuilt model gets the same one.
         extent = (self.aabb[1] - self.aabb[0]).double()
         step0 = opts["step_ratio"] * float((extent / (opts["res_init"] - 1)).mean())

@@ -490,3 +490,33 @@ def test_an_opencv_camera_with_zero_distortion_is_a_pinhole(sphere_dataset):
     path.write_text(json.dumps(meta))
     proc = _cli("check", sphere_dataset)
     assert proc.returncode == 0, proc.stdout
+
+
+@pytest.mark.parametrize("args, named", [
+    (["--method", "vmgrid", "--set", "res_init=-5"], "option 'res_init'"),
+    (["--method", "vmgrid", "--set", "step_ratio=nan"], "option 'step_ratio'"),
+    (["--method", "vmgrid", "--set", "upsample_at=hello"], "option 'upsample_at'"),
+    (["--method", "vmgrid", "--set", "upsample_at=[0.9,0.1,5]"], "option 'upsample_at'"),
+    (["--method", "vmgrid", "--set", "contract=maybe"], "option 'contract'"),
+    (["--method", "vmgrid", "--set", "density_rank=true"], "option 'density_rank'"),
+    (["--method", "vmgrid", "--set", "res_final=100000"], "option 'res_final'"),
+    (["--method", "nerf", "--set", "width=0"], "option 'width'"),
+    (["--method", "nerf", "--set", "pos_freqs=-3"], "option 'pos_freqs'"),
+    (["--method", "test-grid", "--lr", "inf"], "--lr"),
+    (["--method", "test-grid", "--max-seconds", "nan"], "--max-seconds"),
+    (["--method", "test-grid", "--seed", "1180591620717411303424"], "--seed"),
+    (["--method", "test-grid", "--batch-rays", "1000000000000"], "--batch-rays"),
+    (["--method", ""], "--method"),
+    (["--method", "nope"], "unknown method 'nope'"),
+])
+def test_bad_options_and_flags_are_named_before_the_run_folder_is_made(sphere_dataset, tmp_path, args, named):
+    out = tmp_path / "run"
+    proc = _cli("train", sphere_dataset, "--out", out, "--max-steps", "2", "--no-bar", *args)
+    _clear_error(proc, named)
+    assert not out.exists()  # fixing the flag and running again needs no --overwrite
+
+
+def test_eval_at_refuses_empty_and_non_finite_times(sphere_dataset, tmp_path):
+    for value in ("5,,6", "nan", "inf"):
+        proc = _cli("train", sphere_dataset, "--out", tmp_path / "run", "--method", "test-grid", "--eval-at", value)
+        assert proc.returncode == 2 and "--eval-at" in proc.stderr and "Traceback" not in proc.stderr
