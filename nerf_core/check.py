@@ -198,6 +198,11 @@ def _frame_entries(report: CheckReport, fname: str, meta: dict, seen: set) -> It
         if not isinstance(fp, str) or not fp:
             report.error(fname, "missing", k, None, "file_path")
             continue
+        if "\0" in fp or len(fp) > 4096:
+            report.error(fname, "contains a NUL character, which no file name can hold" if "\0" in fp
+                         else f"is {len(fp)} characters long; no file system accepts a path that long",
+                         k, None, "file_path")
+            continue
         _camera_model(report, fname, fr, k, fp)
         intr = _intrinsics(report, fname, meta, fr, k, fp, need_angle=False)
         if intr is not None:

@@ -188,9 +188,12 @@ def _resize_map(m: np.ndarray, f: int, mode: str) -> np.ndarray:
 def _camera_params(fr: FrameInfo, img_w: int, img_h: int, downscale: int) -> tuple:
     """(fx, fy, cx, cy) of ``fr`` for its image as loaded (img_w x img_h px after ``downscale``)."""
     w_decl, h_decl = fr.intrinsics.get("w"), fr.intrinsics.get("h")
-    if w_decl is not None and h_decl is not None and downscale == 1 and (int(w_decl) != img_w or int(h_decl) != img_h):
+    # After --downscale F an image of W px is W // F px (``_downscale``), so the declared size is
+    # checked against the loaded one at any F: otherwise a wrong w/h would silently rescale the focal.
+    if w_decl is not None and h_decl is not None and (int(w_decl) // downscale != img_w or int(h_decl) // downscale != img_h):
+        shown = f"{img_w}x{img_h}" if downscale == 1 else f"{img_w}x{img_h} after --downscale {downscale}"
         raise DatasetError(
-            f"{fr.where}: fields 'w'/'h' say {int(w_decl)}x{int(h_decl)} but {fr.image} is {img_w}x{img_h}"
+            f"{fr.where}: fields 'w'/'h' say {int(w_decl)}x{int(h_decl)} but {fr.image} is {shown}"
         )
     fx, fy, cx, cy, W, H = resolve_intrinsics(fr.intrinsics, None, (img_w * downscale, img_h * downscale), fr.where)
     s_x, s_y = img_w / W, img_h / H

@@ -42,12 +42,27 @@ class PoseError(ValueError):
     """A camera matrix that is not a finite rigid transform."""
 
 
+def _first_non_number(value):
+    """The first entry of a nested list that is a string or a bool (None when there is none)."""
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            found = _first_non_number(v)
+            if found is not None:
+                return found
+        return None
+    return value if isinstance(value, (str, bool)) else None
+
+
 def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3) -> np.ndarray:
     """Validate a camera-to-world matrix and return it as float64 (4, 4) (a (3, 4) gets [0, 0, 0, 1]).
 
     Raises PoseError naming ``where`` for wrong shape, NaN/inf, a singular or scaled/sheared
     rotation part, a reflection, or a bottom row other than [0, 0, 0, 1].
     """
+    bad = _first_non_number(matrix)
+    if bad is not None:
+        # numpy would quietly turn "1.0" into 1.0 and True into 1; other loaders refuse them.
+        raise PoseError(f"{where}: entries must be JSON numbers, got {bad!r}")
     try:
         m = np.asarray(matrix, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -143,6 +158,9 @@ def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
                 raise DatasetError(f"{where}: field {key!r} is not a number ({src[key]!r})") from exc
             if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
                 raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {src[key]!r}")
+            if key in ("w", "h") and not value.is_integer():
+                raise DatasetError(f"{where}: field {key!r} is an image size and must be a whole number of pixels, "
+                                   f"got {src[key]!r}")
             if key in ("camera_angle_x", "camera_angle_y") and value >= math.pi:
                 # tan(fov / 2) turns negative past pi: a negative focal length would mirror every ray.
                 raise DatasetError(f"{where}: field {key!r} is a field of view in radians and must lie in (0, pi), "
@@ -164,6 +182,12 @@ def resolve_dataset_path(root: Path, value, where: str, field_name: str) -> tupl
     root = Path(root)
     if not isinstance(value, str) or not value.strip():
         raise DatasetError(f"{where}: field {field_name!r} must be a non-empty string (a file path), got {value!r}")
+    if "\0" in value:
+        raise DatasetError(f"{where}: field {field_name!r} contains a NUL character, which no file name can hold: "
+                           f"{value!r}")
+    if len(value) > 4096:
+        raise DatasetError(f"{where}: field {field_name!r} is {len(value)} characters long; no file system "
+                           "accepts a path that long")
     p = Path(value)
     if p.is_absolute():
         return p, True

@@ -520,3 +520,24 @@ def test_eval_at_refuses_empty_and_non_finite_times(sphere_dataset, tmp_path):
     for value in ("5,,6", "nan", "inf"):
         proc = _cli("train", sphere_dataset, "--out", tmp_path / "run", "--method", "test-grid", "--eval-at", value)
         assert proc.returncode == 2 and "--eval-at" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("edit, named", [
+    (lambda m: m.update(w=m["w"] * 2, h=m["h"] * 2), "fields 'w'/'h'"),
+    (lambda m: m.update(w=m["w"] + 0.5), "field 'w'"),
+    (lambda m: m["frames"][1].update(transform_matrix=[[str(v) for v in row] for row in m["frames"][1]["transform_matrix"]]),
+     "field 'transform_matrix'"),
+    (lambda m: m["frames"][1].update(file_path="./train/r_1\x00.png"), "field 'file_path'"),
+])
+def test_sizes_strings_and_nul_bytes_are_refused_at_any_downscale(sphere_dataset, tmp_path, edit, named):
+    path = sphere_dataset / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
+    check = _cli("check", sphere_dataset)
+    # check names a wrong size by what it contradicts (the image's size, camera_angle_x): the frame.
+    assert check.returncode == 1 and "Traceback" not in check.stdout + check.stderr
+    assert (named if "/" not in named else "frame 0 (./train/r_0)") in check.stdout
+    for downscale in ("1", "2"):  # a wrong w/h used to be rescaled in silence at --downscale 2
+        _clear_error(_cli("train", sphere_dataset, "--out", tmp_path / f"run{downscale}", "--method", "test-grid",
+                          "--max-steps", "1", "--no-bar", "--downscale", downscale), "transforms_train.json", named)
