@@ -414,6 +414,10 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         if not cameras_path:
             raise RunError(f"{config_path(run)}: no 'dataset' recorded; pass --cameras")
     cams, stems, frames = camera_views(cameras_path, split)
+    smallest = int(torch.minimum(cams.width, cams.height).min())
+    if not (math.isfinite(downscale) and 0 < downscale <= smallest):
+        raise RunError(f"--downscale {downscale:g}: the smallest camera is {smallest} px across, so the factor must "
+                       f"lie in (0, {smallest}] to leave at least one pixel")
     if downscale != 1.0:
         cams = cams.scaled(1.0 / downscale)
     # Ground truth is box-filtered like eval's; a fractional downscale has no such image: no metrics.

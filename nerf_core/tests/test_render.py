@@ -253,3 +253,12 @@ def test_cpu_calls_are_sized_by_the_samples_the_method_reports():
     light8.cpu_call_rays = 2048
     r.render_rays_chunked(light8, rays_o, rays_d, near, far, bg)
     assert light8.calls[0] == 2048 and set(light8.calls[1:-1]) == {r.CPU_SAMPLES_PER_CALL // 64}
+
+
+@pytest.mark.parametrize("factor", ["inf", "100000"])
+def test_render_refuses_a_downscale_that_leaves_no_pixel(trained_run, tmp_path, capsys, factor):
+    out = tmp_path / "r"
+    assert main(["render", str(trained_run["run"]), "--out", str(out), "--downscale", factor, "--no-bar"]) == 2
+    err = capsys.readouterr().err
+    assert "--downscale" in err and "20 px" in err and "Traceback" not in err
+    assert not out.exists()
