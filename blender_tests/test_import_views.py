@@ -46,6 +46,14 @@ def test_existing_out_needs_overwrite(setup):
     assert out.read_bytes() == b"precious"
 
 
+@pytest.mark.parametrize("distance", ["-3", "nan", "inf"])
+def test_a_distance_behind_the_camera_is_refused(setup, distance):
+    tmp, scene, run, call = setup
+    proc = call("--out", str(tmp / "d.blend"), "--distance", distance)
+    assert proc.returncode == 2 and "--distance" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp / "d.blend").exists()
+
+
 def test_run_without_checkpoint_and_missing_split(setup):
     tmp, scene, run, call = setup
     proc = call("--out", str(tmp / "a.blend"), "--run", str(tmp / "nope"))

@@ -75,3 +75,17 @@ def test_bad_input_is_one_line_naming_the_file(capture, tmp_path):
     proc = _run(CEILING, "--blend", blend, "--dataset", ds, "--keep-renders", folder)
     assert proc.returncode == 2 and str(folder) in proc.stderr and "Traceback" not in proc.stderr
     assert (folder / "v0.png").read_bytes() == b"user data"
+    proc = _run(CEILING, "--blend", blend, "--dataset", ds, "--views", "0")
+    assert proc.returncode == 2 and "--views" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_without_blend_the_captured_scene_is_used_not_blenders_default(capture):
+    blend, ds, root = capture
+    with_blend = root / "with.json"
+    without = root / "without.json"
+    assert _run(CEILING, "--blend", blend, "--dataset", ds, "--views", "1", "--out", with_blend).returncode == 0
+    proc = _run(CEILING, "--dataset", ds, "--views", "1", "--out", without)
+    assert proc.returncode == 0, proc.stderr
+    assert "using the captured scene" in proc.stderr and str(blend) in proc.stderr
+    # The same scene, seed and view: the same number (Blender's default cube would score ~10 dB).
+    assert json.loads(without.read_text())["psnr_two_renders"] == json.loads(with_blend.read_text())["psnr_two_renders"]

@@ -42,7 +42,7 @@ def parse(argv):
     ap.add_argument("--cameras", help="transforms JSON of the cameras to render (default: the run's dataset split)")
     ap.add_argument("--split", default="test", choices=("train", "val", "test"),
                     help="dataset split to render when --cameras is not given (default test)")
-    ap.add_argument("--distance", type=float, default=0.0,
+    ap.add_argument("--distance", type=_distance, default=0.0,
                     help="camera layout: plane distance from the camera (default: the scene centre's depth)")
     ap.add_argument("--images", choices=("pack", "relative", "absolute"), default="pack",
                     help="how --out keeps the images: inside the .blend (pack, the default: it still shows them "
@@ -59,6 +59,20 @@ def parse(argv):
 def _finite(x):
     """JSON has no inf/NaN: identical images (PSNR inf) are reported as null."""
     return x if isinstance(x, (int, float)) and math.isfinite(x) else None
+
+
+def _distance(text: str) -> float:
+    """--distance: a finite number of scene units >= 0 (0: automatic)."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of scene units, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite distance >= 0 in front of the camera (0: automatic), "
+                                         f"got {text}")
+    return value
 
 
 def fail(message: str) -> None:

@@ -102,6 +102,8 @@ def main(argv: list[str]) -> int:
                          "the folder must not exist yet")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
+    if args.views < 1:
+        _bootstrap.fail(PROG, f"--views must be at least 1, got {args.views}")
     if args.out and os.path.exists(args.out) and not args.overwrite:
         _bootstrap.fail(PROG, f"{args.out} exists; pass --overwrite to replace it")
     if args.keep_renders and os.path.exists(args.keep_renders):
@@ -114,7 +116,8 @@ def main(argv: list[str]) -> int:
     from nerf_core import contract
 
     try:
-        render_meta = contract.read_json(manifest_path)["render"]
+        manifest = contract.read_json(manifest_path)
+        render_meta = manifest["render"]
         frames = contract.read_frames(contract.read_json(test_path), test_path, add_png=True)
     except KeyError as exc:
         _bootstrap.fail(PROG, f"{manifest_path}: field {exc} is missing")
@@ -124,6 +127,15 @@ def main(argv: list[str]) -> int:
         _bootstrap.fail(PROG, f"{manifest_path}: engine {render_meta.get('engine')!r}; only Cycles captures have sampling noise")
     import bpy
 
+    if not args.blend and not bpy.data.filepath:
+        # Plain Python with no scene named: Blender's empty default scene would be rendered and compared
+        # with the capture (about 10 dB, and no warning). Use the .blend the manifest records instead.
+        captured = manifest.get("blend_file")
+        if not (isinstance(captured, str) and os.path.isfile(captured)):
+            _bootstrap.fail(PROG, f"no --blend given and {manifest_path} names no .blend that exists here "
+                                  f"({captured!r}); pass --blend with the scene the dataset was captured from")
+        print(f"{PROG}: no --blend: using the captured scene {captured} (from {manifest_path})", file=sys.stderr)
+        args.blend = captured
     _bootstrap.open_blend(args.blend)
     scene = bpy.context.scene
     apply_capture_settings(scene, render_meta, args.seed)
