@@ -29,7 +29,8 @@ from .cameras import Cameras
 # detect_layout and dataset_problems stay importable from here for data's long-standing callers.
 from .contract.intrinsics import resolve_intrinsics
 from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
-from .dataset_checks import check_train_count, dataset_problems, depth_scale, parse_aabb, scene_fields  # noqa: F401
+from .dataset_checks import (check_duplicate_images, check_train_count, dataset_problems, depth_scale,  # noqa: F401
+                             parse_aabb, scene_fields)
 from .metrics import composite
 from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
@@ -307,6 +308,7 @@ def load_dataset(
     dscale = depth_scale(scene)
     if "train" in splits:
         check_train_count(root, infos, min_train_views)
+    check_duplicate_images(infos)
     train_names = {str(f.image) for f in infos["train"]}
     for name in ("val", "test"):
         if name in splits:

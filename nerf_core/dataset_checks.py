@@ -34,6 +34,20 @@ def check_train_count(root: Path, infos: Dict[str, List[FrameInfo]], min_train_v
         )
 
 
+def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
+    """Refuse two frames of one split that name the same image with different poses (DatasetError
+    naming both): one photograph cannot have been taken from two places, so one pose is wrong and
+    training would average two contradictory views into fog."""
+    for name, frames in infos.items():
+        seen: Dict[str, FrameInfo] = {}
+        for fr in frames:
+            key = str(fr.image)
+            first = seen.setdefault(key, fr)
+            if first is not fr and not np.allclose(first.c2w, fr.c2w, atol=1e-6):
+                raise DatasetError(f"{fr.where}: field 'file_path': names the same image as frame {first.index} "
+                                   f"({first.file_path}) with another transform_matrix; one image has one camera")
+
+
 def scene_fields(scene: dict) -> tuple:
     """(near, far, film_transparent, world) of a dataset's top-level fields, validated (raises DatasetError)."""
     near = far = None
@@ -74,6 +88,7 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
         return [str(exc)]
     problems: List[str] = []
     for check in (lambda: check_train_count(root, infos, min_train_views), lambda: scene_fields(scene),
+                  lambda: check_duplicate_images(infos),
                   lambda: parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None):
         try:
             check()

@@ -541,3 +541,18 @@ def test_sizes_strings_and_nul_bytes_are_refused_at_any_downscale(sphere_dataset
     for downscale in ("1", "2"):  # a wrong w/h used to be rescaled in silence at --downscale 2
         _clear_error(_cli("train", sphere_dataset, "--out", tmp_path / f"run{downscale}", "--method", "test-grid",
                           "--max-steps", "1", "--no-bar", "--downscale", downscale), "transforms_train.json", named)
+
+
+def test_one_image_named_by_two_frames_with_different_poses_is_refused(sphere_dataset, tmp_path):
+    path = sphere_dataset / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    meta["frames"][4]["file_path"] = meta["frames"][3]["file_path"]  # frame 4 keeps its own pose
+    path.write_text(json.dumps(meta))
+    check = _cli("check", sphere_dataset)
+    assert check.returncode == 1 and "frame 4" in check.stdout and "same image as frame 3" in check.stdout
+    _clear_error(_cli("train", sphere_dataset, "--out", tmp_path / "run", "--method", "test-grid", "--max-steps", "1",
+                      "--no-bar"), "frame 4", "same image as frame 3")
+    # The same image with the same pose twice is a harmless repeat.
+    meta["frames"][4]["transform_matrix"] = meta["frames"][3]["transform_matrix"]
+    path.write_text(json.dumps(meta))
+    assert "same image" not in _cli("check", sphere_dataset).stdout
