@@ -148,8 +148,12 @@ class Trainer:
             msg = f"{exc.filename or self.run}: {os_reason(exc)} (at step {getattr(self, 'step', 0)})"
             self.log.emit("error", message=msg)
             raise TrainError(msg) from None
-        except RuntimeError as exc:  # e.g. out of memory inside a model: one clear line, no traceback
-            msg = str(exc).splitlines()[0]
+        except (RuntimeError, MemoryError) as exc:  # e.g. out of memory inside a model: one clear line, no traceback
+            msg = (str(exc).splitlines() or [type(exc).__name__])[0]
+            if isinstance(exc, MemoryError) or "alloc" in msg.lower() or "out of memory" in msg.lower():
+                # Name what to turn down: the allocator's byte count alone does not say which setting asked.
+                msg = (f"not enough memory ({msg[:200]}); lower --batch-rays (now {self.cfg.batch_rays}) or the "
+                       "method's size options (--set res_final=..., density_rank=..., width=..., occ_res=...)")
             self.log.emit("error", message=f"training failed at step {getattr(self, 'step', 0)}: {msg}")
             raise TrainError(f"training failed at step {getattr(self, 'step', 0)}: {msg}") from exc
         finally:

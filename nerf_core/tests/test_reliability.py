@@ -556,3 +556,19 @@ def test_one_image_named_by_two_frames_with_different_poses_is_refused(sphere_da
     meta["frames"][4]["transform_matrix"] = meta["frames"][3]["transform_matrix"]
     path.write_text(json.dumps(meta))
     assert "same image" not in _cli("check", sphere_dataset).stdout
+
+
+def test_running_out_of_memory_names_the_settings_to_lower(sphere_dataset, tmp_path, monkeypatch):
+    from nerf_core.runfolder import TrainError
+    from nerf_core.tests.conftest import TinyGrid
+
+    def no_memory(self, *a, **k):
+        raise RuntimeError("[enforce fail at alloc_cpu.cpp:127] data. DefaultCPUAllocator: not enough memory: "
+                           "you tried to allocate 4000000000000000 bytes.")
+
+    monkeypatch.setattr(TinyGrid, "render_rays", no_memory)
+    with pytest.raises(TrainError) as err:
+        train(_cfg(sphere_dataset, tmp_path / "run"))
+    msg = str(err.value)
+    assert "training failed at step" in msg and "not enough memory" in msg and "--batch-rays (now 64)" in msg
+    assert "4000000000000000 bytes" in msg  # the allocator's own words stay, shortened
