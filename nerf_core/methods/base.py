@@ -69,19 +69,21 @@ MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, no
 
 
 def check_options(name: str, defaults: dict, options: dict, positive=(), fractions=(), grids=()) -> None:
-    """Refuse (ValueError naming the option) ``--set`` values of the wrong kind for their default.
+    """Refuse (ValueError naming the option) unknown ``--set`` names and values of the wrong kind.
 
     The kind comes from the default: a bool option takes true/false, an int option a whole number
     >= 0, a float option a finite number >= 0, a list of numbers a list of finite numbers. Options in
     ``positive`` must be > 0, in ``fractions`` lie in (0, 1), and in ``grids`` (resolutions, cells
     per axis) lie in 2..MAX_GRID_RES. String options are checked by their methods.
     """
+    unknown = set(options) - set(defaults)
+    if unknown:
+        raise ValueError(f"{name}: unknown options {sorted(unknown)}; known: {sorted(defaults)}")
+
     def bad(key, want):
         return ValueError(f"{name}: option {key!r} must be {want}, got {options[key]!r}")
 
     for key, value in options.items():
-        if key not in defaults:
-            continue  # unknown names are the methods' own message
         default = defaults[key]
         if isinstance(default, bool):
             if not isinstance(value, bool):

@@ -88,9 +88,6 @@ class NeRF(RadianceModel):
     def validate_options(cls, options: dict) -> None:
         """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
         a run folder is made (``TrainConfig.check``) and when a model is built."""
-        unknown = set(options) - set(cls.defaults)
-        if unknown:
-            raise ValueError(f"{cls.method_name}: unknown options {sorted(unknown)}; known: {sorted(cls.defaults)}")
         check_options(cls.method_name, cls.defaults, options,
                       positive=("width", "depth", "march_steps", "warmup_step_scale", "occ_every", "n_coarse"),
                       fractions=("occ_decay", "occ_alpha"), grids=("occ_res",))

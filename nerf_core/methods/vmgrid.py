@@ -117,9 +117,6 @@ class VMGrid(RadianceModel):
     def validate_options(cls, options: dict) -> None:
         """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
         a run folder is made (``TrainConfig.check``) and when a model is built."""
-        unknown = set(options) - set(cls.defaults)
-        if unknown:
-            raise ValueError(f"vmgrid: unknown options {sorted(unknown)}; known: {sorted(cls.defaults)}")
         check_options("vmgrid", cls.defaults, options,
                       positive=("density_rank", "app_rank", "app_dim", "mlp_width", "occ_every", "step_ratio",
                                 "grid_lr_scale", "budget_steps", "warmup_step_scale"),

@@ -508,6 +508,7 @@ def test_an_opencv_camera_with_zero_distortion_is_a_pinhole(sphere_dataset):
     (["--method", "test-grid", "--batch-rays", "1000000000000"], "--batch-rays"),
     (["--method", ""], "--method"),
     (["--method", "nope"], "unknown method 'nope'"),
+    (["--method", "vmgrid", "--set", "bogus=1"], "unknown options ['bogus']"),
 ])
 def test_bad_options_and_flags_are_named_before_the_run_folder_is_made(sphere_dataset, tmp_path, args, named):
     out = tmp_path / "run"
