@@ -68,12 +68,12 @@ def _load_builtin_methods() -> None:
 MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
 
 
-def check_options(name: str, defaults: dict, options: dict, positive=(), fractions=(), grids=()) -> None:
+def check_options(name: str, defaults: dict, options: dict, positive=(), fractions=(), shares=(), grids=()) -> None:
     """Refuse (ValueError naming the option) unknown ``--set`` names and values of the wrong kind.
 
     The kind comes from the default: a bool option takes true/false, an int option a whole number
     >= 0, a float option a finite number >= 0, a list of numbers a list of finite numbers. Options in
-    ``positive`` must be > 0, in ``fractions`` lie in (0, 1), and in ``grids`` (resolutions, cells
+    ``positive`` must be > 0, in ``fractions`` lie in (0, 1), in ``shares`` in [0, 1], and in ``grids`` (resolutions, cells
     per axis) lie in 2..MAX_GRID_RES. String options are checked by their methods.
     """
     unknown = set(options) - set(defaults)
@@ -108,6 +108,8 @@ def check_options(name: str, defaults: dict, options: dict, positive=(), fractio
             raise bad(key, "greater than 0")
         if key in fractions and not 0 < value < 1:
             raise bad(key, "between 0 and 1 (exclusive)")
+        if key in shares and not 0 <= value <= 1:
+            raise bad(key, "between 0 and 1")
         if key in grids and not 2 <= value <= MAX_GRID_RES:
             raise bad(key, f"between 2 and {MAX_GRID_RES} cells per axis")
 

@@ -90,7 +90,7 @@ class NeRF(RadianceModel):
         a run folder is made (``TrainConfig.check``) and when a model is built."""
         check_options(cls.method_name, cls.defaults, options,
                       positive=("width", "depth", "march_steps", "warmup_step_scale", "occ_every", "n_coarse"),
-                      fractions=("occ_decay", "occ_alpha"), grids=("occ_res",))
+                      fractions=("occ_alpha",), shares=("occ_decay",), grids=("occ_res",))
         if options.get("sampler", cls.defaults["sampler"]) not in SAMPLERS:
             raise ValueError(f"{cls.method_name}: option 'sampler' must be one of {', '.join(SAMPLERS)}, "
                              f"got {options['sampler']!r}")

@@ -120,7 +120,7 @@ class VMGrid(RadianceModel):
         check_options("vmgrid", cls.defaults, options,
                       positive=("density_rank", "app_rank", "app_dim", "mlp_width", "occ_every", "step_ratio",
                                 "grid_lr_scale", "budget_steps", "warmup_step_scale"),
-                      fractions=("occ_alpha", "alpha_init", "occ_decay"),
+                      fractions=("occ_alpha", "alpha_init"), shares=("occ_decay",),
                       grids=("res_init", "res_final", "resolution", "occ_res"))
         if any(not 0 < f < 1 for f in options.get("upsample_at", [])):
             raise ValueError(f"vmgrid: option 'upsample_at' holds fractions of the budget in (0, 1), "
