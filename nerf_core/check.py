@@ -18,7 +18,7 @@ import numpy as np
 
 from .contract.intrinsics import focal_from_fov
 from .contract.naming import evenly_spaced
-from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, check_camera_model, check_pose, frame_infos,
+from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, camera_model_problem, check_pose, frame_infos,
                                   parse_json_file)
 from .imageio import ImageReadError, png_info, read_png
 
@@ -236,13 +236,10 @@ def _check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int,
 
 
 def _camera_model(report: CheckReport, fname: str, src: dict, k: Optional[int] = None, fpath: Optional[str] = None) -> None:
-    """Report a camera that is not a pinhole without distortion (``contract.check_camera_model``)."""
-    try:
-        check_camera_model(src, fname)
-    except DatasetError as exc:
-        msg = str(exc).split(": ", 1)[-1]
-        key = msg.split("'")[1] if msg.startswith("field '") else None
-        report.error(fname, msg[len(f"field '{key}' "):] if key else msg, k, fpath, key)
+    """Report a camera that is not a pinhole without distortion (``contract.camera_model_problem``)."""
+    problem = camera_model_problem(src)
+    if problem is not None:
+        report.error(fname, problem[1], k, fpath, problem[0])
 
 
 def _check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:

@@ -166,7 +166,12 @@ def check_view_memory(w: int, h: int, where: str) -> None:
 def _camera_list(data, src: Path) -> tuple[Cameras, List[str]]:
     """Cameras from a JSON list: each item a 4x4 matrix (intrinsics from the top level) or a dict
     with ``transform_matrix`` plus intrinsics (``contract.resolve_intrinsics``; ``w`` and ``h`` required)."""
-    items, glob = (data, {}) if isinstance(data, list) else (data.get("cameras"), data) if isinstance(data, dict) else (None, {})
+    if isinstance(data, list):
+        items, glob = data, {}
+    elif isinstance(data, dict):
+        items, glob = data.get("cameras"), data
+    else:  # a bare number or string
+        items, glob = None, {}
     if not isinstance(items, list) or not items:
         raise DatasetError(f"{src}: expected a list of cameras (or an object with 'frames' or 'cameras')")
     mats, params = [], []

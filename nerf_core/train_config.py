@@ -6,13 +6,15 @@ rebuilds it on ``--resume`` from the saved one and the few settings a user may c
 from __future__ import annotations
 
 import math
-
 from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Optional
 
 from . import contract
 from .backgrounds import BACKGROUNDS
 from .runfolder import TrainError, resume_dataset
+
+MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
+
 
 @dataclass
 class TrainConfig:
@@ -114,8 +116,6 @@ class TrainConfig:
                 cls.validate_options(self.options)
             except ValueError as exc:
                 raise TrainError(f"--set: {exc}") from None
-
-MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
 
 
 # What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.

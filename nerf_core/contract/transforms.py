@@ -20,7 +20,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -123,14 +123,15 @@ PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "PERSPECTIVE")
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 
-def check_camera_model(src: dict, where: str) -> None:
-    """Refuse (DatasetError) a camera that is not a pinhole without distortion: its rays would be
-    wrong everywhere but the image centre, and training would go on without a word."""
+def camera_model_problem(src: dict) -> Optional[Tuple[str, str]]:
+    """(field, what is wrong) when ``src`` (a transforms file or frame) describes a camera that is not
+    a pinhole without distortion, else None: its rays would be wrong everywhere but the image centre,
+    and training would go on without a word."""
     model = src.get("camera_model")
     if model is not None and (not isinstance(model, str) or model.upper() not in PINHOLE_MODELS):
-        raise DatasetError(f"{where}: field 'camera_model' is {model!r}; only pinhole cameras are supported "
-                           f"({', '.join(PINHOLE_MODELS)}). Undistort or reproject the images to a pinhole camera "
-                           "first (e.g. COLMAP's image_undistorter)")
+        return "camera_model", (f"{model!r} is not supported: only pinhole cameras are ({', '.join(PINHOLE_MODELS)}). "
+                                "Undistort or reproject the images to a pinhole camera first (e.g. COLMAP's "
+                                "image_undistorter)")
     for key in DISTORTION_KEYS:
         value = src.get(key)
         if value is None:
@@ -138,11 +139,18 @@ def check_camera_model(src: dict, where: str) -> None:
         try:
             number = float(value)
         except (TypeError, ValueError):
-            raise DatasetError(f"{where}: field {key!r} is not a number ({value!r})") from None
+            return key, f"is not a number ({value!r})"
         if number != 0.0:
-            raise DatasetError(f"{where}: field {key!r} is {value!r}: lens distortion is not supported, and ignoring "
-                               "it would bend every ray. Undistort the images first (e.g. COLMAP's image_undistorter) "
-                               "and write zero distortion")
+            return key, (f"lens distortion ({value!r}) is not supported, and ignoring it would bend every ray. "
+                         "Undistort the images first (e.g. COLMAP's image_undistorter) and write zero distortion")
+    return None
+
+
+def check_camera_model(src: dict, where: str) -> None:
+    """``camera_model_problem`` as a DatasetError naming ``where`` and the field."""
+    problem = camera_model_problem(src)
+    if problem is not None:
+        raise DatasetError(f"{where}: field {problem[0]!r}: {problem[1]}")
 
 
 def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
