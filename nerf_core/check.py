@@ -17,8 +17,9 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 from .contract.intrinsics import focal_from_fov
+from .contract.lens import lens_problem, parse_lens
 from .contract.naming import evenly_spaced
-from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, camera_model_problem, check_pose, frame_infos,
+from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos,
                                   parse_json_file)
 from .imageio import ImageReadError, png_info, read_png
 
@@ -236,10 +237,17 @@ def _check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int,
 
 
 def _camera_model(report: CheckReport, fname: str, src: dict, k: Optional[int] = None, fpath: Optional[str] = None) -> None:
-    """Report a camera that is not a pinhole without distortion (``contract.camera_model_problem``)."""
-    problem = camera_model_problem(src)
+    """Report lens fields that cannot be read (``contract.lens.lens_problem``), and warn where a
+    distorting lens is read: other tools' loaders may take its images for pinhole ones."""
+    problem = lens_problem(src)
     if problem is not None:
         report.error(fname, problem[1], k, fpath, problem[0])
+        return
+    lens, _ = parse_lens(src, None)
+    if lens is not None:
+        report.warn(fname, f"{lens.model} lens distortion: nerf_core undistorts every ray, but loaders that read only "
+                    "camera_angle_x or fl_x (original NeRF, blender-data, 3DGS) treat these images as pinhole ones",
+                    k, fpath, "camera_model")
 
 
 def _check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:

@@ -17,6 +17,7 @@ Every problem with the input raises ``DatasetError`` whose message names the fil
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
@@ -28,9 +29,11 @@ from .cameras import Cameras
 # Reading transforms files is the contract's (shared with the add-on); DatasetError, FrameInfo,
 # detect_layout and dataset_problems stay importable from here for data's long-standing callers.
 from .contract.intrinsics import resolve_intrinsics
+from .contract.lens import DISTORTION_KEYS
 from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
 from .dataset_checks import (check_duplicate_images, check_train_count, dataset_problems, depth_scale,  # noqa: F401
                              parse_aabb, scene_fields)
+from .lens import fold_pixel
 from .metrics import composite
 from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
@@ -197,8 +200,22 @@ def _camera_params(fr: FrameInfo, img_w: int, img_h: int, downscale: int) -> tup
             f"{fr.where}: fields 'w'/'h' say {int(w_decl)}x{int(h_decl)} but {fr.image} is {shown}"
         )
     fx, fy, cx, cy, W, H = resolve_intrinsics(fr.intrinsics, None, (img_w * downscale, img_h * downscale), fr.where)
+    if fr.lens is not None:
+        at = _lens_fold(fx, fy, cx, cy, int(W), int(H), fr.lens.coeffs, fr.lens.fisheye)
+        if at is not None:
+            named = [repr(k) for k, c in zip(DISTORTION_KEYS, fr.lens.coeffs) if c != 0.0] or ["'camera_model'"]
+            raise DatasetError(
+                f"{fr.where}: field{'s' * (len(named) > 1)} {', '.join(named)}: this {fr.lens.model} distortion cannot be undone over the whole "
+                f"{int(W)}x{int(H)} image: near pixel ({at[0]:.0f}, {at[1]:.0f}) it turns back, so two pixels would "
+                "see one ray. Check the coefficients and the image size they were calibrated for")
     s_x, s_y = img_w / W, img_h / H
     return fx * s_x, fy * s_y, cx * s_x, cy * s_y
+
+
+@functools.lru_cache(maxsize=256)
+def _lens_fold(fx, fy, cx, cy, w, h, coeffs, fisheye):
+    """``lens.fold_pixel``, once per distinct camera (a dataset repeats one lens in every frame)."""
+    return fold_pixel(fx, fy, cx, cy, w, h, coeffs, fisheye)
 
 
 # Per-frame extra channels: Split attribute -> (FrameInfo attribute, JSON field named in errors, reader,
@@ -269,7 +286,8 @@ def load_split(
     p = np.asarray(params, dtype=np.float64).reshape(-1, 4)
     cams = Cameras.create(
         np.stack([f.c2w for f in frames]) if frames else np.zeros((0, 4, 4)),
-        p[:, 0], p[:, 1], p[:, 2], p[:, 3], np.full(len(frames), w), np.full(len(frames), h)
+        p[:, 0], p[:, 1], p[:, 2], p[:, 3], np.full(len(frames), w), np.full(len(frames), h),
+        lenses=[f.lens for f in frames],
     )
     split = Split(name, cams, stack, list(frames))
     if not load_extras or not frames:
@@ -326,7 +344,7 @@ def load_dataset(
         source = f"dataset ({Path(scene['aabb_file']).name})"
     else:
         all_cams = [s.cameras for s in loaded.values() if len(s)]
-        cams = Cameras(*(torch.cat([getattr(c, f) for c in all_cams]) for f in ("c2w", "fx", "fy", "cx", "cy", "width", "height")))
+        cams = Cameras.cat(all_cams)
         aabb, source = estimate_aabb(cams, far, depth_points(loaded["train"]) if "train" in loaded else None)
         notes.append(source)
     inside_note = None
@@ -370,7 +388,8 @@ def cameras_of_frames(frames: List[FrameInfo]) -> Cameras:
         sizes.append((w, h))
     p = np.asarray(params, dtype=np.float64)
     s = np.asarray(sizes)
-    return Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1])
+    return Cameras.create(np.stack([f.c2w for f in frames]), p[:, 0], p[:, 1], p[:, 2], p[:, 3], s[:, 0], s[:, 1],
+                          lenses=[f.lens for f in frames])
 
 
 # ----------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from .cameras import Cameras, ray_bounds, rays_for_view
 from .checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint  # noqa: F401
 from .contract import config_path
 from .contract.intrinsics import resolve_intrinsics
+from .contract.lens import parse_lens
 from .contract.naming import frame_stem, render_files, unique_stems
 from .contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, parse_json_file, read_transforms
 from .progressbar import ProgressBar
@@ -174,7 +175,7 @@ def _camera_list(data, src: Path) -> tuple[Cameras, List[str]]:
         items, glob = None, {}
     if not isinstance(items, list) or not items:
         raise DatasetError(f"{src}: expected a list of cameras (or an object with 'frames' or 'cameras')")
-    mats, params = [], []
+    mats, params, lenses = [], [], []
     for k, item in enumerate(items):
         where = f"{src}: camera {k}"
         m = item.get("transform_matrix") if isinstance(item, dict) else item
@@ -182,9 +183,15 @@ def _camera_list(data, src: Path) -> tuple[Cameras, List[str]]:
             mats.append(check_pose(m, f"{where}: field 'transform_matrix'"))
         except PoseError as exc:
             raise DatasetError(str(exc)) from exc
-        params.append(resolve_intrinsics(glob, item if isinstance(item, dict) else None, None, where))
+        own = item if isinstance(item, dict) else None
+        params.append(resolve_intrinsics(glob, own, None, where))
+        lens, problem = parse_lens(glob, own)
+        if problem:
+            raise DatasetError(f"{where}: field {problem[0]!r}: {problem[1]}")
+        lenses.append(lens)
     p = np.asarray(params, dtype=np.float64)
-    cams = Cameras.create(np.stack(mats), p[:, 0], p[:, 1], p[:, 2], p[:, 3], p[:, 4].astype(int), p[:, 5].astype(int))
+    cams = Cameras.create(np.stack(mats), p[:, 0], p[:, 1], p[:, 2], p[:, 3], p[:, 4].astype(int), p[:, 5].astype(int),
+                          lenses=lenses)
     return cams, [frame_stem(item, k) for k, item in enumerate(items)]
 
 
@@ -371,6 +378,9 @@ def render_to_dir(
             "camera_angle_x": float(cameras.fov_x()[v]),
             "render_seconds": seconds,
         }
+        lens = cameras.lens(v)
+        if lens is not None:  # the render is as distorted as the camera it was asked for
+            entry.update(lens.fields())
         gt_split, why_not = _ground_truth(gt_frames[v], cameras, v, gt_downscale)
         if gt_split is not None:
             # What eval sees: the same pixels as rendering onto the background (model.render_rays puts

@@ -11,6 +11,7 @@ Sections:
 Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``contract.latest_checkpoint``):
 - ``transforms``: reading transforms files (JSON, frames, poses, the dataset path rule, splits);
 - ``intrinsics``: the one focal-length rule, ``resolve_intrinsics``;
+- ``lens``: the lens models read (OPENCV, OPENCV_FISHEYE) and their fields, ``parse_lens``;
 - ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices.
 """
 from __future__ import annotations
@@ -22,6 +23,7 @@ import re
 from typing import Any, Dict, Optional
 
 from .intrinsics import focal_from_fov, fov_from_focal, resolve_intrinsics  # noqa: F401 (re-exported)
+from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
 from .naming import (ERRORS_DIR, evenly_spaced, frame_stem, output_stems, path_stem,  # noqa: F401
                      render_files, unique_stems)
 from .transforms import (EXTRA_FIELDS, HOLDOUT_EVERY, IMAGE_EXTS, INTRINSIC_KEYS, SPLITS,  # noqa: F401

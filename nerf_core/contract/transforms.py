@@ -24,6 +24,8 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .lens import Lens, lens_problem, parse_lens
+
 SPLITS = ("train", "val", "test")
 HOLDOUT_EVERY = 8  # nerfstudio-style deterministic split when transforms.json lists no split files
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
@@ -117,45 +119,18 @@ def read_json(path: Path | str) -> dict:
     return meta
 
 
-# Pinhole models: what every ray here is (``cameras.camera_directions``). OPENCV is a pinhole plus
-# distortion, accepted while its distortion is zero (what our capture writes, CONVENTIONS.md).
-PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "PERSPECTIVE")
-DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-
-
-def camera_model_problem(src: dict) -> Optional[Tuple[str, str]]:
-    """(field, what is wrong) when ``src`` (a transforms file or frame) describes a camera that is not
-    a pinhole without distortion, else None: its rays would be wrong everywhere but the image centre,
-    and training would go on without a word."""
-    model = src.get("camera_model")
-    if model is not None and (not isinstance(model, str) or model.upper() not in PINHOLE_MODELS):
-        return "camera_model", (f"{model!r} is not supported: only pinhole cameras are ({', '.join(PINHOLE_MODELS)}). "
-                                "Undistort or reproject the images to a pinhole camera first (e.g. COLMAP's "
-                                "image_undistorter)")
-    for key in DISTORTION_KEYS:
-        value = src.get(key)
-        if value is None:
-            continue
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            return key, f"is not a number ({value!r})"
-        if number != 0.0:
-            return key, (f"lens distortion ({value!r}) is not supported, and ignoring it would bend every ray. "
-                         "Undistort the images first (e.g. COLMAP's image_undistorter) and write zero distortion")
-    return None
-
-
 def check_camera_model(src: dict, where: str) -> None:
-    """``camera_model_problem`` as a DatasetError naming ``where`` and the field."""
-    problem = camera_model_problem(src)
+    """Lens fields of ``src`` that cannot be read (``contract.lens.lens_problem``: a model other than a
+    pinhole, OPENCV or OPENCV_FISHEYE, a coefficient that is not a finite number or belongs to a model
+    not read here) as a DatasetError naming ``where`` and the field."""
+    problem = lens_problem(src)
     if problem is not None:
         raise DatasetError(f"{where}: field {problem[0]!r}: {problem[1]}")
 
 
 def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
-    """The intrinsic fields (``INTRINSIC_KEYS``) present in ``src``, as validated floats; refuses a
-    camera model other than a pinhole without distortion (``check_camera_model``)."""
+    """The intrinsic fields (``INTRINSIC_KEYS``) present in ``src``, as validated floats; refuses lens
+    fields that cannot be read (``check_camera_model``; the lens itself is ``FrameInfo.lens``)."""
     check_camera_model(src, where)
     out = {}
     for key in INTRINSIC_KEYS:
@@ -234,6 +209,7 @@ class FrameInfo:
     mask: Optional[Path] = None
     outside: List[str] = field(default_factory=list)  # fields whose file lies outside the dataset folder
     name: Optional[str] = None  # the frame's optional ``name`` field (names its render outputs)
+    lens: Optional[Lens] = None  # the distortion of its camera (``contract.lens``); None = a pinhole
 
     @property
     def where(self) -> str:
@@ -278,8 +254,11 @@ def read_frames(meta: dict, json_file: Path, add_png: bool) -> List[FrameInfo]:
                 if out_of_root:
                     outside.append(key)
         name = fr.get("name") if isinstance(fr.get("name"), str) else None
+        lens, problem = parse_lens(meta, fr)
+        if problem:
+            raise DatasetError(f"{where}: field {problem[0]!r}: {problem[1]}")
         out.append(FrameInfo(k, json_file, fp, resolve_image(root, fp, add_png), c2w, intr, outside=outside,
-                             name=name, **extra))
+                             name=name, lens=lens, **extra))
     return out
 
 

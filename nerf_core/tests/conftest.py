@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
@@ -104,9 +105,10 @@ def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return m
 
 
-def render_sphere(c2w, fx, fy, cx, cy, w, h, radius=0.6):
-    """Analytic render of a sphere at the origin: RGBA uint8 (h, w, 4) and planar depth (h, w) (0 = miss)."""
-    cams = Cameras.create(c2w[None], fx, fy, cx, cy, w, h)
+def render_sphere(c2w, fx, fy, cx, cy, w, h, radius=0.6, lens=None):
+    """Analytic render of a sphere at the origin: RGBA uint8 (h, w, 4) and planar depth (h, w) (0 = miss).
+    ``lens``: a ``contract.Lens`` the camera distorts with (None: a pinhole)."""
+    cams = Cameras.create(c2w[None], fx, fy, cx, cy, w, h, lenses=[lens])
     o, d, z_per_t = rays_for_view(cams, 0)
     o = o.expand_as(d).double()
     d = d.double()
@@ -137,12 +139,17 @@ def make_dataset(
     depth: bool = True,
     exr_images: bool = False,
     aabb: bool = True,
+    lens: Optional[dict] = None,
 ) -> Path:
     """Write a small sphere dataset (cameras on a ring at radius 3) in the requested layouts.
 
     With both layouts nerfstudio's ``transforms.json`` goes to ``nerfstudio/`` (paths ``../...``), as the
-    capture writes it; with "nerfstudio" alone it is the dataset root's only JSON.
+    capture writes it; with "nerfstudio" alone it is the dataset root's only JSON. ``lens``: the lens
+    fields (``camera_model``, ``k1``...) that every camera has, written at the top level.
     """
+    from nerf_core.contract.lens import parse_lens
+
+    lens_obj = parse_lens(lens, None)[0] if lens else None
     root = Path(root)
     fov = 0.9
     fx = fy = 0.5 * w / math.tan(0.5 * fov)
@@ -159,7 +166,7 @@ def make_dataset(
             elev = 0.3 + 0.2 * math.sin(3 * ang)
             eye = 3.0 * np.array([math.cos(ang) * math.cos(elev), math.sin(ang) * math.cos(elev), math.sin(elev)])
             c2w = look_at(eye)
-            rgba, z = render_sphere(c2w, fx, fy, cx, cy, w, h)
+            rgba, z = render_sphere(c2w, fx, fy, cx, cy, w, h, lens=lens_obj)
             stem = f"r_{i}"
             fr = {"file_path": f"./{split}/{stem}", "transform_matrix": c2w.tolist()}
             if exr_images:
@@ -172,7 +179,7 @@ def make_dataset(
                 fr["depth_file_path"] = f"{split}/{stem}_depth.exr"
             frames[split].append(fr)
             k += 1
-    intr = {"camera_angle_x": fov, "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": w, "h": h}
+    intr = {"camera_angle_x": fov, "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": w, "h": h, **(lens or {})}
     scene = {"aabb": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "near": 1.0, "far": 5.0} if aabb else {}
     if "synthetic" in layouts:
         for split in counts:
