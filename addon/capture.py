@@ -343,6 +343,12 @@ class CaptureJob:
         self._set(r, "use_compositing", False)  # a user's compositor must not alter the dataset
         self._set(r, "use_sequencer", False)
         self._set(r, "use_motion_blur", False)  # a NeRF needs a static instant per view
+        # ... and a pinhole: depth of field blurs each view by its own focus, which no radiance field
+        # reproduces (a scene or animation camera copied by the layout keeps the user's setting).
+        for name in {f["camera"] for f in self.frames}:
+            obj = bpy.data.objects.get(name)
+            if obj is not None and obj.type == "CAMERA" and obj.data.dof.use_dof:
+                self._set(obj.data.dof, "use_dof", False)
         self._set(r, "use_single_layer", True)  # one view layer: the one whose passes we enable
         if self.engine == "CYCLES":
             self._set(sc.cycles, "samples", self.s.samples)

@@ -290,6 +290,34 @@ def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
             assert all(alpha[int(vv), int(uu)] == 255 for uu, vv in zip(u, v)), fr["file_path"]
 
 
+def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
+    # A scene camera focused far behind the scene at f/0.1 blurs everything; the capture must render
+    # it as the sharp pinhole its transforms describe, and leave the user's camera as it was.
+    from mathutils import Matrix
+
+    build_test_scene()
+    scene = bpy.context.scene
+    cams = []
+    for k, pos in enumerate([(6, -6, 3), (-7, -5, 2)]):
+        cam = bpy.data.objects.new(f"User{k}", bpy.data.cameras.new(f"User{k}"))
+        scene.collection.objects.link(cam)
+        cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
+        cams.append(cam)
+    spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
+    made = layouts.create_cameras(scene, spec, 40, 30)
+    settings = dict(engine="cycles", samples=4, res_x=40, res_y=30, layout=spec.to_dict())
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "sharp"), **settings)).run()
+    for obj in made:
+        obj.data.dof.use_dof, obj.data.dof.aperture_fstop, obj.data.dof.focus_distance = True, 0.1, 100.0
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "dof"), **settings)).run()
+    assert all(obj.data.dof.use_dof for obj in made)  # restored
+    for split in ("train", "test"):
+        for (_d, fr, _i), (_d2, fr2, _i2) in zip(frames(tmp_path / "sharp", split), frames(tmp_path / "dof", split)):
+            a = np.asarray(Image.open(os.path.join(tmp_path / "sharp", fr["file_path"] + ".png")))
+            b = np.asarray(Image.open(os.path.join(tmp_path / "dof", fr2["file_path"] + ".png")))
+            assert np.array_equal(a, b), fr["file_path"]
+
+
 def test_masks_of_a_selection_cover_only_it(tmp_path):
     build_test_scene()
     scene = bpy.context.scene
