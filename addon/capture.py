@@ -93,6 +93,23 @@ def _empty_tree(path: str) -> bool:
     return all(_empty_tree(os.path.join(path, e)) for e in os.listdir(path))
 
 
+def scene_box(scene, settings) -> tuple:
+    """((min, max), surroundings): the box that the dataset's ``aabb`` and near/far come from.
+
+    The whole scene, except for a capture looking in at a scene whose floor, dome or backdrop dwarfs
+    its subject (``scene_bounds.subject_bounds``): then the subject with a margin
+    (``scene_bounds.subject_box``), so that the NeRF's grid is spent on it rather than on a 100 m
+    floor. A room captured from inside, and a selection, keep the whole scene.
+    """
+    lo, hi = scene_bounds.scene_bounds(scene)
+    if (settings.layout or {}).get("layout") == "inside" or settings.target == "SELECTION":
+        return (lo, hi), []
+    s_lo, s_hi, around = scene_bounds.subject_bounds(scene)
+    if not around:
+        return (lo, hi), []
+    return scene_bounds.subject_box(scene, s_lo, s_hi), around
+
+
 class CaptureJob:
     """One capture of ``scene`` into ``settings.out_dir``: ``prepare()``, ``step()`` until False, ``finish()``.
 
@@ -129,7 +146,7 @@ class CaptureJob:
         if settings.samples < 1:
             raise CaptureError(f"samples must be at least 1 (got {settings.samples})")
         try:
-            self.bounds = scene_bounds.scene_bounds(scene)
+            self.bounds, self.surroundings = scene_box(scene, settings)
         except scene_bounds.BoundsError as exc:
             raise CaptureError(str(exc)) from exc
         self.mask_objects = []
@@ -215,7 +232,8 @@ class CaptureJob:
         self.frames = frames
         self.plan_doc = capture_plan.make_plan(frames, settings=self.s, render_sig=self.render_sig, world=self.world,
                                                bounds=self.bounds, scene_name=self.scene.name,
-                                               blender_version=bpy.app.version_string)
+                                               blender_version=bpy.app.version_string,
+                                               surroundings=self.surroundings)
         self.plan_hash = capture_plan.plan_hash(self.plan_doc)
         own = capture_plan.shard_frames(frames, *self.shard) if self.shard else frames
         self.share = {fr["key"] for fr in own}

@@ -82,13 +82,14 @@ def frame_files(split: str, name: str, depth: bool, normals: bool, masks: bool, 
 
 
 def make_plan(frames: list[dict], *, settings, render_sig: dict, world: dict, bounds, scene_name: str,
-              blender_version: str) -> dict:
-    """The JSON plan of a capture; ``frames`` in plan order, ``settings`` a CaptureSettings."""
+              blender_version: str, surroundings=()) -> dict:
+    """The JSON plan of a capture; ``frames`` in plan order, ``settings`` a CaptureSettings.
+    ``surroundings``: objects the scene box leaves out (``capture.scene_box``), recorded when any."""
     from .capture_verify import FRAME_FILE_KEYS
 
     keep = FRAME_KEYS + FRAME_FILE_KEYS
     lo, hi = bounds
-    return {
+    plan = {
         "version": PLAN_VERSION, "scene": scene_name, "blender_version": blender_version,
         "render": round6(render_sig), "world": world, "film_transparent": bool(settings.film_transparent),
         "resolution": [int(settings.res_x), int(settings.res_y)],
@@ -98,6 +99,9 @@ def make_plan(frames: list[dict], *, settings, render_sig: dict, world: dict, bo
         "bounds": {"min": [float(v) for v in lo], "max": [float(v) for v in hi]},
         "frames": [{k: fr[k] for k in keep if k in fr} for fr in frames],
     }
+    if surroundings:
+        plan["bounds"]["surroundings"] = sorted(surroundings)
+    return plan
 
 
 def shard_settings_error(plan: dict, plan_hash_value: str, other: dict, source: str) -> str | None:

@@ -378,6 +378,24 @@ def _new_camera(scene, coll, name, split, matrix, lens, sensor=36.0, src=None):
     return obj
 
 
+def framing_bounds(scene, spec: LayoutSpec) -> tuple:
+    """(min, max, surroundings) that a generated layout looking in frames: the selection, or the
+    scene without the floor, dome or backdrop that dwarfs its subject (``scene_bounds.subject_bounds``;
+    their names, else [])."""
+    from . import scene_bounds
+
+    if spec.target == "SELECTION":
+        return (*scene_bounds.scene_bounds(scene, only_selected=True), [])
+    return scene_bounds.subject_bounds(scene)
+
+
+def surroundings_note(names) -> str:
+    """What the panel and the script say when the framing leaves objects out."""
+    shown = ", ".join(repr(n) for n in names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    return (f"framed on the subject without {shown}: much larger than it and flat or around it (a floor, dome or "
+            "backdrop); they still render. Select the subject and use Target: Selection to choose otherwise")
+
+
 def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     """Replace the "NeRF Cameras" collection's cameras with the layout's; returns the new objects.
 
@@ -410,7 +428,7 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
         radius = (hi - lo).length  # clip_end below: the whole room stays in view
         clip_start = INSIDE_CLIP_START
     elif spec.layout in GENERATED_LAYOUTS:
-        lo, hi = scene_bounds.scene_bounds(scene, only_selected=spec.target == "SELECTION")
+        lo, hi, _around = framing_bounds(scene, spec)
         centre, sphere_r = scene_bounds.bounding_sphere(lo, hi)
         radius = spec.radius
         if radius <= 0:

@@ -318,6 +318,27 @@ def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
             assert np.array_equal(a, b), fr["file_path"]
 
 
+def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path):
+    from addon import scene_bounds
+
+    build_test_scene()
+    bpy.ops.mesh.primitive_plane_add(size=200.0, location=(0, 0, -CUBE_HALF))
+    scene = bpy.context.scene
+    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
+    layouts.create_cameras(scene, spec, 40, 30)
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+                                                      layout=spec.to_dict())).run()
+    lo, hi, around = scene_bounds.subject_bounds(scene)
+    box = [list(v) for v in scene_bounds.subject_box(scene, lo, hi)]
+    doc = json.loads((tmp_path / "transforms_train.json").read_text())
+    assert np.allclose(doc["aabb"], box) and doc["aabb"][1][0] - doc["aabb"][0][0] < 10.0  # not the 200 m floor
+    manifest = json.loads((tmp_path / "nerf_capture" / "manifest.json").read_text())
+    assert manifest["plan"]["bounds"]["surroundings"] == ["Plane"] == around
+    # A room captured from inside keeps the whole scene as its box.
+    whole = capture.scene_box(scene, capture.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
+    assert whole[1] == [] and whole[0][1][0] - whole[0][0][0] == pytest.approx(200.0)
+
+
 def test_masks_of_a_selection_cover_only_it(tmp_path):
     build_test_scene()
     scene = bpy.context.scene

@@ -221,3 +221,70 @@ def test_bad_elevation_range_is_refused():
     spec = layouts.LayoutSpec(elevation_min=50, elevation_max=10)
     with pytest.raises(layouts.LayoutError, match="elevation range"):
         layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+
+
+def _monkey_scene(*extras):
+    """A 2.7 m monkey standing at the origin, plus ``extras``: "floor" (100 m plane), "small floor"
+    (3 m), "dome" (a 200 m sphere around everything), "building" (60 m cube beside it), "table"
+    (1 m cube with a 2 cm screw on top, instead of the monkey)."""
+    if "table" in extras:
+        bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0, 0, 0.5))
+        bpy.ops.mesh.primitive_cube_add(size=0.02, location=(0, 0, 1.01))
+    else:
+        bpy.ops.mesh.primitive_monkey_add(location=(0, 0, 1))
+    if "floor" in extras:
+        bpy.ops.mesh.primitive_plane_add(size=100.0)
+    if "small floor" in extras:
+        bpy.ops.mesh.primitive_plane_add(size=3.0)
+    if "dome" in extras:
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=200.0)
+    if "building" in extras:
+        bpy.ops.mesh.primitive_cube_add(size=60.0, location=(40, 0, 30))
+    return bpy.context.scene
+
+
+@pytest.mark.parametrize("extras, left_out", [
+    (("floor",), ["Plane"]),
+    (("floor", "dome"), ["Plane", "Sphere"]),
+])
+def test_a_floor_or_dome_that_dwarfs_the_subject_is_left_out_of_the_framing(extras, left_out):
+    from addon import scene_bounds
+
+    scene = _monkey_scene(*extras)
+    spec = layouts.LayoutSpec(train=8, val=1, test=1)
+    lo, hi, around = layouts.framing_bounds(scene, spec)
+    assert around == left_out
+    assert np.allclose(lo, (-1.37, -0.85, 0.02), atol=0.02) and np.allclose(hi, (1.37, 0.85, 1.98), atol=0.02)
+    made = layouts.create_cameras(scene, spec, 100, 100)
+    # The monkey fills the frame from about 4.5 m (framed on the 100 m floor: 219 m, 2 px wide).
+    assert max(o.matrix_world.translation.length for o in made) < 8.0
+    assert "'Plane'" in layouts.surroundings_note(around)
+    # The scene box a capture writes: the monkey with a quarter of its diagonal around it, clipped to
+    # the scene (without the dome, the floor at z = 0 is its bottom and the monkey's top its top).
+    pad = 0.25 * np.linalg.norm(np.subtract(hi, lo))
+    s_lo, s_hi = (np.asarray(v) for v in scene_bounds.scene_bounds(scene))
+    b_lo, b_hi = scene_bounds.subject_box(scene, lo, hi)
+    assert np.allclose(b_lo, np.maximum(np.subtract(lo, pad), s_lo))
+    assert b_lo[2] == 0.0 or "dome" in extras
+    assert np.allclose(b_hi, np.minimum(np.add(hi, pad), s_hi))
+
+
+@pytest.mark.parametrize("extras", [(), ("small floor",), ("floor", "building"), ("table",)])
+def test_objects_that_are_part_of_the_subject_stay_in_the_framing(extras):
+    # A floor little larger than the monkey is its stage; a 60 m building beside it makes the floor
+    # under both part of the scene; a table is not the surroundings of the screw on it (the screw
+    # pokes out of the table's box).
+    from addon import scene_bounds
+
+    scene = _monkey_scene(*extras)
+    lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec())
+    s_lo, s_hi = scene_bounds.scene_bounds(scene)
+    assert around == [] and tuple(lo) == tuple(s_lo) and tuple(hi) == tuple(s_hi)
+
+
+def test_a_selection_is_framed_as_selected():
+    scene = _monkey_scene("floor")
+    for obj in scene.objects:
+        obj.select_set(obj.name == "Plane")
+    lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
+    assert around == [] and hi[0] - lo[0] == pytest.approx(100.0)
