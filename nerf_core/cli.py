@@ -148,7 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--size", choices=["auto"], help="let nerf_core.sizing choose the model size for this dataset")
     t.add_argument("--contract", action="store_true",
                    help="scene contraction (mip-NeRF 360 style): also model geometry beyond the scene box, such as a "
-                        "ground plane running to the horizon (vmgrid; the same as --set contract=true)")
+                        "ground plane running to the horizon (vmgrid; the same as --set contract=true). Without it, "
+                        "a cut-out whose opaque pixels look past the box gets it anyway; --set contract=false stops that")
     t.add_argument("--progress", metavar="FILE", help="also append the JSON progress events to FILE")
     t.add_argument("--device", metavar="DEV", help="torch device (cpu, cuda, cuda:1); default: cuda if available else cpu")
     t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")

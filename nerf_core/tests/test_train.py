@@ -168,6 +168,31 @@ def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
     assert all(isinstance(r, str) and r for r in cfg["size_reasons"])
 
 
+@pytest.mark.parametrize("half_box, given, expect", [
+    (0.3, {}, True),  # the sphere (radius 0.6) pokes out of a +-0.3 box: its edge pixels lie beyond it
+    (1.0, {}, False),  # the whole sphere inside: nothing beyond the box
+    (0.3, {"contract": False}, False),  # --set contract=false wins
+])
+def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_dataset, tmp_path, half_box, given, expect):
+    from nerf_core.data import load_dataset
+    from nerf_core.scene_box import BEYOND_BOX_SHARE, beyond_box_share
+
+    for split in ("train", "val", "test"):
+        path = sphere_dataset / f"transforms_{split}.json"
+        meta = json.loads(path.read_text())
+        meta["aabb"] = [[-half_box] * 3, [half_box] * 3]
+        path.write_text(json.dumps(meta))
+    data = load_dataset(sphere_dataset, splits=("train",))
+    share = beyond_box_share(data.split("train"), data.aabb)
+    assert (share >= BEYOND_BOX_SHARE) == (half_box < 0.6)
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=1, batch_rays=64, eval_views=0, options=given))
+    cfg = json.loads((run / "config.json").read_text())
+    start = read_events(run / "progress.jsonl")[0]
+    assert start["model"]["options"]["contract"] is expect
+    assert any(r.startswith("contract=true") for r in cfg["size_reasons"]) is (expect and not given)
+
+
 def test_nan_gradient_with_finite_loss_also_rolls_back(sphere_dataset, tmp_path):
     run = tmp_path / "run"
     out = train(_cfg(sphere_dataset, run, method="test-nan", options={"nan_at": 8, "nan_in": "grad"},
