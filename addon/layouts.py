@@ -433,6 +433,11 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
         radius = spec.radius
         if radius <= 0:
             radius = auto_radius(sphere_r, *fov_from_lens(spec.focal_length, res_x, res_y), spec.margin)
+        # Blender's default clip_start (10 cm) would cut away a subject nearer than that: a 2 cm object
+        # is framed from 6 cm. Half the gap to the bounding sphere keeps it whole (never raised: a
+        # floor passing under the cameras must not be clipped either).
+        gap = radius - sphere_r
+        clip_start = 0.5 * gap if gap > 0 else 1e-3 * radius
         n_total = spec.train + spec.val + spec.test
         if spec.train < 1:
             raise LayoutError("a capture needs at least one train view")

@@ -339,6 +339,24 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     assert whole[1] == [] and whole[0][1][0] - whole[0][0][0] == pytest.approx(200.0)
 
 
+@pytest.mark.parametrize("size", [0.02, 2000.0])
+def test_a_tiny_or_huge_subject_is_captured_whole(tmp_path, size):
+    # Framed from 6 cm, a 2 cm object lay wholly inside Blender's default 10 cm clip_start: every
+    # image was empty. A 2 km one is framed from 5.9 km and must not be cut by clip_end either.
+    bpy.ops.mesh.primitive_monkey_add(size=size)
+    scene = bpy.context.scene
+    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
+    made = layouts.create_cameras(scene, spec, 40, 30)
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+                                                      layout=spec.to_dict())).run()
+    for split in ("train", "val", "test"):
+        for _doc, fr, _intr in frames(tmp_path, split):
+            alpha = np.asarray(Image.open(os.path.join(tmp_path, fr["file_path"] + ".png")))[..., 3]
+            # The whole monkey: opaque, and none of it touching the frame's border.
+            assert (alpha > 0).mean() > 0.05 and not alpha[[0, -1]].any(), fr["file_path"]
+    assert all(o.data.clip_start < 0.5 * o.matrix_world.translation.length for o in made)
+
+
 def test_masks_of_a_selection_cover_only_it(tmp_path):
     build_test_scene()
     scene = bpy.context.scene
