@@ -64,6 +64,8 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
     common = {"aabb": [list(map(float, lo)), list(map(float, hi))],
               "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(lo, hi),
               "film_transparent": bool(plan["film_transparent"]), "world": plan["world"]}
+    if plan["bounds"].get("surroundings"):  # left out of the box, they still render: a NeRF must reach past it
+        common["beyond_box"] = list(plan["bounds"]["surroundings"])
     if plan["passes"]["depth"]:
         common["depth_unit_scale_factor"] = 1.0  # EXR depth is already in scene units, not millimetres
     if plan["passes"]["points"] and complete and write_point_cloud(out, done):

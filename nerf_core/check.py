@@ -476,7 +476,7 @@ def _check_world_coverage(report: CheckReport, root: Path) -> None:
 
     try:
         _, _, infos, scene = frame_infos(root)
-        _, far, _, _ = scene_fields(scene)
+        _, far, _, _, _ = scene_fields(scene)
         train = cameras_of_frames(infos["train"])
         aabb = (parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene
                 else estimate_aabb(train, far)[0])

@@ -118,6 +118,7 @@ class Dataset:
     film_transparent: Optional[bool] = None  # what the transforms files declare; None when they do not
     world: Optional[dict] = None  # the capture's description of the Blender world, when recorded
     cameras_inside: bool = False  # most train cameras stand inside the scene box: an interior
+    beyond_box: List[str] = field(default_factory=list)  # objects the capture says reach beyond ``aabb`` (a floor)
 
     def split(self, name: str) -> Split:
         if name not in self.splits or len(self.splits[name]) == 0:
@@ -334,7 +335,7 @@ def load_dataset(
             if leaked:
                 notes.append(f"{leaked[0].where}: {len(leaked)} {name} frame(s) use training images; "
                              "their metrics will not measure novel views")
-    near, far, film, world = scene_fields(scene)
+    near, far, film, world, beyond = scene_fields(scene)
     loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
     for name in SPLITS:
         if name not in loaded:
@@ -354,7 +355,7 @@ def load_dataset(
             notes.append(inside_note)
             source += "; padded around the cameras standing inside it"
     return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world,
-                   cameras_inside=inside_note is not None)
+                   cameras_inside=inside_note is not None, beyond_box=beyond)
 
 
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:

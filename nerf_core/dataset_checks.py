@@ -49,7 +49,8 @@ def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
 
 
 def scene_fields(scene: dict) -> tuple:
-    """(near, far, film_transparent, world) of a dataset's top-level fields, validated (raises DatasetError)."""
+    """(near, far, film_transparent, world, beyond_box) of a dataset's top-level fields, validated (raises
+    DatasetError). ``beyond_box``: names of objects that reach beyond the scene box ([] when not given)."""
     near = far = None
     for key in ("near", "far"):
         if key in scene:
@@ -68,7 +69,10 @@ def scene_fields(scene: dict) -> tuple:
     world = scene.get("world")
     if world is not None and not isinstance(world, dict):
         raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
-    return near, far, film, world
+    beyond = scene.get("beyond_box", [])
+    if not isinstance(beyond, list) or not all(isinstance(n, str) for n in beyond):
+        raise DatasetError(f"{scene['beyond_box_file']}: field 'beyond_box' must be a list of object names, got {beyond!r}")
+    return near, far, film, world, beyond
 
 
 def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2) -> List[str]:

@@ -291,7 +291,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
     """Parse the metadata of a dataset without reading pixels.
 
     Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
-    ``far``, ``depth_unit_scale_factor``, ``film_transparent`` and ``world`` when the dataset gives
+    ``far``, ``depth_unit_scale_factor``, ``film_transparent``, ``world`` and ``beyond_box`` when the dataset gives
     them (each with ``KEY_file``, the file it came from), and ``split_note``/``path_note``.
     """
     path = Path(path)
@@ -312,7 +312,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             out[name] = read_frames(meta, jf, add_png=True)
             if name in SPLITS and not out[name]:
                 raise DatasetError(f"{jf}: split {name!r} is empty (field 'frames' has no entries)")
-            for key in ("aabb", "near", "far", "film_transparent", "world"):
+            for key in ("aabb", "near", "far", "film_transparent", "world", "beyond_box"):
                 if key in meta and key not in scene:
                     scene[key] = meta[key]
                     scene[key + "_file"] = jf
@@ -322,7 +322,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
         frames = read_frames(meta, jf, add_png=False)
         if not frames:
             raise DatasetError(f"{jf}: field 'frames' has no entries")
-        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world"):
+        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world", "beyond_box"):
             if key in meta:
                 scene[key] = meta[key]
                 scene[key + "_file"] = jf

@@ -193,6 +193,26 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
     assert any(r.startswith("contract=true") for r in cfg["size_reasons"]) is (expect and not given)
 
 
+def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_dataset, tmp_path):
+    # An opaque capture cannot show by its alpha that a floor runs past the box; the capture says so.
+    from nerf_core.data import DatasetError, load_dataset
+
+    path = sphere_dataset / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    meta["beyond_box"] = ["Plane"]
+    path.write_text(json.dumps(meta))
+    assert load_dataset(sphere_dataset, splits=("train",)).beyond_box == ["Plane"]
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=1, batch_rays=64, eval_views=0))
+    start = read_events(run / "progress.jsonl")[0]
+    assert start["model"]["options"]["contract"] is True
+    assert any("'beyond_box' says Plane" in r for r in start["size_reasons"])
+    meta["beyond_box"] = "Plane"
+    path.write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match="transforms_train.json: field 'beyond_box' must be a list"):
+        load_dataset(sphere_dataset, splits=("train",))
+
+
 def test_nan_gradient_with_finite_loss_also_rolls_back(sphere_dataset, tmp_path):
     run = tmp_path / "run"
     out = train(_cfg(sphere_dataset, run, method="test-nan", options={"nan_at": 8, "nan_in": "grad"},
