@@ -15,6 +15,7 @@ CAPTURE_DEFAULTS: dict[str, dict] = {
     "hdri": {"opaque": True},
     # A 24 mm lens (74 degrees across) sees a room; 50 mm from the middle of a room sees a patch of wall.
     "interior": {"opaque": True, "layout": "inside", "focal_length": 24.0},
+    "ground": {"opaque": True},
 }
 
 

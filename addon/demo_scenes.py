@@ -31,6 +31,7 @@ SCENES = {
     "multi": "several objects of different shapes and colours",
     "hdri": "a textured sphere on a pedestal and a checker cube in a visible HDRI world (forest photo; opaque film)",
     "interior": "a closed 6 x 5 x 3 m room with textured walls and furniture, lit from inside",
+    "ground": "a figure and a box on a 100 m checkered floor that runs to the horizon (opaque film)",
 }
 # Blender's own studio-light worlds ship inside every Blender (and the bpy module): real photographs.
 HDRI_NAME = "forest.exr"
@@ -362,12 +363,27 @@ def build(name: str, scene=None):
         _build_hdri(scene, mesh)
     elif name == "interior":
         _build_interior(scene)
+    elif name == "ground":
+        # The floor dwarfs the subject: the capture frames the figure and leaves the floor out of the
+        # scene box (``scene_bounds.subject_bounds``), and train models it beyond the box (``beyond_box``).
+        figure = _add(mesh.primitive_monkey_add, "Suzanne", _material("Figure", (0.8, 0.35, 0.12), roughness=0.5),
+                      size=1.2, location=(-0.3, 0, 0.6), rotation=(0, 0, math.radians(-20)))
+        _smooth(figure)
+        _add(mesh.primitive_cube_add, "Box", _material("Box", (0.2, 0.45, 0.8), roughness=0.6, texture="checker",
+                                                      scale=4.0, color2=(0.9, 0.9, 0.9)),
+             size=0.6, location=(0.7, 0.3, 0.3), rotation=(0, 0, math.radians(30)))
+        _add(mesh.primitive_plane_add, "Ground", _material("Ground", (0.8, 0.8, 0.78), roughness=0.9,
+                                                           texture="checker", scale=100.0, color2=(0.2, 0.2, 0.2)),
+             size=100.0)
     if name == "hdri":
         _hdri_world(scene, hdri)
         scene.render.film_transparent = False  # the world is part of the picture
     elif name == "interior":
         _room_lights(scene)
         scene.render.film_transparent = False
+    elif name == "ground":
+        _lights_and_world(scene)
+        scene.render.film_transparent = False  # the sky and the floor's horizon are part of the picture
     else:
         _lights_and_world(scene)
     for obj in scene.objects:

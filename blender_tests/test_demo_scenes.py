@@ -33,8 +33,12 @@ def test_scene_builds_within_bounds_lit_and_deterministic(name):
     if name == "interior":  # the room is the scene: its box is the bounds
         sx, sy, sz = demo_scenes.ROOM_SIZE
         np.testing.assert_allclose([list(lo), list(hi)], [[-sx / 2, -sy / 2, 0], [sx / 2, sy / 2, sz]], atol=1e-5)
+    elif name == "ground":  # the floor runs on: the framing leaves it out, and the subject fits the usual box
+        lo, hi, around = scene_bounds.subject_bounds(scene)
+        assert around == ["Ground"] and max(map(abs, list(lo) + list(hi))) <= 1.6, (lo, hi, around)
     else:
         assert max(map(abs, list(lo) + list(hi))) <= 1.6, (name, lo, hi)
+        assert scene_bounds.subject_bounds(scene)[2] == []  # nothing dwarfs the subject
     assert any(o.type == "LIGHT" for o in scene.objects) and scene.world is not None
     meshes = [o for o in scene.objects if o.type == "MESH"]
     assert meshes and all(o.material_slots and o.material_slots[0].material for o in meshes)
@@ -208,6 +212,8 @@ def test_capture_flags_of_each_scene_parse_as_capture_options(monkeypatch):
         assert demo_scenes.capture_flags(name) == []  # object scenes: transparent film, hemisphere
     hdri = capture_script.build_parser().parse_args(["--out", "x", *demo_scenes.capture_flags("hdri")])
     assert hdri.opaque and hdri.layout == "hemisphere"
+    ground = capture_script.build_parser().parse_args(["--out", "x", *demo_scenes.capture_flags("ground")])
+    assert ground.opaque and ground.layout == "hemisphere"
     room = capture_script.build_parser().parse_args(["--out", "x", *demo_scenes.capture_flags("interior")])
     assert room.opaque and room.layout == "inside" and room.focal_length == 24.0
 

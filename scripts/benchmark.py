@@ -23,8 +23,8 @@ What it does, through the same command lines users run:
 
 Defaults are the issue-3 setup: 200x200 images, 100 train and 20 test views, 5 minutes per run, on
 the diffuse, highfreq, glossy, thin and multi scenes (objects on a transparent film) and the hdri
-(an object in a visible studio-light HDRI world) and interior (a room captured from inside) scenes,
-which are captured opaque. ``--quick`` shrinks everything to finish in
+(an object in a visible studio-light HDRI world), interior (a room captured from inside) and ground
+(a figure on a floor that runs to the horizon) scenes, which are captured opaque. ``--quick`` shrinks everything to finish in
 under 10 minutes on 2 CPU cores. A progress bar with an ETA covers the whole plan.
 """
 from __future__ import annotations

@@ -3,7 +3,7 @@
     python scripts/make_demo_scene.py NAME --out scene.blend
     blender -b --python scripts/make_demo_scene.py -- NAME --out scene.blend
 
-NAME: cube, diffuse, highfreq, glossy, thin, multi (objects for a transparent film), hdri, interior
+NAME: cube, diffuse, highfreq, glossy, thin, multi (objects for a transparent film), hdri, interior, ground
 (scenes with their own background: capture them with the flags ``--list`` shows). An existing --out
 file is kept unless --overwrite.
 """
