@@ -130,11 +130,9 @@ class NERF_OT_generate_cameras(bpy.types.Operator):
             return report_and_cancel(self, exc)
         counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in layouts.SPLITS}
         self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
-        spec = s.layout_spec()
-        if spec.layout in layouts.GENERATED_LAYOUTS and spec.layout != "inside":
-            around = layouts.framing_bounds(context.scene, spec)[2]
-            if around:
-                self.report({"WARNING"}, layouts.surroundings_note(around))
+        note = layouts.framing_note(context.scene, s.layout_spec())
+        if note:
+            self.report({"WARNING"}, note)
         return {"FINISHED"}
 
 

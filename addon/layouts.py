@@ -389,8 +389,14 @@ def framing_bounds(scene, spec: LayoutSpec) -> tuple:
     return scene_bounds.subject_bounds(scene)
 
 
-def surroundings_note(names) -> str:
-    """What the panel and the script say when the framing leaves objects out."""
+def framing_note(scene, spec: LayoutSpec) -> str | None:
+    """What the panel and the script say when a generated layout that looks in leaves objects out of
+    its framing (``framing_bounds``), else None."""
+    if spec.layout not in GENERATED_LAYOUTS or spec.layout == "inside":
+        return None
+    names = framing_bounds(scene, spec)[2]
+    if not names:
+        return None
     shown = ", ".join(repr(n) for n in names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
     return (f"framed on the subject without {shown}: much larger than it and flat or around it (a floor, dome or "
             "backdrop); they still render. Select the subject and use Target: Selection to choose otherwise")

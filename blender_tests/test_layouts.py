@@ -258,7 +258,8 @@ def test_a_floor_or_dome_that_dwarfs_the_subject_is_left_out_of_the_framing(extr
     made = layouts.create_cameras(scene, spec, 100, 100)
     # The monkey fills the frame from about 4.5 m (framed on the 100 m floor: 219 m, 2 px wide).
     assert max(o.matrix_world.translation.length for o in made) < 8.0
-    assert "'Plane'" in layouts.surroundings_note(around)
+    assert "without 'Plane'" in layouts.framing_note(scene, spec)
+    assert layouts.framing_note(scene, layouts.LayoutSpec(layout="inside")) is None  # a room keeps its floor
     # The scene box a capture writes: the monkey with a quarter of its diagonal around it, clipped to
     # the scene (without the dome, the floor at z = 0 is its bottom and the monkey's top its top).
     pad = 0.25 * np.linalg.norm(np.subtract(hi, lo))

@@ -38,29 +38,23 @@ def _theta_poly(coeffs: Tensor, theta: Tensor) -> Tuple[Tensor, Tensor]:
     return theta * d, d + 2.0 * t2 * d_t2
 
 
-def distort(x: Tensor, y: Tensor, coeffs: Tensor, fisheye: Tensor) -> Tuple[Tensor, Tensor]:
-    """Distorted coordinates (m,), (m,) of undistorted ones ``x = X/Z``, ``y = Y/Z`` (m,).
-
-    ``coeffs`` (m, 6) = k1, k2, k3, k4, p1, p2 per point; ``fisheye`` (m,) bool picks the model.
-    For a fisheye, pass ``x``, ``y`` of points in front of the camera (``distort_direction`` takes any).
-    """
+def _distort_opencv(x: Tensor, y: Tensor, coeffs: Tensor) -> Tuple[Tensor, Tensor]:
+    """OPENCV's distorted coordinates (m,), (m,) of undistorted ones ``x = X/Z``, ``y = Y/Z`` (m,);
+    ``coeffs`` (m, 6) = k1, k2, k3, k4, p1, p2 per point."""
     rr = x * x + y * y
     d, _ = _radial(coeffs, rr)
     p1, p2 = coeffs[:, 4], coeffs[:, 5]
-    xd = d * x + 2.0 * p1 * x * y + p2 * (rr + 2.0 * x * x)
-    yd = d * y + p1 * (rr + 2.0 * y * y) + 2.0 * p2 * x * y
-    rho = torch.sqrt(rr)
-    theta_d, _ = _theta_poly(coeffs, torch.atan(rho))
-    scale = torch.where(rho > 1e-12, theta_d / rho.clamp_min(1e-12), torch.ones_like(rho))
-    return torch.where(fisheye, x * scale, xd), torch.where(fisheye, y * scale, yd)
+    return (d * x + 2.0 * p1 * x * y + p2 * (rr + 2.0 * x * x),
+            d * y + p1 * (rr + 2.0 * y * y) + 2.0 * p2 * x * y)
 
 
 def distort_direction(X: Tensor, Y: Tensor, Z: Tensor, coeffs: Tensor, fisheye: Tensor) -> Tuple[Tensor, Tensor]:
-    """Distorted coordinates of camera-space points (OpenCV axes: Z > 0 in front), any Z for a fisheye."""
+    """Distorted coordinates (m,), (m,) of camera-space points (OpenCV axes: Z > 0 in front; any Z for a
+    fisheye). ``coeffs`` (m, 6) as in ``_distort_opencv``; ``fisheye`` (m,) bool picks the model."""
     rho = torch.sqrt(X * X + Y * Y)
     theta_d, _ = _theta_poly(coeffs, torch.atan2(rho, Z))
     scale = torch.where(rho > 1e-12, theta_d / rho.clamp_min(1e-12), torch.zeros_like(rho))
-    px, py = distort(X / Z, Y / Z, coeffs, torch.zeros_like(fisheye))
+    px, py = _distort_opencv(X / Z, Y / Z, coeffs)
     return torch.where(fisheye, X * scale, px), torch.where(fisheye, Y * scale, py)
 
 
@@ -82,7 +76,7 @@ def _undistort_opencv(xd: Tensor, yd: Tensor, coeffs: Tensor) -> Tuple[Tensor, T
         det = torch.where(det.abs() < 1e-12, torch.full_like(det, 1e-12), det)
         x = x - (fx * fy_y - fy * fx_y) / det
         y = y - (fy * fx_x - fx * fy_x) / det
-    ex, ey = distort(x, y, coeffs, torch.zeros_like(x, dtype=torch.bool))
+    ex, ey = _distort_opencv(x, y, coeffs)
     return x, y, torch.hypot(ex - xd, ey - yd)
 
 

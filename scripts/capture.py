@@ -183,10 +183,9 @@ def main(argv: list[str]) -> int:
     else:
         layouts.create_cameras(scene, spec, res_x, res_y)
         layout_record = spec.to_dict()
-        looks_in = spec.layout in layouts.GENERATED_LAYOUTS and spec.layout != "inside"
-        around = layouts.framing_bounds(scene, spec)[2] if looks_in else []
-        if around:
-            print(f"capture: note: {layouts.surroundings_note(around)}", file=sys.stderr)
+        note = layouts.framing_note(scene, spec)
+        if note:
+            print(f"capture: note: {note}", file=sys.stderr)
     settings = capture.CaptureSettings(
         out_dir=args.out, engine=args.engine, samples=args.samples, res_x=res_x, res_y=res_y,
         film_transparent=not args.opaque, denoise=args.denoise, depth=args.depth, normals=args.normals,
