@@ -277,6 +277,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         return COMMANDS[args.command](args)
     except expected as exc:
         msg = str(exc) or type(exc).__name__
+        if isinstance(exc, OSError) and msg.startswith("[Errno"):  # a bare OSError, not one of our messages
+            from .runfolder import os_error_text
+
+            msg = os_error_text(exc)
         print(f"nerf_core {args.command}: error: {msg}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:

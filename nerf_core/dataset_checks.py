@@ -11,7 +11,10 @@ from typing import Dict, List
 import numpy as np
 import torch
 
-from .contract.transforms import SPLITS, DatasetError, FrameInfo, frame_infos
+from .contract.transforms import SPLITS, DatasetError, FrameInfo, coordinate_problem, frame_infos
+
+# A box thinner than this along an axis holds no scene: its grid cells would be below float32's reach.
+MIN_BOX_EXTENT = 1e-6
 
 
 def parse_aabb(value, where: str) -> torch.Tensor:
@@ -21,6 +24,14 @@ def parse_aabb(value, where: str) -> torch.Tensor:
         raise DatasetError(f"{where}: field 'aabb' is not a numeric [[xmin,ymin,zmin],[xmax,ymax,zmax]]") from exc
     if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
         raise DatasetError(f"{where}: field 'aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {value!r}")
+    far_out = coordinate_problem(box, "the box")
+    if far_out:
+        raise DatasetError(f"{where}: field 'aabb': {far_out}")
+    thin = box[1] - box[0]
+    if thin.min() < MIN_BOX_EXTENT * max(1.0, float(np.abs(box).max())):
+        axis = "xyz"[int(thin.argmin())]
+        raise DatasetError(f"{where}: field 'aabb' is {thin.min():.3g} units thick along {axis}; a scene box must "
+                           "have a real extent on every axis")
     return torch.tensor(box, dtype=torch.float32)
 
 

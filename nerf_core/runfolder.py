@@ -156,7 +156,7 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
     if resume and overwrite:
         raise TrainError("--resume and --overwrite contradict each other; pick one")
     if run.exists() and not run.is_dir():
-        raise TrainError(f"{run}: exists and is not a folder")
+        raise TrainError(f"--out {run}: {run.name} is a file, and a folder is needed there")
     if resume:
         if not resume_candidates(run):
             latest = Path(contract.latest_checkpoint(run))
@@ -309,6 +309,20 @@ def os_reason(exc: BaseException) -> str:
     if err is not None:
         return os.strerror(err).lower()
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def os_error_text(exc: OSError) -> str:
+    """One line for an OSError that reached the command line: the path first, the reason in words,
+    and for a path through a file, which part is the file (instead of Python's ``[Errno 20] ...``)."""
+    name = exc.filename if exc.filename is not None else ""
+    where = f"{name} -> {exc.filename2}" if exc.filename2 is not None else str(name)
+    text = f"{where}: {os_reason(exc)}" if where else os_reason(exc)
+    path = Path(str(name)) if name else None
+    if path is not None and exc.errno in (errno.ENOTDIR, errno.EEXIST):
+        blocker = next((p for p in [path, *path.parents] if p.exists() and not p.is_dir()), None)
+        if blocker is not None:
+            text += f" ({blocker} is a file, and a folder is needed there)"
+    return text
 
 
 # ----------------------------------------------------------------------------------------------

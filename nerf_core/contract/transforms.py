@@ -34,6 +34,21 @@ IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
 # (nerfstudio's ``depth_file_path`` before instant-ngp's ``depth_path``).
 EXTRA_FIELDS = (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_file_path", "normal"),
                 ("mask_path", "mask"))
+# Training and rendering work in float32, which keeps about 7 significant digits: at 1e6 units from the
+# origin neighbouring positions are 0.06 apart, so a scene placed that far out (or a box that large)
+# loses its detail. Coordinates beyond this are refused, with advice to move the scene nearer the origin.
+MAX_COORDINATE = 1e6
+
+
+def coordinate_problem(values, what: str) -> Optional[str]:
+    """Why the finite coordinates ``values`` (any shape) cannot be trained in float32, or None:
+    the message says ``what`` lies how far out, and how to fix it."""
+    far_out = float(np.max(np.abs(np.asarray(values, dtype=np.float64))))
+    if far_out <= MAX_COORDINATE:
+        return None
+    return (f"{what} reaches {far_out:.3g} units from the origin, beyond {MAX_COORDINATE:.0e}: training works in "
+            "float32 (7 significant digits), which cannot resolve detail that far out; move the scene and its "
+            "cameras nearer the origin, or use larger units")
 
 
 class DatasetError(Exception):
@@ -58,8 +73,8 @@ def _first_non_number(value):
 def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3) -> np.ndarray:
     """Validate a camera-to-world matrix and return it as float64 (4, 4) (a (3, 4) gets [0, 0, 0, 1]).
 
-    Raises PoseError naming ``where`` for wrong shape, NaN/inf, a singular or scaled/sheared
-    rotation part, a reflection, or a bottom row other than [0, 0, 0, 1].
+    Raises PoseError naming ``where`` for wrong shape, NaN/inf, a position beyond ``MAX_COORDINATE``, a
+    singular or scaled/sheared rotation part, a reflection, or a bottom row other than [0, 0, 0, 1].
     """
     bad = _first_non_number(matrix)
     if bad is not None:
@@ -75,6 +90,9 @@ def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3)
         raise PoseError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
     if not np.all(np.isfinite(m)):
         raise PoseError(f"{where}: contains NaN or inf")
+    far_out = coordinate_problem(m[:3, 3], "the camera position")
+    if far_out:
+        raise PoseError(f"{where}: {far_out}")
     rot = m[:3, :3]
     det = np.linalg.det(rot)
     if abs(det) < 1e-8:

@@ -242,6 +242,20 @@ def test_run_folder_and_dataset_must_be_apart(dataset_factory, tmp_path, where):
     assert sorted(p.name for p in ds.rglob("*")) == before  # not even a lock file
 
 
+@pytest.mark.parametrize("command", ["train", "render"])
+@pytest.mark.parametrize("under", [False, True])
+def test_an_output_path_through_a_file_names_the_file(sphere_dataset, trained_run, tmp_path, command, under):
+    """`--out notes.txt` or `--out notes.txt/run`: the file is named and left alone, with no [Errno ...]."""
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("keep")
+    out = blocker / "run" if under else blocker
+    args = (["train", sphere_dataset, "--method", "test-grid", "--max-steps", "2", "--no-bar"] if command == "train"
+            else ["render", trained_run["run"]])
+    proc = _cli(*args, "--out", out)
+    last = _clear_error(proc, "notes.txt is a file, and a folder is needed there")
+    assert "[Errno" not in last and blocker.read_text() == "keep"
+
+
 # ---------------------------------------------------------------------------------------------- 5. render names
 
 
@@ -345,8 +359,33 @@ def _near_is_text(ds):
     return "near"
 
 
+def _camera_far_out(ds):
+    # Finite, so the NaN/inf rule lets it through; float32 cannot resolve a scene 1e30 units out.
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["frames"][3]["transform_matrix"][0][3] = 1e30
+    p.write_text(json.dumps(meta))
+    return "frame 3 (./train/r_3): field 'transform_matrix': the camera position reaches 1e+30 units"
+
+
+def _huge_box(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["aabb"] = [[-1e30] * 3, [1e30] * 3]
+    p.write_text(json.dumps(meta))
+    return "field 'aabb': the box reaches 1e+30 units"
+
+
+def _flat_box(ds):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    meta["aabb"] = [[-1, -1, 0], [1, 1, 1e-9]]
+    p.write_text(json.dumps(meta))
+    return "field 'aabb' is 1e-09 units thick along z"
+
+
 BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_train_frame, _fov_beyond_pi,
-          _near_is_text]
+          _near_is_text, _camera_far_out, _huge_box, _flat_box]
 
 
 @pytest.mark.parametrize("breaker", BROKEN, ids=lambda f: f.__name__.strip("_"))
