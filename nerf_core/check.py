@@ -53,6 +53,7 @@ class CheckReport:
     errors: List[Problem] = field(default_factory=list)
     warnings: List[Problem] = field(default_factory=list)
     n_frames: Dict[str, int] = field(default_factory=dict)
+    plan: List[str] = field(default_factory=list)  # what `train` will decide for a valid dataset
 
     @property
     def ok(self) -> bool:
@@ -66,6 +67,7 @@ class CheckReport:
 
     def format(self) -> str:
         lines = [f"ERROR   {p}" for p in self.errors] + [f"WARNING {p}" for p in self.warnings]
+        lines += [f"TRAIN   {line}" for line in self.plan]
         counts = ", ".join(f"{k} {v}" for k, v in self.n_frames.items())
         verdict = "valid" if self.ok else f"INVALID: {len(self.errors)} error(s)"
         lines.append(f"{self.root}: {verdict}, {len(self.warnings)} warning(s)" + (f" ({counts} frames)" if counts else ""))
@@ -73,7 +75,7 @@ class CheckReport:
 
     def as_dict(self) -> dict:
         return {"dataset": str(self.root), "ok": self.ok, "errors": [str(p) for p in self.errors],
-                "warnings": [str(p) for p in self.warnings], "frames": self.n_frames}
+                "warnings": [str(p) for p in self.warnings], "frames": self.n_frames, "train_plan": self.plan}
 
 
 def _resolved(path: Path) -> Path:
@@ -341,7 +343,34 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
         _check_world_coverage(report, root)
     _check_loadable(report, root)
     _check_paths(report, root)
+    if report.ok:
+        _training_plan(report, root, background)
     return report
+
+
+def _training_plan(report: CheckReport, root: Path, background: str) -> None:
+    """What `train` (with ``--background background``) will decide for this valid dataset on its own, by
+    the trainer's own rules: the scene box, the background and scene contraction. Nothing is trained."""
+    from .backgrounds import for_run
+    from .data import load_dataset
+    from .methods.base import method_class
+    from .methods.catalog import DEFAULT_METHOD
+    from .scene_box import beyond_box_reason
+
+    try:
+        ds = load_dataset(root)
+    except (DatasetError, ImageReadError, OSError, ValueError):
+        return  # _check_loadable reported it
+    box = [[round(float(v), 3) for v in row] for row in ds.aabb.tolist()]
+    report.plan.append(f"scene box {box} from the {ds.aabb_source}" if ds.aabb_source.startswith("dataset")
+                       else f"scene box {box}: {ds.aabb_source}")
+    report.plan.extend(note for note in ds.notes if not ds.aabb_source.startswith(note))
+    mode, why = for_run(background, None, ds)
+    report.plan.append(f"background: {mode} ({why})")
+    reason = beyond_box_reason(ds, mode)
+    if reason and "contract" in getattr(method_class(DEFAULT_METHOD), "defaults", {}):
+        report.plan.append(f"{DEFAULT_METHOD} (the default method) will model the world beyond the box "
+                           f"(contract=true): {reason}; --set contract=false turns it off")
 
 
 def _check_paths(report: CheckReport, root: Path) -> None:

@@ -132,3 +132,19 @@ def beyond_box_share(split: "Split", aabb: torch.Tensor, max_pixels: int = 200_0
     rays_o, rays_d, _ = rays_for_pixels(split.cameras, view, i, j)
     misses = ~ray_aabb_intersect(rays_o.float(), rays_d.float(), aabb.to(torch.float32))[2]
     return float((opaque & misses).float().mean())
+
+
+def beyond_box_reason(dataset, background: str) -> Optional[str]:
+    """Why a model that can (``contract``) should also model the world beyond ``dataset``'s box, or
+    None: the dataset says objects reach past it (``beyond_box``, written by the capture), or, for a
+    model trained on a cut-out (``background`` other than ``environment``), its opaque pixels look
+    past the box (``beyond_box_share``). The one rule behind ``train`` and the plan ``check`` prints."""
+    if dataset.beyond_box:
+        names = ", ".join(dataset.beyond_box[:3]) + (" ..." if len(dataset.beyond_box) > 3 else "")
+        return f"the dataset's 'beyond_box' says {names} reach(es) beyond the scene box"
+    if background != "environment":
+        share = beyond_box_share(dataset.split("train"), dataset.aabb)
+        if share >= BEYOND_BOX_SHARE:
+            return (f"{100 * share:.0f} % of the train pixels are opaque where their ray misses the scene box "
+                    "(geometry beyond it, such as a floor reaching the horizon)")
+    return None

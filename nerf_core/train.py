@@ -207,25 +207,17 @@ class Trainer:
 
     def _contract_if_beyond_box(self, dataset: Dataset, options: dict) -> None:
         """Turn on ``contract`` for a method that has it (and was not told) when the scene reaches past
-        its box: the dataset says so (``beyond_box``: the capture framed a subject on a floor that runs
-        on), or a cut-out's opaque pixels look past the box (``scene_box.beyond_box_share``). On the
+        its box (``scene_box.beyond_box_reason``: the dataset says so, or a cut-out's opaque pixels look
+        past the box). On the
         capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB with on a transparent
         film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot hold a floor)."""
         from .methods.base import method_class
-        from .scene_box import BEYOND_BOX_SHARE, beyond_box_share
+        from .scene_box import beyond_box_reason
 
         cls = method_class(self.method)
         if "contract" in options or "contract" not in getattr(cls, "defaults", {}):
             return
-        why = None
-        if dataset.beyond_box:
-            names = ", ".join(dataset.beyond_box[:3]) + (" ..." if len(dataset.beyond_box) > 3 else "")
-            why = f"the dataset's 'beyond_box' says {names} reach(es) beyond the scene box"
-        elif self.bg_mode != "environment":
-            share = beyond_box_share(dataset.split("train"), dataset.aabb)
-            if share >= BEYOND_BOX_SHARE:
-                why = (f"{100 * share:.0f} % of the train pixels are opaque where their ray misses the scene box "
-                       "(geometry beyond it, such as a floor reaching the horizon)")
+        why = beyond_box_reason(dataset, self.bg_mode)
         if why:
             options["contract"] = True
             self.size_reasons.append(f"contract=true: {why}, so the world beyond the box is modelled too "

@@ -174,6 +174,7 @@ def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
     (0.3, {"contract": False}, False),  # --set contract=false wins
 ])
 def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_dataset, tmp_path, half_box, given, expect):
+    from nerf_core.check import check_dataset
     from nerf_core.data import load_dataset
     from nerf_core.scene_box import BEYOND_BOX_SHARE, beyond_box_share
 
@@ -185,6 +186,13 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
     data = load_dataset(sphere_dataset, splits=("train",))
     share = beyond_box_share(data.split("train"), data.aabb)
     assert (share >= BEYOND_BOX_SHARE) == (half_box < 0.6)
+    # `check` foretells the decision by the same rule, with the box and the background it rests on.
+    report = check_dataset(sphere_dataset)
+    assert report.ok and any(line.startswith("scene box [[-0.3") for line in report.plan) is (half_box == 0.3)
+    assert any(line.startswith("background: random") for line in report.plan)
+    assert any("contract=true" in line and "opaque where their ray misses" in line
+               for line in report.plan) is (half_box < 0.6)
+    assert ("TRAIN   vmgrid (the default method) will model the world beyond the box" in report.format()) is (half_box < 0.6)
     run = tmp_path / "run"
     train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=1, batch_rays=64, eval_views=0, options=given))
     cfg = json.loads((run / "config.json").read_text())
@@ -195,6 +203,7 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
 
 def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_dataset, tmp_path):
     # An opaque capture cannot show by its alpha that a floor runs past the box; the capture says so.
+    from nerf_core.check import check_dataset
     from nerf_core.data import DatasetError, load_dataset
 
     path = sphere_dataset / "transforms_train.json"
@@ -207,6 +216,7 @@ def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_d
     start = read_events(run / "progress.jsonl")[0]
     assert start["model"]["options"]["contract"] is True
     assert any("'beyond_box' says Plane" in r for r in start["size_reasons"])
+    assert any("'beyond_box' says Plane" in line for line in check_dataset(sphere_dataset).plan)
     meta["beyond_box"] = "Plane"
     path.write_text(json.dumps(meta))
     with pytest.raises(DatasetError, match="transforms_train.json: field 'beyond_box' must be a list"):
