@@ -136,7 +136,8 @@ def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run
     """Import ``views`` with ``layout`` ('CAMERA' or 'GALLERY'), keep their images as the Compare
     panel's ``image_storage`` says (``image_storage``: pack by default) and list their metrics on the
     scene. The gallery goes beside the scene's objects; the user's active camera and resolution are
-    left alone. Returns a note when the images could not be stored as asked, else ''."""
+    left alone. Returns a note when the images could not be stored as asked or the views were rendered
+    through a distorted lens (``planes.lens_note``), else ''."""
     if layout == "GALLERY":
         planes.import_gallery(views, out_dir, background=runs.run_background(run), scene=scene)
         made = [o for o in bpy.data.collections[planes.GALLERY_COLLECTION].all_objects if o.get(planes.TAG)]
@@ -153,7 +154,7 @@ def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run
             item.psnr = view.metrics.get("psnr", 0.0)
             item.ssim = view.metrics.get("ssim", 0.0)
             item.has_metrics = bool(view.metrics)
-    return note
+    return "; ".join(n for n in (note, planes.lens_note(views)) if n)
 
 
 def auto_distances(views: List[planes.View], run: str) -> List[float]:

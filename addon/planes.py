@@ -60,6 +60,7 @@ class View:
     ground_truth: Optional[str] = None
     depth: Optional[str] = None
     metrics: Dict[str, float] = field(default_factory=dict)
+    lens: Optional[str] = None  # "OPENCV" / "OPENCV_FISHEYE" when the render is distorted; None: a pinhole
     error_map: Optional[str] = None
     error_vmax: Optional[float] = None
 
@@ -122,6 +123,8 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
         depth = os.path.join(render_dir, contract.render_files(stem)["depth"])
         view = View(stem, os.path.abspath(image), fr["transform_matrix"], intr,
                     gt if gt and os.path.isfile(gt) else None, depth if os.path.isfile(depth) else None)
+        lens, _ = contract.parse_lens(meta, fr)  # render wrote each distorted camera's lens fields
+        view.lens = lens.model if lens is not None else None
         if isinstance(fr.get("psnr"), (int, float)) and isinstance(fr.get("ssim"), (int, float)):
             view.metrics = {"psnr": float(fr["psnr"]), "ssim": float(fr["ssim"])}
         heat = os.path.join(render_dir, fr["error_map"]) if isinstance(fr.get("error_map"), str) else None
@@ -129,6 +132,18 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
         view.error_vmax = meta.get("error_map_vmax")
         views.append(view)
     return views
+
+
+def lens_note(views: Sequence[View]) -> str:
+    """A warning for views rendered through a distorted lens, else '': Blender's cameras and image
+    planes are pinholes, so such an image lines up with the scene only near its centre."""
+    distorted = [v for v in views if v.lens]
+    if not distorted:
+        return ""
+    models = " / ".join(sorted({v.lens for v in distorted}))
+    return (f"{len(distorted)} of {len(views)} views were rendered through a distorted {models} lens, which a Blender "
+            "camera cannot reproduce: their cameras and planes are pinhole views and line up with the scene only "
+            "near the image centre (the images and metrics are right)")
 
 
 # -- collections and cleanup -----------------------------------------------------------------------

@@ -84,6 +84,20 @@ def test_camera_aligned_planes_cover_the_image_through_their_camera(tmp_path):
         assert tuple(ob.scale) == pytest.approx((1, 1, 1))
 
 
+def test_views_rendered_through_a_distorted_lens_are_named_in_a_warning(tmp_path):
+    render, cams = fake_render(tmp_path, n=3)
+    assert planes.lens_note(planes.views_from_render(render, cams)) == ""  # pinholes: nothing to say
+    listing = os.path.join(render, "renders.json")
+    meta = json.loads(open(listing).read())
+    meta["frames"][1].update(camera_model="OPENCV", k1=-0.12, k2=0.01, p1=0.0, p2=0.0)  # what render writes
+    meta["frames"][2].update(camera_model="OPENCV", k1=0.0, k2=0.0, p1=0.0, p2=0.0)  # all zero: a pinhole
+    open(listing, "w").write(json.dumps(meta))
+    views = planes.views_from_render(render, cams)
+    assert [v.lens for v in views] == [None, "OPENCV", None]
+    note = planes.lens_note(views)
+    assert note.startswith("1 of 3 views were rendered through a distorted OPENCV lens") and "pinhole" in note
+
+
 def test_reimport_replaces_instead_of_piling_up_and_spares_user_objects(tmp_path):
     render, cams = fake_render(tmp_path)
     views = planes.views_from_render(render, cams)

@@ -218,8 +218,9 @@ def main(argv) -> int:
         # (relative_remap); an unsaved scene has no folder of its own, so they start at --out's.
         note = image_storage.store(image_storage.plane_images(made), args.images,
                                    "" if bpy.data.filepath else os.path.dirname(out))
-        if note:
-            print(f"import_views: warning: {note}", file=sys.stderr)
+        for warning in (note, planes.lens_note(views)):
+            if warning:
+                print(f"import_views: warning: {warning}", file=sys.stderr)
     except ValueError as exc:
         fail(str(exc))
     except OSError as exc:
