@@ -29,7 +29,8 @@ def outer_box(aabb: Tensor) -> Tensor:
 def contract(pts: Tensor, aabb: Tensor) -> Tensor:
     """World points (m, 3) -> contracted points (m, 3) inside ``outer_box(aabb)``; unchanged in the box."""
     centre, half = 0.5 * (aabb[0] + aabb[1]), 0.5 * (aabb[1] - aabb[0])
-    xn = (pts - centre) / half
-    r = xn.abs().amax(dim=-1, keepdim=True).clamp_min(1e-12)
-    out = torch.where(r <= 1.0, xn, (2.0 - 1.0 / r) * xn / r)
-    return centre + out * half
+    offset = pts - centre
+    # (2 - 1/r) / r = (2r - 1) / r^2 scales the offset, and is 1 at r = 1: clamping r to 1 leaves the box
+    # as it is without a second branch (every sample of a contracted scene passes through here).
+    r = (offset / half).abs().amax(dim=-1, keepdim=True).clamp_min(1.0)
+    return torch.addcmul(centre, offset, (2.0 * r - 1.0) / (r * r))

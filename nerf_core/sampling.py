@@ -93,6 +93,13 @@ def merge_edges(edges: Tensor, new_t: Tensor) -> Tensor:
     return torch.sort(torch.cat([edges, new_t], dim=-1), dim=-1).values
 
 
+def ray_points(rays_o: Tensor, rays_d: Tensor, ray_idx: Tensor, t: Tensor) -> Tensor:
+    """(k, 3) points at distances ``t`` (k,) along rays ``ray_idx`` (k,) of ``rays_o``, ``rays_d`` (n_rays, 3).
+    ``index_select`` gathers rows about 3x faster than ``rays_o[ray_idx]`` on the CPU (470k rows: 1.2 ms
+    against 3.5 ms), and every candidate sample of every ray passes through here."""
+    return torch.addcmul(rays_o.index_select(0, ray_idx), rays_d.index_select(0, ray_idx), t.unsqueeze(-1))
+
+
 def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, step_size: float,
                      occupied_fn, jitter: bool, max_samples: int = 1024,
                      generator: Optional[torch.Generator] = None, near_fn=None,
@@ -138,8 +145,7 @@ def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, 
         inside = t_mid < far.unsqueeze(-1)
         ray_idx, step_idx = inside.nonzero(as_tuple=True)
         t = t_mid[ray_idx, step_idx]
-    pts = rays_o[ray_idx] + rays_d[ray_idx] * t.unsqueeze(-1)
-    keep = occupied_fn(pts)
+    keep = occupied_fn(ray_points(rays_o, rays_d, ray_idx, t))
     ray_idx, t = ray_idx[keep], t[keep]
     half = 0.5 * step_size
     return (t - half).clamp_min(near[ray_idx]), (t + half).clamp_max(far[ray_idx]), ray_idx
@@ -154,7 +160,7 @@ def _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, ray
     started = near.unsqueeze(-1) + (first + shift) * step_size < far.unsqueeze(-1)  # (n_rays, n_runs)
     r_idx, run_idx = started.nonzero(as_tuple=True)
     t_probe = near[r_idx] + (run_idx.to(dt) * run + 0.5 * (run - 1) + shift[r_idx, 0]) * step_size
-    hit = near_fn(rays_o[r_idx] + rays_d[r_idx] * t_probe.unsqueeze(-1))
+    hit = near_fn(ray_points(rays_o, rays_d, r_idx, t_probe))
     r_idx, run_idx = r_idx[hit], run_idx[hit]
     steps = (run_idx.unsqueeze(-1) * run + torch.arange(run, device=dev)).reshape(-1)
     ray_idx = r_idx.repeat_interleave(run)
@@ -204,8 +210,8 @@ def contracted_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, aabb: Tenso
     lo = torch.cat([lo_in, lo_out], -1)
     hi = torch.cat([hi_in, hi_out], -1)
     valid = torch.cat([ok_in, torch.ones_like(lo_out, dtype=torch.bool)], -1) & (hi > lo)
-    ray_idx, col = valid.nonzero(as_tuple=True)
-    t0, t1 = lo[ray_idx, col], hi[ray_idx, col]
-    mid = 0.5 * (t0 + t1)
-    keep = occupied_fn(rays_o[ray_idx] + rays_d[ray_idx] * mid.unsqueeze(-1))
+    flat = valid.reshape(-1).nonzero().squeeze(-1)  # one flat index: 2-D indexing gathers 1.5x slower
+    ray_idx = flat // valid.shape[1]
+    t0, t1 = lo.reshape(-1).index_select(0, flat), hi.reshape(-1).index_select(0, flat)
+    keep = occupied_fn(ray_points(rays_o, rays_d, ray_idx, 0.5 * (t0 + t1)))
     return t0[keep], t1[keep], ray_idx[keep]

@@ -316,7 +316,7 @@ class VMGrid(RadianceModel):
                                                          near_fn=self.occupancy.query_near,
                                                          near_reach=self.occupancy.near_reach())
         mids = 0.5 * (t0 + t1)
-        pts = self.warp(rays_o[ridx] + rays_d[ridx] * mids.unsqueeze(-1))
+        pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, mids))
         gscale = None
         color_fn = self.field.color
         if torch.is_grad_enabled():
@@ -327,8 +327,8 @@ class VMGrid(RadianceModel):
                                  for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
                 with profiling.stage("rendering"):
                     trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
-                keep = trans > 1e-4
-            t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
+                keep = (trans > 1e-4).nonzero().squeeze(-1)
+            t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
             sigma = self._density(pts)
             gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
                 self.aabb, self.options["grad_reach"])) if training else None
@@ -344,21 +344,25 @@ class VMGrid(RadianceModel):
             color_fn = lookup.color
             keep, weights = ray_termination.visible_samples(
                 t0, t1, ridx, n_rays, self._density_of(pts, lookup), t_min=1e-4, round_size=self.render_round_size)
-            t0, t1, ridx, pts = t0[keep], t1[keep], ridx[keep], pts[keep]
+            keep = keep.nonzero().squeeze(-1)
+            t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
         with profiling.stage("rendering"):
             # Colour only where it can matter: most surviving samples are transparent space before a
             # surface. Rays that are still almost transparent (all of them at initialisation) get colour
             # at every sample: treating unevaluated samples as black would teach the density only to
             # darken rays, and a field on a random background would then never become opaque.
             acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
-        vis = (weights.detach() > self.options["color_weight"]) | (acc_ray[ridx] < 0.05)
+        vis = (weights.detach() > self.options["color_weight"]) | (acc_ray.index_select(0, ridx) < 0.05)
         # Gathers stay outside the stage marks: the profile charges them to "other_forward".
-        ridx_vis, mids = ridx[vis], (0.5 * (t0 + t1)).unsqueeze(-1)
-        pts_vis, dirs_vis, weights_vis = pts[vis], rays_d[ridx_vis], weights[vis]
+        # One index for every gather: boolean masks would each search the mask again.
+        vis = vis.nonzero().squeeze(-1)
+        ridx_vis, mids = ridx.index_select(0, vis), (0.5 * (t0 + t1)).unsqueeze(-1)
+        pts_vis, weights_vis = pts.index_select(0, vis), weights.index_select(0, vis)
+        dirs_vis = rays_d.index_select(0, ridx_vis)
         with profiling.stage("field"):
             rgb_s = color_fn(pts_vis, dirs_vis)
         if gscale is not None:
-            rgb_s = grad_scaling.scale_gradient(rgb_s, gscale[vis])
+            rgb_s = grad_scaling.scale_gradient(rgb_s, gscale.index_select(0, vis))
         with profiling.stage("rendering"):
             rgb = volrend.accumulate_along_rays_packed(weights_vis, ridx_vis, n_rays, rgb_s)
             acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)

@@ -125,3 +125,28 @@ def test_query_near_sees_the_neighbouring_cells_and_follows_updates():
     torch.save(g, buf)  # the cache (weak reference) is left out of a pickled grid
     buf.seek(0)
     assert torch.load(buf, weights_only=False).query_near(inside + 2 * c).all()
+
+
+def test_each_point_finds_its_own_cell_by_hand_worked_indices():
+    # A 4x2x3-unit box on a 4-cell grid: cells are 1 x 0.5 x 0.75; the flat index is (i * 4 + j) * 4 + k.
+    g = OccupancyGrid(torch.tensor([[0.0, -1.0, 0.0], [4.0, 1.0, 3.0]]), resolution=4)
+    pts = torch.tensor([
+        [0.0, -1.0, 0.0],     # the min corner: cell (0, 0, 0)
+        [3.99, 0.99, 2.99],   # just inside the max corner: (3, 3, 3)
+        [4.0, 1.0, 3.0],      # on the max corner: inside, in the last cell
+        [1.5, -0.2, 1.6],     # (1, 1, 2)
+        [2.0, 0.0, 0.75],     # on cell faces: the upper cell (2, 2, 1)
+        [-0.01, 0.0, 1.0],    # outside in x: clamped to (0, 2, 1), not inside
+        [9.0, -5.0, 1.0],     # far outside: clamped to (3, 0, 1), not inside
+    ])
+    idx, inside = g._cell_index(pts)
+    want = [(0, 0, 0), (3, 3, 3), (3, 3, 3), (1, 1, 2), (2, 2, 1), (0, 2, 1), (3, 0, 1)]
+    assert idx.tolist() == [(i * 4 + j) * 4 + k for i, j, k in want]
+    assert inside.tolist() == [True, True, True, True, True, False, False]
+    g.binary.zero_()
+    g.binary[1, 1, 2] = True
+    assert g.query(pts).tolist() == [False, False, False, True, False, False, False]
+    # Points at infinity or NaN (a contracted ray's end) lie in no cell, and never fail the lookup.
+    odd = torch.tensor([[float("nan"), 0.0, 1.0], [float("inf"), 0.0, 1.0], [0.0, -float("inf"), 1.0]])
+    g.binary.fill_(True)
+    assert not g.query(odd).any() and g.query_near(odd).shape == (3,)
