@@ -99,15 +99,16 @@ def scene_box(scene, settings) -> tuple:
     The whole scene, except for a capture looking in at a scene whose floor, dome or backdrop dwarfs
     its subject (``scene_bounds.subject_bounds``): then the subject with a margin
     (``scene_bounds.subject_box``), so that the NeRF's grid is spent on it rather than on a 100 m
-    floor. A room captured from inside, and a selection, keep the whole scene.
+    floor. A room captured from inside, and a selection, keep the whole scene. A flat box gets some
+    thickness (``scene_bounds.with_thickness``).
     """
     lo, hi = scene_bounds.scene_bounds(scene)
     if (settings.layout or {}).get("layout") == "inside" or settings.target == "SELECTION":
-        return (lo, hi), []
+        return scene_bounds.with_thickness(lo, hi), []
     s_lo, s_hi, around = scene_bounds.subject_bounds(scene)
     if not around:
-        return (lo, hi), []
-    return scene_bounds.subject_box(scene, s_lo, s_hi), around
+        return scene_bounds.with_thickness(lo, hi), []
+    return scene_bounds.with_thickness(*scene_bounds.subject_box(scene, s_lo, s_hi)), around
 
 
 class CaptureJob:

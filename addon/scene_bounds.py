@@ -76,6 +76,27 @@ FLAT_SHARE = 0.01  # thinnest side over the longest: a plane, or a 10 cm slab 10
 SUBJECT_MARGIN = 0.25
 
 
+# A flat subject (a plane, an image imported as a plane, unextruded text) has a box of no thickness,
+# which no NeRF grid can hold and every loader refuses (min < max): each axis gets at least this share
+# of the box diagonal, about its middle.
+MIN_THICKNESS = 0.05
+
+
+def with_thickness(lo, hi) -> tuple[Vector, Vector]:
+    """(lo, hi) grown about its middle so that no axis is thinner than ``MIN_THICKNESS`` of its diagonal;
+    BoundsError for a box of no size at all (the visible objects are a single point)."""
+    need = MIN_THICKNESS * _size((lo, hi))
+    if need <= 0:
+        raise BoundsError(f"the visible objects span no space (all at {tuple(round(v, 6) for v in lo)}); "
+                          "nothing to capture")
+    lo, hi = Vector(lo), Vector(hi)
+    for i in range(3):
+        if hi[i] - lo[i] < need:
+            mid = 0.5 * (lo[i] + hi[i])
+            lo[i], hi[i] = mid - 0.5 * need, mid + 0.5 * need
+    return lo, hi
+
+
 def _size(box) -> float:
     return (Vector(box[1]) - Vector(box[0])).length
 

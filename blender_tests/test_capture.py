@@ -8,6 +8,7 @@ transparent ones; depth back-projects onto the objects' surfaces.
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -338,6 +339,27 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     # A room captured from inside keeps the whole scene as its box.
     whole = capture.scene_box(scene, capture.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
     assert whole[1] == [] and whole[0][1][0] - whole[0][0][0] == pytest.approx(200.0)
+
+
+def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
+    # A lone plane (a painting, an image imported as a plane) spans no z: its box was 0 thick, and every
+    # loader refused the dataset (min < max).
+    from addon import scene_bounds
+    from nerf_core.dataset_checks import dataset_problems
+
+    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))
+    scene = bpy.context.scene
+    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
+    layouts.create_cameras(scene, spec, 40, 30)
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+                                                      layout=spec.to_dict())).run()
+    lo, hi = np.array(json.loads((tmp_path / "transforms_train.json").read_text())["aabb"])
+    thick = scene_bounds.MIN_THICKNESS * math.sqrt(8.0)  # of the plane's 2 x 2 x 0 diagonal
+    assert np.allclose(lo, [-1.0, -1.0, 0.3 - thick / 2], atol=1e-5)
+    assert np.allclose(hi, [1.0, 1.0, 0.3 + thick / 2], atol=1e-5)
+    assert dataset_problems(tmp_path) == []
+    with pytest.raises(scene_bounds.BoundsError, match="span no space"):
+        scene_bounds.with_thickness((1.0, 2.0, 3.0), (1.0, 2.0, 3.0))
 
 
 @pytest.mark.parametrize("size", [0.02, 2000.0])
