@@ -420,10 +420,7 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
         if spec.train < 1:
             raise LayoutError("a capture needs at least one train view")
         lo, hi = scene_bounds.scene_bounds(scene, only_selected=spec.target == "SELECTION")
-        import bpy
-
-        depsgraph = bpy.context.evaluated_depsgraph_get() if bpy.context.scene == scene else None
-        obstacles = [scene_bounds.object_bounds([o], depsgraph) for o in scene_bounds.renderable_objects(scene)]
+        obstacles = [box for box, _ in scene_bounds.renderable_boxes(scene)]
         n_total = spec.train + spec.val + spec.test
         splits = ["train"] * spec.train + ["val"] * spec.val + ["test"] * spec.test
         if spec.val + spec.test:

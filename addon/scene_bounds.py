@@ -1,7 +1,9 @@
 """World-space bounds of what a capture will see.
 
 Bounds come from the evaluated (modifier-applied) geometry's bounding boxes of objects that render:
-visible in the view layer and not hidden from renders. Cameras, lights and empties have no extent.
+visible in the view layer and not hidden from renders, and of every instance they make (collection
+instances, as linked assets arrive; geometry-node and particle instances), which are objects of no
+view layer of their own. Cameras, lights and empties have no extent.
 """
 from __future__ import annotations
 
@@ -44,15 +46,54 @@ def object_bounds(objects, depsgraph=None) -> tuple[Vector, Vector]:
     return lo, hi
 
 
-def scene_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple[Vector, Vector]:
-    """(min, max) of the visible renderable objects; raises BoundsError when there are none."""
+def _box_of(bound_box, matrix) -> tuple[Vector, Vector]:
+    corners = [matrix @ Vector(c) for c in bound_box]
+    return (Vector([min(c[i] for c in corners) for i in range(3)]),
+            Vector([max(c[i] for c in corners) for i in range(3)]))
+
+
+def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> list:
+    """[((min, max), name)]: the world box of each renderable object (``renderable_objects``) and of
+    each instance one of them makes, named "instancer/object". An instance renders when its instancer
+    does (visible, not hidden from renders, selected for ``only_selected``) and its object is not hidden
+    from renders. Without the evaluated scene at hand (``scene`` is not the context's) instances are
+    not seen and the objects' own boxes are used."""
     view_layer = view_layer or scene.view_layers[0]
     objects = renderable_objects(scene, view_layer, only_selected)
-    if not objects:
+    if bpy.context.scene != scene:
+        return [(object_bounds([o]), o.name) for o in objects]
+    wanted = {o.name for o in objects}
+    owners: dict = {}  # instancer name -> does it render (and is it selected when that is asked)
+    out = []
+    for inst in bpy.context.evaluated_depsgraph_get().object_instances:
+        obj = inst.object
+        if obj.type not in RENDERABLE_TYPES:
+            continue
+        if not inst.is_instance:
+            # A mesh whose modifiers leave only instances has no geometry of its own: its empty box
+            # would pin the bounds to its origin.
+            if obj.name in wanted and not (obj.type == "MESH" and not obj.data.vertices):
+                out.append((_box_of(obj.bound_box, obj.matrix_world), obj.name))
+            continue
+        owner = inst.parent.original if inst.parent is not None else None
+        if owner is None or obj.original.hide_render:
+            continue
+        if owner.name not in owners:
+            owners[owner.name] = (not owner.hide_render and owner.visible_get(view_layer=view_layer)
+                                  and (not only_selected or owner.select_get(view_layer=view_layer)))
+        if owners[owner.name]:
+            out.append((_box_of(obj.bound_box, inst.matrix_world.copy()), f"{owner.name}/{obj.name}"))
+    return out
+
+
+def scene_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple[Vector, Vector]:
+    """(min, max) of the visible renderable objects and their instances; raises BoundsError when there
+    are none."""
+    boxes = renderable_boxes(scene, view_layer, only_selected)
+    if not boxes:
         what = "selected visible objects" if only_selected else "visible objects that render"
         raise BoundsError(f"scene {scene.name!r} has no {what}; nothing to capture")
-    depsgraph = bpy.context.evaluated_depsgraph_get() if bpy.context.scene == scene else None
-    lo, hi = object_bounds(objects, depsgraph)
+    lo, hi = _union([b for b, _ in boxes])
     if not all(map(lambda v: v == v and abs(v) != float("inf"), list(lo) + list(hi))):
         raise BoundsError(f"scene {scene.name!r}: could not compute finite bounds")
     return lo, hi
@@ -128,21 +169,17 @@ def subject_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple
     lo, hi = scene_bounds(scene, only_selected, view_layer)
     if only_selected:
         return lo, hi, []
-    view_layer = view_layer or scene.view_layers[0]
-    depsgraph = bpy.context.evaluated_depsgraph_get() if bpy.context.scene == scene else None
-    boxes = sorted(((object_bounds([o], depsgraph), o.name) for o in renderable_objects(scene, view_layer)),
-                   key=lambda item: (_size(item[0]), item[1]))
-    subject, aside = [boxes[0]], []
+    boxes = sorted(renderable_boxes(scene, view_layer), key=lambda item: (_size(item[0]), item[1]))
+    subject, aside = boxes[0][0], []  # the subject's box so far (a running union: scatters hold 100k instances)
     for item in boxes[1:]:
-        if _surrounds(item[0], _union([b for b, _ in subject])):
+        if _surrounds(item[0], subject):
             aside.append(item)
         else:
-            subject += aside + [item]
+            subject = _union([subject] + [b for b, _ in aside] + [item[0]])
             aside = []
     if not aside:
         return lo, hi, []
-    s_lo, s_hi = _union([b for b, _ in subject])
-    return s_lo, s_hi, sorted(name for _, name in aside)
+    return subject[0], subject[1], sorted(name for _, name in aside)
 
 
 def subject_box(scene, lo, hi) -> tuple[Vector, Vector]:

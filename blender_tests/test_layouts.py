@@ -289,3 +289,45 @@ def test_a_selection_is_framed_as_selected():
         obj.select_set(obj.name == "Plane")
     lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
     assert around == [] and hi[0] - lo[0] == pytest.approx(100.0)
+
+
+def _instance_of(collection_name, location, *, scene):
+    """An empty instancing collection ``collection_name`` at ``location`` (as a linked asset arrives)."""
+    empty = bpy.data.objects.new(f"{collection_name} instance", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = bpy.data.collections[collection_name]
+    empty.location = location
+    scene.collection.objects.link(empty)
+    return empty
+
+
+def test_collection_instances_are_bounded_like_the_objects_they_show():
+    # A chair that is a collection instance (its source collection excluded from the view layer, as
+    # after linking an asset) was missing from the bounds: the scene box and the framing left it out.
+    from addon import scene_bounds
+
+    scene = _monkey_scene()
+    chairs = bpy.data.collections.new("Chairs")
+    scene.collection.children.link(chairs)
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    chair = bpy.context.active_object
+    for coll in chair.users_collection:
+        coll.objects.unlink(chair)
+    chairs.objects.link(chair)
+    bpy.context.view_layer.layer_collection.children["Chairs"].exclude = True
+    instance = _instance_of("Chairs", (4.0, 0.0, 0.5), scene=scene)
+    boxes = dict((name, box) for box, name in scene_bounds.renderable_boxes(scene))
+    assert set(boxes) == {"Suzanne", "Chairs instance/Cube"}
+    assert np.allclose(boxes["Chairs instance/Cube"], [(3.5, -0.5, 0.0), (4.5, 0.5, 1.0)])
+    lo, hi = scene_bounds.scene_bounds(scene)
+    assert hi[0] == pytest.approx(4.5) and lo[0] == pytest.approx(-1.37, abs=0.02)
+    lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec())
+    assert around == [] and hi[0] == pytest.approx(4.5)
+    # Hidden from renders, the instancer takes its instances with it; selected, it frames them.
+    instance.hide_render = True
+    assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(1.37, abs=0.02)
+    instance.hide_render = False
+    for obj in scene.objects:
+        obj.select_set(obj is instance)
+    lo, hi = scene_bounds.scene_bounds(scene, only_selected=True)
+    assert np.allclose(lo, (3.5, -0.5, 0.0)) and np.allclose(hi, (4.5, 0.5, 1.0))
