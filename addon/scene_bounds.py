@@ -23,7 +23,9 @@ def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> l
     view_layer = view_layer or scene.view_layers[0]
     out = []
     for obj in scene.objects:
-        if obj.type not in RENDERABLE_TYPES or obj.hide_render:
+        # An object hidden from camera rays (a bounce card, a light blocker) lights the scene but is never
+        # in a picture: no NeRF sees it, so it must not stretch the box either.
+        if obj.type not in RENDERABLE_TYPES or obj.hide_render or not getattr(obj, "visible_camera", True):
             continue
         if not obj.visible_get(view_layer=view_layer):
             continue
@@ -76,7 +78,7 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
                 out.append((_box_of(obj.bound_box, obj.matrix_world), obj.name))
             continue
         owner = inst.parent.original if inst.parent is not None else None
-        if owner is None or obj.original.hide_render:
+        if owner is None or obj.original.hide_render or not getattr(obj.original, "visible_camera", True):
             continue
         if owner.name not in owners:
             owners[owner.name] = (not owner.hide_render and owner.visible_get(view_layer=view_layer)

@@ -323,6 +323,12 @@ def test_collection_instances_are_bounded_like_the_objects_they_show():
     assert hi[0] == pytest.approx(4.5) and lo[0] == pytest.approx(-1.37, abs=0.02)
     lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec())
     assert around == [] and hi[0] == pytest.approx(4.5)
+    # A bounce card hidden from camera rays lights the scene but is in no picture: not bounded.
+    bpy.ops.mesh.primitive_plane_add(size=8.0, location=(0.0, -9.0, 2.0))
+    card = bpy.context.active_object
+    assert scene_bounds.scene_bounds(scene)[0][1] == pytest.approx(-13.0)
+    card.visible_camera = False
+    assert scene_bounds.scene_bounds(scene)[0][1] == pytest.approx(-0.85, abs=0.02)
     # Hidden from renders, the instancer takes its instances with it; selected, it frames them.
     instance.hide_render = True
     assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(1.37, abs=0.02)
