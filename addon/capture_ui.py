@@ -130,8 +130,7 @@ class NERF_OT_generate_cameras(bpy.types.Operator):
             return report_and_cancel(self, exc)
         counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in layouts.SPLITS}
         self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
-        note = layouts.framing_note(context.scene, s.layout_spec())
-        if note:
+        for note in layouts.layout_notes(context.scene, s.layout_spec()):
             self.report({"WARNING"}, note)
         return {"FINISHED"}
 

@@ -208,6 +208,29 @@ def test_animation_layout_samples_every_nth_frame(active_camera):
     assert scene.frame_current == 7  # the user's frame is restored
 
 
+def test_objects_that_move_during_an_animation_capture_are_named(active_camera):
+    # Each view of the animation layout renders at its own frame: what moves there breaks the one
+    # still scene a NeRF assumes. The camera itself may move; the cube of the fixture stands still.
+    cam = active_camera("Anim", frames=(1, 40))
+    scene = bpy.context.scene
+    for f, x in ((1, -5.0), (40, 5.0)):
+        cam.location = (x, -6.0, 1.0)
+        cam.keyframe_insert("location", frame=f)
+    spec = layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1)
+    scene.frame_set(7)
+    assert layouts.motion_note(scene, spec) is None and layouts.layout_notes(scene, spec) == []
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(3.0, 0.0, 0.0))
+    ball = bpy.context.active_object
+    ball.keyframe_insert("location", frame=30)
+    ball.location.z = 2.0
+    ball.keyframe_insert("location", frame=40)
+    note = layouts.motion_note(scene, spec)
+    assert note.startswith("'Sphere' move(s) between the animation's frames") and "ghosts" in note
+    assert layouts.layout_notes(scene, spec) == [note]
+    assert layouts.motion_note(scene, layouts.LayoutSpec()) is None  # generated layouts render one frame
+    assert scene.frame_current == 7
+
+
 def test_layouts_that_need_a_camera_say_so():
     _add_box()
     with pytest.raises(layouts.LayoutError, match="scene-cameras.*no camera"):

@@ -183,8 +183,7 @@ def main(argv: list[str]) -> int:
     else:
         layouts.create_cameras(scene, spec, res_x, res_y)
         layout_record = spec.to_dict()
-        note = layouts.framing_note(scene, spec)
-        if note:
+        for note in layouts.layout_notes(scene, spec):
             print(f"capture: note: {note}", file=sys.stderr)
     settings = capture.CaptureSettings(
         out_dir=args.out, engine=args.engine, samples=args.samples, res_x=res_x, res_y=res_y,
