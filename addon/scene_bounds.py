@@ -18,21 +18,37 @@ class BoundsError(ValueError):
     """Nothing visible to bound; the message says what was looked at."""
 
 
-def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> list:
-    """Objects of ``scene`` that appear in a render (and, optionally, are selected)."""
-    view_layer = view_layer or scene.view_layers[0]
-    out = []
-    for obj in scene.objects:
-        # An object hidden from camera rays (a bounce card, a light blocker) lights the scene but is never
-        # in a picture: no NeRF sees it, so it must not stretch the box either.
-        if obj.type not in RENDERABLE_TYPES or obj.hide_render or not getattr(obj, "visible_camera", True):
-            continue
-        if not obj.visible_get(view_layer=view_layer):
-            continue
-        if only_selected and not obj.select_get(view_layer=view_layer):
-            continue
-        out.append(obj)
+def _rendered_collections(view_layer) -> set:
+    """Pointers of the collections whose objects ``view_layer`` renders: included in it and, with every
+    collection above, not disabled in renders. The viewport's eye and monitor icons play no part."""
+    out = set()
+
+    def walk(layer_coll, ok: bool) -> None:
+        ok = ok and not layer_coll.exclude and not getattr(layer_coll.collection, "hide_render", False)
+        if ok:
+            out.add(layer_coll.collection.as_pointer())
+        for child in layer_coll.children:
+            walk(child, ok)
+
+    walk(view_layer.layer_collection, True)
     return out
+
+
+def _renders(obj, rendered: set) -> bool:
+    # An object hidden from camera rays (a bounce card, a light blocker) lights the scene but is never
+    # in a picture: no NeRF sees it, so it must not stretch the box either.
+    return (obj.type in RENDERABLE_TYPES and not obj.hide_render and getattr(obj, "visible_camera", True)
+            and any(c.as_pointer() in rendered for c in obj.users_collection))
+
+
+def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> list:
+    """Objects of ``scene`` that appear in a render of ``view_layer`` (and, optionally, are selected).
+    An object hidden in the viewport only (eye or monitor icon) renders, so it counts: artists hide
+    heavy objects there."""
+    view_layer = view_layer or scene.view_layers[0]
+    rendered = _rendered_collections(view_layer)
+    return [obj for obj in scene.objects if _renders(obj, rendered)
+            and (not only_selected or obj.select_get(view_layer=view_layer))]
 
 
 def object_bounds(objects, depsgraph=None) -> tuple[Vector, Vector]:
@@ -57,16 +73,17 @@ def _box_of(bound_box, matrix) -> tuple[Vector, Vector]:
 def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> list:
     """[((min, max), name)]: the world box of each renderable object (``renderable_objects``) and of
     each instance one of them makes, named "instancer/object". An instance renders when its instancer
-    does (visible, not hidden from renders, selected for ``only_selected``) and its object is not hidden
-    from renders. Without the evaluated scene at hand (``scene`` is not the context's) instances are
+    does (in a rendered collection, not hidden from renders, selected for ``only_selected``) and its
+    object is not hidden from renders or camera rays. Without the evaluated scene at hand (``scene`` is not the context's) instances are
     not seen and the objects' own boxes are used."""
     view_layer = view_layer or scene.view_layers[0]
     objects = renderable_objects(scene, view_layer, only_selected)
     if bpy.context.scene != scene:
         return [(object_bounds([o]), o.name) for o in objects]
     wanted = {o.name for o in objects}
+    rendered = _rendered_collections(view_layer)
     owners: dict = {}  # instancer name -> does it render (and is it selected when that is asked)
-    out = []
+    out, seen = [], set()
     for inst in bpy.context.evaluated_depsgraph_get().object_instances:
         obj = inst.object
         if obj.type not in RENDERABLE_TYPES:
@@ -74,6 +91,7 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
         if not inst.is_instance:
             # A mesh whose modifiers leave only instances has no geometry of its own: its empty box
             # would pin the bounds to its origin.
+            seen.add(obj.name)
             if obj.name in wanted and not (obj.type == "MESH" and not obj.data.vertices):
                 out.append((_box_of(obj.bound_box, obj.matrix_world), obj.name))
             continue
@@ -81,10 +99,13 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
         if owner is None or obj.original.hide_render or not getattr(obj.original, "visible_camera", True):
             continue
         if owner.name not in owners:
-            owners[owner.name] = (not owner.hide_render and owner.visible_get(view_layer=view_layer)
+            owners[owner.name] = (not owner.hide_render and any(c.as_pointer() in rendered for c in owner.users_collection)
                                   and (not only_selected or owner.select_get(view_layer=view_layer)))
         if owners[owner.name]:
             out.append((_box_of(obj.bound_box, inst.matrix_world.copy()), f"{owner.name}/{obj.name}"))
+    # Hidden in the viewport, an object still renders but is not evaluated there: its own box (without
+    # what its modifiers add, and without the instances it makes) is the best at hand.
+    out += [(_box_of(o.bound_box, o.matrix_world), o.name) for o in objects if o.name not in seen]
     return out
 
 

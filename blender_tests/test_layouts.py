@@ -360,3 +360,29 @@ def test_collection_instances_are_bounded_like_the_objects_they_show():
         obj.select_set(obj is instance)
     lo, hi = scene_bounds.scene_bounds(scene, only_selected=True)
     assert np.allclose(lo, (3.5, -0.5, 0.0)) and np.allclose(hi, (4.5, 0.5, 1.0))
+
+
+def test_bounds_follow_what_renders_not_what_the_viewport_shows():
+    # Artists hide heavy objects in the viewport (eye or monitor icon); they still render, so they must
+    # be inside the box. A collection disabled in renders or excluded from the view layer renders nothing.
+    from addon import scene_bounds
+
+    scene = _monkey_scene()
+    bpy.ops.mesh.primitive_cube_add(size=2.0, location=(6.0, 0.0, 1.0))
+    tree = bpy.context.active_object
+    for hide in (lambda: tree.hide_set(True), lambda: setattr(tree, "hide_viewport", True)):
+        hide()
+        assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(7.0)
+        assert tree in scene_bounds.renderable_objects(scene)  # so capture's masks see it too
+    tree.hide_set(False)
+    tree.hide_viewport = False
+    props = bpy.data.collections.new("Props")
+    scene.collection.children.link(props)
+    scene.collection.objects.unlink(tree)
+    props.objects.link(tree)
+    assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(7.0)
+    props.hide_render = True
+    assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(1.37, abs=0.02)
+    props.hide_render = False
+    bpy.context.view_layer.layer_collection.children["Props"].exclude = True
+    assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(1.37, abs=0.02)
