@@ -1,9 +1,10 @@
 """World-space bounds of what a capture will see.
 
-Bounds come from the evaluated (modifier-applied) geometry's bounding boxes of objects that render:
-visible in the view layer and not hidden from renders, and of every instance they make (collection
-instances, as linked assets arrive; geometry-node and particle instances), which are objects of no
-view layer of their own. Cameras, lights and empties have no extent.
+Bounds come from the evaluated (modifier-applied) geometry's bounding boxes of objects that render
+(in a collection the view layer renders, not disabled in renders, seen by camera rays; the viewport's
+eye and monitor icons play no part), and of every instance they make (collection instances, as
+linked assets arrive; geometry-node and particle instances), which are objects of no view layer of
+their own. Cameras, lights and empties have no extent.
 """
 from __future__ import annotations
 
@@ -34,11 +35,15 @@ def _rendered_collections(view_layer) -> set:
     return out
 
 
+def _in_render(obj, rendered: set) -> bool:
+    """``obj`` (of any type: an instancer is an empty) is part of a render whose collections are ``rendered``."""
+    return not obj.hide_render and any(c.as_pointer() in rendered for c in obj.users_collection)
+
+
 def _renders(obj, rendered: set) -> bool:
     # An object hidden from camera rays (a bounce card, a light blocker) lights the scene but is never
     # in a picture: no NeRF sees it, so it must not stretch the box either.
-    return (obj.type in RENDERABLE_TYPES and not obj.hide_render and getattr(obj, "visible_camera", True)
-            and any(c.as_pointer() in rendered for c in obj.users_collection))
+    return obj.type in RENDERABLE_TYPES and getattr(obj, "visible_camera", True) and _in_render(obj, rendered)
 
 
 def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> list:
@@ -73,16 +78,17 @@ def _box_of(bound_box, matrix) -> tuple[Vector, Vector]:
 def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> list:
     """[((min, max), name)]: the world box of each renderable object (``renderable_objects``) and of
     each instance one of them makes, named "instancer/object". An instance renders when its instancer
-    does (in a rendered collection, not hidden from renders, selected for ``only_selected``) and its
-    object is not hidden from renders or camera rays. Without the evaluated scene at hand (``scene`` is not the context's) instances are
-    not seen and the objects' own boxes are used."""
+    is part of the render (and selected, for ``only_selected``) and its object is not hidden from
+    renders or camera rays. Without the evaluated scene at hand (``scene`` is not the context's),
+    instances are not seen and the objects' own boxes are used."""
     view_layer = view_layer or scene.view_layers[0]
     objects = renderable_objects(scene, view_layer, only_selected)
     if bpy.context.scene != scene:
         return [(object_bounds([o]), o.name) for o in objects]
-    wanted = {o.name for o in objects}
+    # Pointers, not names: a linked library's object may share its name with a local one.
+    wanted = {o.as_pointer() for o in objects}
     rendered = _rendered_collections(view_layer)
-    owners: dict = {}  # instancer name -> does it render (and is it selected when that is asked)
+    owners: dict = {}  # instancer pointer -> is it part of the render (and selected when that is asked)
     out, seen = [], set()
     for inst in bpy.context.evaluated_depsgraph_get().object_instances:
         obj = inst.object
@@ -91,21 +97,21 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
         if not inst.is_instance:
             # A mesh whose modifiers leave only instances has no geometry of its own: its empty box
             # would pin the bounds to its origin.
-            seen.add(obj.name)
-            if obj.name in wanted and not (obj.type == "MESH" and not obj.data.vertices):
+            seen.add(obj.original.as_pointer())
+            if obj.original.as_pointer() in wanted and not (obj.type == "MESH" and not obj.data.vertices):
                 out.append((_box_of(obj.bound_box, obj.matrix_world), obj.name))
             continue
         owner = inst.parent.original if inst.parent is not None else None
         if owner is None or obj.original.hide_render or not getattr(obj.original, "visible_camera", True):
             continue
-        if owner.name not in owners:
-            owners[owner.name] = (not owner.hide_render and any(c.as_pointer() in rendered for c in owner.users_collection)
-                                  and (not only_selected or owner.select_get(view_layer=view_layer)))
-        if owners[owner.name]:
+        key = owner.as_pointer()
+        if key not in owners:
+            owners[key] = _in_render(owner, rendered) and (not only_selected or owner.select_get(view_layer=view_layer))
+        if owners[key]:
             out.append((_box_of(obj.bound_box, inst.matrix_world.copy()), f"{owner.name}/{obj.name}"))
     # Hidden in the viewport, an object still renders but is not evaluated there: its own box (without
     # what its modifiers add, and without the instances it makes) is the best at hand.
-    out += [(_box_of(o.bound_box, o.matrix_world), o.name) for o in objects if o.name not in seen]
+    out += [(_box_of(o.bound_box, o.matrix_world), o.name) for o in objects if o.as_pointer() not in seen]
     return out
 
 
