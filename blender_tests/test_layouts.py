@@ -194,13 +194,18 @@ def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
     assert [len(cams[s]) for s in layouts.SPLITS] == [3, 1, 2]
 
 
-def test_animation_layout_samples_every_nth_frame(active_camera):
+def _flying_camera(active_camera):
+    """The scene's camera flying from x = -5 (frame 1) to x = 5 (frame 40), the scene at frame 7."""
     cam = active_camera("Anim", frames=(1, 40))
-    scene = bpy.context.scene
     for f, x in ((1, -5.0), (40, 5.0)):
         cam.location = (x, -6.0, 1.0)
         cam.keyframe_insert("location", frame=f)
-    scene.frame_set(7)
+    bpy.context.scene.frame_set(7)
+    return bpy.context.scene
+
+
+def test_animation_layout_samples_every_nth_frame(active_camera):
+    scene = _flying_camera(active_camera)
     made = layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
     assert sorted(o["nerf_frame"] for o in made) == [1, 11, 21, 31]
     xs = {o["nerf_frame"]: o.matrix_world.translation.x for o in made}
@@ -211,13 +216,8 @@ def test_animation_layout_samples_every_nth_frame(active_camera):
 def test_objects_that_move_during_an_animation_capture_are_named(active_camera):
     # Each view of the animation layout renders at its own frame: what moves there breaks the one
     # still scene a NeRF assumes. The camera itself may move; the cube of the fixture stands still.
-    cam = active_camera("Anim", frames=(1, 40))
-    scene = bpy.context.scene
-    for f, x in ((1, -5.0), (40, 5.0)):
-        cam.location = (x, -6.0, 1.0)
-        cam.keyframe_insert("location", frame=f)
+    scene = _flying_camera(active_camera)
     spec = layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1)
-    scene.frame_set(7)
     assert layouts.motion_note(scene, spec) is None and layouts.layout_notes(scene, spec) == []
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(3.0, 0.0, 0.0))
     ball = bpy.context.active_object
