@@ -422,8 +422,7 @@ def moving_objects(scene, frames) -> list:
             if first is None:
                 first = boxes
                 # Motion below a ten-thousandth of the scene's size is rounding, not motion.
-                corners = [c for box in boxes.values() for c in box]
-                tol = 1e-4 * max((a - b).length for a in corners[:1] for b in corners) if corners else 0.0
+                tol = 1e-4 * scene_bounds.box_size(scene_bounds.box_union(list(boxes.values()))) if boxes else 0.0
                 continue
             for name in set(first) ^ set(boxes):  # appears or disappears
                 moved.add(name)

@@ -56,23 +56,19 @@ def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> l
             and (not only_selected or obj.select_get(view_layer=view_layer))]
 
 
-def object_bounds(objects, depsgraph=None) -> tuple[Vector, Vector]:
-    """Axis-aligned world bounds (min, max) of the objects' evaluated bounding boxes."""
-    lo = Vector((float("inf"),) * 3)
-    hi = Vector((float("-inf"),) * 3)
-    for obj in objects:
-        ev = obj.evaluated_get(depsgraph) if depsgraph is not None else obj
-        for corner in ev.bound_box:
-            p = ev.matrix_world @ Vector(corner)
-            lo = Vector(map(min, lo, p))
-            hi = Vector(map(max, hi, p))
-    return lo, hi
-
-
 def _box_of(bound_box, matrix) -> tuple[Vector, Vector]:
+    """World (min, max) of a local ``bound_box`` (8 corners) placed by ``matrix``."""
     corners = [matrix @ Vector(c) for c in bound_box]
     return (Vector([min(c[i] for c in corners) for i in range(3)]),
             Vector([max(c[i] for c in corners) for i in range(3)]))
+
+
+def object_bounds(objects, depsgraph=None) -> tuple[Vector, Vector]:
+    """Axis-aligned world bounds (min, max) of the objects' evaluated bounding boxes."""
+    evaluated = [o.evaluated_get(depsgraph) if depsgraph is not None else o for o in objects]
+    if not evaluated:
+        return Vector((float("inf"),) * 3), Vector((float("-inf"),) * 3)
+    return box_union([_box_of(ev.bound_box, ev.matrix_world) for ev in evaluated])
 
 
 def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> list:
@@ -122,7 +118,7 @@ def scene_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple[V
     if not boxes:
         what = "selected visible objects" if only_selected else "visible objects that render"
         raise BoundsError(f"scene {scene.name!r} has no {what}; nothing to capture")
-    lo, hi = _union([b for b, _ in boxes])
+    lo, hi = box_union([b for b, _ in boxes])
     if not all(map(lambda v: v == v and abs(v) != float("inf"), list(lo) + list(hi))):
         raise BoundsError(f"scene {scene.name!r}: could not compute finite bounds")
     return lo, hi
@@ -155,7 +151,7 @@ MIN_THICKNESS = 0.05
 def with_thickness(lo, hi) -> tuple[Vector, Vector]:
     """(lo, hi) grown about its middle so that no axis is thinner than ``MIN_THICKNESS`` of its diagonal;
     BoundsError for a box of no size at all (the visible objects are a single point)."""
-    need = MIN_THICKNESS * _size((lo, hi))
+    need = MIN_THICKNESS * box_size((lo, hi))
     if need <= 0:
         raise BoundsError(f"the visible objects span no space (all at {tuple(round(v, 6) for v in lo)}); "
                           "nothing to capture")
@@ -167,18 +163,20 @@ def with_thickness(lo, hi) -> tuple[Vector, Vector]:
     return lo, hi
 
 
-def _size(box) -> float:
+def box_size(box) -> float:
+    """Diagonal of a (min, max) box."""
     return (Vector(box[1]) - Vector(box[0])).length
 
 
-def _union(boxes):
+def box_union(boxes):
+    """The (min, max) box holding every (min, max) box of ``boxes`` (at least one)."""
     return (Vector([min(b[0][i] for b in boxes) for i in range(3)]),
             Vector([max(b[1][i] for b in boxes) for i in range(3)]))
 
 
 def _surrounds(box, subject) -> bool:
     """``box`` is ``SURROUNDINGS_RATIO`` times the size of ``subject`` and flat or holding all of it."""
-    if _size(box) < SURROUNDINGS_RATIO * _size(subject):
+    if box_size(box) < SURROUNDINGS_RATIO * box_size(subject):
         return False
     ext = box[1] - box[0]
     if min(ext) <= FLAT_SHARE * max(ext):
@@ -198,13 +196,13 @@ def subject_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple
     lo, hi = scene_bounds(scene, only_selected, view_layer)
     if only_selected:
         return lo, hi, []
-    boxes = sorted(renderable_boxes(scene, view_layer), key=lambda item: (_size(item[0]), item[1]))
+    boxes = sorted(renderable_boxes(scene, view_layer), key=lambda item: (box_size(item[0]), item[1]))
     subject, aside = boxes[0][0], []  # the subject's box so far (a running union: scatters hold 100k instances)
     for item in boxes[1:]:
         if _surrounds(item[0], subject):
             aside.append(item)
         else:
-            subject = _union([subject] + [b for b, _ in aside] + [item[0]])
+            subject = box_union([subject] + [b for b, _ in aside] + [item[0]])
             aside = []
     if not aside:
         return lo, hi, []
@@ -215,5 +213,5 @@ def subject_box(scene, lo, hi) -> tuple[Vector, Vector]:
     """The scene box around subject bounds (lo, hi): ``SUBJECT_MARGIN`` of its diagonal beyond each
     side, but no further than the scene's own bounds."""
     s_lo, s_hi = scene_bounds(scene)
-    pad = SUBJECT_MARGIN * _size((lo, hi))
+    pad = SUBJECT_MARGIN * box_size((lo, hi))
     return (Vector([max(a - pad, b) for a, b in zip(lo, s_lo)]), Vector([min(a + pad, b) for a, b in zip(hi, s_hi)]))

@@ -353,7 +353,7 @@ def _training_plan(report: CheckReport, root: Path, background: str) -> None:
     the trainer's own rules: the scene box, the background and scene contraction. Nothing is trained."""
     from .backgrounds import for_run
     from .data import load_dataset
-    from .methods.base import method_class
+    from .methods.base import has_option
     from .methods.catalog import DEFAULT_METHOD
     from .scene_box import beyond_box_reason
 
@@ -368,7 +368,7 @@ def _training_plan(report: CheckReport, root: Path, background: str) -> None:
     mode, why = for_run(background, None, ds)
     report.plan.append(f"background: {mode} ({why})")
     reason = beyond_box_reason(ds, mode)
-    if reason and "contract" in getattr(method_class(DEFAULT_METHOD), "defaults", {}):
+    if reason and has_option(DEFAULT_METHOD, "contract"):
         report.plan.append(f"{DEFAULT_METHOD} (the default method) will model the world beyond the box "
                            f"(contract=true): {reason}; --set contract=false turns it off")
 

@@ -208,14 +208,13 @@ class Trainer:
     def _contract_if_beyond_box(self, dataset: Dataset, options: dict) -> None:
         """Turn on ``contract`` for a method that has it (and was not told) when the scene reaches past
         its box (``scene_box.beyond_box_reason``: the dataset says so, or a cut-out's opaque pixels look
-        past the box). On the
-        capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB with on a transparent
-        film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot hold a floor)."""
-        from .methods.base import method_class
+        past the box). On the capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB
+        with on a transparent film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot
+        hold a floor)."""
+        from .methods.base import has_option
         from .scene_box import beyond_box_reason
 
-        cls = method_class(self.method)
-        if "contract" in options or "contract" not in getattr(cls, "defaults", {}):
+        if "contract" in options or not has_option(self.method, "contract"):
             return
         why = beyond_box_reason(dataset, self.bg_mode)
         if why:

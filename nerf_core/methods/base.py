@@ -60,6 +60,11 @@ def method_class(name: str) -> Optional[type]:
     return _REGISTRY.get(name)
 
 
+def has_option(name: str, key: str) -> bool:
+    """Whether the method registered as ``name`` takes option ``key`` (a key of its ``defaults``)."""
+    return key in getattr(method_class(name), "defaults", {})
+
+
 def _load_builtin_methods() -> None:
     # Imported lazily so that importing the registry never pulls in every method's dependencies.
     from . import catalog  # noqa: F401  (registers the built-in methods)
