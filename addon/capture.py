@@ -152,7 +152,13 @@ class CaptureJob:
             raise CaptureError(str(exc)) from exc
         self.mask_objects = []
         if settings.masks:
-            self.mask_objects = scene_bounds.renderable_objects(scene, only_selected=settings.target == "SELECTION")
+            # Cycles gives an instance the pass index of the object it shows, not its instancer's, and
+            # that object often lives in an excluded collection (a linked asset): the objects that the
+            # masked instancers show are masked too. One shown by a masked and by an unmasked
+            # instancer is masked in both.
+            only = settings.target == "SELECTION"
+            self.mask_objects = (scene_bounds.renderable_objects(scene, only_selected=only)
+                                 + scene_bounds.instanced_objects(scene, only_selected=only))
             if not self.mask_objects:
                 raise CaptureError("masks for the selection: nothing visible is selected")
             if settings.target == "SELECTION" and self.engine != "CYCLES":
@@ -384,9 +390,11 @@ class CaptureJob:
             self._set(vl, "use_pass_normal", self.s.normals or self.s.points or vl.use_pass_normal)
         if self.s.masks and self.engine == "CYCLES":
             self._set(vl, "use_pass_object_index", True)
-            ids = {o.name for o in self.mask_objects}
-            for obj in scene_bounds.renderable_objects(sc):
-                self._set(obj, "pass_index", 1 if obj.name in ids else 0)
+            masked = {o.as_pointer() for o in self.mask_objects}
+            everything = {o.as_pointer(): o for o in scene_bounds.renderable_objects(sc, vl)
+                          + scene_bounds.instanced_objects(sc, vl)}
+            for ptr, obj in everything.items():
+                self._set(obj, "pass_index", 1 if ptr in masked else 0)
         self._set(sc, "camera", sc.camera)
         self._set(sc, "frame_current", sc.frame_current)
         img = r.image_settings

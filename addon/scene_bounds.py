@@ -71,31 +71,23 @@ def object_bounds(objects, depsgraph=None) -> tuple[Vector, Vector]:
     return box_union([_box_of(ev.bound_box, ev.matrix_world) for ev in evaluated])
 
 
-def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> list:
-    """[((min, max), name)]: the world box of each renderable object (``renderable_objects``) and of
-    each instance one of them makes, named "instancer/object". An instance renders when its instancer
-    is part of the render (and selected, for ``only_selected``) and its object is not hidden from
-    renders or camera rays. Without the evaluated scene at hand (``scene`` is not the context's),
-    instances are not seen and the objects' own boxes are used."""
-    view_layer = view_layer or scene.view_layers[0]
-    objects = renderable_objects(scene, view_layer, only_selected)
-    if bpy.context.scene != scene:
-        return [(object_bounds([o]), o.name) for o in objects]
+def _rendered_pieces(scene, view_layer, objects, only_selected: bool):
+    """Yield (evaluated object, world matrix, name, instancer or None) for each renderable object in
+    ``objects`` that the evaluated scene holds, and for each instance that one of the render's
+    instancers makes (named "instancer/object"). An instance renders when its instancer is part of
+    the render (and selected, for ``only_selected``) and its object is not hidden from renders or
+    camera rays. Needs ``scene`` to be the context's (its evaluated depsgraph)."""
     # Pointers, not names: a linked library's object may share its name with a local one.
     wanted = {o.as_pointer() for o in objects}
     rendered = _rendered_collections(view_layer)
     owners: dict = {}  # instancer pointer -> is it part of the render (and selected when that is asked)
-    out, seen = [], set()
     for inst in bpy.context.evaluated_depsgraph_get().object_instances:
         obj = inst.object
         if obj.type not in RENDERABLE_TYPES:
             continue
         if not inst.is_instance:
-            # A mesh whose modifiers leave only instances has no geometry of its own: its empty box
-            # would pin the bounds to its origin.
-            seen.add(obj.original.as_pointer())
-            if obj.original.as_pointer() in wanted and not (obj.type == "MESH" and not obj.data.vertices):
-                out.append((_box_of(obj.bound_box, obj.matrix_world), obj.name))
+            if obj.original.as_pointer() in wanted:
+                yield obj, obj.matrix_world, obj.name, None
             continue
         owner = inst.parent.original if inst.parent is not None else None
         if owner is None or obj.original.hide_render or not getattr(obj.original, "visible_camera", True):
@@ -104,11 +96,46 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
         if key not in owners:
             owners[key] = _in_render(owner, rendered) and (not only_selected or owner.select_get(view_layer=view_layer))
         if owners[key]:
-            out.append((_box_of(obj.bound_box, inst.matrix_world.copy()), f"{owner.name}/{obj.name}"))
+            yield obj, inst.matrix_world.copy(), f"{owner.name}/{obj.name}", owner
+
+
+def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> list:
+    """[((min, max), name)]: the world box of each renderable object (``renderable_objects``) and of
+    each instance one of them makes, named "instancer/object" (``_rendered_pieces``). Without the
+    evaluated scene at hand (``scene`` is not the context's), instances are not seen and the objects'
+    own boxes are used."""
+    view_layer = view_layer or scene.view_layers[0]
+    objects = renderable_objects(scene, view_layer, only_selected)
+    if bpy.context.scene != scene:
+        return [(object_bounds([o]), o.name) for o in objects]
+    out, seen = [], set()
+    for ev, matrix, name, owner in _rendered_pieces(scene, view_layer, objects, only_selected):
+        if owner is None:
+            seen.add(ev.original.as_pointer())
+            # A mesh whose modifiers leave only instances has no geometry of its own: its empty box
+            # would pin the bounds to its origin.
+            if ev.type == "MESH" and not ev.data.vertices:
+                continue
+        out.append((_box_of(ev.bound_box, matrix), name))
     # Hidden in the viewport, an object still renders but is not evaluated there: its own box (without
     # what its modifiers add, and without the instances it makes) is the best at hand.
     out += [(_box_of(o.bound_box, o.matrix_world), o.name) for o in objects if o.as_pointer() not in seen]
     return out
+
+
+def instanced_objects(scene, view_layer=None, only_selected: bool = False) -> list:
+    """The original objects that the render shows as instances (of a collection instance, geometry
+    nodes or particles) of its instancers, selected ones for ``only_selected``: objects that
+    ``renderable_objects`` may not list (their collection is often excluded, as for a linked asset).
+    Empty when ``scene`` is not the context's."""
+    view_layer = view_layer or scene.view_layers[0]
+    if bpy.context.scene != scene:
+        return []
+    found: dict = {}
+    for ev, _m, _name, owner in _rendered_pieces(scene, view_layer, [], only_selected):
+        if owner is not None:
+            found.setdefault(ev.original.as_pointer(), ev.original)
+    return list(found.values())
 
 
 def scene_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple[Vector, Vector]:

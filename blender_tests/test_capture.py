@@ -401,6 +401,46 @@ def test_masks_of_a_selection_cover_only_it(tmp_path):
             assert mask.sum() < (alpha > 0).sum() * 0.6  # the cube is not in the mask
 
 
+def test_masks_cover_objects_shown_by_a_collection_instance(tmp_path):
+    # A linked asset arrives as an empty instancing a collection excluded from the view layer. Cycles
+    # gives an instance the pass index of the object it shows, which capture never set: the masks
+    # left the instanced ball out (checked: 80 of 170 opaque pixels of a view unmasked).
+    build_test_scene()
+    scene = bpy.context.scene
+    ball = bpy.data.objects["Sphere"]
+    props = bpy.data.collections.new("Props")
+    scene.collection.children.link(props)
+    for coll in ball.users_collection:
+        coll.objects.unlink(ball)
+    props.objects.link(ball)
+    bpy.context.view_layer.layer_collection.children["Props"].exclude = True
+    ball.pass_index = 7  # the user's own index comes back after the capture
+    empty = bpy.data.objects.new("Props instance", None)
+    empty.instance_type, empty.instance_collection = "COLLECTION", props
+    scene.collection.objects.link(empty)
+    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=0, radius=7.0, elevation_min=20)
+    layouts.create_cameras(scene, spec, 40, 30)
+
+    def masks(out, target):
+        capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
+                                                          res_y=30, masks=True, target=target)).run()
+        assert ball.pass_index == 7
+        for _doc, fr, intr in frames(out, "train"):
+            mask = np.asarray(Image.open(os.path.join(out, fr["mask_path"]))) > 0
+            alpha = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))[..., 3] > 0
+            u, v, _ = project(np.array([[0.0, 0.0, 0.0], BALL_C]), fr["transform_matrix"], intr)
+            yield mask, alpha, (int(v[0]), int(u[0])), (int(v[1]), int(u[1]))
+
+    for mask, alpha, cube_px, ball_px in masks(tmp_path / "all", "ALL"):
+        assert alpha[ball_px] and mask[ball_px] and mask[cube_px]
+        assert (mask == alpha).mean() > 0.97  # everything that renders, the edges aside
+    for obj in scene.objects:  # only the instancer selected: its ball, not the cube
+        obj.select_set(obj is empty)
+    for mask, alpha, cube_px, ball_px in masks(tmp_path / "selection", "SELECTION"):
+        assert (mask[ball_px] or not alpha[ball_px]) and alpha[cube_px] and not mask[cube_px]
+        assert 0 < mask.sum() < (alpha > 0).sum() * 0.6
+
+
 def test_animation_layout_renders_each_sampled_frame(tmp_path):
     build_test_scene()
     scene = bpy.context.scene
