@@ -93,6 +93,19 @@ def _empty_tree(path: str) -> bool:
     return all(_empty_tree(os.path.join(path, e)) for e in os.listdir(path))
 
 
+def capture_notes(scene) -> list:
+    """Warnings about what the scene will render that no radiance field can learn (empty when none);
+    the panel reports them and ``scripts/capture.py`` prints them before rendering."""
+    held = scene_bounds.holdout_objects(scene)
+    if not held:
+        return []
+    shown = ", ".join(repr(n) for n in held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
+    return [f"{shown} render(s) as holdout: a holdout cuts a transparent hole (alpha 0) through everything "
+            "behind it, blocking what lies behind yet adding no opacity, which a radiance field cannot represent, "
+            "so the NeRF will show gaps or fog there. Turn Holdout off for the capture (object or collection "
+            "visibility, or the material's Holdout shader), or leave them out of the render"]
+
+
 def scene_box(scene, settings) -> tuple:
     """((min, max), surroundings): the box that the dataset's ``aabb`` and near/far come from.
 
@@ -163,6 +176,7 @@ class CaptureJob:
                 raise CaptureError("masks for the selection: nothing visible is selected")
             if settings.target == "SELECTION" and self.engine != "CYCLES":
                 raise CaptureError("object masks of a selection need Cycles (its object index pass)")
+        self.notes = capture_notes(scene)
         self.render_sig = None
         self.world = None
         self.frames = []

@@ -201,6 +201,8 @@ class NERF_OT_capture(bpy.types.Operator):
             job.prepare()
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
+        for note in job.notes:
+            self.report({"WARNING"}, note)
         if context.window is None or bpy.app.background:
             # Scripts and tests (no event loop to deliver timer events): render everything now.
             try:

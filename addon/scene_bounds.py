@@ -138,6 +138,41 @@ def instanced_objects(scene, view_layer=None, only_selected: bool = False) -> li
     return list(found.values())
 
 
+def _has_holdout_shader(tree, seen=None) -> bool:
+    """A node tree (or a node group inside it) holds a Holdout shader node."""
+    seen = set() if seen is None else seen
+    if tree is None or tree.as_pointer() in seen:
+        return False
+    seen.add(tree.as_pointer())
+    return any(n.type == "HOLDOUT" or (n.type == "GROUP" and _has_holdout_shader(n.node_tree, seen))
+               for n in tree.nodes)
+
+
+def holdout_objects(scene, view_layer=None) -> list:
+    """Names of the objects that render as holdouts, which cut transparent holes (alpha 0) through
+    everything behind them: an object's Holdout flag, a view-layer collection set to Holdout, or a
+    material with a Holdout shader. Renderable objects and the objects instances show, in that order."""
+    view_layer = view_layer or scene.view_layers[0]
+    held = set()
+
+    def walk(layer_coll, on: bool) -> None:
+        on = on or bool(getattr(layer_coll, "holdout", False))
+        if on:
+            held.add(layer_coll.collection.as_pointer())
+        for child in layer_coll.children:
+            walk(child, on)
+
+    walk(view_layer.layer_collection, False)
+    out = []
+    for obj in renderable_objects(scene, view_layer) + instanced_objects(scene, view_layer):
+        shaders = any(slot.material is not None and slot.material.node_tree is not None
+                      and _has_holdout_shader(slot.material.node_tree) for slot in obj.material_slots)
+        if (getattr(obj, "is_holdout", False) or shaders
+                or any(c.as_pointer() in held for c in obj.users_collection)) and obj.name not in out:
+            out.append(obj.name)
+    return out
+
+
 def scene_bounds(scene, only_selected: bool = False, view_layer=None) -> tuple[Vector, Vector]:
     """(min, max) of the visible renderable objects and their instances; raises BoundsError when there
     are none."""

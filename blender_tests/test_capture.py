@@ -441,6 +441,48 @@ def test_masks_cover_objects_shown_by_a_collection_instance(tmp_path):
         assert 0 < mask.sum() < (alpha > 0).sum() * 0.6
 
 
+def test_holdouts_are_named_before_a_capture(tmp_path):
+    # A holdout cuts a transparent hole through everything behind it: opaque to what lies behind, yet
+    # adding no alpha, which no radiance field can be. The capture names each kind of holdout.
+    build_test_scene()
+    scene = bpy.context.scene
+    spec = layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0, elevation_min=20)
+    layouts.create_cameras(scene, spec, 40, 30)
+
+    def notes():
+        settings = capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="cycles", samples=1, res_x=40,
+                                           res_y=30, film_transparent=False)
+        return capture.CaptureJob(scene, settings).notes
+
+    assert notes() == []
+    ball = bpy.data.objects["Sphere"]
+    ball.is_holdout = True
+    assert len(notes()) == 1 and "'Sphere' render(s) as holdout" in notes()[0]
+    ball.is_holdout = False
+    mat = bpy.data.materials.new("Cut-out")
+    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
+        mat.use_nodes = True
+    group = bpy.data.node_groups.new("Mask group", "ShaderNodeTree")
+    group.nodes.new("ShaderNodeHoldout")
+    mat.node_tree.nodes.new("ShaderNodeGroup").node_tree = group  # inside a node group counts too
+    bpy.data.objects["Cube"].data.materials.append(mat)
+    assert "'Cube' render(s) as holdout" in notes()[0]
+    bpy.data.objects["Cube"].data.materials.clear()
+    props = bpy.data.collections.new("Props")
+    scene.collection.children.link(props)
+    props.objects.link(ball)
+    bpy.context.view_layer.layer_collection.children["Props"].holdout = True
+    assert "'Sphere' render(s) as holdout" in notes()[0]
+    # What the note is about: on an opaque film, the hole has alpha 0 where the ball is.
+    out = tmp_path / "ds"
+    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
+                                                      res_y=30, film_transparent=False)).run()
+    _doc, fr, intr = next(iter(frames(out, "train")))
+    alpha = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))[..., 3]
+    u, v, _ = project(np.array([BALL_C]), fr["transform_matrix"], intr)
+    assert alpha[int(v[0]), int(u[0])] == 0 and alpha[0, 0] == 255
+
+
 def test_animation_layout_renders_each_sampled_frame(tmp_path):
     build_test_scene()
     scene = bpy.context.scene

@@ -198,6 +198,8 @@ def main(argv: list[str]) -> int:
         bar.set(done, info)
 
     job = capture.CaptureJob(scene, settings, progress=progress)
+    for note in job.notes:
+        print(f"capture: note: {note}", file=sys.stderr)
     try:
         summary = job.run()
     except KeyboardInterrupt:
