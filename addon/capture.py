@@ -231,8 +231,8 @@ class CaptureJob:
                 err = layouts.camera_scale_error(obj)
                 scale_removed = None
                 if err:
-                    if not self.s.normalize_camera_scale or "sheared" in err:
-                        raise CaptureError(err + " (or let the capture normalise camera scale)")
+                    if not self.s.normalize_camera_scale or layouts.camera_shape_error(obj):
+                        raise CaptureError(err)
                     scale_removed = [round(c.length, 6) for c in (obj.matrix_world.col[i].xyz for i in range(3))]
                 try:
                     intr = export.camera_intrinsics(obj, render)
@@ -382,6 +382,9 @@ class CaptureJob:
         self._set(r, "use_compositing", False)  # a user's compositor must not alter the dataset
         self._set(r, "use_sequencer", False)
         self._set(r, "use_motion_blur", False)  # a NeRF needs a static instant per view
+        # ... and one eye: stereoscopy renders a left and a right image per view, which neither saves
+        # as the one PNG a frame names nor matches the frame's single pose.
+        self._set(r, "use_multiview", False)
         # ... and a pinhole: depth of field blurs each view by its own focus, which no radiance field
         # reproduces (a scene or animation camera copied by the layout keeps the user's setting).
         for name in {f["camera"] for f in self.frames}:
@@ -395,7 +398,7 @@ class CaptureJob:
             self._set(sc.cycles, "use_adaptive_sampling", False)
         elif self.engine.startswith("BLENDER_EEVEE"):
             self._set(sc.eevee, "taa_render_samples", self.s.samples)
-        vl = bpy.context.view_layer if bpy.context.scene == sc else sc.view_layers[0]
+        vl = scene_bounds.render_view_layer(sc)
         self.view_layer = vl
         want_passes = self.s.depth or self.s.points
         self._set(vl, "use_pass_z", bool(want_passes) or vl.use_pass_z)

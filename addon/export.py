@@ -62,7 +62,9 @@ def camera_intrinsics(cam_obj, render) -> dict:
     """Intrinsics of a Blender camera object for the scene's render settings (resolution %, aspect)."""
     cam = cam_obj.data
     if cam.type != "PERSP":
-        raise ExportError(f"camera {cam_obj.name!r} is {cam.type.lower()}; only perspective cameras make a NeRF dataset")
+        from .layouts import camera_label
+
+        raise ExportError(f"{camera_label(cam_obj)} is {cam.type.lower()}; only perspective cameras make a NeRF dataset")
     scale = render.resolution_percentage / 100.0
     res_x, res_y = int(render.resolution_x * scale), int(render.resolution_y * scale)
     return intrinsics_from_params(cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit, cam.shift_x,

@@ -284,16 +284,56 @@ def look_at(position, target, up=(0.0, 0.0, 1.0)):
 # Blender side: camera objects in their own collection
 
 
-def camera_scale_error(obj) -> str | None:
-    """Why a camera object's transform cannot be exported as-is (scale or shear), else None."""
-    m = obj.matrix_world
-    cols = [m.col[i].xyz for i in range(3)]
-    lengths = [c.length for c in cols]
-    if any(abs(length - 1.0) > 1e-4 for length in lengths):
-        return f"camera {obj.name!r} has scale {tuple(round(v, 4) for v in lengths)}; apply or clear its scale (Ctrl+A > Scale)"
+def camera_label(obj) -> str:
+    """How messages name a camera: a layout's copy also names the user's camera it copies."""
+    src = obj.get("nerf_source") if hasattr(obj, "get") else None
+    return f"camera {obj.name!r}" + (f" (the copy of {src!r})" if src else "")
+
+
+def _scale_owner(obj) -> str:
+    """Where a camera's scale comes from, for messages: its own, or the first scaled parent's (of the
+    user's camera, for a layout's copy)."""
+    import bpy
+
+    src = bpy.data.objects.get(obj.get("nerf_source") or "") if hasattr(obj, "get") else None
+    cur = src or obj
+    if any(abs(v - 1.0) > 1e-4 for v in cur.scale):
+        return "its own scale"
+    parent = cur.parent
+    while parent is not None and all(abs(v - 1.0) <= 1e-4 for v in parent.scale):
+        parent = parent.parent
+    return f"the scale of its parent {parent.name!r}" if parent is not None else "its own scale"
+
+
+def camera_shape_error(obj) -> str | None:
+    """Why a camera's transform is no camera pose at all, whatever its scale (shear, mirror), else None.
+    Normalising the scale cannot fix these."""
+    m = obj.matrix_world.to_3x3()
+    cols = [m.col[i].normalized() for i in range(3)]
     for i, j in ((0, 1), (0, 2), (1, 2)):
         if abs(cols[i].dot(cols[j])) > 1e-4:
-            return f"camera {obj.name!r} is sheared (a parent with non-uniform scale?); clear the parent's scale"
+            return (f"{camera_label(obj)} is sheared (a parent with non-uniform scale?); clear the scale of "
+                    "its parents")
+    if m.determinant() < 0:
+        # A mirrored view is no picture a real camera takes; every dataset reader refuses it (check does).
+        return (f"{camera_label(obj)} is mirrored by {_scale_owner(obj)} (a negative scale); clear the "
+                "negative scale")
+    return None
+
+
+def camera_scale_error(obj) -> str | None:
+    """Why a camera object's transform cannot be exported as-is (``camera_shape_error``, or a scale),
+    else None. A scale alone, the capture can normalise (``CaptureSettings.normalize_camera_scale``)."""
+    shape = camera_shape_error(obj)
+    if shape:
+        return shape
+    lengths = [obj.matrix_world.col[i].xyz.length for i in range(3)]
+    if any(abs(length - 1.0) > 1e-4 for length in lengths):
+        owner = _scale_owner(obj)
+        fix = "apply or clear it (Ctrl+A > Scale)" if owner == "its own scale" else "clear that scale"
+        return (f"{camera_label(obj)} has scale {tuple(round(v, 4) for v in lengths)} from {owner}; {fix}, or "
+                "let the capture normalise camera scale (--normalize-camera-scale, or the panel's Normalise "
+                "Camera Scale)")
     return None
 
 
@@ -530,15 +570,24 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     clear_cameras(scene)
     counters = {s: 0 for s in SPLITS}
     made = []
-    for split, matrix, src, frame in plan:
-        name = f"NeRF_{split}_{counters[split]:03d}"
-        counters[split] += 1
-        obj = _new_camera(scene, coll, name, split, matrix, spec.focal_length, src=src)
-        if frame is not None:
-            obj["nerf_frame"] = frame
-        if src is not None:
-            obj["nerf_source"] = src.name
-        made.append(obj)
+    current = scene.frame_current
+    try:
+        for split, matrix, src, frame in plan:
+            name = f"NeRF_{split}_{counters[split]:03d}"
+            counters[split] += 1
+            if frame is not None and scene.frame_current != frame:
+                # The copy keeps its lens, shift and sensor as they are at its own frame: an animated
+                # zoom is part of the shot (the copy's animation is cleared, so it is taken now).
+                scene.frame_set(frame)
+            obj = _new_camera(scene, coll, name, split, matrix, spec.focal_length, src=src)
+            if frame is not None:
+                obj["nerf_frame"] = frame
+            if src is not None:
+                obj["nerf_source"] = src.name
+            made.append(obj)
+    finally:
+        if scene.frame_current != current:
+            scene.frame_set(current)
     for obj in made:
         # The default 100 m clip would cut far scenes out of the render; the depth pass needs it too.
         obj.data.clip_end = max(obj.data.clip_end, 4.0 * (radius or 0.0))
@@ -574,8 +623,9 @@ def check_distinct_poses(matrices, layout: str = "") -> None:
 
 def _plan_from_sources(spec: LayoutSpec, sources):
     """Split existing camera poses (obj, matrix, frame) into train/val/test."""
+    # A scale alone waits for the capture, which may normalise it; shear and mirror never pass.
     for obj, _m, _f in sources:
-        err = camera_scale_error(obj)
+        err = camera_shape_error(obj)
         if err:
             raise LayoutError(err)
     n = len(sources)

@@ -35,6 +35,15 @@ def _rendered_collections(view_layer) -> set:
     return out
 
 
+def render_view_layer(scene):
+    """The view layer that a single-layer render of ``scene`` (a capture's) uses: the window's active
+    one when ``scene`` is the context's, else its first. Bounds, framing and masks read this layer,
+    so that a file saved with its second layer active is boxed by what that layer renders."""
+    if bpy.context.scene == scene and getattr(bpy.context, "view_layer", None) is not None:
+        return bpy.context.view_layer
+    return scene.view_layers[0]
+
+
 def _in_render(obj, rendered: set) -> bool:
     """``obj`` (of any type: an instancer is an empty) is part of a render whose collections are ``rendered``."""
     return not obj.hide_render and any(c.as_pointer() in rendered for c in obj.users_collection)
@@ -50,7 +59,7 @@ def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> l
     """Objects of ``scene`` that appear in a render of ``view_layer`` (and, optionally, are selected).
     An object hidden in the viewport only (eye or monitor icon) renders, so it counts: artists hide
     heavy objects there."""
-    view_layer = view_layer or scene.view_layers[0]
+    view_layer = view_layer or render_view_layer(scene)
     rendered = _rendered_collections(view_layer)
     return [obj for obj in scene.objects if _renders(obj, rendered)
             and (not only_selected or obj.select_get(view_layer=view_layer))]
@@ -104,7 +113,7 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
     each instance one of them makes, named "instancer/object" (``_rendered_pieces``). Without the
     evaluated scene at hand (``scene`` is not the context's), instances are not seen and the objects'
     own boxes are used."""
-    view_layer = view_layer or scene.view_layers[0]
+    view_layer = view_layer or render_view_layer(scene)
     objects = renderable_objects(scene, view_layer, only_selected)
     if bpy.context.scene != scene:
         return [(object_bounds([o]), o.name) for o in objects]
@@ -128,7 +137,7 @@ def instanced_objects(scene, view_layer=None, only_selected: bool = False) -> li
     nodes or particles) of its instancers, selected ones for ``only_selected``: objects that
     ``renderable_objects`` may not list (their collection is often excluded, as for a linked asset).
     Empty when ``scene`` is not the context's."""
-    view_layer = view_layer or scene.view_layers[0]
+    view_layer = view_layer or render_view_layer(scene)
     if bpy.context.scene != scene:
         return []
     found: dict = {}
@@ -152,7 +161,7 @@ def holdout_objects(scene, view_layer=None) -> list:
     """Names of the objects that render as holdouts, which cut transparent holes (alpha 0) through
     everything behind them: an object's Holdout flag, a view-layer collection set to Holdout, or a
     material with a Holdout shader. Renderable objects and the objects instances show, in that order."""
-    view_layer = view_layer or scene.view_layers[0]
+    view_layer = view_layer or render_view_layer(scene)
     held = set()
 
     def walk(layer_coll, on: bool) -> None:

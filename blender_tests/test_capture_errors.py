@@ -92,6 +92,77 @@ def test_scaled_camera_normalised_on_request_and_recorded(tmp_path):
     assert sum(c2w[i][0] ** 2 for i in range(3)) == pytest.approx(1.0)
 
 
+def _ring_of_scene_cameras(scene, n=5, parent=None):
+    """n perspective cameras of the user's own on a ring around the origin, looking at it."""
+    cams = []
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        cam = bpy.data.objects.new(f"Cam{i}", bpy.data.cameras.new(f"Cam{i}"))
+        scene.collection.objects.link(cam)
+        cam.location = (4 * math.cos(a), 4 * math.sin(a), 1.5)
+        cam.rotation_euler = (-cam.location).to_track_quat("-Z", "Y").to_euler()
+        cams.append(cam)
+    bpy.context.view_layer.update()
+    if parent is not None:  # a rig scaled by s: the cameras stand where they did, scaled by s
+        for cam in cams:
+            cam.parent = parent
+            cam.location = cam.location / parent.scale[0]
+    bpy.context.view_layer.update()
+    return cams
+
+
+def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
+    # A mirrored camera rendered a whole dataset that check and train then refused (determinant -1):
+    # refused before rendering now. A scale from a parent named the camera, whose own scale is 1.
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    scene = bpy.context.scene
+    spec = layouts.LayoutSpec(layout="scene-cameras", val=1, test=1)
+    cams = _ring_of_scene_cameras(scene)
+    cams[2].scale = (-1.0, 1.0, 1.0)
+    bpy.context.view_layer.update()
+    with pytest.raises(layouts.LayoutError, match="camera 'Cam2' is mirrored by its own scale"):
+        layouts.create_cameras(scene, spec, 24, 16)
+    for cam in cams:
+        bpy.data.objects.remove(cam)
+    rig = bpy.data.objects.new("Rig", None)
+    scene.collection.objects.link(rig)
+    rig.scale = (2.0, 2.0, 2.0)
+    _ring_of_scene_cameras(scene, parent=rig)
+    layouts.create_cameras(scene, spec, 24, 16)  # a scale alone waits for the capture
+    with pytest.raises(capture.CaptureError, match=r"\(the copy of 'Cam\d'\) has scale \(2.0, 2.0, 2.0\) from the "
+                                                   r"scale of its parent 'Rig'; clear that scale, or let the capture"):
+        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    assert not (tmp_path / "ds").exists()
+    capture.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
+    assert manifest(tmp_path / "ds")["frames"]["train/r_0"]["camera_scale_removed"] == [2.0, 2.0, 2.0]
+    rig.scale = (-2.0, 2.0, 2.0)  # mirrored by the parent: no normalising fixes that
+    bpy.context.view_layer.update()
+    with pytest.raises(layouts.LayoutError, match="mirrored by the scale of its parent 'Rig'"):
+        layouts.create_cameras(scene, spec, 24, 16)
+
+
+def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    scene = bpy.context.scene
+    for cam in _ring_of_scene_cameras(scene):
+        cam.data.type = "ORTHO"
+    layouts.create_cameras(scene, layouts.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
+    with pytest.raises(capture.CaptureError, match=r"camera 'NeRF_train_000' \(the copy of 'Cam\d'\) is ortho"):
+        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+
+
+def test_stereoscopy_is_turned_off_for_the_capture(tmp_path):
+    # With Stereoscopy on, each view rendered a left and a right image and saving the PNG raised a
+    # traceback, leaving r_0.partial_L.png and r_0.partial_R.png behind.
+    scene = scene_with_cameras(train=2)
+    scene.render.use_multiview = True
+    scene.render.views_format = "STEREO_3D"
+    capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    names = sorted(f for _d, _s, files in os.walk(tmp_path / "ds" / "train") for f in files)
+    assert names == ["r_0.png", "r_1.png"]
+    assert scene.render.use_multiview  # the user's setting comes back
+
+
 def test_output_folder_not_writable(tmp_path):
     scene = scene_with_cameras()
     blocker = tmp_path / "a_file"

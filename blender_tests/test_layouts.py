@@ -213,6 +213,21 @@ def test_animation_layout_samples_every_nth_frame(active_camera):
     assert scene.frame_current == 7  # the user's frame is restored
 
 
+def test_animation_layout_keeps_an_animated_zoom(active_camera):
+    # Each copy took the lens of the frame the layout was made at (20 mm for a 20 -> 80 mm zoom), and
+    # its animation was cleared: the dataset's views were rendered unzoomed, without a word.
+    scene = _flying_camera(active_camera)
+    lens = scene.camera.data
+    for f, mm in ((1, 20.0), (40, 80.0)):
+        lens.lens = mm
+        lens.keyframe_insert("lens", frame=f)
+    scene.frame_set(7)
+    made = layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    mm = {o["nerf_frame"]: o.data.lens for o in made}
+    assert mm[1] == pytest.approx(20.0) and mm[31] > mm[21] > mm[11] > 20.0 and mm[31] < 80.0
+    assert scene.frame_current == 7 and all(o.data.animation_data is None for o in made)
+
+
 def test_objects_that_move_during_an_animation_capture_are_named(active_camera):
     # Each view of the animation layout renders at its own frame: what moves there breaks the one
     # still scene a NeRF assumes. The camera itself may move; the cube of the fixture stands still.
@@ -360,6 +375,34 @@ def test_collection_instances_are_bounded_like_the_objects_they_show():
         obj.select_set(obj is instance)
     lo, hi = scene_bounds.scene_bounds(scene, only_selected=True)
     assert np.allclose(lo, (3.5, -0.5, 0.0)) and np.allclose(hi, (4.5, 0.5, 1.0))
+
+
+def test_bounds_follow_the_view_layer_that_renders():
+    # A capture renders the active view layer only; the bounds read the first one. With the file's
+    # second layer active, an object only it renders fell outside the box (44-60 % of a view's
+    # opaque pixels) and out of the masks, and one that only the first renders stretched the box.
+    from addon import scene_bounds
+
+    scene = bpy.context.scene
+    near, far = (bpy.data.collections.new(n) for n in ("Near", "Far"))
+    for coll, x in ((near, 0.0), (far, 6.0)):
+        scene.collection.children.link(coll)
+        bpy.ops.mesh.primitive_cube_add(size=1.0, location=(x, 0.0, 0.0))
+        obj = bpy.context.active_object
+        for c in obj.users_collection:
+            c.objects.unlink(obj)
+        coll.objects.link(obj)
+    first = scene.view_layers[0]
+    first.layer_collection.children["Far"].exclude = True
+    assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(0.5)
+    second = scene.view_layers.new("Second")
+    second.layer_collection.children["Near"].exclude = True
+    bpy.context.window.view_layer = second
+    assert scene_bounds.render_view_layer(scene) == second
+    lo, hi = scene_bounds.scene_bounds(scene)
+    assert lo[0] == pytest.approx(5.5) and hi[0] == pytest.approx(6.5)
+    assert [o.name for o in scene_bounds.renderable_objects(scene)] == ["Cube.001"]
+    assert scene_bounds.scene_bounds(scene, view_layer=first)[1][0] == pytest.approx(0.5)
 
 
 def test_bounds_follow_what_renders_not_what_the_viewport_shows():
