@@ -341,6 +341,8 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
     opaque = _check_background(report, root, background)
     if opaque:
         _check_world_coverage(report, root)
+    elif opaque is False:
+        _check_empty_views(report, root)
     _check_loadable(report, root)
     _check_paths(report, root)
     if report.ok:
@@ -490,6 +492,36 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
                            "onto geometry inside the scene box. Use --background environment (what auto picks for "
                            "opaque images)", field="background")
     return bool(opaque)
+
+
+def _check_empty_views(report: CheckReport, root: Path) -> None:
+    """Warn about views whose image is transparent everywhere (a transparent film): the camera saw
+    none of the scene (it looks away, or stands inside an object). A held-out one measures nothing,
+    and a train one teaches only empty space. Most readers would call such a dataset fine."""
+    try:
+        _, _, infos, _ = frame_infos(root)
+    except (DatasetError, ImageReadError, OSError, ValueError):
+        return  # the loader's own checks report why
+    for split, frames in infos.items():
+        empty = []
+        for fr in frames:
+            if fr.image.suffix.lower() != ".png":
+                continue
+            try:
+                px = read_png(fr.image)
+            except (ImageReadError, OSError):
+                continue  # reported above
+            if px.ndim == 3 and px.shape[-1] == 4 and not px[..., 3].any():
+                empty.append(fr)
+        for fr in empty[:10]:
+            report.warn(_relative(root, str(fr.json_file)),
+                        "the image is transparent everywhere: this view shows nothing of the scene (does its "
+                        "camera look away from it, or stand inside an object?)"
+                        + ("; a held-out view of nothing measures nothing" if split != "train" else ""),
+                        fr.index, fr.file_path)
+        if len(empty) > 10:
+            report.warn(_relative(root, str(empty[0].json_file)),
+                        f"{len(empty) - 10} more views show nothing (transparent everywhere)")
 
 
 UNSEEN_WORLD_WARN = 0.02  # share of a held-out view's pixels on unseen world that earns a warning

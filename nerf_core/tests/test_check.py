@@ -92,6 +92,22 @@ def test_image_problems_are_named(sphere_dataset):
     assert _has(errors, "transforms.json", "test/r_0.png", "does not exist")
 
 
+def test_views_that_show_nothing_are_warned_about(sphere_dataset):
+    # A camera path through the subject, or one looking away, leaves views transparent everywhere:
+    # valid files, but a held-out view of nothing measures nothing.
+    report, errors = _errors(sphere_dataset)
+    assert not [w for w in report.warnings if "shows nothing" in str(w)]
+    for split, k in (("test", 1), ("train", 2)):
+        path = sphere_dataset / split / f"r_{k}.png"
+        Image.new("RGBA", Image.open(path).size, (40, 90, 200, 0)).save(path)
+    report, errors = _errors(sphere_dataset)
+    assert errors == []
+    empty = [str(w) for w in report.warnings if "shows nothing" in str(w)]
+    assert len(empty) == 2
+    assert _has(empty, "transforms_test.json", "frame 1", "measures nothing")
+    assert _has(empty, "transforms_train.json", "frame 2") and not _has(empty, "train", "measures nothing")
+
+
 def test_held_out_cameras_must_not_be_training_cameras(sphere_dataset):
     train = json.loads((sphere_dataset / "transforms_train.json").read_text())
     _edit(sphere_dataset / "transforms_test.json",
