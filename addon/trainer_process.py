@@ -133,7 +133,7 @@ def train_command(
         cmd += ["--max-seconds", f"{max_seconds:g}"]
     if max_steps and max_steps > 0:
         cmd += ["--max-steps", str(int(max_steps))]
-    if seed is not None:
+    if seed is not None and not resume:  # a resumed run keeps its own seed (another one is refused)
         cmd += ["--seed", str(int(seed))]
     if resume:
         cmd.append("--resume")

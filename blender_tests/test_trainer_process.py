@@ -124,10 +124,14 @@ def test_child_env_finds_vendored_copy_first_then_checkout(tmp_path, repo_root):
 
 
 def test_commands_follow_the_cli_contract():
+    cmd = trainer_process.train_command("py", "/d", "/r", method="nerf", max_seconds=5, max_steps=0, seed=1)
+    assert cmd == ["py", "-m", "nerf_core", "train", "/d", "--out", "/r", "--method", "nerf",
+                   "--max-seconds", "5", "--seed", "1"]
+    # A resumed run keeps its seed: train refuses a different one rather than ignore it.
     cmd = trainer_process.train_command("py", "/d", "/r", method="nerf", max_seconds=5, max_steps=0, seed=1,
                                         resume=True)
     assert cmd == ["py", "-m", "nerf_core", "train", "/d", "--out", "/r", "--method", "nerf",
-                   "--max-seconds", "5", "--seed", "1", "--resume"]
+                   "--max-seconds", "5", "--resume"]
     assert trainer_process.render_command("py", "/r", "/t.json", "/o") == [
         "py", "-m", "nerf_core", "render", "/r", "--cameras", "/t.json", "--out", "/o"]
 

@@ -13,6 +13,7 @@ File names come from ``nerf_core.contract``; the run folder's rules live in ``ne
 from __future__ import annotations
 
 import json
+import math
 import os
 import pickle
 import platform
@@ -170,9 +171,33 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
     if not isinstance(config, dict):
         raise RunError(f"{cfg_path}: expected the JSON object that `train` writes, got a {type(config).__name__}; "
                        f"is {run} a run folder?")
+    _check_run_config(config, cfg_path)
     ck = Path(checkpoint) if checkpoint else Path(contract.latest_checkpoint(run))
     ckpt = read_checkpoint(ck)
     return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+
+
+def _check_run_config(config: dict, cfg_path: Path) -> None:
+    """Refuse (RunError naming the field) the values of a run's config.json that ``eval``, ``render``
+    and ``serve`` read, when they are not what ``train`` writes (an edited or damaged file)."""
+    def bad(key, want):
+        raise RunError(f"{cfg_path}: field {key!r} must be {want}, got {config[key]!r}")
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if "dataset" in config and config["dataset"] is not None and not isinstance(config["dataset"], str):
+        bad("dataset", "the dataset's path (a string)")
+    if "downscale" in config and not (isinstance(config["downscale"], int) and not isinstance(config["downscale"], bool)
+                                      and config["downscale"] >= 1):
+        bad("downscale", "a whole number >= 1")
+    if "eval_background" in config:
+        bg = config["eval_background"]
+        if not (isinstance(bg, list) and len(bg) == 3 and all(number(c) and 0 <= c <= 1 for c in bg)):
+            bad("eval_background", "an RGB colour: 3 numbers in [0, 1]")
+    for key in ("near", "far"):
+        if config.get(key) is not None and not (number(config[key]) and config[key] >= 0):
+            bad(key, "a number >= 0 (or null)")
 
 
 def read_resume_checkpoint(run: Path) -> tuple[Path, dict]:

@@ -31,7 +31,7 @@ from .cameras import Cameras
 from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import DISTORTION_KEYS
 from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
-from .dataset_checks import (check_duplicate_images, check_train_count, dataset_problems, depth_scale,  # noqa: F401
+from .dataset_checks import (check_duplicate_images, check_train_count, empty_masks_problem, dataset_problems, depth_scale,  # noqa: F401
                              parse_aabb, scene_fields)
 from .lens import fold_pixel
 from .metrics import composite
@@ -138,12 +138,33 @@ class Dataset:
 # pixels
 
 
+def _checked_float_pixels(fr: FrameInfo, img: np.ndarray) -> np.ndarray:
+    """Float (EXR) pixels (h, w, 3|4) that training can use: NaN or infinite values (a failed render or
+    a broken writer) and alpha outside [0, 1] are refused, naming the image and the first pixel;
+    colours may exceed 1 (HDR), but light is never negative: those values are clipped to 0."""
+    bad = ~np.isfinite(img).all(axis=-1)
+    if bad.any():
+        y, x = (int(v) for v in np.argwhere(bad)[0])
+        raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} has {int(bad.sum())} pixel(s) with NaN or "
+                           f"infinite values (the first at x={x}, y={y}); re-render or repair the image")
+    if img.shape[-1] == 4:
+        a = img[..., 3]
+        out = (a < -1e-3) | (a > 1 + 1e-3)
+        if out.any():
+            y, x = (int(v) for v in np.argwhere(out)[0])
+            raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} has alpha {float(a[y, x]):.4g} at x={x}, "
+                               f"y={y}; alpha is a coverage in [0, 1]")
+        img = img.copy()
+        img[..., 3] = np.clip(a, 0.0, 1.0)
+    return np.maximum(img, 0.0) if (img[..., :3] < 0).any() else img
+
+
 def _load_pixels(fr: FrameInfo, downscale: int) -> np.ndarray:
     if not fr.image.is_file():
         raise DatasetError(f"{fr.where}: field 'file_path': image {fr.image} not found")
     try:
         if fr.image.suffix.lower() == ".exr":
-            img = read_exr_rgba(fr.image)
+            img = _checked_float_pixels(fr, read_exr_rgba(fr.image))
         else:
             img = read_png(fr.image)
             if img.ndim == 2:
@@ -195,11 +216,12 @@ def _camera_params(fr: FrameInfo, img_w: int, img_h: int, downscale: int) -> tup
     w_decl, h_decl = fr.intrinsics.get("w"), fr.intrinsics.get("h")
     # After --downscale F an image of W px is W // F px (``_downscale``), so the declared size is
     # checked against the loaded one at any F: otherwise a wrong w/h would silently rescale the focal.
-    if w_decl is not None and h_decl is not None and (int(w_decl) // downscale != img_w or int(h_decl) // downscale != img_h):
+    # Either one alone is checked too: a lone 'w' of twice the image width halved the focal length.
+    if ((w_decl is not None and int(w_decl) // downscale != img_w)
+            or (h_decl is not None and int(h_decl) // downscale != img_h)):
         shown = f"{img_w}x{img_h}" if downscale == 1 else f"{img_w}x{img_h} after --downscale {downscale}"
-        raise DatasetError(
-            f"{fr.where}: fields 'w'/'h' say {int(w_decl)}x{int(h_decl)} but {fr.image} is {shown}"
-        )
+        said = "x".join(str(int(v)) if v is not None else "?" for v in (w_decl, h_decl))
+        raise DatasetError(f"{fr.where}: fields 'w'/'h' say {said} but {fr.image} is {shown}")
     fx, fy, cx, cy, W, H = resolve_intrinsics(fr.intrinsics, None, (img_w * downscale, img_h * downscale), fr.where)
     if fr.lens is not None:
         at = _lens_fold(fx, fy, cx, cy, int(W), int(H), fr.lens.coeffs, fr.lens.fisheye)
@@ -337,6 +359,8 @@ def load_dataset(
                              "their metrics will not measure novel views")
     near, far, film, world, beyond = scene_fields(scene)
     loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
+    if "train" in loaded and loaded["train"].masks is not None and not bool(loaded["train"].masks.any()):
+        raise DatasetError(empty_masks_problem(infos["train"]))
     for name in SPLITS:
         if name not in loaded:
             loaded[name] = load_split(name, [], downscale, dscale)

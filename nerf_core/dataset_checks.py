@@ -36,13 +36,24 @@ def parse_aabb(value, where: str) -> torch.Tensor:
 
 
 def check_train_count(root: Path, infos: Dict[str, List[FrameInfo]], min_train_views: int) -> None:
-    n_train = len(infos["train"])
+    # Views, not frames: one image listed twice (with one pose; two poses are check_duplicate_images's)
+    # is still one view.
+    n_train = len({str(f.image) for f in infos["train"]})
     if n_train < min_train_views:
         jf = infos["train"][0].json_file if infos["train"] else root
         raise DatasetError(
             f"{jf}: field 'frames': the train split has {n_train} view{'s' if n_train != 1 else ''}; a NeRF needs "
             f"many views of the scene (at least {min_train_views}, typically 50-200)"
         )
+
+
+def empty_masks_problem(frames: List[FrameInfo]) -> str:
+    """The message for a train split whose masks (``mask_path``) all select no pixel: every loss term
+    would be weighted by zero, so training would learn nothing and report no PSNR."""
+    with_mask = [f for f in frames if f.mask is not None]
+    return (f"{with_mask[0].json_file}: field 'mask_path': the masks of all {len(with_mask)} train frames that "
+            "have one are empty (every pixel 0 = ignored), so no pixel is left to train on; white (255) marks "
+            "the pixels to learn")
 
 
 def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
@@ -66,11 +77,16 @@ def scene_fields(scene: dict) -> tuple:
     for key in ("near", "far"):
         if key in scene:
             try:
+                if isinstance(scene[key], (bool, str)):  # "2.5" or true: a writer's bug
+                    raise TypeError
                 v = float(scene[key])
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise DatasetError(f"{scene[key + '_file']}: field {key!r} is not a number ({scene[key]!r})") from None
             if not math.isfinite(v) or v < 0:
                 raise DatasetError(f"{scene[key + '_file']}: field {key!r} must be a finite number >= 0, got {v}")
+            far_out = coordinate_problem([v], f"field {key!r}")
+            if far_out:
+                raise DatasetError(f"{scene[key + '_file']}: {far_out}")
             near, far = (v, far) if key == "near" else (near, v)
     if near is not None and far is not None and far <= near:
         raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
@@ -116,12 +132,18 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
         scale = 1e-3
     for name in SPLITS:
         first = None
+        masked_pixels = 0
         for fr in infos[name]:
             try:
                 sp = load_split(name, [fr], downscale, scale)
             except DatasetError as exc:
                 problems.append(str(exc))
+                masked_pixels = None  # unknown: the broken frame is reported instead
                 continue
+            if sp.masks is not None and masked_pixels is not None:
+                masked_pixels += int(sp.masks.sum())
+            elif masked_pixels is not None and fr.mask is None:
+                masked_pixels = None  # a frame without a mask keeps every pixel
             shape = (sp.width, sp.height, sp.images.shape[-1])
             if first is None:
                 first = (fr, shape)
@@ -138,6 +160,8 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
                         "images do; the alpha channel is the mask of the object, export every image as RGBA")
             except DatasetError as exc:
                 problems.append(str(exc))
+        if name == "train" and masked_pixels == 0 and any(f.mask is not None for f in infos[name]):
+            problems.append(empty_masks_problem(infos[name]))
     return problems
 
 

@@ -64,26 +64,35 @@ def parse_request(req: Any) -> Dict[str, Any]:
 
     Raises RequestError naming the request id and field.
     """
-    from .contract.transforms import PoseError, check_pose
+    from .contract.transforms import (MAX_COORDINATE, MAX_FOCAL_PX, MIN_FOCAL_PX, PoseError, check_pose,
+                                      coordinate_problem)
 
     if not isinstance(req, dict):
         raise RequestError(f"request must be a JSON object, got {type(req).__name__}")
     where = f"request {req.get('id')!r}" if "id" in req else "request"
+    raw = req.get("c2w")
     try:
-        m = np.asarray(req.get("c2w"), dtype=np.float64)
+        m = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):
         raise RequestError(f"{where}: field 'c2w' must be a 4x4 matrix (or 16 numbers, row-major)") from None
     if m.size != 16:
         raise RequestError(f"{where}: field 'c2w' must be a 4x4 matrix (or 16 numbers, row-major), got {m.size} numbers")
+    if m.ndim == 1:
+        raw = [raw[4 * i:4 * i + 4] for i in range(4)]
     try:
-        c2w = check_pose(m.reshape(4, 4), f"{where}: field 'c2w'")
+        c2w = check_pose(raw, f"{where}: field 'c2w'")  # the raw entries: "1.0" and true are no numbers
     except PoseError as exc:
         raise RequestError(str(exc)) from None
     out: Dict[str, Any] = {"id": req.get("id"), "c2w": c2w, "group": req.get("group")}
     for key in ("fx", "fy"):
         out[key] = _number(req, key, where, positive=True)
+        if not MIN_FOCAL_PX <= out[key] <= MAX_FOCAL_PX:  # beyond, float32 rays turn NaN or parallel
+            raise RequestError(f"{where}: field {key!r} is a focal length in pixels and must lie in "
+                               f"[{MIN_FOCAL_PX:g}, {MAX_FOCAL_PX:g}], got {out[key]:.4g}")
     for key in ("cx", "cy"):  # optional: the image centre
         out[key] = _number(req, key, where) if req.get(key) is not None else None
+        if out[key] is not None and abs(out[key]) > MAX_COORDINATE:
+            raise RequestError(f"{where}: field {key!r} is {out[key]:.4g} pixels, beyond {MAX_COORDINATE:.0e}")
     for key in ("w", "h"):
         v = req.get(key)
         if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SIDE:
@@ -93,12 +102,19 @@ def parse_request(req: Any) -> Dict[str, Any]:
         out[key] = _number(req, key, where) if req.get(key) is not None else None
         if out[key] is not None and out[key] < 0:
             raise RequestError(f"{where}: field {key!r} must be >= 0, got {out[key]}")
+        far_out = coordinate_problem([out[key]], f"field {key!r}") if out[key] is not None else None
+        if far_out:
+            raise RequestError(f"{where}: {far_out}")
     if out["near"] is not None and out["far"] is not None and out["far"] <= out["near"]:
         raise RequestError(f"{where}: 'far' ({out['far']}) must be greater than 'near' ({out['near']})")
     path = req.get("out")
     if not isinstance(path, str) or not path.endswith(".npy") or not os.path.isabs(path):
         raise RequestError(f"{where}: field 'out' must be an absolute path ending in .npy, got {path!r}")
     out["out"] = path
+    if not isinstance(req.get("depth", False), bool):  # "no" would be truthy
+        raise RequestError(f"{where}: field 'depth' must be true or false, got {req.get('depth')!r}")
+    if "\0" in path:
+        raise RequestError(f"{where}: field 'out' holds a NUL character")
     out["depth_out"] = path[:-4] + "_depth.npy" if req.get("depth") else None
     for p in filter(None, (out["out"], out["depth_out"])):
         if os.path.exists(p):
@@ -236,7 +252,9 @@ class RenderServer:
         except OSError as exc:
             self.emit("error", id=obj.get("id"), message=f"request {obj.get('id')!r}: cannot write {exc.filename or ''}: "
                                                           f"{exc.strerror or exc}")
-        except RuntimeError as exc:  # e.g. out of memory inside torch: report, keep serving
+        except (RuntimeError, ValueError, ArithmeticError) as exc:
+            # e.g. out of memory inside torch, or a value the checks above missed: one request fails, the
+            # server goes on (a client waits for an answer to every request).
             first = (str(exc).splitlines() or [type(exc).__name__])[0]
             self.emit("error", id=obj.get("id"), message=f"request {obj.get('id')!r}: rendering failed: {first}")
         return True
@@ -274,5 +292,7 @@ def add_serve_parser(sub, formatter_class) -> None:
     s.add_argument("run", metavar="RUN", help="run folder written by `train`")
     s.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
     s.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    s.add_argument("--chunk", type=int, default=8192, help="rays per model call (lower it to save memory)")
+    from .cli import _positive_int  # the flag rule render and eval use (cli calls this function)
+
+    s.add_argument("--chunk", type=_positive_int, default=8192, help="rays per model call (lower it to save memory)")
     s.set_defaults(handler=lambda a: serve_main(a.run, a.checkpoint, a.device, a.chunk))

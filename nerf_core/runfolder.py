@@ -198,21 +198,56 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
         )
 
 
-def check_run_vs_dataset(run: Path, dataset) -> None:
-    """Refuse a run folder that is the dataset folder, lies inside it, or contains it (TrainError)."""
+def dataset_overlap(folder, dataset) -> Optional[str]:
+    """How an output ``folder`` overlaps the ``dataset`` folder (a sentence fragment), else None."""
     ds = Path(dataset).resolve()
     if ds.is_file():
         ds = ds.parent
+    folder = Path(folder).resolve()
+    if folder == ds:
+        return "is the dataset folder itself"
+    if ds in folder.parents:
+        return f"lies inside the dataset folder {ds}"
+    if folder in ds.parents:
+        return f"contains the dataset {ds}"
+    return None
+
+
+def check_run_vs_dataset(run: Path, dataset) -> None:
+    """Refuse a run folder that is the dataset folder, lies inside it, or contains it (TrainError)."""
+    overlap = dataset_overlap(run, dataset)
+    if overlap is None:
+        return
     run = Path(run).resolve()
-    if run == ds:
-        raise TrainError(f"--out {run}: is the dataset folder itself; the run's files would mix with the dataset's. "
-                         "Choose a run folder outside the dataset")
-    if ds in run.parents:
-        raise TrainError(f"--out {run}: lies inside the dataset folder {ds} (tools that scan the dataset would find "
-                         "the run's files); choose a run folder outside the dataset")
-    if run in ds.parents:
-        raise TrainError(f"--out {run}: contains the dataset {ds}; --overwrite and the run's files would live beside "
-                         "your data. Choose a run folder that does not hold the dataset")
+    why = {"is": "the run's files would mix with the dataset's. Choose a run folder outside the dataset",
+           "lies": "tools that scan the dataset would find the run's files; choose a run folder outside the dataset",
+           "contains": "--overwrite and the run's files would live beside your data. Choose a run folder that does "
+                       "not hold the dataset"}[overlap.split()[0]]
+    raise TrainError(f"--out {run}: {overlap}; {why}")
+
+
+def check_progress_file(path: Path, dataset) -> None:
+    """Refuse a ``--progress`` file that appending events would damage (TrainError): one inside the
+    dataset folder (a transforms file, an image), or an existing file that is not a progress log (its
+    first line is no JSON event). A log of an earlier run is appended to, as ``--resume`` expects."""
+    from . import contract
+
+    path = Path(path)
+    target = path.resolve()
+    ds = Path(dataset).resolve()
+    if ds.is_file():
+        ds = ds.parent
+    if target == ds or ds in target.parents:
+        raise TrainError(f"--progress {path}: lies inside the dataset folder {ds}; the events would be appended "
+                         "to your data. Choose a file outside the dataset")
+    if target.is_dir():
+        raise TrainError(f"--progress {path}: is a folder; name a file")
+    if target.is_file() and target.stat().st_size > 0:
+        with open(target, "rb") as fh:
+            first = fh.readline(1 << 16).decode("utf-8", errors="replace")
+        if contract.parse_event_line(first) is None:
+            raise TrainError(f"--progress {path}: exists and is not a progress log (its first line is no JSON "
+                             "event); appending would damage it. Choose a new file")
 
 
 def lock_run_folder(run: Path) -> Callable[[], None]:

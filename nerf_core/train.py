@@ -36,7 +36,7 @@ from .previews import Previews
 from .progress import EventLog
 from .progressbar import ProgressBar
 from .replicas import Replicas
-from .runfolder import (TrainError, atomic_json, check_run_folder, check_run_vs_dataset, clear_run_folder,
+from .runfolder import (TrainError, atomic_json, check_progress_file, check_run_folder, check_run_vs_dataset, clear_run_folder,
                         dataset_hash, lock_run_folder, os_reason, record_written)
 from .seeding import rng_state, seed_everything, set_rng_state
 from .train_report import emit_step, final_eval, held_out_eval
@@ -70,6 +70,14 @@ class Trainer:
         cfg = self.cfg
         main = self.dist.is_main  # only rank 0 writes: events, lock, checkpoints, previews, metrics
         extra_logs = [cfg.progress] if cfg.progress and main else []
+        if cfg.progress:
+            try:  # before the file is opened for appending; every rank decides alike
+                check_progress_file(Path(cfg.progress), cfg.dataset)
+            except TrainError as exc:
+                if main:
+                    EventLog([], stdout=cfg.stdout_events).emit("error", message=str(exc))
+                self.dist.agree(False)
+                raise
         early_log = EventLog(extra_logs, stdout=cfg.stdout_events and main)
         self.log = early_log
         try:

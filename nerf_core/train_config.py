@@ -120,7 +120,25 @@ class TrainConfig:
 
 # What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.
 RESUME_MAY_CHANGE = {"max_steps", "max_seconds", "device", "progress", "stdout_events", "show_bar", "resume", "out",
-                     "eval_views", "eval_seconds", "log_every", "checkpoint_every", "checkpoint_seconds"}
+                     "eval_views", "eval_seconds", "log_every", "checkpoint_every", "checkpoint_seconds", "chunk",
+                     "preview_every", "preview_seconds", "preview_size", "keep_checkpoints", "max_rollbacks", "eval_at"}
+# Not settings of the run, or checked on their own (method, dataset) by ``merge_resumed_config``.
+_RESUME_BOOKKEEPING = {"dataset", "dataset_moved", "overwrite", "method"}
+
+
+def _resume_conflicts(cli: TrainConfig, saved: dict) -> list:
+    """'--flag VALUE (the run's: SAVED)' for each setting the command line gives (other than its
+    default) that differs from the run's: ``--resume`` would silently train with the run's own."""
+    defaults = TrainConfig(dataset="", out="")
+    out = []
+    for key, value in asdict(cli).items():
+        if key in RESUME_MAY_CHANGE or key in _RESUME_BOOKKEEPING or key not in saved:
+            continue
+        if value != getattr(defaults, key) and value != saved[key]:
+            flag = "--set" if key == "options" else "--" + key.replace("_", "-")
+            shown = " ".join(f"{k}={v}" for k, v in value.items()) if key == "options" else value
+            out.append(f"{flag} {shown} (the run's: {saved[key] if saved[key] is not None else 'the default'})")
+    return out
 
 
 def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
@@ -130,6 +148,10 @@ def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
     saved = dict(ckpt.get("config") or {})
     if cli.method and saved.get("method") and cli.method != saved["method"]:
         raise TrainError(f"--resume: the run was trained with method {saved['method']!r}, not {cli.method!r}")
+    conflicts = _resume_conflicts(cli, saved)
+    if conflicts:
+        raise TrainError("--resume continues a run with the settings it started with; " + "; ".join(conflicts)
+                         + ". Leave them out to resume, or train a new run (another --out) with them")
     dataset = resume_dataset(saved, cli.dataset, cli.dataset_moved)
     merged = asdict(cli)
     for k, v in saved.items():

@@ -29,6 +29,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402  (puts the checkout on sys.path)
 from bench import render_speed, report, runner  # noqa: E402  (scripts/bench)
+from nerf_core.runfolder import dataset_overlap  # noqa: E402
 
 PROG = "bench_render.py"
 
@@ -134,8 +135,15 @@ def main(argv=None) -> int:
         for m, run in runs.items():
             if not os.path.isfile(os.path.join(run, "config.json")):
                 raise render_speed.SpeedInputError(f"--runs {m}={run}: no config.json there (not a run folder)")
+            trained = render_speed.run_method(run)
+            if trained != m:  # its numbers would be reported under the wrong name
+                raise render_speed.SpeedInputError(f"--runs {m}={run}: that run was trained with method {trained!r}, "
+                                                   f"not {m!r}")
         out = os.path.abspath(args.out)
         args.dataset = os.path.abspath(args.dataset)
+        overlap = dataset_overlap(out, args.dataset)
+        if overlap:  # its JSON at the dataset root would make every loader refuse the dataset
+            raise render_speed.SpeedInputError(f"--out {out}: {overlap}; choose an output folder outside the dataset")
         targets = [os.path.join(out, d, m) for m in methods for d in ("renders", "frame")]
         targets += [os.path.join(out, "runs", m) for m in methods if m not in runs]
         targets += [os.path.join(out, f) for f in ("render_speed.json", "render_speed.md", "frame_camera.json")]

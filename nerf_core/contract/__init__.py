@@ -24,8 +24,8 @@ from typing import Any, Dict, Optional
 
 from .intrinsics import focal_from_fov, fov_from_focal, resolve_intrinsics  # noqa: F401 (re-exported)
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
-from .naming import (ERRORS_DIR, evenly_spaced, frame_stem, output_stems, path_stem,  # noqa: F401
-                     render_files, unique_stems)
+from .naming import (ERRORS_DIR, MAX_STEM_CHARS, evenly_spaced, file_safe, frame_stem, output_stems,  # noqa: F401
+                     path_stem, render_files, unique_stems)
 from .transforms import (EXTRA_FIELDS, HOLDOUT_EVERY, IMAGE_EXTS, INTRINSIC_KEYS, SPLITS,  # noqa: F401
                          DatasetError, FrameInfo, PoseError, check_pose, detect_layout, frame_infos,
                          parse_intrinsics, read_frames, read_json, read_transforms, resolve_dataset_path,

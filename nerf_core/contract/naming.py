@@ -18,15 +18,27 @@ def path_stem(file_path: str) -> str:
     return stem if ext else base
 
 
+# Longest output stem: the longest file made from it ("<stem>_depth.exr", and its temporary name
+# while written) stays well inside the 255 bytes most file systems allow for a name.
+MAX_STEM_CHARS = 120
+
+
+def file_safe(stem: str) -> str:
+    """``stem`` as a file name: control characters (NUL included) become '_', leading dots go (no
+    hidden files, no '.' or '..'), and it is cut to ``MAX_STEM_CHARS``; '' when nothing is left."""
+    cleaned = "".join("_" if ord(c) < 32 or c == "\x7f" else c for c in stem).lstrip(".")
+    return cleaned[:MAX_STEM_CHARS]
+
+
 def frame_stem(frame, index: int) -> str:
-    """A frame's own name before de-duplication: its ``name``, else the basename of ``file_path``,
-    else ``view_XXX`` (``XXX`` = ``index``). ``frame`` is a transforms frame (dict) or anything else
-    (a bare matrix), which has no name."""
+    """A frame's own name before de-duplication: its ``name``, else the basename of ``file_path``
+    (``file_safe``), else ``view_XXX`` (``XXX`` = ``index``). ``frame`` is a transforms frame (dict) or
+    anything else (a bare matrix), which has no name."""
     if isinstance(frame, dict):
         for key in ("name", "file_path"):
             value = frame.get(key)
-            if isinstance(value, str) and value:
-                return path_stem(value)
+            if isinstance(value, str) and file_safe(path_stem(value)):
+                return file_safe(path_stem(value))
     return f"view_{index:03d}"
 
 

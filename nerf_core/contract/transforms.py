@@ -38,6 +38,15 @@ EXTRA_FIELDS = (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_
 # origin neighbouring positions are 0.06 apart, so a scene placed that far out (or a box that large)
 # loses its detail. Coordinates beyond this are refused, with advice to move the scene nearer the origin.
 MAX_COORDINATE = 1e6
+# Focal lengths in pixels that float32 rays survive: at 1e-3 px a pixel's ray is 1000 image widths off
+# the axis (a field of view within a hair of 180 degrees); at 1e8 px a 100 k-pixel image spans 1e-3 rad.
+MIN_FOCAL_PX, MAX_FOCAL_PX = 1e-3, 1e8
+
+
+def _short(value, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for messages about values of the wrong kind."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def coordinate_problem(values, what: str) -> Optional[str]:
@@ -153,12 +162,20 @@ def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
     out = {}
     for key in INTRINSIC_KEYS:
         if key in src and src[key] is not None:
+            if isinstance(src[key], (bool, str)):  # "44.4" or true: a writer's bug, as in a matrix (check_pose)
+                raise DatasetError(f"{where}: field {key!r} is not a number ({src[key]!r})")
             try:
                 value = float(src[key])
-            except (TypeError, ValueError) as exc:
-                raise DatasetError(f"{where}: field {key!r} is not a number ({src[key]!r})") from exc
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise DatasetError(f"{where}: field {key!r} is not a number ({_short(src[key])})") from exc
             if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
-                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {src[key]!r}")
+                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {_short(src[key])}")
+            if key in ("fl_x", "fl_y") and not MIN_FOCAL_PX <= value <= MAX_FOCAL_PX:
+                raise DatasetError(f"{where}: field {key!r} is a focal length in pixels and must lie in "
+                                   f"[{MIN_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] (float32 rays turn to NaN or parallel "
+                                   f"beyond), got {value:.4g}")
+            if key in ("cx", "cy", "w", "h") and abs(value) > MAX_COORDINATE:
+                raise DatasetError(f"{where}: field {key!r} is {value:.4g} pixels, beyond {MAX_COORDINATE:.0e}")
             if key in ("w", "h") and not value.is_integer():
                 raise DatasetError(f"{where}: field {key!r} is an image size and must be a whole number of pixels, "
                                    f"got {src[key]!r}")
@@ -364,6 +381,15 @@ def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Se
         return str(Path(p))  # "./images/a.png" and "images/a.png" name the same frame
 
     lists = {name: meta.get(f"{name}_filenames") for name in SPLITS}
+    for name, names in lists.items():
+        if names is None:
+            continue
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise DatasetError(f"{jf}: field '{name}_filenames' must be a list of file paths (strings), got "
+                               f"{_short(names)}")
+        twice = next((n for k, n in enumerate(names) if norm(n) in {norm(m) for m in names[:k]}), None)
+        if twice is not None:  # one image twice is one view, however often it is listed
+            raise DatasetError(f"{jf}: field '{name}_filenames' lists {twice!r} twice")
     if lists["train"] is not None:
         by_name = {norm(f.file_path): f for f in frames}
         for name in splits:

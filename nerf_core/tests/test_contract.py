@@ -93,6 +93,10 @@ def test_output_stems_follow_render_naming_and_never_collide():
               [[1, 0, 0, 0]] * 4, {"file_path": "images/R_0.png"}, {"file_path": ""}]
     assert contract.output_stems(frames) == ["r_0", "r_0_1", "A", "view_003", "R_0_2", "view_005"]
     assert contract.unique_stems(["a", "a", "a_1"]) == ["a", "a_1", "a_1_1"]
+    # Names that are no file names: '.' and '..' wrote hidden '..png' files, NUL raised "embedded null
+    # byte", and 300 characters passed the file system's limit (255 bytes) with the depth file's suffix.
+    odd = [{"name": "."}, {"name": ".."}, {"name": "a\0b"}, {"name": "x" * 300}, {"name": ".hidden"}]
+    assert contract.output_stems(odd) == ["view_000", "view_001", "a_b", "x" * contract.MAX_STEM_CHARS, "hidden"]
     assert contract.render_files("r_0") == {"image": "r_0.png", "depth": "r_0_depth.exr", "error_map": "errors/r_0.png"}
 
 

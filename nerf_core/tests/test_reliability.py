@@ -384,8 +384,60 @@ def _flat_box(ds):
     return "field 'aabb' is 1e-09 units thick along z"
 
 
+def _edit_train(ds, fn):
+    p = ds / "transforms_train.json"
+    meta = json.loads(p.read_text())
+    fn(meta)
+    p.write_text(json.dumps(meta))
+
+
+def _tiny_focal(ds):
+    # 1e-300 px is a positive finite number, but 0 in float32: every ray direction turned NaN and
+    # train still exited 0 with PSNR numbers.
+    _edit_train(ds, lambda m: m.update(fl_x=1e-300))
+    return "field 'fl_x' is a focal length in pixels and must lie in [0.001, 1e+08]"
+
+
+def _focal_as_text(ds):
+    _edit_train(ds, lambda m: m.update(fl_x="44.4"))  # numpy read "44.4" as a number
+    return "field 'fl_x' is not a number ('44.4')"
+
+
+def _lone_width(ds):
+    # 'w' of twice the image width without 'h' halved the focal length silently.
+    def edit(m):
+        m["w"] = 48
+        m.pop("h")
+    _edit_train(ds, edit)
+    return "fields 'w'/'h' say 48x? but"
+
+
+def _empty_masks(ds):
+    # Every loss term weighted by 0: train exited 0 with loss 0.0 and no PSNR at every step.
+    from PIL import Image
+
+    def edit(m):
+        for k, fr in enumerate(m["frames"]):
+            Image.new("L", (24, 20), 0).save(ds / "train" / f"r_{k}_mask.png")
+            fr["mask_path"] = f"train/r_{k}_mask.png"
+    _edit_train(ds, edit)
+    return "field 'mask_path': the masks of all 8 train frames that have one are empty"
+
+
+def _one_image_twice(ds):
+    # Two frames of one image (one pose) passed the at-least-2-views rule.
+    _edit_train(ds, lambda m: m.update(frames=[m["frames"][0], dict(m["frames"][0])]))
+    return "train split has 1 view"
+
+
+def _far_at_1e300(ds):
+    _edit_train(ds, lambda m: m.update(near=1e299, far=1e300))
+    return "field 'near' reaches 1e+299 units"
+
+
 BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_train_frame, _fov_beyond_pi,
-          _near_is_text, _camera_far_out, _huge_box, _flat_box]
+          _near_is_text, _camera_far_out, _huge_box, _flat_box, _tiny_focal, _focal_as_text, _lone_width,
+          _empty_masks, _one_image_twice, _far_at_1e300]
 
 
 @pytest.mark.parametrize("breaker", BROKEN, ids=lambda f: f.__name__.strip("_"))
@@ -614,3 +666,88 @@ def test_running_out_of_memory_names_the_settings_to_lower(sphere_dataset, tmp_p
     msg = str(err.value)
     assert "training failed at step" in msg and "not enough memory" in msg and "--batch-rays (now 64)" in msg
     assert "4000000000000000 bytes" in msg  # the allocator's own words stay, shortened
+
+
+def test_progress_file_inside_the_dataset_or_not_a_log_is_refused_untouched(sphere_dataset, tmp_path, capsys):
+    # --progress appended events to whatever file it named: the dataset's own transforms file, an image.
+    target = sphere_dataset / "transforms_train.json"
+    before = target.read_bytes()
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    for path, words in ((target, "lies inside the dataset folder"), (notes, "is not a progress log")):
+        rc = main(["train", str(sphere_dataset), "--out", str(tmp_path / "run"), "--method", "test-grid",
+                   "--max-steps", "2", "--no-bar", "--progress", str(path)])
+        err = capsys.readouterr().err
+        assert rc == 2 and words in err.strip().splitlines()[-1] and "Traceback" not in err
+    assert target.read_bytes() == before and notes.read_text() == "my notes\n"
+    assert not (tmp_path / "run").exists()
+    log = tmp_path / "log.jsonl"  # a log of an earlier run is appended to
+    for extra in ([], ["--resume", "--max-steps", "4"]):
+        assert main(["train", str(sphere_dataset), "--out", str(tmp_path / "ok"), "--method", "test-grid",
+                     "--max-steps", "2", "--no-bar", "--progress", str(log), *extra]) == 0
+    assert sum(e["event"] == "done" for e in read_events(log)) == 2
+
+
+def test_resume_refuses_settings_it_would_ignore(sphere_dataset, tmp_path, capsys):
+    # --lr, --set, --seed ... with --resume exited 0 and trained with the run's own values.
+    run = tmp_path / "run"
+    assert main(["train", str(sphere_dataset), "--out", str(run), "--method", "test-grid", "--max-steps", "2",
+                 "--no-bar", "--lr", "0.01"]) == 0
+    capsys.readouterr()
+    rc = main(["train", str(sphere_dataset), "--out", str(run), "--resume", "--max-steps", "4", "--no-bar",
+               "--lr", "0.5", "--seed", "9"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert rc == 2 and "--lr 0.5 (the run's: 0.01)" in err and "--seed 9 (the run's: 0)" in err
+    # Budgets, logging and the same values as the run's are fine.
+    assert main(["train", str(sphere_dataset), "--out", str(run), "--resume", "--max-steps", "4", "--no-bar",
+                 "--lr", "0.01", "--log-every", "1"]) == 0
+
+
+@pytest.mark.parametrize("key, value, want", [
+    ("eval_background", "white", "an RGB colour"),
+    ("eval_background", [1, 1], "an RGB colour"),
+    ("dataset", 5, "the dataset's path"),
+    ("downscale", "x", "a whole number >= 1"),
+])
+@pytest.mark.parametrize("command", ["eval", "render"])
+def test_a_run_config_with_damaged_fields_is_named(trained_run, tmp_path, command, key, value, want):
+    run = Path(shutil.copytree(trained_run["run"], tmp_path / "run"))
+    cfg = json.loads((run / "config.json").read_text())
+    cfg[key] = value
+    (run / "config.json").write_text(json.dumps(cfg))
+    args = [command, run] + (["--out", tmp_path / "r"] if command == "render" else [])
+    _clear_error(_cli(*args), "config.json", f"field {key!r} must be {want}")
+
+
+def test_nerfstudio_split_lists_of_the_wrong_kind_are_named(sphere_dataset, capsys):
+    p = sphere_dataset / "nerfstudio" / "transforms.json"
+    original = json.loads(p.read_text())
+    for value, words in (([5], "must be a list of file paths"), (5, "must be a list of file paths"),
+                         ("train/r_0.png", "must be a list of file paths"),
+                         (original["train_filenames"][:1] * 3, "lists '../train/r_0.png' twice")):
+        p.write_text(json.dumps({**original, "train_filenames": value}))
+        rc = main(["check", str(sphere_dataset / "nerfstudio")])
+        out = capsys.readouterr()
+        assert rc == 1 and "field 'train_filenames' " + words in out.out and "Traceback" not in out.err
+
+
+def test_exr_images_with_nan_or_alpha_out_of_range_are_named(tmp_path):
+    from nerf_core.data import DatasetError, load_dataset
+    from nerf_core.imageio import read_exr_rgba
+    from nerf_core.tests.conftest import make_dataset, write_exr
+
+    ds = make_dataset(tmp_path / "ds", exr_images=True, layouts=("synthetic",))
+    img = ds / "train" / "r_2.exr"
+    rgba = read_exr_rgba(img)
+    for broken, words in ((("R", float("nan")), "1 pixel(s) with NaN or infinite values (the first at x=3, y=4)"),
+                          (("A", 5.0), "has alpha 5 at x=3, y=4")):
+        bad = rgba.copy()
+        bad[4, 3, "RGBA".index(broken[0][0])] = broken[1]
+        write_exr(img, {c: bad[..., j] for j, c in enumerate("RGBA")})
+        with pytest.raises(DatasetError, match=r"frame 2 \(\./train/r_2\.exr\): field 'file_path': .*" + words.replace(
+                "(", r"\(").replace(")", r"\)")):
+            load_dataset(ds)
+    bad = rgba.copy()
+    bad[4, 3, 0] = -50.0  # negative light: clipped
+    write_exr(img, {c: bad[..., j] for j, c in enumerate("RGBA")})
+    assert float(load_dataset(ds).split("train").images[2, 4, 3, 0]) == 0.0

@@ -81,6 +81,34 @@ def test_bad_requests_get_one_error_line_each_and_the_server_goes_on(trained_run
     assert events[-1]["id"] == 9 and not (tmp_path / "never.npy").exists()  # nothing after quit
 
 
+def test_values_float32_cannot_take_are_one_error_each_and_the_server_goes_on(trained_run, tmp_path):
+    # A focal length of 1e-300 px (0 in float32) made NaN rays; the ValueError that followed ended the
+    # server with exit 2 and no answer, and the next request was never served.
+    text_c2w = [[str(v) for v in row] for row in C2W.tolist()]
+    lines = [json.dumps(_req(1, tmp_path / "a.npy", fx=1e-300)), json.dumps(_req(2, tmp_path / "a.npy", cx=1e300)),
+             json.dumps(_req(3, tmp_path / "a.npy", far=1e300)), json.dumps(_req(4, tmp_path / "a.npy", depth="no")),
+             json.dumps(_req(5, tmp_path / "a.npy", c2w=text_c2w)), json.dumps(_req(6, str(tmp_path / "a") + "\0b.npy")),
+             json.dumps(_req(7, tmp_path / "ok.npy"))]
+    events = _serve(trained_run["run"], lines)
+    assert [e["event"] for e in events] == ["ready"] + ["error"] * 6 + ["result"]
+    msgs = [e["message"] for e in events[1:7]]
+    assert msgs[0] == "request 1: field 'fx' is a focal length in pixels and must lie in [0.001, 1e+08], got 1e-300"
+    assert msgs[1] == "request 2: field 'cx' is 1e+300 pixels, beyond 1e+06"
+    assert msgs[2].startswith("request 3: field 'far' reaches 1e+300 units from the origin")
+    assert msgs[3] == "request 4: field 'depth' must be true or false, got 'no'"
+    assert "request 5: field 'c2w': entries must be JSON numbers" in msgs[4]
+    assert msgs[5] == "request 6: field 'out' holds a NUL character"
+    assert not (tmp_path / "a.npy").exists() and np.load(tmp_path / "ok.npy").shape == (18, 24, 4)
+
+
+def test_serve_refuses_a_chunk_that_renders_nothing(trained_run):
+    env = {**os.environ, "NERF_CORE_PLUGINS": "nerf_core.tests.conftest", "PYTHONPATH": str(REPO_ROOT)}
+    proc = subprocess.run([sys.executable, "-m", "nerf_core", "serve", str(trained_run["run"]), "--chunk", "0"],
+                          input="", capture_output=True, text=True, env=env, timeout=120, cwd=str(REPO_ROOT))
+    assert proc.returncode == 2 and "--chunk" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+
+
 def test_a_request_that_is_json_but_not_an_object_is_answered_and_the_server_goes_on(trained_run, tmp_path):
     events = _serve(trained_run["run"], ["42", "[1, 2]", "null", '"text"', json.dumps(_req(1, tmp_path / "ok.npy"))])
     assert [e["event"] for e in events] == ["ready"] + ["error"] * 4 + ["result"]

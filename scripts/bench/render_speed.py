@@ -54,6 +54,19 @@ def parse_runs(text: Optional[str], methods: Sequence[str]) -> dict[str, str]:
     return out
 
 
+def run_method(run: str) -> Optional[str]:
+    """The method a run folder was trained with (its config.json), or None when that cannot be read."""
+    import json
+
+    try:
+        with open(os.path.join(run, "config.json"), encoding="utf-8") as fh:
+            cfg = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    method = cfg.get("method") if isinstance(cfg, dict) else None
+    return method if isinstance(method, str) else None
+
+
 def training_rate(events: Iterable[dict], rays_per_step: int) -> dict:
     """Training rays/s over the second half of a run's training time, from its progress events.
 

@@ -114,6 +114,16 @@ def test_bad_arguments_and_existing_outputs_are_one_line_errors(tmp_path, tiny_d
     assert res.returncode == 2 and "renders/vmgrid already exists" in res.stderr
     assert (tmp_path / "o" / "renders" / "vmgrid" / "renders.json").read_text() == "{}"  # left alone
     assert not (tmp_path / "o" / "runs").exists()  # refused before training anything
+    # Into the dataset, its JSON at the root would make every loader refuse the dataset.
+    before = sorted(os.listdir(ds))
+    res = _run("--dataset", str(ds), "--out", str(ds), "--methods", "vmgrid")
+    assert res.returncode == 2 and "is the dataset folder itself" in res.stderr and sorted(os.listdir(ds)) == before
+    # A run of another method would be reported under the wrong name.
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"method": "vmgrid"}))
+    res = _run("--dataset", str(ds), "--out", str(tmp_path / "o2"), "--methods", "nerf", "--runs", f"nerf={run}")
+    assert res.returncode == 2 and "trained with method 'vmgrid', not 'nerf'" in res.stderr
 
 
 def test_a_short_real_run_writes_the_table(tmp_path):
