@@ -55,6 +55,13 @@ def _checked_number(cast, noun: str, ok, rule: str):
     return parse
 
 
+def _folder(text: str) -> str:
+    """An argparse ``type`` for output folders: an empty path would mean the current folder."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty; name a folder (an empty path would write into the current one)")
+    return text
+
+
 _positive_float = _checked_number(float, "a number", lambda v: v > 0, "must be positive")
 _positive_int = _checked_number(int, "an integer", lambda v: v > 0, "must be positive")
 _nonneg_int = _checked_number(int, "an integer", lambda v: v >= 0, "must be >= 0")
@@ -132,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Train a NeRF. JSON progress events go to stdout and RUN/progress.jsonl; "
                                    "a progress bar with ETA goes to stderr.")
     t.add_argument("dataset", metavar="DATASET", help="dataset folder (transforms_train.json or transforms.json) or a transforms file")
-    t.add_argument("--out", required=True, metavar="RUN", help="run folder to create (refused if it exists and is not empty)")
+    t.add_argument("--out", required=True, type=_folder, metavar="RUN", help="run folder to create (refused if it exists and is not empty)")
     t.add_argument("--method", metavar="M", help="method name (see `python -m nerf_core methods`); default: the library's default method")
     t.add_argument("--max-steps", type=_positive_int, metavar="N", help="stop after N optimisation steps")
     t.add_argument("--max-seconds", type=_positive_float, metavar="S",
@@ -180,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
                     chunk_help="most rays per model call (lower it to save memory; CPU calls are smaller)")
     r.add_argument("--cameras", metavar="TRANSFORMS.json",
                    help="dataset folder, transforms file (either layout) or JSON list of cameras; default: the run's dataset")
-    r.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    r.add_argument("--out", required=True, type=_folder, metavar="DIR", help="output folder")
     r.add_argument("--overwrite", action="store_true", help="replace existing outputs in DIR")
 
     e = sub.add_parser("eval", help="evaluate a run on held-out views (PSNR, SSIM, depth error)", formatter_class=fmt,

@@ -31,8 +31,8 @@ from .cameras import Cameras
 from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import DISTORTION_KEYS
 from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
-from .dataset_checks import (check_duplicate_images, check_train_count, empty_masks_problem, dataset_problems, depth_scale,  # noqa: F401
-                             parse_aabb, scene_fields)
+from .dataset_checks import (check_duplicate_images, check_near_far, check_train_count,  # noqa: F401
+                             dataset_problems, depth_scale, empty_masks_problem, parse_aabb, scene_fields)
 from .lens import fold_pixel
 from .metrics import composite
 from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
@@ -358,6 +358,7 @@ def load_dataset(
                 notes.append(f"{leaked[0].where}: {len(leaked)} {name} frame(s) use training images; "
                              "their metrics will not measure novel views")
     near, far, film, world, beyond = scene_fields(scene)
+    check_near_far(scene, infos)
     loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
     if "train" in loaded and loaded["train"].masks is not None and not bool(loaded["train"].masks.any()):
         raise DatasetError(empty_masks_problem(infos["train"]))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 import torch
@@ -102,6 +102,45 @@ def scene_fields(scene: dict) -> tuple:
     return near, far, film, world, beyond
 
 
+def near_far_problem(near: Optional[float], far: Optional[float], aabb, origins, where: str) -> Optional[str]:
+    """Why the dataset's ``near``/``far`` keep every train camera's samples out of the scene box
+    ``aabb`` ((2, 3)), or None. Rays are unit length, so a sample at ``t`` lies ``t`` from its camera:
+    a camera (``origins`` (n, 3)) whose nearest box point is beyond ``far``, or whose farthest corner is
+    nearer than ``near``, sees nothing of the box."""
+    if (near is None and far is None) or len(origins) == 0:
+        return None
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in aabb)
+    o = np.asarray(origins, dtype=np.float64)
+    d_min = np.linalg.norm(np.clip(o, lo, hi) - o, axis=1)
+    d_max = np.linalg.norm(np.maximum(np.abs(o - lo), np.abs(o - hi)), axis=1)
+    reach = np.ones(len(o), bool)
+    if far is not None:
+        reach &= far > d_min
+    if near is not None:
+        reach &= near < d_max
+    if reach.any():
+        return None
+    return (f"{where}: fields 'near'/'far' ({near} to {far}) never reach the scene box: the train cameras are "
+            f"{d_min.min():.4g} to {d_max.max():.4g} units from its nearest and farthest points, so no sample "
+            "would land in it. Fix near/far (or the aabb)")
+
+
+def check_near_far(scene: dict, infos: Dict[str, List[FrameInfo]]) -> None:
+    """``near_far_problem`` for a dataset with an ``aabb`` (DatasetError); nothing to say without one
+    (the box is then estimated from the cameras) or when the fields themselves are broken."""
+    if "aabb" not in scene or not infos.get("train"):
+        return
+    try:
+        near, far = scene_fields(scene)[:2]
+        aabb = parse_aabb(scene["aabb"], str(scene["aabb_file"]))
+    except DatasetError:
+        return  # reported by their own checks
+    problem = near_far_problem(near, far, aabb.numpy(), np.stack([f.c2w[:3, 3] for f in infos["train"]]),
+                               str(scene.get("far_file") or scene.get("near_file")))
+    if problem:
+        raise DatasetError(problem)
+
+
 def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2) -> List[str]:
     """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
 
@@ -120,7 +159,8 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
     problems: List[str] = []
     for check in (lambda: check_train_count(root, infos, min_train_views), lambda: scene_fields(scene),
                   lambda: check_duplicate_images(infos),
-                  lambda: parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None):
+                  lambda: parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None,
+                  lambda: check_near_far(scene, infos)):
         try:
             check()
         except DatasetError as exc:

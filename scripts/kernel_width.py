@@ -61,13 +61,16 @@ def fail(msg: str) -> None:
     _bootstrap.exit_code(2)
 
 
-def number_list(text: str, flag: str, kind=float) -> list:
+def number_list(text: str, flag: str, kind=float, minimum=None) -> list:
+    """Comma-separated numbers of ``kind``, each > 0, or >= ``minimum`` when given (a crop's offsets
+    may be 0)."""
     try:
         values = [kind(v) for v in text.split(",") if v.strip()]
     except ValueError:
         fail(f"{flag} {text!r}: expected comma-separated numbers")
-    if not values or any(v <= 0 for v in values):
-        fail(f"{flag} {text!r}: expected positive numbers")
+    low = (lambda v: v < minimum) if minimum is not None else (lambda v: v <= 0)
+    if not values or any(low(v) for v in values):
+        fail(f"{flag} {text!r}: expected " + (f"numbers >= {minimum}" if minimum is not None else "positive numbers"))
     return values
 
 
@@ -84,9 +87,11 @@ def rerun_outside_blender(args, argv) -> int:
 def load_target(args):
     from nerf_core.photo2d import DEFAULT_CROP, DEFAULT_HDRI, PhotoError, find_hdri, load_photo
 
-    crop = tuple(number_list(args.crop, "--crop", int)) if args.crop else DEFAULT_CROP
+    crop = tuple(number_list(args.crop, "--crop", int, minimum=0)) if args.crop else DEFAULT_CROP
     if len(crop) != 3:
         fail(f"--crop {args.crop!r}: expected TOP,LEFT,SIDE")
+    if crop[2] < 1:
+        fail(f"--crop {args.crop!r}: SIDE must be at least 1 pixel")
     datafiles = args.datafiles
     if not args.hdri and not datafiles:
         try:  # the bpy module (PyPI) knows its own DATAFILES; nerf_core only searches the disk
@@ -114,6 +119,9 @@ def main(argv=None) -> int:
 
     from nerf_core import fit2d
     import kernel_width_report as report
+
+    if args.steps < 1:  # nothing fitted would chart untrained models
+        fail(f"--steps {args.steps}: must be at least 1")
 
     existing = [f for f in OUTPUTS if os.path.exists(os.path.join(args.out, f))]
     if existing and not args.overwrite:

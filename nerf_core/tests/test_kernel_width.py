@@ -129,3 +129,11 @@ def test_script_writes_the_study_and_never_overwrites_it(tmp_path):
                              capture_output=True, text=True, timeout=300)
     assert missing.returncode == 2 and str(tmp_path / "no.exr") in missing.stderr and "Traceback" not in missing.stderr
     assert not (tmp_path / "x").exists()
+    for args, words in ((["--steps", "0"], "--steps 0: must be at least 1"),
+                        (["--crop", "0,0,0"], "SIDE must be at least 1 pixel")):
+        bad = subprocess.run([sys.executable, script, "--out", str(tmp_path / "y"), *args], capture_output=True,
+                             text=True, timeout=300)
+        assert bad.returncode == 2 and words in bad.stderr and not (tmp_path / "y").exists()
+    corner = subprocess.run([sys.executable, script, "--out", str(tmp_path / "corner"), *source, "--crop", "0,0,8",
+                             "--steps", "1", "--sigmas", "1", "--pe-freqs", "1"], capture_output=True, text=True, timeout=300)
+    assert corner.returncode == 0, corner.stderr  # an offset of 0 is a crop at the image's corner

@@ -435,9 +435,19 @@ def _far_at_1e300(ds):
     return "field 'near' reaches 1e+299 units"
 
 
+def _near_far_short_of_the_box(ds):
+    # Cameras 3 units out, a box of +-1: a far of 0.5 keeps every sample 1.5 units short of it.
+    for split in ("train", "val", "test"):
+        p = ds / f"transforms_{split}.json"
+        meta = json.loads(p.read_text())
+        meta["near"], meta["far"] = 0.0, 0.5
+        p.write_text(json.dumps(meta))
+    return "fields 'near'/'far' (0.0 to 0.5) never reach the scene box"
+
+
 BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_train_frame, _fov_beyond_pi,
           _near_is_text, _camera_far_out, _huge_box, _flat_box, _tiny_focal, _focal_as_text, _lone_width,
-          _empty_masks, _one_image_twice, _far_at_1e300]
+          _empty_masks, _one_image_twice, _far_at_1e300, _near_far_short_of_the_box]
 
 
 @pytest.mark.parametrize("breaker", BROKEN, ids=lambda f: f.__name__.strip("_"))
@@ -751,3 +761,17 @@ def test_exr_images_with_nan_or_alpha_out_of_range_are_named(tmp_path):
     bad[4, 3, 0] = -50.0  # negative light: clipped
     write_exr(img, {c: bad[..., j] for j, c in enumerate("RGBA")})
     assert float(load_dataset(ds).split("train").images[2, 4, 3, 0]) == 0.0
+
+
+@pytest.mark.parametrize("command", ["train", "render"])
+def test_an_empty_out_is_refused_not_the_current_folder(trained_run, sphere_dataset, tmp_path, command, monkeypatch,
+                                                          capsys):
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    args = ["train", str(sphere_dataset), "--method", "test-grid", "--max-steps", "2"] if command == "train" else [
+        "render", str(trained_run["run"])]
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--out", "", "--no-bar"])
+    assert exc.value.code == 2 and "argument --out: is empty" in capsys.readouterr().err
+    assert os.listdir(cwd) == []
