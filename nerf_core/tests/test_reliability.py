@@ -324,12 +324,17 @@ def _small_depth(ds):
     return "depth_file_path"
 
 
-def _far_before_near(ds):
+def _set_near_far(ds, near, far):
+    """The same near/far in every split file."""
     for split in ("train", "val", "test"):
         p = ds / f"transforms_{split}.json"
         meta = json.loads(p.read_text())
-        meta["near"], meta["far"] = 5.0, 1.0
+        meta["near"], meta["far"] = near, far
         p.write_text(json.dumps(meta))
+
+
+def _far_before_near(ds):
+    _set_near_far(ds, 5.0, 1.0)
     return "'far'"
 
 
@@ -437,11 +442,7 @@ def _far_at_1e300(ds):
 
 def _near_far_short_of_the_box(ds):
     # Cameras 3 units out, a box of +-1: a far of 0.5 keeps every sample 1.5 units short of it.
-    for split in ("train", "val", "test"):
-        p = ds / f"transforms_{split}.json"
-        meta = json.loads(p.read_text())
-        meta["near"], meta["far"] = 0.0, 0.5
-        p.write_text(json.dumps(meta))
+    _set_near_far(ds, 0.0, 0.5)
     return "fields 'near'/'far' (0.0 to 0.5) never reach the scene box"
 
 
