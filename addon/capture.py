@@ -177,7 +177,9 @@ class CaptureJob:
             if settings.target == "SELECTION" and self.engine != "CYCLES":
                 raise CaptureError("object masks of a selection need Cycles (its object index pass)")
         self.notes = capture_notes(scene)
+        self.start_frame = scene.frame_current  # views without a frame of their own render at this one
         self.render_sig = None
+        self.scene_sig = None  # scene_bounds.scene_signature at plan(): resuming an edited scene is a conflict
         self.world = None
         self.frames = []
         self.plan_doc = None  # capture_plan.make_plan: the JSON plan every shard computes alike
@@ -222,6 +224,7 @@ class CaptureJob:
             raise CaptureError(f"no train cameras in the {layouts.COLLECTION_NAME!r} collection; "
                                "generate a camera layout first")
         self.render_sig = self._render_signature()
+        self.scene_sig = scene_bounds.scene_signature(self.scene)
         self.world = world_description(self.scene.world)
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
         render = RenderView(self.scene.render, self.s.res_x, self.s.res_y)
@@ -251,6 +254,10 @@ class CaptureJob:
                                                    self.s.points, export.MANIFEST_DIR))
                 frames.append(fr)
         self.frames = frames
+        if any(fr["frame"] is not None for fr in frames):
+            # Views at their own frames (the animation layout): the scene at the current frame is not
+            # what they show, and resuming at another frame must not look like an edit.
+            self.scene_sig = None
         self.plan_doc = capture_plan.make_plan(frames, settings=self.s, render_sig=self.render_sig, world=self.world,
                                                bounds=self.bounds, scene_name=self.scene.name,
                                                blender_version=bpy.app.version_string,
@@ -293,11 +300,22 @@ class CaptureJob:
         if manifest is None:
             if entries and not states:
                 shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+                # Say what an overwrite deletes: the dataset's own names (DATASET_PATHS), whoever wrote them.
+                doomed = [e for e in entries if e in DATASET_PATHS]
+                fate = (f"overwrite deletes {', '.join(doomed)} (the dataset's names) and keeps the rest" if doomed
+                        else "overwrite keeps all of it")
                 return None, (f"output folder {out} is not empty and holds no capture of ours ({shown}); "
-                              "choose an empty folder or confirm overwrite (--overwrite)")
+                              f"choose an empty folder or confirm overwrite (--overwrite): {fate}")
             return None, None
         old = manifest.get("frames", {})
         new = {f["key"]: f["hash"] for f in self.frames}
+        recorded = manifest.get("scene_signature")
+        if recorded and self.scene_sig and recorded != self.scene_sig and any(v.get("done") for v in old.values()):
+            # Frame hashes cover the cameras and render settings, not the scene: resuming would keep
+            # pictures of the scene as it was beside a box and near/far computed for it as it is.
+            return manifest, (f"output folder {out} holds frames of this scene as it was before it changed (objects "
+                              "added, removed, moved or edited since); choose another folder or confirm overwrite "
+                              "(--overwrite) to render them again")
         differing = sorted(k for k, v in old.items() if new.get(k) != v.get("hash"))
         if differing:
             same_render = manifest.get("render") == capture_plan.round6(self.render_sig)
@@ -415,10 +433,18 @@ class CaptureJob:
         self._set(sc, "camera", sc.camera)
         self._set(sc, "frame_current", sc.frame_current)
         img = r.image_settings
-        for attr in ("media_type", "file_format", "color_mode", "color_depth", "exr_codec", "use_exr_interleave",
-                     "compression"):
+        # Restored in reverse: the media type first (setting it resets the format), then the format,
+        # then what the format allows. The other way round, a JPEG or EXR output came back as PNG.
+        for attr in ("compression", "use_exr_interleave", "exr_codec", "color_depth", "color_mode", "file_format",
+                     "media_type"):
             if hasattr(img, attr):
                 self._restore.append((img, attr, getattr(img, attr)))
+        # Cameras bound to timeline markers take over the scene camera at every render: each view
+        # would show the marker's camera while its pose says otherwise.
+        for marker in sc.timeline_markers:
+            if marker.camera is not None:
+                self._set(marker, "camera", None)
+        self.start_frame = sc.frame_current
 
     def _restore_settings(self) -> None:
         for owner, attr, value in reversed(self._restore):
@@ -443,8 +469,11 @@ class CaptureJob:
             raise CaptureError(f"camera {fr['camera']!r} was deleted during the capture")
         sc = self.scene
         sc.camera = obj
-        if fr["frame"] is not None and sc.frame_current != fr["frame"]:
-            sc.frame_set(fr["frame"])
+        # Every view renders at its planned frame, or the one the capture started at: while the panel
+        # captures, the user may scrub or play the timeline.
+        frame = fr["frame"] if fr["frame"] is not None else self.start_frame
+        if sc.frame_current != frame:
+            sc.frame_set(frame)
         bpy.ops.render.render()
         result = bpy.data.images["Render Result"]
         capture_render.save_png(sc, result, os.path.join(self.out, fr["image"]))
@@ -518,6 +547,7 @@ class CaptureJob:
     def _manifest_info(self) -> dict:
         return {"created": self.created, "blend_file": bpy.data.filepath or None, "blend_sha256": self.blend_sha256,
                 "blend_unsaved_changes": bool(bpy.data.is_dirty), "plan_hash": self.plan_hash,
+                "scene_signature": self.scene_sig,
                 "file_sha256": {k: v for k, v in self.file_sha256.items() if k in self.done_keys}}
 
     def _write_dataset(self, complete: bool) -> None:

@@ -300,7 +300,7 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
     def draw(self, context):
         layout = property_split(self.layout)
         s = context.scene.nerf_capture
-        if s.is_running:
+        if s.is_running and jobs.is_running(CAPTURE):  # a flag without a job is stale (an add-on reload)
             if hasattr(layout, "progress"):
                 layout.progress(factor=s.progress, type="BAR", text=s.status)
             else:

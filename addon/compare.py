@@ -70,9 +70,10 @@ def dataset_meta(run: str) -> dict:
         if path and os.path.isfile(path):
             try:
                 with open(path, encoding="utf-8") as fh:
-                    return json.load(fh)
-            except (OSError, ValueError):
+                    meta = json.load(fh)
+            except (OSError, ValueError, RecursionError):
                 return {}
+            return meta if isinstance(meta, dict) else {}  # a damaged file: no size, said by the caller
     return {}
 
 
@@ -88,10 +89,14 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
                              f"transforms_{split}.json.")
         try:
             with open(path, encoding="utf-8") as fh:
-                n = len(json.load(fh).get("frames", []))
-        except (OSError, ValueError) as exc:
+                doc = json.load(fh)
+        except (OSError, ValueError, RecursionError) as exc:
             raise SetupError(f"{path}: cannot read ({exc})") from None
-        return path, n, split
+        frames = doc.get("frames") if isinstance(doc, dict) else None
+        if not isinstance(frames, list):
+            raise SetupError(f"{path}: expected a transforms object with a 'frames' list; run "
+                             "`python -m nerf_core check` on the dataset")
+        return path, len(frames), split
     meta = dataset_meta(run)
     if not meta.get("w") or not meta.get("h"):
         raise SetupError(f"The run's dataset has no image size (w, h) in its transforms: cannot match camera aspect.")

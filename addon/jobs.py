@@ -14,8 +14,10 @@ their own process group, so nothing else would take them down.
 from __future__ import annotations
 
 import atexit
+import os
 import sys
 import time
+import traceback
 from typing import Callable, Dict, List, Optional, Sequence
 
 import bpy
@@ -190,8 +192,8 @@ class RenderJob(ProcessJob):
         try:
             self.views = planes.views_from_render(self.out, self.cameras)
             note = compare.import_views(self.scene, self.views, self.layout, self.out, self.run, self.distance)
-        except (ValueError, RuntimeError) as exc:
-            return self.fail(str(exc))
+        except (ValueError, RuntimeError, TypeError, KeyError) as exc:  # a damaged renders.json
+            return self.fail(f"{os.path.join(self.out, 'renders.json')}: cannot import the views: {exc}")
         except OSError as exc:
             return self.fail(trainer_process.describe_os_error(exc, self.out))
         self.state = "done"
@@ -369,7 +371,15 @@ class NERF_OT_follow_jobs(bpy.types.Operator):
             if job.state == "running":
                 if now - job.last_update < job.interval:
                     continue
-                job.update()
+                try:
+                    job.update()
+                except Exception as exc:  # noqa: BLE001  (a bug or unreadable output must end the job)
+                    # Left running, the job would block every later Render or Train click with "already
+                    # running", with nothing to cancel. The traceback goes to the console for a report.
+                    traceback.print_exc()
+                    if isinstance(job, ProcessJob) and job.process is not None and not job.process.finished():
+                        job.cancel()
+                    job.fail(f"{job.kind.capitalize()} failed: {type(exc).__name__}: {exc}")
                 job.last_update = time.monotonic()
             job.notify()
             if job.ended:

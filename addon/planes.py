@@ -120,6 +120,8 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
         except ValueError as exc:
             raise ValueError(f"{source}: frame {i} ({stem}): {exc}") from None
         gt = fr.get("ground_truth") or gt_by_stem.get(stem)
+        if gt is not None and not isinstance(gt, str):
+            raise ValueError(f"{source}: frame {i} ({stem}): field 'ground_truth' must be an image path, got {gt!r}")
         depth = os.path.join(render_dir, contract.render_files(stem)["depth"])
         view = View(stem, os.path.abspath(image), fr["transform_matrix"], intr,
                     gt if gt and os.path.isfile(gt) else None, depth if os.path.isfile(depth) else None)
@@ -129,7 +131,9 @@ def views_from_render(render_dir: str, cameras_json: Optional[str] = None) -> Li
             view.metrics = {"psnr": float(fr["psnr"]), "ssim": float(fr["ssim"])}
         heat = os.path.join(render_dir, fr["error_map"]) if isinstance(fr.get("error_map"), str) else None
         view.error_map = heat if heat and os.path.isfile(heat) else None
-        view.error_vmax = meta.get("error_map_vmax")
+        vmax = meta.get("error_map_vmax")
+        finite = isinstance(vmax, (int, float)) and not isinstance(vmax, bool) and math.isfinite(vmax) and vmax > 0
+        view.error_vmax = vmax if finite else None  # damaged: the heat-map's legend shows no scale
         views.append(view)
     return views
 
@@ -178,6 +182,14 @@ def clear_collection(name: str) -> int:
             for node in mat.node_tree.nodes:
                 if node.bl_idname == "ShaderNodeTexImage" and node.image is not None and node.image.get(TAG):
                     images.add(node.image)
+    removed = {ob.as_pointer() for ob in objects}
+    for scene in bpy.data.scenes:
+        # A scene looking through a view camera (as the README suggests) would be left with none, and
+        # F12 would fail: it gets one of its own cameras back (the first, by name).
+        if scene.camera is not None and scene.camera.as_pointer() in removed:
+            own = sorted((o for o in scene.objects if o.type == "CAMERA" and o.as_pointer() not in removed
+                          and not o.get(TAG)), key=lambda o: o.name)
+            scene.camera = own[0] if own else None
     for ob in objects:
         bpy.data.objects.remove(ob, do_unlink=True)
     for data in datas:
@@ -278,6 +290,8 @@ def import_camera_aligned(views: Sequence[View], distance, collection_name: str 
     if len(distances) != len(views) or any(d <= 0 for d in distances):
         raise ValueError(f"plane distances must be positive, one per view; got {distance}")
     scene = scene or bpy.context.scene
+    # Looking through a view camera, the scene looks through the same view's new camera after a re-import.
+    looking = scene.camera.get("nerf_view") if scene.camera is not None and scene.camera.get(TAG) else None
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
     cam_coll = ensure_collection(VIEW_CAMERAS_COLLECTION, scene, parent=coll)
@@ -304,6 +318,8 @@ def import_camera_aligned(views: Sequence[View], distance, collection_name: str 
     if set_scene_camera and made:
         scene.camera = made[0].parent
         view_cameras.use_view_resolution(scene, views[0].intrinsics)
+    elif looking is not None:
+        scene.camera = next((ob.parent for ob in made if ob.get("nerf_view") == looking), scene.camera)
     bpy.context.view_layer.update()  # children's matrix_world follow their new parents
     return made
 
@@ -373,6 +389,8 @@ def import_gallery(views: Sequence[View], out_dir: str = "", origin=None, row_he
     and not used (nothing is computed or written here).
     """
     scene = scene or bpy.context.scene
+    # Looking through a view camera, the scene looks through the same view's new camera after a re-import.
+    looking = scene.camera.get("nerf_view") if scene.camera is not None and scene.camera.get(TAG) else None
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
     _build_gallery(views, coll, Vector(origin or (0.0, 0.0, 0.0)), row_height)

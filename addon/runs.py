@@ -6,6 +6,7 @@ needs torch. A damaged file is reported on its run (``problem``) instead of hidi
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
@@ -33,9 +34,12 @@ class RunInfo:
         cfg = self.config
         parts = []
         budgets = cfg.get("budgets") if isinstance(cfg.get("budgets"), dict) else cfg
-        if isinstance(budgets.get("max_seconds"), (int, float)):
+        def finite(v):  # json reads Infinity and NaN; int() of them raises
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+        if finite(budgets.get("max_seconds")):
             parts.append(f"max {budgets['max_seconds']:g} s")
-        if isinstance(budgets.get("max_steps"), (int, float)):
+        if finite(budgets.get("max_steps")):
             parts.append(f"{int(budgets['max_steps'])} steps")
         if isinstance(cfg.get("seed"), int):
             parts.append(f"seed {cfg['seed']}")

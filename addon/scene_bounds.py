@@ -132,6 +132,37 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
     return out
 
 
+def scene_signature(scene, view_layer=None) -> str | None:
+    """A hash of what the render shows: every renderable piece's name, placement (to 1e-6), material
+    names and evaluated geometry (vertex positions), instances included. It changes when an object is
+    added, removed, moved or edited, or its modifiers change; not when a material's nodes change.
+    None when ``scene`` is not the context's (its evaluated scene is not at hand)."""
+    import hashlib
+
+    import numpy as np
+
+    if bpy.context.scene != scene:
+        return None
+    view_layer = view_layer or render_view_layer(scene)
+    objects = renderable_objects(scene, view_layer)
+    geometry: dict = {}  # evaluated data pointer -> hash of its vertices
+    rows = []
+    for ev, matrix, name, _owner in _rendered_pieces(scene, view_layer, objects, False):
+        data = getattr(ev, "data", None)
+        key = data.as_pointer() if data is not None else 0
+        if key not in geometry:
+            verts = getattr(data, "vertices", None) if ev.type == "MESH" else None
+            if verts is not None:
+                co = np.empty(len(verts) * 3, np.float32)
+                verts.foreach_get("co", co)
+                geometry[key] = hashlib.sha256(co.tobytes()).hexdigest()[:16]
+            else:  # curves, text, volumes...: their box stands for their shape
+                geometry[key] = ",".join(f"{v:.6f}" for c in ev.bound_box for v in c)
+        mats = [slot.material.name if slot.material is not None else "" for slot in ev.material_slots]
+        rows.append("|".join([name, ",".join(f"{v:.6f}" for row in matrix for v in row), geometry[key], *mats]))
+    return hashlib.sha256("\n".join(sorted(rows)).encode()).hexdigest()
+
+
 def instanced_objects(scene, view_layer=None, only_selected: bool = False) -> list:
     """The original objects that the render shows as instances (of a collection instance, geometry
     nodes or particles) of its instancers, selected ones for ``only_selected``: objects that

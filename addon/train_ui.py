@@ -322,12 +322,15 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
         col.prop(s, "max_steps")
         col.prop(s, "seed")
         row = layout.row(align=True)
-        if s.running:
+        # The flag is saved with the file and survives an add-on reload; a job only lives in this
+        # session: a flag without a job is stale (the panel would otherwise offer only a dead Cancel).
+        running = s.running and jobs.is_running(TRAIN)
+        if running:
             row.operator(NERF_OT_train_cancel.bl_idname, icon="CANCEL")
         else:
             row.operator(NERF_OT_train.bl_idname, icon="PLAY").resume = False
             row.operator(NERF_OT_train.bl_idname, text="Resume", icon="FF").resume = True
-        if s.running or s.step:
+        if running or s.step:
             box = layout.box()
             box.progress(factor=s.fraction, type="BAR", text=s.status or "Training")
             grid = box.grid_flow(columns=2, align=True)

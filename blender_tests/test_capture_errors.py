@@ -163,6 +163,68 @@ def test_stereoscopy_is_turned_off_for_the_capture(tmp_path):
     assert scene.render.use_multiview  # the user's setting comes back
 
 
+def test_a_camera_bound_to_a_marker_does_not_take_over_the_views(tmp_path):
+    # A camera bound to a timeline marker replaced the capture's camera at every render: every image
+    # showed the marker camera's view while the transforms recorded each view's own pose.
+    import numpy as np
+    from PIL import Image
+
+    scene = scene_with_cameras(train=3)
+    shot = bpy.data.objects.new("Shot", bpy.data.cameras.new("Shot"))
+    scene.collection.objects.link(shot)
+    shot.location, shot.rotation_euler = (0.0, -6.0, 0.0), (math.radians(90), 0.0, 0.0)
+    marker = scene.timeline_markers.new("m", frame=scene.frame_current)
+    marker.camera = shot
+    scene.camera = shot
+    scene.render.image_settings.file_format = "JPEG"  # and the output format comes back, passes or not
+    capture.CaptureJob(scene, settings(tmp_path / "ds", depth=True)).run()
+    images = [np.asarray(Image.open(tmp_path / "ds" / "train" / f"r_{k}.png")) for k in range(3)]
+    assert not np.array_equal(images[0], images[1]) and not np.array_equal(images[1], images[2])
+    assert marker.camera == shot and scene.camera == shot
+    assert scene.render.image_settings.file_format == "JPEG"
+
+
+def test_views_render_at_the_frame_the_capture_started_at(tmp_path):
+    # The panel captures between timer events: scrubbing the timeline meanwhile rendered the rest of
+    # the views at another moment of an animated scene.
+    scene = scene_with_cameras(train=2)
+    scene.frame_set(5)
+    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job.prepare()
+    scene.frame_set(30)
+    job.step()
+    assert scene.frame_current == 5
+    job.finish()
+
+
+def test_resuming_after_the_scene_changed_is_a_conflict(tmp_path):
+    # Frame hashes cover cameras and render settings only: after an edit, a resume kept pictures of the
+    # old scene beside an aabb and near/far computed for the new one.
+    scene = scene_with_cameras(train=2)
+    capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    manifest_before = manifest(tmp_path / "ds")
+    assert manifest_before["scene_signature"]
+    _, conflict = capture.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
+    assert conflict is None  # nothing changed: resumes (keeps every frame)
+    bpy.data.objects["Cube"].scale = (0.3, 0.3, 0.3)
+    bpy.context.view_layer.update()
+    with pytest.raises(capture.CaptureError, match="holds frames of this scene as it was before it changed"):
+        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    summary = capture.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
+    assert summary["rendered"] == summary["frames"]
+
+
+def test_an_overwrite_says_what_it_would_delete(tmp_path):
+    scene = scene_with_cameras(train=2)
+    out = tmp_path / "ds"
+    (out / "test").mkdir(parents=True)
+    (out / "test" / "test_shading.py").write_text("user code")
+    (out / "notes.txt").write_text("user notes")
+    _, conflict = capture.CaptureJob(scene, settings(out)).inspect_folder()
+    assert "holds no capture of ours (notes.txt, test)" in conflict
+    assert conflict.endswith("overwrite deletes test (the dataset's names) and keeps the rest")
+
+
 def test_output_folder_not_writable(tmp_path):
     scene = scene_with_cameras()
     blocker = tmp_path / "a_file"

@@ -200,8 +200,10 @@ class _RecordingLayout:
 
 
 @pytest.mark.parametrize("layout_name", ["hemisphere", "rings", "spiral", "inside", "animation", "scene-cameras"])
-def test_panel_draws_every_layout_and_the_running_state(registered, layout_name):
+def test_panel_draws_every_layout_and_the_running_state(registered, layout_name, monkeypatch):
     from types import SimpleNamespace
+
+    from addon import jobs
 
     s = bpy.context.scene.nerf_capture
     s.layout = layout_name
@@ -214,6 +216,12 @@ def test_panel_draws_every_layout_and_the_running_state(registered, layout_name)
     assert ("rings" in props) == (layout_name == "rings") and ("frame_step" in props) == (layout_name == "animation")
     assert ("radius" in props) == (layout_name in layouts.GENERATED_LAYOUTS and layout_name != "inside")
     s.is_running, s.progress, s.status = True, 0.25, "3/12 train/r_2"
+    log.clear()
+    capture_ui.NERF_PT_capture.draw(panel, bpy.context)
+    # A flag without a capture job (left by an add-on reload) is stale: the panel offers Capture, not
+    # a Cancel that has nothing to cancel.
+    assert ("operator", "nerf.capture") in log and ("operator", "nerf.capture_cancel") not in log
+    monkeypatch.setattr(jobs, "is_running", lambda key: key == capture_ui.CAPTURE)
     log.clear()
     capture_ui.NERF_PT_capture.draw(panel, bpy.context)
     assert ("progress", 0.25, "3/12 train/r_2") in log and ("operator", "nerf.capture_cancel") in log

@@ -118,6 +118,37 @@ def test_reimport_replaces_instead_of_piling_up_and_spares_user_objects(tmp_path
     assert len(bpy.data.images) == 0 and len(bpy.data.materials) == 0 and len(bpy.data.meshes) == 0
 
 
+def test_looking_through_a_view_camera_survives_reimport_and_clear(tmp_path):
+    # The README suggests looking through "NeRF Cam r_0"; a re-import or Clear Views left the scene
+    # with no camera, and F12 then failed.
+    scene = bpy.context.scene
+    mine = bpy.data.objects.new("My camera", bpy.data.cameras.new("My camera"))
+    scene.collection.objects.link(mine)
+    render, cams = fake_render(tmp_path)
+    planes.import_camera_aligned(planes.views_from_render(render, cams), 2.0)
+    scene.camera = bpy.data.objects["NeRF Cam r_1"]
+    planes.import_camera_aligned(planes.views_from_render(render, cams), 3.0)
+    assert scene.camera is not None and scene.camera.name.startswith("NeRF Cam r_1")
+    planes.clear_collection(planes.VIEWS_COLLECTION)
+    assert scene.camera == mine
+
+
+def test_a_damaged_renders_file_is_named_not_a_traceback(tmp_path):
+    render, cams = fake_render(tmp_path)
+    path = os.path.join(render, "renders.json")
+    meta = json.loads(open(path).read())
+    meta["error_map_vmax"] = "big"  # unreadable: the heat-map legend goes without a scale
+    meta["frames"][1]["ground_truth"] = ["a"]  # was a TypeError inside the Render job
+    with open(path, "w") as fh:
+        json.dump(meta, fh)
+    with pytest.raises(ValueError, match=r"frame 1 \(r_1\): field 'ground_truth' must be an image path"):
+        planes.views_from_render(render, cams)
+    meta["frames"][1].pop("ground_truth")
+    with open(path, "w") as fh:
+        json.dump(meta, fh)
+    assert all(v.error_vmax is None for v in planes.views_from_render(render, cams))
+
+
 def test_gallery_rows_have_metrics_heatmaps_and_labels(tmp_path):
     render, cams = fake_render(tmp_path)
     views = planes.import_gallery(planes.views_from_render(render, cams), render)
@@ -197,3 +228,17 @@ def test_image_metrics_against_hand_computed_values(tmp_path):
     image_metrics.write_png(path, np.dstack([b, np.ones((16, 16))]))
     back = planes.load_image_array(path)
     assert back.shape == (16, 16, 4) and back[0, 0, 0] == pytest.approx(round(0.1 * 255) / 255, abs=1e-6)
+
+
+def test_a_sibling_run_with_infinite_budgets_is_listed(tmp_path):
+    # json reads Infinity; int() of it raised OverflowError and stopped Refresh Runs (and the refresh
+    # after every job) at that run.
+    from addon import runs
+
+    for name, steps in (("a_run", float("inf")), ("b_run", 200)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "config.json").write_text(json.dumps({"method": "vmgrid", "max_steps": steps, "seed": 0}))
+    listed = runs.list_runs(str(tmp_path))
+    assert sorted(os.path.basename(r.path) for r in listed) == ["a_run", "b_run"]
+    summaries = {os.path.basename(r.path): r.settings_summary() for r in listed}
+    assert summaries["a_run"] == "seed 0" and summaries["b_run"] == "200 steps, seed 0"

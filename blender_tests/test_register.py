@@ -121,6 +121,19 @@ def test_panels_draw_in_every_state(tmp_path):
         for text in ("Step 120 (50%)", "PSNR 21.50 dB", "Elapsed 1:05", "ETA 0:30", "1 rollback(s)"):
             assert text in labels
         assert "Background:" not in labels  # no start event yet: nothing to say
+        # The flag is saved with the file: with no training job in this session it is stale, and the
+        # panel offers Train and Resume rather than only a Cancel that has nothing to cancel.
+        ops = [c[1][0] for c in _draw(train_ui.NERF_PT_train) if c[0] == "operator"]
+        assert "nerf.train" in ops and "nerf.train_cancel" not in ops
+        from addon import jobs
+
+        real = jobs.is_running
+        jobs.is_running = lambda key: key == train_ui.TRAIN
+        try:
+            ops = [c[1][0] for c in _draw(train_ui.NERF_PT_train) if c[0] == "operator"]
+        finally:
+            jobs.is_running = real
+        assert "nerf.train_cancel" in ops and "nerf.train" not in ops
         s.background = "environment: the images have no alpha channel (RGB)"
         assert "Background: environment: the images have no alpha channel (RGB)" in _labels(_draw(train_ui.NERF_PT_train))
         s.running = False
