@@ -139,7 +139,7 @@ class CaptureJob:
         if settings.out_dir.startswith("//") and not bpy.data.filepath:
             raise CaptureError(f"output folder {settings.out_dir!r} is relative to the .blend, which is not saved yet; "
                                "save the file or choose an absolute folder")
-        self.out = os.path.abspath(bpy.path.abspath(settings.out_dir))
+        self.out = os.path.abspath(os.path.expanduser(bpy.path.abspath(settings.out_dir)))  # "~": the home folder
         self.shard = None
         if settings.shard is not None:
             k, n = settings.shard

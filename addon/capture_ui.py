@@ -13,7 +13,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
                        StringProperty)
 
 from . import capture, demo_scenes, export, jobs, layouts, scene_bounds
-from .ui_common import NerfPanel, property_split, report_and_cancel
+from .ui_common import NerfPanel, path_options, property_split, report_and_cancel
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 
@@ -46,17 +46,8 @@ def _layout_changed(self, _context):
         self.elevation_min, self.elevation_max = layouts.INSIDE_ELEVATION
 
 
-def _path_options() -> set:
-    # Blender 4.5+ warns about "//" paths unless the property says it supports them; older versions lack the flag.
-    try:
-        StringProperty(options={"PATH_SUPPORTS_BLEND_RELATIVE"})
-    except TypeError:
-        return set()
-    return {"PATH_SUPPORTS_BLEND_RELATIVE"}
-
-
 class NerfCaptureSettings(bpy.types.PropertyGroup):
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//nerf_dataset/", options=_path_options(),
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//nerf_dataset/", options=path_options(),
                                description="Dataset folder (relative paths start at the .blend's folder)")
     layout: EnumProperty(name="Layout", items=_LAYOUT_ITEMS, default="hemisphere", update=_layout_changed)
     target: EnumProperty(name="Target", items=[

@@ -337,14 +337,25 @@ def camera_scale_error(obj) -> str | None:
     return None
 
 
+def _is_camera_collection(coll) -> bool:
+    return "nerf_cameras" in coll or coll.name == COLLECTION_NAME or coll.name.startswith(COLLECTION_NAME + ".")
+
+
 def nerf_collection(scene, create: bool = True):
+    """The scene's own "NeRF Cameras" collection: one inside its scene collection (at any depth), else,
+    with ``create``, a new one linked there, else None. Collections are shared by name across a file's
+    scenes, and a layout made in one scene (a demo scene, say) replaced and cleared another's cameras:
+    each scene has its own, named "NeRF Cameras.001" and so on after the first."""
     import bpy
 
-    coll = bpy.data.collections.get(COLLECTION_NAME)
-    if coll is None and create:
-        coll = bpy.data.collections.new(COLLECTION_NAME)
-    if coll is not None and create and coll.name not in scene.collection.children:
-        scene.collection.children.link(coll)
+    for coll in scene.collection.children_recursive:
+        if _is_camera_collection(coll):
+            return coll
+    if not create:
+        return None
+    coll = bpy.data.collections.new(COLLECTION_NAME)
+    coll["nerf_cameras"] = True
+    scene.collection.children.link(coll)
     return coll
 
 

@@ -27,7 +27,7 @@ from bpy.props import IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 
 from . import export, prefs, render_client, runs, trainer_process
-from .ui_common import draw_wrapped
+from .ui_common import draw_wrapped, path_options
 
 ENGINE_ID = "NERF_BRIDGE"
 PREVIEW_LEVELS = (8, 4, 2, 1)  # the viewport preview's downscale factors, coarse to fine
@@ -39,20 +39,26 @@ _VIEWPORTS: "weakref.WeakSet" = weakref.WeakSet()
 # -- settings ---------------------------------------------------------------------------------------
 class NerfRenderSettings(bpy.types.PropertyGroup):
     run_dir: StringProperty(
-        name="Run", subtype="DIR_PATH", default="",
+        name="Run", subtype="DIR_PATH", default="", options=path_options(),
         description="Run folder written by `python -m nerf_core train` (has config.json and checkpoints/latest.pt)")
     checkpoint: StringProperty(
-        name="Checkpoint", subtype="FILE_PATH", default="",
+        name="Checkpoint", subtype="FILE_PATH", default="", options=path_options(),
         description="Checkpoint to render instead of the run's checkpoints/latest.pt (optional)")
     preview_percentage: IntProperty(
         name="Viewport Resolution", subtype="PERCENTAGE", default=50, min=5, max=100,
         description="Resolution of the finest viewport preview, in percent of the viewport's size")
 
 
+
+def _path(path: str) -> str:
+    """A run or checkpoint setting as a path: ``//`` is the .blend's folder, ``~`` the home folder (an
+    unsaved .blend's ``//`` stays as Blender resolves it, and the run check names it)."""
+    return os.path.expanduser(bpy.path.abspath(path))
+
 def settings_problem(scene) -> Optional[str]:
     """Why the scene cannot render through the NeRF (a message for the user), else None."""
     s = scene.nerf_render
-    return render_client.run_problem(bpy.path.abspath(s.run_dir), bpy.path.abspath(s.checkpoint) if s.checkpoint else "")
+    return render_client.run_problem(_path(s.run_dir), _path(s.checkpoint) if s.checkpoint else "")
 
 
 def colour_warning(scene) -> Optional[str]:
@@ -71,8 +77,7 @@ def _client_for(scene) -> render_client.RenderClient:
         raise trainer_process.SetupError(problem)
     python = trainer_process.resolve_interpreter(prefs.python_preference() or os.environ.get("NERF_PYTHON", ""))
     s = scene.nerf_render
-    return render_client.get_client(python, bpy.path.abspath(s.run_dir),
-                                    bpy.path.abspath(s.checkpoint) if s.checkpoint else "")
+    return render_client.get_client(python, _path(s.run_dir), _path(s.checkpoint) if s.checkpoint else "")
 
 
 # -- cameras --------------------------------------------------------------------------------------
@@ -319,7 +324,7 @@ class NERF_PT_render_run(bpy.types.Panel):
         if problem:
             draw_wrapped(layout, problem, "ERROR")
         else:
-            info = runs.read_run(bpy.path.abspath(s.run_dir))
+            info = runs.read_run(_path(s.run_dir))
             if info is not None:
                 layout.label(text=f"{info.method or 'method ?'} · {info.metrics_summary()}", icon="CHECKMARK")
         layout.prop(context.view_layer, "use_pass_z", text="Depth Pass (Z)")

@@ -6,6 +6,8 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
+from .ui_common import path_options
+
 
 class NerfViewMetric(bpy.types.PropertyGroup):
     name: StringProperty()
@@ -23,9 +25,9 @@ class NerfRunItem(bpy.types.PropertyGroup):
 
 
 class NerfTrainSettings(bpy.types.PropertyGroup):
-    dataset_dir: StringProperty(name="Dataset", subtype="DIR_PATH",
+    dataset_dir: StringProperty(name="Dataset", subtype="DIR_PATH", options=path_options(),
                                 description="Dataset folder written by Capture (transforms_*.json)")
-    run_dir: StringProperty(name="Run", subtype="DIR_PATH",
+    run_dir: StringProperty(name="Run", subtype="DIR_PATH", options=path_options(),
                             description="Folder for the training run (checkpoints, previews, metrics)")
     method: StringProperty(name="Method", default="",
                            description="NeRF method name (e.g. nerf, nerf-nope); empty: the library's best fast method")

@@ -11,7 +11,7 @@ import os
 
 import bpy
 import bpy.utils.previews
-from bpy.props import BoolProperty
+from bpy.props import BoolProperty, EnumProperty
 
 from . import compare, jobs, planes, prefs, runs, train_props, trainer_process
 from .core_contract import contract
@@ -122,7 +122,10 @@ def _load_preview(path: str) -> None:
 
 
 def refresh_runs(settings) -> None:
-    run = abs_path(settings.run_dir)
+    try:
+        run = abs_path(settings.run_dir)
+    except SetupError:
+        run = ""  # an unsaved .blend's "//" folder: nothing to list yet
     root = os.path.dirname(os.path.normpath(run)) if run else ""
     settings.runs.clear()
     for info in runs.list_runs(root):
@@ -212,15 +215,19 @@ class NERF_OT_train_cancel(bpy.types.Operator):
 
     background: BoolProperty(default=True, options={"SKIP_SAVE", "HIDDEN"},
                              description="Return at once; the job follower finishes the cancel")
+    target: EnumProperty(items=[("ALL", "All", "Training and rendering"), ("TRAIN", "Training", "The training"),
+                                ("RENDER", "Rendering", "The Compare render")],
+                         default="ALL", options={"SKIP_SAVE", "HIDDEN"})
 
     def execute(self, context):
-        running = jobs.running((TRAIN, RENDER))
+        keys = {"ALL": (TRAIN, RENDER), "TRAIN": (TRAIN,), "RENDER": (RENDER,)}[self.target]
+        running = jobs.running(keys)
         if not running:
             self.report({"WARNING"}, "Nothing is running")
             return {"CANCELLED"}
         # The follower sees the job stop and reports; when none is following (a script, or the
         # follower was lost), finish the cancel right here.
-        jobs.cancel_jobs(wait=not self.background, keys=(TRAIN, RENDER))
+        jobs.cancel_jobs(wait=not self.background, keys=keys)
         s = settings_of(context)
         s.status = "Stopping: the trainer saves a checkpoint first..." if self.background else "Cancelled"
         for job in running:
@@ -239,7 +246,10 @@ class NERF_OT_run_new_name(bpy.types.Operator):
         s = settings_of(context)
         if not s.run_dir:
             return report_and_cancel(self, "No run folder is set")
-        s.run_dir = trainer_process.suggest_run_name(abs_path(s.run_dir))
+        try:
+            s.run_dir = trainer_process.suggest_run_name(abs_path(s.run_dir))
+        except SetupError as exc:
+            return report_and_cancel(self, exc)
         s.error = ""
         return {"FINISHED"}
 
@@ -326,7 +336,7 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
         # session: a flag without a job is stale (the panel would otherwise offer only a dead Cancel).
         running = s.running and jobs.is_running(TRAIN)
         if running:
-            row.operator(NERF_OT_train_cancel.bl_idname, icon="CANCEL")
+            row.operator(NERF_OT_train_cancel.bl_idname, icon="CANCEL").target = "TRAIN"
         else:
             row.operator(NERF_OT_train.bl_idname, icon="PLAY").resume = False
             row.operator(NERF_OT_train.bl_idname, text="Resume", icon="FF").resume = True
@@ -373,7 +383,10 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
             layout.prop(s, "plane_distance")
         layout.prop(s, "image_storage")
         row = layout.row(align=True)
-        row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
+        if jobs.is_running(RENDER):  # a long fly-through must be stoppable from here
+            row.operator(NERF_OT_train_cancel.bl_idname, text="Cancel Render", icon="CANCEL").target = "RENDER"
+        else:
+            row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
         if len(s.view_metrics):
             layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)

@@ -61,9 +61,30 @@ def draw_wrapped(layout, text: str, icon: str, width: int = 60) -> None:
         box.label(text=line, icon=icon if k == 0 else "BLANK1")
 
 
+def path_options() -> set:
+    """StringProperty options for a folder or file setting: Blender 4.5+ warns about "//" paths unless
+    the property says it supports them; older versions lack the flag."""
+    from bpy.props import StringProperty
+
+    try:
+        StringProperty(options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    except TypeError:
+        return set()
+    return {"PATH_SUPPORTS_BLEND_RELATIVE"}
+
+
 def abs_path(path: str) -> str:
-    """A settings path (possibly ``//``-relative to the .blend) as an absolute path; '' stays ''."""
-    return os.path.abspath(bpy.path.abspath(path)) if path else ""
+    """A settings path as an absolute path ('' stays ''): ``//`` is the .blend's folder and ``~`` the
+    home folder, never a folder of that name under Blender's working directory. A ``//`` path of an
+    unsaved .blend has no folder to be relative to: SetupError."""
+    if not path:
+        return ""
+    if path.startswith("//") and not bpy.data.filepath:
+        from .trainer_process import SetupError
+
+        raise SetupError(f"{path!r} is relative to the .blend, which is not saved yet: save the file or choose an "
+                         "absolute folder.")
+    return os.path.abspath(os.path.expanduser(bpy.path.abspath(path)))
 
 
 def tag_redraw(context) -> None:

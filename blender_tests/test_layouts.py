@@ -429,3 +429,24 @@ def test_bounds_follow_what_renders_not_what_the_viewport_shows():
     props.hide_render = False
     bpy.context.view_layer.layer_collection.children["Props"].exclude = True
     assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(1.37, abs=0.02)
+
+
+def test_each_scene_has_its_own_capture_cameras():
+    # Collections are shared by name: Generate Cameras in a second scene (the demo scene, say)
+    # replaced the first scene's cameras, and Clear Cameras there deleted them.
+    _add_box()
+    first = bpy.context.scene
+    made = layouts.create_cameras(first, layouts.LayoutSpec(train=3, val=1, test=1), 32, 32)
+    second = bpy.data.scenes.new("Second")
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=3.0)
+    ball = bpy.context.active_object
+    for coll in ball.users_collection:
+        coll.objects.unlink(ball)
+    second.collection.objects.link(ball)
+    with bpy.context.temp_override(scene=second):
+        assert not any(layouts.capture_cameras(second).values())
+        theirs = layouts.create_cameras(second, layouts.LayoutSpec(train=2, val=1, test=1), 32, 32)
+        assert layouts.clear_cameras(second) == len(theirs) == 4
+    assert sorted(o.name for split in layouts.capture_cameras(first).values() for o in split) == sorted(
+        o.name for o in made)
+    assert layouts.nerf_collection(second).name == layouts.COLLECTION_NAME + ".001"

@@ -134,6 +134,14 @@ def test_panels_draw_in_every_state(tmp_path):
         finally:
             jobs.is_running = real
         assert "nerf.train_cancel" in ops and "nerf.train" not in ops
+        # A Compare render (a fly-through of hundreds of frames) is stopped from the Compare panel.
+        jobs.is_running = lambda key: key == train_ui.RENDER
+        try:
+            calls = _draw(train_ui.NERF_PT_compare)
+        finally:
+            jobs.is_running = real
+        cancel = [c for c in calls if c[0] == "operator" and c[1][0] == "nerf.train_cancel"]
+        assert cancel and cancel[0][2]["text"] == "Cancel Render"
         s.background = "environment: the images have no alpha channel (RGB)"
         assert "Background: environment: the images have no alpha channel (RGB)" in _labels(_draw(train_ui.NERF_PT_train))
         s.running = False

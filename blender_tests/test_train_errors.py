@@ -56,6 +56,21 @@ def test_no_dataset(s, tmp_path):
         train_ui.start_training(bpy.context)
 
 
+def test_paths_relative_to_an_unsaved_blend_or_home_are_not_the_working_folder(s, tmp_path, monkeypatch):
+    # In an unsaved file "//my_run/" trained into <Blender's working folder>/my_run, and "~/x" into
+    # a folder named "~" there.
+    from addon import ui_common
+
+    monkeypatch.chdir(tmp_path)
+    s.run_dir = "//my_run/"
+    with pytest.raises(SetupError, match="relative to the .blend, which is not saved yet"):
+        train_ui.start_training(bpy.context, resume=False)
+    assert not (tmp_path / "my_run").exists()
+    with pytest.raises(RuntimeError, match="not saved yet"):  # New Name reports it too
+        bpy.ops.nerf.run_new_name()
+    assert ui_common.abs_path("~/runs/a") == os.path.join(os.path.expanduser("~"), "runs", "a")
+
+
 def test_broken_dataset_shows_the_checkers_message(s, tmp_path):
     os.makedirs(s.dataset_dir)
     with open(os.path.join(s.dataset_dir, "transforms_train.json"), "w") as fh:
