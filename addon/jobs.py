@@ -149,7 +149,10 @@ class TrainJob(ProcessJob):
         self.python, self.dataset, self.run, self.command = python, dataset, run, command
         if check:
             self.stage = "check"
-            self.process = trainer_process.BackgroundProcess([python, "-m", "nerf_core", "check", dataset]).start()
+            # What train refuses stops the job; a dataset of another tool (the original NeRF scenes,
+            # instant-ngp, nerfstudio) lacks fields our exports add, and still trains.
+            self.process = trainer_process.BackgroundProcess(
+                [python, "-m", "nerf_core", "check", dataset, "--for-training"]).start()
         else:
             self.stage = "train"
             self.process = trainer_process.BackgroundProcess(command).start()

@@ -271,10 +271,14 @@ def _check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:
             _number(report, fname, meta[key], key, positive=False)
 
 
-def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
+def check_dataset(path: Path | str, background: str = "auto", for_training: bool = False) -> CheckReport:
     """Check a dataset folder; never raises for dataset problems (they go into the report).
 
     ``background`` is the training background mode to check the images against (``train --background``).
+    ``for_training``: only what ``train`` refuses is an error; what the conventions of an export ask
+    for other tools' loaders (``fl_x``... beside ``camera_angle_x``, ``nerfstudio/transforms.json``)
+    becomes a warning. A dataset of another tool (the original NeRF scenes, instant-ngp, nerfstudio)
+    trains, and the add-on runs this before training.
     """
     root = Path(path)
     report = CheckReport(root)
@@ -283,8 +287,9 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
         return report
 
     # instant-ngp loads every *.json at the root as a transforms file.
+    splits_here = any((root / name).is_file() for name in SPLIT_FILES)
     for j in sorted(root.glob("*.json")):
-        if j.name == "transforms.json":
+        if j.name == "transforms.json" and splits_here:
             report.error(j.name, "beside transforms_{train,val,test}.json at the dataset root, instant-ngp loads "
                                  "every frame twice (it reads every *.json here); nerfstudio's file belongs in "
                                  f"{NERFSTUDIO_FILE} with paths relative to it ('../train/r_0.png')")
@@ -343,6 +348,10 @@ def check_dataset(path: Path | str, background: str = "auto") -> CheckReport:
         _check_world_coverage(report, root)
     elif opaque is False:
         _check_empty_views(report, root)
+    if for_training:
+        report.warnings = [Problem(p.file, f"(conventions of an export) {p.message}", p.frame, p.frame_path, p.field)
+                           for p in report.errors] + report.warnings
+        report.errors = []
     _check_loadable(report, root)
     _check_paths(report, root)
     if report.ok:

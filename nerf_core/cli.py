@@ -200,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Exit 0 when valid; otherwise exit 1 and list every problem with its file/frame/field.")
     c.add_argument("dataset", metavar="DATASET", help="dataset folder")
     c.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    c.add_argument("--for-training", action="store_true",
+                   help="errors are only what `train` refuses; the conventions an export keeps for other tools' "
+                        "loaders become warnings (a dataset of another tool trains)")
     c.add_argument("--background", default="auto", choices=list(BACKGROUNDS),
                    help="the train --background to check the images against (warns when opaque images meet a mode "
                         "that cannot show their background)")
@@ -248,7 +251,7 @@ def _cmd_eval(a) -> int:
 def _cmd_check(a) -> int:
     from .check import check_dataset
 
-    report = check_dataset(a.dataset, background=a.background)
+    report = check_dataset(a.dataset, background=a.background, for_training=a.for_training)
     if a.json:
         print(json.dumps(report.as_dict()))
     else:

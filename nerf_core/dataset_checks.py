@@ -206,12 +206,15 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
 
 
 def depth_scale(scene: dict) -> float:
-    v = scene.get("depth_unit_scale_factor", 1e-3)
+    """Scene units per count of a 16-bit depth PNG: nerfstudio's ``depth_unit_scale_factor``, else
+    instant-ngp's ``integer_depth_scale``, else 1e-3 (millimetres, nerfstudio's default)."""
+    key = "depth_unit_scale_factor" if "depth_unit_scale_factor" in scene or "integer_depth_scale" not in scene \
+        else "integer_depth_scale"
+    v = scene.get(key, 1e-3)
     try:
-        f = float(v)
+        f = float(v) if not isinstance(v, (bool, str)) else float("nan")
     except (TypeError, ValueError):
         f = float("nan")
     if not math.isfinite(f) or f <= 0:
-        raise DatasetError(f"{scene.get('depth_unit_scale_factor_file')}: field 'depth_unit_scale_factor' must be a "
-                           f"positive number, got {v!r}")
+        raise DatasetError(f"{scene.get(key + '_file')}: field {key!r} must be a positive number, got {v!r}")
     return f

@@ -9,7 +9,8 @@ in OpenCV's normalised image coordinates (x right, y down, z = 1 in front of the
   when their distortion is non-zero):
   ``x_d = x r + 2 p1 x y + p2 (rr + 2 x²)``, ``y_d = y r + p1 (rr + 2 y²) + 2 p2 x y`` with
   ``rr = x² + y²`` and ``r = 1 + k1 rr + k2 rr² + k3 rr³ + k4 rr⁴``;
-- ``OPENCV_FISHEYE`` (equidistant, Kannala-Brandt): with ``θ`` the angle from the optical axis,
+- ``OPENCV_FISHEYE`` (equidistant, Kannala-Brandt; also what instant-ngp's ``"is_fisheye": true``
+  means, which its colmap2nerf writes instead of a ``camera_model``): with ``θ`` the angle from the optical axis,
   ``θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)`` and ``(x_d, y_d) = θ_d (x, y) / |(x, y)|``; it has no
   tangential terms, so ``p1``/``p2`` must be zero.
 
@@ -73,9 +74,14 @@ def _number(value) -> Tuple[float, Optional[str]]:
 def lens_problem(src: dict) -> Optional[Tuple[str, str]]:
     """(field, what is wrong) for the lens fields of ``src`` (a transforms file or one frame) on their
     own, else None."""
-    _, problem = _model_name(src.get("camera_model"))
+    model, problem = _model_name(src.get("camera_model"))
     if problem:
         return "camera_model", problem
+    fisheye = src.get("is_fisheye")
+    if fisheye is not None and not isinstance(fisheye, bool):
+        return "is_fisheye", f"must be true or false, got {fisheye!r}"
+    if fisheye and model is not None and model != "OPENCV_FISHEYE":
+        return "is_fisheye", f"says the camera is a fisheye, but camera_model is {src['camera_model']!r}"
     for key in DISTORTION_KEYS + UNREAD_KEYS:
         number, problem = _number(src.get(key))
         if problem:
@@ -96,8 +102,10 @@ def parse_lens(meta: Optional[dict], frame: Optional[dict]) -> Tuple[Optional[Le
         if problem:
             return None, problem
     merged = dict(meta or {})
-    merged.update({k: v for k, v in (frame or {}).items() if k in ("camera_model",) + DISTORTION_KEYS})
+    merged.update({k: v for k, v in (frame or {}).items() if k in ("camera_model", "is_fisheye") + DISTORTION_KEYS})
     model, _ = _model_name(merged.get("camera_model"))
+    if model is None and merged.get("is_fisheye") is True:
+        model = "OPENCV_FISHEYE"  # instant-ngp: read as OPENCV, a fisheye ray was off by up to 24 degrees
     coeffs = tuple(_number(merged.get(k))[0] for k in DISTORTION_KEYS)
     if model == "OPENCV_FISHEYE":
         for key, value in zip(DISTORTION_KEYS[4:], coeffs[4:]):

@@ -27,6 +27,11 @@ import numpy as np
 from .lens import Lens, lens_problem, parse_lens
 
 SPLITS = ("train", "val", "test")
+# Top-level fields that describe the scene rather than one camera; the first split file that has one
+# gives it. ``integer_depth_scale`` is instant-ngp's metres per 16-bit depth count, nerfstudio's
+# ``depth_unit_scale_factor`` the same (``dataset_checks.depth_scale``).
+SCENE_KEYS = ("aabb", "near", "far", "depth_unit_scale_factor", "integer_depth_scale", "film_transparent", "world",
+              "beyond_box")
 HOLDOUT_EVERY = 8  # nerfstudio-style deterministic split when transforms.json lists no split files
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
@@ -326,7 +331,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
     """Parse the metadata of a dataset without reading pixels.
 
     Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
-    ``far``, ``depth_unit_scale_factor``, ``film_transparent``, ``world`` and ``beyond_box`` when the dataset gives
+    ``far``, ``depth_unit_scale_factor``, ``integer_depth_scale``, ``film_transparent``, ``world`` and ``beyond_box`` when the dataset gives
     them (each with ``KEY_file``, the file it came from), and ``split_note``/``path_note``.
     """
     path = Path(path)
@@ -345,9 +350,21 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
                 continue
             meta = read_json(jf)
             out[name] = read_frames(meta, jf, add_png=True)
-            if name in SPLITS and not out[name]:
+            if name == "train" and not out[name]:
                 raise DatasetError(f"{jf}: split {name!r} is empty (field 'frames' has no entries)")
-            for key in ("aabb", "near", "far", "film_transparent", "world", "beyond_box"):
+            if not out[name]:
+                # 3DGS's Blender loader takes an empty test split (BlenderNeRF writes one): no held-out
+                # views there, as when the file is missing.
+                scene.setdefault("held_out_notes", []).append(f"{jf}: no frames; nothing of split {name!r} is "
+                                                              "evaluated")
+            elif name != "train" and not any(f.image.exists() for f in out[name]):
+                # A split of cameras only (BlenderNeRF's test poses): nothing to score, but render can
+                # draw them (``render RUN --cameras`` that file).
+                scene.setdefault("held_out_notes", []).append(
+                    f"{jf}: none of its {len(out[name])} images exists (a split of cameras only): not evaluated; "
+                    f"`python -m nerf_core render RUN --cameras {jf}` renders those views")
+                out[name] = []
+            for key in SCENE_KEYS:
                 if key in meta and key not in scene:
                     scene[key] = meta[key]
                     scene[key + "_file"] = jf
@@ -357,7 +374,7 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
         frames = read_frames(meta, jf, add_png=False)
         if not frames:
             raise DatasetError(f"{jf}: field 'frames' has no entries")
-        for key in ("aabb", "near", "far", "depth_unit_scale_factor", "film_transparent", "world", "beyond_box"):
+        for key in SCENE_KEYS:
             if key in meta:
                 scene[key] = meta[key]
                 scene[key + "_file"] = jf

@@ -108,6 +108,30 @@ def test_views_that_show_nothing_are_warned_about(sphere_dataset):
     assert _has(empty, "transforms_train.json", "frame 2") and not _has(empty, "train", "measures nothing")
 
 
+def test_for_training_another_tools_dataset_is_valid_and_what_train_refuses_is_not(sphere_dataset, capsys):
+    # The original NeRF scenes give camera_angle_x only and no nerfstudio/ folder: 19 errors as an
+    # export of ours, yet train reads them; the add-on's Train ran check first and refused them all.
+    import shutil
+
+    for split in ("train", "val", "test"):
+        _edit(sphere_dataset / f"transforms_{split}.json",
+              lambda m: [m.pop(k) for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")])
+    shutil.rmtree(sphere_dataset / "nerfstudio")
+    assert not check_dataset(sphere_dataset).ok
+    report = check_dataset(sphere_dataset, for_training=True)
+    assert report.ok and any("(conventions of an export)" in str(w) for w in report.warnings)
+    assert main(["check", str(sphere_dataset), "--for-training"]) == 0 and "valid" in capsys.readouterr().out
+    Image.new("RGBA", (10, 10)).save(sphere_dataset / "train" / "r_4.png")  # what train refuses stays an error
+    report = check_dataset(sphere_dataset, for_training=True)
+    assert not report.ok and _has([str(p) for p in report.errors], "frame 4", "10x10")
+
+
+def test_a_lone_transforms_json_is_not_said_to_sit_beside_split_files(tmp_path, dataset_factory):
+    ds = dataset_factory(tmp_path / "ns", layouts=("nerfstudio",))  # instant-ngp / nerfstudio: one file
+    report = check_dataset(ds)
+    assert not any("beside transforms_{train,val,test}.json" in str(p) for p in report.errors)
+
+
 def test_held_out_cameras_must_not_be_training_cameras(sphere_dataset):
     train = json.loads((sphere_dataset / "transforms_train.json").read_text())
     _edit(sphere_dataset / "transforms_test.json",

@@ -96,6 +96,11 @@ def test_exr_images_and_png_depth_in_millimetres(tmp_path, dataset_factory):
     (ds_path / "transforms.json").write_text(json.dumps(meta))
     ds2 = load_dataset(ds_path)
     np.testing.assert_allclose(ds2.splits["train"].depth[0].numpy(), z, atol=6e-4)
+    # instant-ngp says how many metres one count is (integer_depth_scale); it was read as millimetres.
+    scale = 8 / 65535
+    Image.fromarray(np.round(z / scale).astype(np.uint16)).save(ds_path / "d0.png")
+    (ds_path / "transforms.json").write_text(json.dumps({**meta, "integer_depth_scale": scale}))
+    np.testing.assert_allclose(load_dataset(ds_path).splits["train"].depth[0].numpy(), z, atol=scale)
 
 
 def test_masks_black_means_ignore(sphere_dataset):
@@ -192,10 +197,26 @@ def test_random_background_needs_alpha(tmp_path, dataset_factory):
 
 
 def test_empty_split_is_named(sphere_dataset):
+    meta = _meta(sphere_dataset, "train")
+    meta["frames"] = []
+    _write_meta(sphere_dataset, meta, "train")
+    _expect(sphere_dataset, "transforms_train.json", "empty")
+
+
+def test_held_out_splits_that_are_empty_or_cameras_only_are_noted_not_refused(sphere_dataset):
+    # BlenderNeRF writes test poses without images (or, for 3DGS, "frames": []); 3DGS trains on them,
+    # train refused both ("image not found", "split 'test' is empty").
     meta = _meta(sphere_dataset, "val")
     meta["frames"] = []
     _write_meta(sphere_dataset, meta, "val")
-    _expect(sphere_dataset, "transforms_val.json", "empty")
+    for k in range(2):
+        (sphere_dataset / "test" / f"r_{k}.png").unlink()
+    ds = load_dataset(sphere_dataset)
+    assert len(ds.splits["val"]) == 0 and len(ds.splits["test"]) == 0 and len(ds.splits["train"]) == 8
+    assert any("transforms_val.json: no frames" in n for n in ds.notes)
+    assert any("transforms_test.json: none of its 2 images exists (a split of cameras only)" in n for n in ds.notes)
+    (sphere_dataset / "train" / "r_3.png").unlink()  # a missing train image is still an error
+    _expect(sphere_dataset, "r_3", "not found")
 
 
 def test_single_view_dataset_is_refused(tmp_path, dataset_factory):

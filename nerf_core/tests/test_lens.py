@@ -148,6 +148,19 @@ def test_lens_fields_frame_over_file():
     assert parse_lens({"k1": True}, None)[1][0] == "k1"
 
 
+def test_instant_ngp_is_fisheye_means_the_fisheye_model():
+    # colmap2nerf writes "is_fisheye": true and k1-k4, no camera_model: read as OPENCV, a ray 15 px off
+    # the centre at f = 10 px was 24 degrees from the true fisheye ray.
+    meta = {"is_fisheye": True, "k1": 0.05, "k2": -0.02, "k3": 0.005, "k4": 0.0}
+    lens, problem = parse_lens(meta, None)
+    assert problem is None and lens == Lens("OPENCV_FISHEYE", (0.05, -0.02, 0.005, 0.0, 0.0, 0.0))
+    assert parse_lens({"is_fisheye": True}, None)[0].fisheye  # a fisheye bends rays with zero coefficients too
+    assert parse_lens({"is_fisheye": False, "k1": 0.1}, None)[0].model == "OPENCV"
+    assert parse_lens({"is_fisheye": "yes"}, None)[1][0] == "is_fisheye"
+    assert parse_lens({"is_fisheye": True, "camera_model": "OPENCV"}, None)[1] == (
+        "is_fisheye", "says the camera is a fisheye, but camera_model is 'OPENCV'")
+
+
 def test_a_distorted_capture_loads_trains_and_renders_with_its_lens(dataset_factory, tmp_path):
     from nerf_core.data import load_dataset
     from nerf_core.render import render_run
