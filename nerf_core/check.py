@@ -54,6 +54,7 @@ class CheckReport:
     warnings: List[Problem] = field(default_factory=list)
     n_frames: Dict[str, int] = field(default_factory=dict)
     plan: List[str] = field(default_factory=list)  # what `train` will decide for a valid dataset
+    trainable: Optional[bool] = None  # train reads the dataset (``dataset_problems`` is empty); None: not asked
 
     @property
     def ok(self) -> bool:
@@ -71,11 +72,16 @@ class CheckReport:
         counts = ", ".join(f"{k} {v}" for k, v in self.n_frames.items())
         verdict = "valid" if self.ok else f"INVALID: {len(self.errors)} error(s)"
         lines.append(f"{self.root}: {verdict}, {len(self.warnings)} warning(s)" + (f" ({counts} frames)" if counts else ""))
+        if not self.ok and self.trainable:
+            # A dataset of another tool: wrong as an export of ours, and still what train reads.
+            lines.append("train reads this dataset as it is: the errors above are conventions of an export "
+                         "(`check --for-training` checks it for training only)")
         return "\n".join(lines)
 
     def as_dict(self) -> dict:
         return {"dataset": str(self.root), "ok": self.ok, "errors": [str(p) for p in self.errors],
-                "warnings": [str(p) for p in self.warnings], "frames": self.n_frames, "train_plan": self.plan}
+                "warnings": [str(p) for p in self.warnings], "frames": self.n_frames, "train_plan": self.plan,
+                "trainable": self.trainable}
 
 
 def _resolved(path: Path) -> Path:
@@ -412,7 +418,9 @@ def _check_loadable(report: CheckReport, root: Path) -> None:
 
     reported = {(Path(p.file).name, p.frame) for p in report.errors}
     fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
-    for msg in dataset_problems(root):
+    problems = dataset_problems(root)
+    report.trainable = not problems
+    for msg in problems:
         m = _FRAME_RE.match(msg)
         if m:
             fname, frame = Path(m["file"]).name, int(m["frame"])

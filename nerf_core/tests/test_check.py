@@ -117,13 +117,15 @@ def test_for_training_another_tools_dataset_is_valid_and_what_train_refuses_is_n
         _edit(sphere_dataset / f"transforms_{split}.json",
               lambda m: [m.pop(k) for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")])
     shutil.rmtree(sphere_dataset / "nerfstudio")
-    assert not check_dataset(sphere_dataset).ok
+    strict = check_dataset(sphere_dataset)
+    assert not strict.ok and strict.trainable and "train reads this dataset as it is" in strict.format()
     report = check_dataset(sphere_dataset, for_training=True)
     assert report.ok and any("(conventions of an export)" in str(w) for w in report.warnings)
     assert main(["check", str(sphere_dataset), "--for-training"]) == 0 and "valid" in capsys.readouterr().out
     Image.new("RGBA", (10, 10)).save(sphere_dataset / "train" / "r_4.png")  # what train refuses stays an error
     report = check_dataset(sphere_dataset, for_training=True)
     assert not report.ok and _has([str(p) for p in report.errors], "frame 4", "10x10")
+    assert not report.trainable and "train reads" not in check_dataset(sphere_dataset).format()
 
 
 def test_a_lone_transforms_json_is_not_said_to_sit_beside_split_files(tmp_path, dataset_factory):
