@@ -342,7 +342,7 @@ def load_dataset(
     if unknown:
         raise DatasetError(f"unknown split {unknown[0]!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, scene = frame_infos(path, SPLITS)
-    notes = list(scene.get("held_out_notes", []))
+    notes = list(scene.get("notes", []))
     for key in ("split_note", "path_note"):
         if key in scene:
             notes.append(scene[key])

@@ -332,7 +332,8 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
 
     Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
     ``far``, ``depth_unit_scale_factor``, ``integer_depth_scale``, ``film_transparent``, ``world`` and ``beyond_box`` when the dataset gives
-    them (each with ``KEY_file``, the file it came from), and ``split_note``/``path_note``.
+    them (each with ``KEY_file``, the file it came from), ``split_note``/``path_note``, and ``notes``
+    (held-out splits left out, instant-ngp fields not applied).
     """
     path = Path(path)
     layout, root = detect_layout(path)
@@ -355,12 +356,12 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             if not out[name]:
                 # 3DGS's Blender loader takes an empty test split (BlenderNeRF writes one): no held-out
                 # views there, as when the file is missing.
-                scene.setdefault("held_out_notes", []).append(f"{jf}: no frames; nothing of split {name!r} is "
+                scene.setdefault("notes", []).append(f"{jf}: no frames; nothing of split {name!r} is "
                                                               "evaluated")
             elif name != "train" and not any(f.image.exists() for f in out[name]):
                 # A split of cameras only (BlenderNeRF's test poses): nothing to score, but render can
                 # draw them (``render RUN --cameras`` that file).
-                scene.setdefault("held_out_notes", []).append(
+                scene.setdefault("notes", []).append(
                     f"{jf}: none of its {len(out[name])} images exists (a split of cameras only): not evaluated; "
                     f"`python -m nerf_core render RUN --cameras {jf}` renders those views")
                 out[name] = []
@@ -378,6 +379,13 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             if key in meta:
                 scene[key] = meta[key]
                 scene[key + "_file"] = jf
+        ngp = [k for k in ("scale", "offset") if k in meta]
+        if ngp:
+            # instant-ngp fits its own unit cube with these; the poses as written are the scene's, and
+            # the box comes from the cameras (or 'aabb'), so they change nothing here: say so.
+            scene.setdefault("notes", []).append(
+                f"{jf}: instant-ngp's {' and '.join(repr(k) for k in ngp)} are not applied: poses are read as "
+                "written, and the scene box comes from 'aabb' or the cameras")
         _nerfstudio_splits(meta, jf, frames, splits, out, scene)
     for name in splits:
         out.setdefault(name, [])

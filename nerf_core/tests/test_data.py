@@ -234,3 +234,13 @@ def test_declared_size_must_match_the_images(sphere_dataset):
     meta["w"] = 48
     _write_meta(sphere_dataset, meta)
     _expect(sphere_dataset, "frame 0", "'w'/'h'", "48x20", "24x20")
+
+
+def test_instant_ngp_scale_and_offset_are_named_as_not_applied(tmp_path, dataset_factory):
+    # instant-ngp fits its unit cube with them; the poses as written are the scene's. They were
+    # dropped without a word.
+    ds_path = dataset_factory(tmp_path / "ngp", layouts=("nerfstudio",))
+    meta = json.loads((ds_path / "transforms.json").read_text())
+    (ds_path / "transforms.json").write_text(json.dumps({**meta, "scale": 0.33, "offset": [0.5, 0.5, 0.5]}))
+    notes = load_dataset(ds_path).notes
+    assert any("instant-ngp's 'scale' and 'offset' are not applied: poses are read as written" in n for n in notes)
