@@ -444,7 +444,6 @@ class CaptureJob:
         for marker in sc.timeline_markers:
             if marker.camera is not None:
                 self._set(marker, "camera", None)
-        self.start_frame = sc.frame_current
 
     def _restore_settings(self) -> None:
         for owner, attr, value in reversed(self._restore):

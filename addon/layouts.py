@@ -286,7 +286,7 @@ def look_at(position, target, up=(0.0, 0.0, 1.0)):
 
 def camera_label(obj) -> str:
     """How messages name a camera: a layout's copy also names the user's camera it copies."""
-    src = obj.get("nerf_source") if hasattr(obj, "get") else None
+    src = obj.get("nerf_source")
     return f"camera {obj.name!r}" + (f" (the copy of {src!r})" if src else "")
 
 
@@ -295,8 +295,7 @@ def _scale_owner(obj) -> str:
     user's camera, for a layout's copy)."""
     import bpy
 
-    src = bpy.data.objects.get(obj.get("nerf_source") or "") if hasattr(obj, "get") else None
-    cur = src or obj
+    cur = bpy.data.objects.get(obj.get("nerf_source") or "") or obj
     if any(abs(v - 1.0) > 1e-4 for v in cur.scale):
         return "its own scale"
     parent = cur.parent
@@ -411,6 +410,12 @@ def _user_cameras(scene, coll):
                   key=lambda o: o.name)
 
 
+# What a camera's intrinsics and clipping come from: the values an animation layout's copy takes from
+# its own frame.
+LENS_PROPS = ("type", "lens", "lens_unit", "shift_x", "shift_y", "sensor_width", "sensor_height", "sensor_fit",
+              "clip_start", "clip_end")
+
+
 def _new_camera(scene, coll, name, split, matrix, lens, sensor=36.0, src=None):
     import bpy
     from mathutils import Matrix
@@ -518,6 +523,7 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     from . import scene_bounds
 
     coll_existing = nerf_collection(scene, create=False)
+    lens_at: dict = {}  # animation layout: frame -> LENS_PROPS of the camera at that frame
     centre = radius = None
     clip_start = None
     if spec.layout == "inside":
@@ -570,6 +576,9 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
             for f in frames:
                 scene.frame_set(f)
                 sources.append((cam, cam.matrix_world.copy(), f))
+                # The lens as it is at this frame: an animated zoom is part of the shot, and the copy's
+                # animation is cleared (``_new_camera``).
+                lens_at[f] = {p: getattr(cam.data, p) for p in LENS_PROPS}
         finally:
             scene.frame_set(current)
         plan = _plan_from_sources(spec, sources)
@@ -581,24 +590,17 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     clear_cameras(scene)
     counters = {s: 0 for s in SPLITS}
     made = []
-    current = scene.frame_current
-    try:
-        for split, matrix, src, frame in plan:
-            name = f"NeRF_{split}_{counters[split]:03d}"
-            counters[split] += 1
-            if frame is not None and scene.frame_current != frame:
-                # The copy keeps its lens, shift and sensor as they are at its own frame: an animated
-                # zoom is part of the shot (the copy's animation is cleared, so it is taken now).
-                scene.frame_set(frame)
-            obj = _new_camera(scene, coll, name, split, matrix, spec.focal_length, src=src)
-            if frame is not None:
-                obj["nerf_frame"] = frame
-            if src is not None:
-                obj["nerf_source"] = src.name
-            made.append(obj)
-    finally:
-        if scene.frame_current != current:
-            scene.frame_set(current)
+    for split, matrix, src, frame in plan:
+        name = f"NeRF_{split}_{counters[split]:03d}"
+        counters[split] += 1
+        obj = _new_camera(scene, coll, name, split, matrix, spec.focal_length, src=src)
+        for prop, value in lens_at.get(frame, {}).items():
+            setattr(obj.data, prop, value)
+        if frame is not None:
+            obj["nerf_frame"] = frame
+        if src is not None:
+            obj["nerf_source"] = src.name
+        made.append(obj)
     for obj in made:
         # The default 100 m clip would cut far scenes out of the render; the depth pass needs it too.
         obj.data.clip_end = max(obj.data.clip_end, 4.0 * (radius or 0.0))

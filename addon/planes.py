@@ -389,8 +389,6 @@ def import_gallery(views: Sequence[View], out_dir: str = "", origin=None, row_he
     and not used (nothing is computed or written here).
     """
     scene = scene or bpy.context.scene
-    # Looking through a view camera, the scene looks through the same view's new camera after a re-import.
-    looking = scene.camera.get("nerf_view") if scene.camera is not None and scene.camera.get(TAG) else None
     clear_collection(collection_name)
     coll = ensure_collection(collection_name, scene)
     _build_gallery(views, coll, Vector(origin or (0.0, 0.0, 0.0)), row_height)

@@ -19,20 +19,28 @@ class BoundsError(ValueError):
     """Nothing visible to bound; the message says what was looked at."""
 
 
+def _collections_where(view_layer, start: bool, step) -> set:
+    """Pointers of the collections of ``view_layer`` whose flag holds, the flag passed down the tree:
+    a collection's is ``step(layer_collection, its parent's flag)``, the scene collection's parent's
+    is ``start``."""
+    out = set()
+
+    def walk(layer_coll, flag: bool) -> None:
+        flag = step(layer_coll, flag)
+        if flag:
+            out.add(layer_coll.collection.as_pointer())
+        for child in layer_coll.children:
+            walk(child, flag)
+
+    walk(view_layer.layer_collection, start)
+    return out
+
+
 def _rendered_collections(view_layer) -> set:
     """Pointers of the collections whose objects ``view_layer`` renders: included in it and, with every
     collection above, not disabled in renders. The viewport's eye and monitor icons play no part."""
-    out = set()
-
-    def walk(layer_coll, ok: bool) -> None:
-        ok = ok and not layer_coll.exclude and not getattr(layer_coll.collection, "hide_render", False)
-        if ok:
-            out.add(layer_coll.collection.as_pointer())
-        for child in layer_coll.children:
-            walk(child, ok)
-
-    walk(view_layer.layer_collection, True)
-    return out
+    return _collections_where(view_layer, True, lambda lc, ok: ok and not lc.exclude
+                              and not getattr(lc.collection, "hide_render", False))
 
 
 def render_view_layer(scene):
@@ -193,16 +201,7 @@ def holdout_objects(scene, view_layer=None) -> list:
     everything behind them: an object's Holdout flag, a view-layer collection set to Holdout, or a
     material with a Holdout shader. Renderable objects and the objects instances show, in that order."""
     view_layer = view_layer or render_view_layer(scene)
-    held = set()
-
-    def walk(layer_coll, on: bool) -> None:
-        on = on or bool(getattr(layer_coll, "holdout", False))
-        if on:
-            held.add(layer_coll.collection.as_pointer())
-        for child in layer_coll.children:
-            walk(child, on)
-
-    walk(view_layer.layer_collection, False)
+    held = _collections_where(view_layer, False, lambda lc, on: on or bool(getattr(lc, "holdout", False)))
     out = []
     for obj in renderable_objects(scene, view_layer) + instanced_objects(scene, view_layer):
         shaders = any(slot.material is not None and slot.material.node_tree is not None

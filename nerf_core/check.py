@@ -352,13 +352,11 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     opaque = _check_background(report, root, background)
     if opaque:
         _check_world_coverage(report, root)
-    elif opaque is False:
-        _check_empty_views(report, root)
     if for_training:
         report.warnings = [Problem(p.file, f"(conventions of an export) {p.message}", p.frame, p.frame_path, p.field)
                            for p in report.errors] + report.warnings
         report.errors = []
-    _check_loadable(report, root)
+    _check_loadable(report, root, empty_views=opaque is False)
     _check_paths(report, root)
     if report.ok:
         _training_plan(report, root, background)
@@ -409,16 +407,22 @@ _FRAME_RE = re.compile(r"^(?P<file>.+?\.json): frame (?P<frame>\d+) \((?P<path>.
 _FILE_RE = re.compile(r"^(?P<file>.+?\.json): (?P<rest>.*)$", re.S)
 
 
-def _check_loadable(report: CheckReport, root: Path) -> None:
+def _check_loadable(report: CheckReport, root: Path, empty_views: bool = False) -> None:
     """Add every problem that makes ``train`` refuse the dataset (``nerf_core.dataset_checks.dataset_problems``,
     the loader's own rules), so that `check` never calls valid what `train` refuses. A problem the
     convention checks above already reported for the same file and frame (or file and field) is not
-    repeated."""
+    repeated. ``empty_views`` (a transparent film): also warn about views that show nothing."""
     from .dataset_checks import dataset_problems
 
     reported = {(Path(p.file).name, p.frame) for p in report.errors}
     fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
-    problems = dataset_problems(root)
+    empty: Dict[str, list] = {}
+
+    def look(split, fr, sp) -> None:  # pixels the loader decodes anyway
+        if sp.images.shape[-1] == 4 and not bool(sp.images[..., 3].any()):
+            empty.setdefault(split, []).append(fr)
+
+    problems = dataset_problems(root, visit=look if empty_views else None)
     report.trainable = not problems
     for msg in problems:
         m = _FRAME_RE.match(msg)
@@ -439,6 +443,7 @@ def _check_loadable(report: CheckReport, root: Path) -> None:
             report.error(_relative(root, m["file"]), m["rest"])
         else:
             report.error(str(root), msg)
+    _warn_empty_views(report, root, empty)
 
 
 def _relative(root: Path, file: str) -> str:
@@ -511,34 +516,21 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
     return bool(opaque)
 
 
-def _check_empty_views(report: CheckReport, root: Path) -> None:
-    """Warn about views whose image is transparent everywhere (a transparent film): the camera saw
-    none of the scene (it looks away, or stands inside an object). A held-out one measures nothing,
-    and a train one teaches only empty space. Most readers would call such a dataset fine."""
-    try:
-        _, _, infos, _ = frame_infos(root)
-    except (DatasetError, ImageReadError, OSError, ValueError):
-        return  # the loader's own checks report why
-    for split, frames in infos.items():
-        empty = []
-        for fr in frames:
-            if fr.image.suffix.lower() != ".png":
-                continue
-            try:
-                px = read_png(fr.image)
-            except (ImageReadError, OSError):
-                continue  # reported above
-            if px.ndim == 3 and px.shape[-1] == 4 and not px[..., 3].any():
-                empty.append(fr)
-        for fr in empty[:10]:
+def _warn_empty_views(report: CheckReport, root: Path, empty: Dict[str, list]) -> None:
+    """Warn about views whose image is transparent everywhere (``empty``: split -> FrameInfos, found
+    while ``_check_loadable`` reads the pixels): on a transparent film the camera saw none of the
+    scene (it looks away, or stands inside an object). A held-out one measures nothing, and a train
+    one teaches only empty space. Most readers would call such a dataset fine."""
+    for split, frames in empty.items():
+        for fr in frames[:10]:
             report.warn(_relative(root, str(fr.json_file)),
                         "the image is transparent everywhere: this view shows nothing of the scene (does its "
                         "camera look away from it, or stand inside an object?)"
                         + ("; a held-out view of nothing measures nothing" if split != "train" else ""),
                         fr.index, fr.file_path)
-        if len(empty) > 10:
-            report.warn(_relative(root, str(empty[0].json_file)),
-                        f"{len(empty) - 10} more views show nothing (transparent everywhere)")
+        if len(frames) > 10:
+            report.warn(_relative(root, str(frames[0].json_file)),
+                        f"{len(frames) - 10} more views show nothing (transparent everywhere)")
 
 
 UNSEEN_WORLD_WARN = 0.02  # share of a held-out view's pixels on unseen world that earns a warning

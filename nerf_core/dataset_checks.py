@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, Optional
 
 import numpy as np
 import torch
@@ -141,14 +141,17 @@ def check_near_far(scene: dict, infos: Dict[str, List[FrameInfo]]) -> None:
         raise DatasetError(problem)
 
 
-def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2) -> List[str]:
+def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2,
+                     visit: Optional[Callable[[str, FrameInfo, object], None]] = None) -> List[str]:
     """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
 
     The one validation pass behind ``train`` and ``check``: it runs the loader's own rules
     (``frame_infos``, ``scene_fields``, ``check_train_count`` and ``load_split`` frame by frame, which
     decodes every image, depth, normal and mask file and checks its size against the JSON and the
     split), collecting the errors that ``load_dataset`` raises at the first of. An empty list means
-    ``train`` accepts the dataset. Pixels are read one frame at a time and dropped.
+    ``train`` accepts the dataset. Pixels are read one frame at a time and dropped; ``visit(split,
+    frame, one-frame Split)`` sees each frame that loads first (``check`` looks at its pixels there
+    rather than decode every image twice).
     """
     from .data import load_split  # data imports this module: load the loader only when called
 
@@ -172,18 +175,19 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
         scale = 1e-3
     for name in SPLITS:
         first = None
-        masked_pixels = 0
+        # Some pixel left to learn: a frame without a mask keeps every pixel. A broken frame leaves
+        # it unknown, and is reported instead.
+        pixels_left = False
         for fr in infos[name]:
             try:
                 sp = load_split(name, [fr], downscale, scale)
             except DatasetError as exc:
                 problems.append(str(exc))
-                masked_pixels = None  # unknown: the broken frame is reported instead
+                pixels_left = True
                 continue
-            if sp.masks is not None and masked_pixels is not None:
-                masked_pixels += int(sp.masks.sum())
-            elif masked_pixels is not None and fr.mask is None:
-                masked_pixels = None  # a frame without a mask keeps every pixel
+            if visit is not None:
+                visit(name, fr, sp)
+            pixels_left = pixels_left or sp.masks is None or bool(sp.masks.any())
             shape = (sp.width, sp.height, sp.images.shape[-1])
             if first is None:
                 first = (fr, shape)
@@ -200,7 +204,7 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
                         "images do; the alpha channel is the mask of the object, export every image as RGBA")
             except DatasetError as exc:
                 problems.append(str(exc))
-        if name == "train" and masked_pixels == 0 and any(f.mask is not None for f in infos[name]):
+        if name == "train" and not pixels_left and any(f.mask is not None for f in infos[name]):
             problems.append(empty_masks_problem(infos[name]))
     return problems
 
