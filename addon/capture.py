@@ -32,6 +32,7 @@ import bpy
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts
 from . import scene_bounds
 from .capture_plan import CaptureError
+from .core_contract import contract
 from .capture_world import world_description  # noqa: F401  (public: the panel and tests describe worlds)
 
 ENGINE_ALIASES = {
@@ -176,6 +177,10 @@ class CaptureJob:
                 raise CaptureError("masks for the selection: nothing visible is selected")
             if settings.target == "SELECTION" and self.engine != "CYCLES":
                 raise CaptureError("object masks of a selection need Cycles (its object index pass)")
+            if not settings.film_transparent and self.engine != "CYCLES":
+                # Without Cycles' object index pass the mask is the alpha, which an opaque film makes 1.
+                raise CaptureError("object masks with an opaque film need Cycles (its object index pass): "
+                                   "EEVEE and Workbench masks come from the alpha, which an opaque film sets everywhere")
         self.notes = capture_notes(scene)
         self.start_frame = scene.frame_current  # views without a frame of their own render at this one
         self.render_sig = None
@@ -254,6 +259,9 @@ class CaptureJob:
                                                    self.s.points, export.MANIFEST_DIR))
                 frames.append(fr)
         self.frames = frames
+        cameras = [tuple(fr["intrinsics"][k] for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")) for fr in frames]
+        # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
+        self.notes += [msg for _, msg in contract.angle_only_caveats(cameras)]
         if any(fr["frame"] is not None for fr in frames):
             # Views at their own frames (the animation layout): the scene at the current frame is not
             # what they show, and resuming at another frame must not look like an edit.

@@ -73,7 +73,7 @@ def save_passes(scene, result, fr: dict, out: str, s, engine: str, scratch_dir: 
         z = passes.find_pass(ch, "Depth", "Z")
         if z is None:
             raise CaptureError(f"{fr['key']}: the render has no Depth pass ({engine})")
-        depth = passes.planar_depth(z[..., 0])
+        depth = passes.planar_depth(z[..., 0], scene.camera.data.clip_end if scene.camera else None)
     if s.depth:
         passes.write_exr(os.path.join(out, fr["depth_file_path"]), {"Z": depth})
     normal = passes.find_pass(ch, "Normal", "XYZ") if (s.normals or s.points) else None

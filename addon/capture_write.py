@@ -53,6 +53,27 @@ def write_point_cloud(out: str, frames: list[dict]) -> bool:
     return True
 
 
+def nerfstudio_depth(out: str, frames: list[dict]) -> None:
+    """Give each frame with a depth EXR its 16-bit millimetre PNG under ``nerfstudio/depth/`` (made
+    from the EXR when missing or older), as ``nerfstudio_depth_file_path``.
+
+    nerfstudio reads ``depth_file_path`` with OpenCV as integers times its ``depth_unit_scale_factor``
+    (a command-line option, 1e-3 unless set, never read from the JSON): an EXR there fails to load,
+    or (channel ``Z``) loads as zeros, which turns depth supervision off without a word.
+    """
+    from . import passes
+
+    for fr in frames:
+        if not fr.get("depth_file_path"):
+            continue
+        rel = f"{export.NERFSTUDIO_DIR}/depth/{fr['split']}/{fr['name']}.png"
+        src, dst = os.path.join(out, fr["depth_file_path"]), os.path.join(out, rel)
+        if not os.path.isfile(dst) or os.path.getmtime(dst) < os.path.getmtime(src):
+            os.makedirs(os.path.dirname(dst), exist_ok=True)
+            passes.write_png_gray(dst, passes.depth_millimetres(passes.read_exr_channels(src)["Z"]))
+        fr["nerfstudio_depth_file_path"] = rel
+
+
 def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest_info: dict) -> tuple[float, float]:
     """Transforms files of the frames in ``done_keys``, the point cloud when ``complete``, the manifest.
 
@@ -61,8 +82,10 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
     done = [fr for fr in plan["frames"] if fr["key"] in done_keys]
     near, far = near_far_of(plan)
     lo, hi = plan["bounds"]["min"], plan["bounds"]["max"]
+    beyond = bool(plan["bounds"].get("surroundings")) or not plan["film_transparent"]
+    cams = [[m[0][3], m[1][3], m[2][3]] for m in (fr["transform_matrix"] for fr in plan["frames"])]
     common = {"aabb": [list(map(float, lo)), list(map(float, hi))],
-              "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(lo, hi),
+              "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(lo, hi, cams, beyond),
               "film_transparent": bool(plan["film_transparent"]), "world": plan["world"]}
     if plan["bounds"].get("surroundings"):  # left out of the box, they still render: a NeRF must reach past it
         common["beyond_box"] = list(plan["bounds"]["surroundings"])
@@ -71,7 +94,9 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
     if plan["passes"]["points"] and complete and write_point_cloud(out, done):
         common["ply_file_path"] = "points3d.ply"
     if any(fr["split"] == "train" for fr in done):
-        export.write_transforms(out, [dict(fr) for fr in done], common)
+        frames = [dict(fr) for fr in done]
+        nerfstudio_depth(out, frames)
+        export.write_transforms(out, frames, common)
         # Captures before nerfstudio/ wrote nerfstudio's file at the root, where instant-ngp loads
         # it beside the split files (every frame twice). It is this capture's own file: drop it.
         legacy = os.path.join(out, "transforms.json")

@@ -20,6 +20,7 @@ MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
 NERFSTUDIO_DIR = "nerfstudio"  # holds nerfstudio's transforms.json; its paths are relative to it ("../train/r_0.png")
 SPLITS = ("train", "val", "test")
+PER_FRAME_INTRINSICS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")  # what a frame may carry
 
 
 class ExportError(ValueError):
@@ -105,7 +106,7 @@ def _frame_entry(f: dict, folder: str, per_frame_intrinsics: bool, nerfstudio: b
     path = f"{path_prefix}{folder}/{f['name']}.png" if nerfstudio else f"./{folder}/{f['name']}"
     entry = {"file_path": path, "transform_matrix": f["transform_matrix"]}
     if per_frame_intrinsics:  # instant-ngp and nerfstudio both read these
-        for k in ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h"):
+        for k in PER_FRAME_INTRINSICS:
             entry[k] = f["intrinsics"][k]
     for key in ("depth_file_path", "normal_file_path", "mask_path"):
         if f.get(key):
@@ -143,7 +144,8 @@ def transforms_document(frames: list[dict], common: dict, folder: str, nerfstudi
 def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str]:
     """Write transforms_{train,val,test}.json and nerfstudio's nerfstudio/transforms.json; return the paths.
 
-    ``frames``: as ``transforms_document`` wants them, each with its ``split``. Every file shares one
+    ``frames``: as ``transforms_document`` wants them, each with its ``split`` (and, with depth, the
+    ``nerfstudio_depth_file_path`` of its millimetre PNG, ``capture_write.nerfstudio_depth``). Every file shares one
     top level, taken from all frames. Paths in the split files are relative to ``out_dir``; in
     nerfstudio's file (which nerfstudio resolves against its own folder) they start with ``../``.
     """
@@ -157,12 +159,29 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
         doc = transforms_document(split_frames, common, split, intrinsics_of=frames)
         ns_split = transforms_document(split_frames, common, split, nerfstudio=True, intrinsics_of=frames,
                                        path_prefix="../")["frames"]
+        for f, entry in zip(split_frames, ns_split):
+            if f.get("nerfstudio_depth_file_path"):  # millimetre PNGs, the depth nerfstudio reads
+                entry["depth_file_path"] = "../" + f["nerfstudio_depth_file_path"]
+        if common.get("film_transparent"):
+            # nerfstudio samples rays only where mask_path is white: with object masks it would never
+            # see the transparent background, so free space would go untaught (and a batch larger than
+            # the object's pixels fails). The alpha already outlines the objects there.
+            for entry in ns_split:
+                entry.pop("mask_path", None)
         ns_frames += ns_split
         per_split_files[split] = [e["file_path"] for e in ns_split]
         path = os.path.join(out_dir, f"transforms_{split}.json")
         _atomic_json(path, doc)
         written.append(path)
     ns_doc = transforms_document([], common, "", intrinsics_of=frames)
+    if shared_intrinsics(frames) is None:
+        # nerfstudio-data reads a top-level intrinsic for every frame, ignoring the frame's own: here
+        # the frames alone carry them. (The split files keep the first frame's camera_angle_x, the one
+        # field their loaders read; the capture and `check` warn that those loaders misplace the rest.)
+        for key in PER_FRAME_INTRINSICS:
+            ns_doc.pop(key, None)
+    if any(f.get("nerfstudio_depth_file_path") for f in frames):
+        ns_doc["depth_unit_scale_factor"] = 1e-3  # nerfstudio's own default: its PNGs hold millimetres
     if "ply_file_path" in ns_doc:
         ns_doc["ply_file_path"] = "../" + ns_doc["ply_file_path"]
     ns_doc.update({f"{s}_filenames": per_split_files[s] for s in SPLITS})
@@ -220,13 +239,22 @@ def cameras_transforms(cameras, scene, size, frames=None, base: dict | None = No
     return transforms_document(out_frames, common, prefix, per_frame=True)
 
 
-def ngp_aabb_scale(lo, hi, ngp_scale: float = 0.33) -> int:
-    """instant-ngp's ``aabb_scale``: the smallest power of two (1..128) whose box holds the bounds.
+def ngp_aabb_scale(lo, hi, camera_positions=(), beyond_box: bool = False) -> int:
+    """instant-ngp's ``aabb_scale`` (a power of two, 1..128) for a file that also carries ``aabb``.
 
-    instant-ngp maps a point p to p * 0.33 + 0.5 and samples the box 0.5 +- aabb_scale / 2.
+    With ``aabb`` instant-ngp scales and centres that box onto its unit cube (``nerf_loader.cu``), and
+    ``aabb_scale`` is the side of the cube it samples, in units of the box's longest side. A scene
+    that is all inside the box (a transparent film, nothing left out) needs 1. One that renders
+    beyond it (``beyond_box``: an opaque world, a floor to the horizon) gets the smallest cube that
+    reaches twice as far as the farthest camera: what lies beyond the cameras is what they see.
     """
-    extent = max(abs(float(v)) for v in list(lo) + list(hi))
-    need = 2.0 * ngp_scale * extent
+    if not beyond_box:
+        return 1
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    length = max(float((hi - lo).max()), 1e-6)
+    centre = 0.5 * (lo + hi)
+    reach = max([float(np.abs(np.asarray(p, float) - centre).max()) for p in camera_positions] or [length])
+    need = 4.0 * reach / length  # a cube of side aabb_scale * length, centred, holding 2 x reach
     scale = 1
     while scale < need and scale < 128:
         scale *= 2

@@ -147,8 +147,9 @@ def write_exr(path: str, channels: dict[str, np.ndarray]) -> None:
 
 
 def write_png_gray(path: str, image: np.ndarray) -> None:
-    """Write a (h, w) uint8 array as an 8-bit greyscale PNG, atomically."""
-    image = np.ascontiguousarray(image, dtype=np.uint8)
+    """Write a (h, w) uint8 or uint16 array as an 8- or 16-bit greyscale PNG, atomically."""
+    bits = 16 if image.dtype == np.uint16 else 8
+    image = np.ascontiguousarray(image, dtype=">u2" if bits == 16 else np.uint8)  # PNG is big-endian
     h, w = image.shape
     raw = b"".join(b"\0" + image[y].tobytes() for y in range(h))
 
@@ -157,14 +158,27 @@ def write_png_gray(path: str, image: np.ndarray) -> None:
 
     png = (
         b"\x89PNG\r\n\x1a\n"
-        + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bits, 0, 0, 0, 0))
         + chunk(b"IDAT", zlib.compress(raw, 6))
         + chunk(b"IEND", b"")
     )
     _atomic_write(path, png)
 
 
-def planar_depth(depth: np.ndarray) -> np.ndarray:
-    """(h, w) Blender Z pass -> float32 planar depth with inf where no surface was hit."""
+def depth_millimetres(depth: np.ndarray) -> np.ndarray:
+    """(h, w) float depth in scene units -> uint16 millimetres, 0 where there is no depth or it is
+    beyond 65.535 units (what 16 bits hold): nerfstudio's depth PNG, read as ``depth > 0`` valid."""
+    mm = np.where(np.isfinite(depth), np.round(depth.astype(np.float64) * 1000.0), 0.0)
+    return np.where((mm > 0) & (mm <= 65535), mm, 0).astype(np.uint16)
+
+
+def planar_depth(depth: np.ndarray, clip_end: float | None = None) -> np.ndarray:
+    """(h, w) Blender Z pass -> float32 planar depth with inf where no surface was hit.
+
+    Cycles writes 1e10 where a ray hits nothing; EEVEE writes the far clipping plane there (about
+    ``clip_end``, a little more off the axis), so with the camera's ``clip_end`` depths from 99.9 % of
+    it on count as background too: nothing beyond the clipping plane renders anyway.
+    """
     depth = depth.astype(np.float32)
-    return np.where((depth > 0) & (depth < BACKGROUND_DEPTH), depth, np.float32(np.inf)).astype(np.float32)
+    far = BACKGROUND_DEPTH if clip_end is None else min(BACKGROUND_DEPTH, 0.999 * float(clip_end))
+    return np.where((depth > 0) & (depth < far), depth, np.float32(np.inf)).astype(np.float32)

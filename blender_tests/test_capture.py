@@ -202,6 +202,52 @@ def test_normals_masks_and_point_cloud(cycles_dataset):
         assert json.load(fh)["ply_file_path"] == "../points3d.ply"  # relative to nerfstudio/
 
 
+def test_nerfstudio_gets_millimetre_depth_pngs_and_no_object_masks_on_a_transparent_film(cycles_dataset):
+    from nerf_core.data import load_dataset
+
+    out, _ = cycles_dataset
+    with open(os.path.join(out, "nerfstudio", "transforms.json")) as fh:
+        ns = json.load(fh)
+    # nerfstudio reads depth with OpenCV as integers x depth_unit_scale_factor (1e-3 by default).
+    assert ns["depth_unit_scale_factor"] == 1e-3
+    for fr in ns["frames"]:
+        # nerfstudio samples only white mask pixels: object masks would hide the transparent background.
+        assert "mask_path" not in fr
+        png = Image.open(os.path.join(out, "nerfstudio", fr["depth_file_path"]))
+        assert png.mode.startswith("I") and fr["depth_file_path"].endswith(".png")
+        mm = np.asarray(png).astype(float)
+        exr = os.path.join(out, "depth", fr["file_path"][len("../"):-len(".png")] + ".exr")
+        z = OpenEXR.File(exr, separate_channels=True).parts[0].channels["Z"].pixels
+        hit = np.isfinite(z)
+        assert hit.any() and (~hit).any()
+        np.testing.assert_allclose(mm[hit], z[hit] * 1000.0, atol=0.51)
+        assert (mm[~hit] == 0).all()  # nerfstudio's depth > 0 marks valid pixels
+    # Our own loader reads nerfstudio's file with the same depth as the split files (to a millimetre).
+    ours = load_dataset(os.path.join(out, "nerfstudio")).splits["train"].depth
+    split = load_dataset(out).splits["train"].depth
+    seen = split > 0
+    np.testing.assert_allclose(ours[seen].numpy(), split[seen].numpy(), atol=6e-4)
+
+
+def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path):
+    from addon import passes
+
+    # EEVEE writes the far clipping plane (a little more off the axis) where Cycles writes 1e10.
+    z = np.array([[2.0, 100.5, 1e10], [0.0, 99.95, 50.0]], np.float32)
+    np.testing.assert_array_equal(passes.planar_depth(z, clip_end=100.0),
+                                  [[2.0, np.inf, np.inf], [np.inf, np.inf, 50.0]])
+    np.testing.assert_array_equal(passes.planar_depth(z), np.array([[2.0, 100.5, np.inf], [np.inf, 99.95, 50.0]], np.float32))
+    build_test_scene()
+    scene = bpy.context.scene
+    spec = layouts.LayoutSpec(layout="sphere", train=3, val=0, test=1, radius=7.0)
+    layouts.create_cameras(scene, spec, 16, 16)
+    for engine in ("workbench", "eevee"):
+        settings = capture.CaptureSettings(out_dir=str(tmp_path / engine), engine=engine, res_x=16, res_y=16,
+                                           film_transparent=False, masks=True, layout=spec.to_dict())
+        with pytest.raises(capture.CaptureError, match="opaque film need Cycles"):
+            capture.CaptureJob(scene, settings)
+
+
 def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
     out, summary = cycles_dataset
     assert summary["status"] == "complete" and summary["frames"] == 11
@@ -229,16 +275,20 @@ def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
     np.testing.assert_allclose(lo, [-CUBE_HALF, -CUBE_HALF, -CUBE_HALF], atol=1e-5)
     np.testing.assert_allclose(hi, BALL_C + BALL_R, atol=1e-5)
     assert 0 < doc["near"] < 7 - 1.5 and doc["far"] > 7 + 1.3
-    assert doc["aabb_scale"] == 2  # 1.65 * 0.33 * 2 = 1.09: instant-ngp's unit box is too small
+    # instant-ngp fits the written aabb to its unit cube; on a transparent film nothing lies beyond it.
+    assert doc["aabb_scale"] == 1
 
 
-def test_ngp_aabb_scale_is_the_smallest_power_of_two_holding_the_bounds():
+def test_ngp_aabb_scale_reaches_twice_the_farthest_camera_when_the_scene_renders_beyond_the_box():
     from addon.export import ngp_aabb_scale
 
-    assert ngp_aabb_scale((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5)) == 1
-    assert ngp_aabb_scale((-1.6, 0, 0), (0, 0, 0)) == 2
-    assert ngp_aabb_scale((0, 0, 0), (0, 0, 20.0)) == 16
-    assert ngp_aabb_scale((0, 0, 0), (0, 0, 1e6)) == 128
+    # Off-centre and large, but all inside the box: instant-ngp's aabb mapping makes it fill the cube.
+    assert ngp_aabb_scale((2.8, 2.8, 0), (7.2, 7.2, 3.5), [(15, 0, 2)], beyond_box=False) == 1
+    # Box side 2 centred at 0, camera 4 away: the cube must reach 8, i.e. 8 box sides -> 8.
+    assert ngp_aabb_scale((-1, -1, -1), (1, 1, 1), [(0, 4, 0), (1, 0, 0)], beyond_box=True) == 8
+    assert ngp_aabb_scale((-1, -1, -1), (1, 1, 1), [(0, 4.1, 0)], beyond_box=True) == 16
+    assert ngp_aabb_scale((-1, -1, -1), (1, 1, 1), [(0, 0.1, 0)], beyond_box=True) == 1
+    assert ngp_aabb_scale((0, 0, 0), (1e-3, 1e-3, 1e-3), [(1e6, 0, 0)], beyond_box=True) == 128
 
 
 def test_manifest_records_settings_and_no_normalisation(cycles_dataset):
@@ -276,14 +326,24 @@ def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
         cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
     spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
     layouts.create_cameras(scene, spec, 40, 30)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
-                                                      res_y=30, layout=spec.to_dict())).run()
+    job = capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+                                                            res_y=30, layout=spec.to_dict()))
+    job.plan()  # says, before rendering, that one camera_angle_x cannot hold three lenses
+    assert any("3 different cameras" in n and "3DGS" in n for n in job.notes), job.notes
+    job.run()
     lenses = set()
     for split in ("train", "test"):
         for doc, fr, intr in frames(tmp_path, split):
             assert "fl_x" in fr and "camera_angle_x" in fr  # per frame, since they differ
             lenses.add(round(fr["fl_x"] * 36.0 / 40, 3))
     assert lenses == {35.0, 50.0, 80.0}
+    # nerfstudio-data takes a top-level intrinsic for every frame: its file leaves them to the frames.
+    with open(os.path.join(tmp_path, "nerfstudio", "transforms.json")) as fh:
+        ns = json.load(fh)
+    assert not {"fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x"} & set(ns)
+    assert {round(fr["fl_x"] * 36.0 / 40, 3) for fr in ns["frames"]} == {35.0, 50.0, 80.0}
+    proc = subprocess.run([PY, "-m", "nerf_core", "check", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert "WARNING transforms_train.json: field 'fl_x': the views have 2 different cameras" in proc.stdout, proc.stdout
     for split in ("train", "test"):  # centres are deep inside the silhouettes even at this tiny size
         for _doc, fr, intr in frames(tmp_path, split):
             alpha = np.asarray(Image.open(os.path.join(tmp_path, fr["file_path"] + ".png")))[..., 3]

@@ -16,7 +16,7 @@ from typing import Dict, Iterator, List, Optional
 
 import numpy as np
 
-from .contract.intrinsics import focal_from_fov
+from .contract.intrinsics import angle_only_caveats, focal_from_fov
 from .contract.lens import lens_problem, parse_lens
 from .contract.naming import evenly_spaced
 from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos,
@@ -169,12 +169,6 @@ def _check_intrinsics_consistency(report: CheckReport, fname: str, intr: dict, k
             report.error(fname, f"camera_angle_x {intr['camera_angle_x']:.6g} gives fl_x {fx_from_angle:.4f} "
                                 f"but fl_x is {intr['fl_x']:.4f}; loaders that read only camera_angle_x would use another focal length",
                          k, fpath, "camera_angle_x")
-    off_x, off_y = intr["cx"] - w / 2.0, intr["cy"] - h / 2.0
-    # nerfstudio-data reads cx/cy itself; only the split files feed camera_angle_x-only loaders.
-    if fname != NERFSTUDIO_FILE and (abs(off_x) > 0.5 or abs(off_y) > 0.5):
-        report.warn(fname, f"principal point ({intr['cx']:g}, {intr['cy']:g}) is off-centre by ({off_x:+.2f}, {off_y:+.2f}) px "
-                           "(lens shift): loaders that read only camera_angle_x (original NeRF, blender-data, 3DGS) assume the centre",
-                    k, fpath, "cx/cy")
 
 
 def _check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict], k: int, fpath: str, field_name: str, rgba: bool) -> None:
@@ -306,6 +300,7 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     poses: Dict[str, List[tuple]] = {}
     frame_intrinsics: Dict[str, dict] = {}  # image file -> intrinsics, to compare with transforms.json
     seen: set = set()
+    boxes: Dict[str, object] = {}
     for fname in SPLIT_FILES:
         split = fname[len("transforms_"):-len(".json")]
         fpath_json = root / fname
@@ -316,12 +311,16 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         if meta is None:
             continue
         _check_meta_common(report, fname, meta)
+        boxes[fname] = meta.get("aabb")
         if "camera_angle_x" not in meta:
             report.error(fname, "missing: the only camera field the original NeRF loader, blender-data and 3DGS read",
                          field="camera_angle_x")
         report.n_frames[split] = len(meta["frames"])
         poses[split] = []
+        cameras = []
         for k, fr, fp, intr in _frame_entries(report, fname, meta, seen):
+            if intr is not None:
+                cameras.append(tuple(intr[key] for key in REQUIRED_INTRINSICS))
             if Path(fp).suffix.lower() in IMAGE_EXTS:
                 report.error(fname, f"{fp!r} has an extension; loaders of this layout add '.png' themselves "
                                     f"(write {str(Path(fp).with_suffix(''))!r})", k, fp, "file_path")
@@ -335,6 +334,9 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
                 poses[split].append((k, fp, m, _resolved(img)))
             if intr is not None:
                 frame_intrinsics[str(_resolved(img))] = intr
+        # nerfstudio-data reads every intrinsic itself; the split files feed camera_angle_x-only loaders.
+        for field, message in angle_only_caveats(cameras):
+            report.warn(fname, message, field=field)
 
     # Held-out cameras must be new viewpoints.
     for split in ("val", "test"):
@@ -348,6 +350,7 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
                                  k, fp, "transform_matrix")
                     break
 
+    _check_synthetic_scale(report, boxes, poses)
     _check_nerfstudio(report, root, frame_intrinsics)
     opaque = _check_background(report, root, background)
     if opaque:
@@ -573,6 +576,42 @@ def _check_world_coverage(report: CheckReport, root: Path) -> None:
                             "fix it", fr.index, fr.file_path)
 
 
+# The scale of the original synthetic scenes, which some loaders hard-code instead of reading the
+# file: the original NeRF samples rays from near 2 to far 6 (run_nerf.py), TensoRF and nerfstudio's
+# blender-data bound the scene by a +-1.5 box. Cameras of those scenes sit about 4 from the origin.
+SYNTHETIC_BOX_HALF = 1.5
+SYNTHETIC_CAMERA_DISTANCE = (2.0, 7.5)  # from near 2 to far 6 past the box's edge
+
+
+def _check_synthetic_scale(report: CheckReport, boxes: Dict[str, object], poses: Dict[str, list]) -> None:
+    """Warn, once, when the scene is not at the synthetic scenes' scale: legal, and read right by the
+    loaders that read ``aabb`` and near/far (nerfstudio-data, instant-ngp, 3DGS, nerf_core), but
+    the loaders that hard-code that scale sample or bound the wrong region."""
+    fname = "transforms_train.json"
+    reach = None
+    try:
+        box = np.asarray(boxes.get(fname), dtype=float)
+        if box.shape == (2, 3) and np.all(np.isfinite(box)):
+            reach = float(np.abs(box).max())
+    except (TypeError, ValueError):
+        pass
+    dists = [float(np.linalg.norm(m[:3, 3])) for _, _, m, _ in poses.get("train", [])]
+    lo, hi = SYNTHETIC_CAMERA_DISTANCE
+    outside = [d for d in dists if not lo <= d <= hi]
+    if (reach is None or reach <= 1.1 * SYNTHETIC_BOX_HALF) and not outside:
+        return
+    said = []
+    if reach is not None and reach > 1.1 * SYNTHETIC_BOX_HALF:
+        said.append(f"the aabb reaches {reach:.3g} units from the origin (theirs: {SYNTHETIC_BOX_HALF})")
+    if outside:
+        said.append(f"{len(outside)} of {len(dists)} train cameras lie {min(dists):.3g}-{max(dists):.3g} units from the "
+                    f"origin (theirs: about 4)")
+    report.warn(fname, "not at the scale of the synthetic NeRF scenes: " + "; ".join(said) + ". Loaders that "
+                "hard-code it (the original NeRF: near 2, far 6; TensoRF and nerfstudio blender-data: a +-1.5 box) "
+                "will miss the scene; nerfstudio-data, instant-ngp and 3DGS read the file's own aabb and cameras",
+                field="aabb")
+
+
 def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict]) -> None:
     path = root / NERFSTUDIO_FILE
     if not path.is_file():
@@ -596,6 +635,12 @@ def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[st
         _check_image(report, NERFSTUDIO_FILE, img, intr, k, fp, "file_path", rgba=False)
         _check_pose(report, NERFSTUDIO_FILE, fr, k, fp)
         _check_extras(report, NERFSTUDIO_FILE, base, fr, k, fp)
+        # nerfstudio-data takes a top-level intrinsic for every frame and never reads the frame's own.
+        ignored = [key for key in REQUIRED_INTRINSICS if key in meta and key in fr and fr[key] != meta[key]]
+        if ignored:
+            report.error(NERFSTUDIO_FILE, f"{ignored[0]} {fr[ignored[0]]!r} differs from the top-level {meta[ignored[0]]!r}, "
+                         "which nerfstudio-data uses for every frame: leave the top-level intrinsics out when the "
+                         "frames differ", k, fp, ignored[0])
         other = split_intrinsics.get(str(_resolved(img)))
         if other is not None and intr is not None:
             diff = [key for key in REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]

@@ -22,7 +22,8 @@ import os
 import re
 from typing import Any, Dict, Optional
 
-from .intrinsics import focal_from_fov, fov_from_focal, resolve_intrinsics  # noqa: F401 (re-exported)
+from .intrinsics import (ANGLE_ONLY_LOADERS, angle_only_caveats, focal_from_fov, fov_from_focal,  # noqa: F401
+                         resolve_intrinsics)
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
 from .naming import (ERRORS_DIR, MAX_STEM_CHARS, evenly_spaced, file_safe, frame_stem, output_stems,  # noqa: F401
                      path_stem, render_files, unique_stems)

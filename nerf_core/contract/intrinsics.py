@@ -55,3 +55,42 @@ def resolve_intrinsics(meta: Optional[dict], frame: Optional[dict], size: Option
         raise DatasetError(f"{where}: no focal length (fields 'fl_x' or 'camera_angle_x' missing)")
     fy = intr.get("fl_y", fx)
     return fx, fy, intr.get("cx", w / 2.0), intr.get("cy", h / 2.0), float(w), float(h)
+
+
+# The loaders that take one ``camera_angle_x`` for every view and assume square pixels centred on
+# the image (../shared/CONVENTIONS.md): what they cannot represent is legal, but they misplace it.
+ANGLE_ONLY_LOADERS = "original NeRF, nerfstudio blender-data, 3DGS, TensoRF"
+
+
+def angle_only_caveats(cameras: Sequence[Tuple[float, float, float, float, float, float]]) -> list:
+    """[(field, message)] for what loaders that read only ``camera_angle_x`` misread in these views.
+
+    ``cameras``: one (fx, fy, cx, cy, w, h) per view, in pixels. Three things, each said once: a
+    principal point off the image centre (lens shift), non-square pixels (fl_y != fl_x), and views
+    that differ in focal length, principal point or size (one top-level angle cannot hold them).
+    The capture says these before rendering and ``nerf_core check`` says them of each split file.
+    """
+    cams = [tuple(float(v) for v in c) for c in cameras]
+    if not cams:
+        return []
+    n = len(cams)
+    out = []
+    shifted = [c for c in cams if abs(c[2] - c[4] / 2) > 0.5 or abs(c[3] - c[5] / 2) > 0.5]
+    if shifted:
+        fx, fy, cx, cy, w, h = max(shifted, key=lambda c: abs(c[2] - c[4] / 2) + abs(c[3] - c[5] / 2))
+        out.append(("cx/cy", f"principal point off the image centre by up to ({cx - w / 2:+.2f}, {cy - h / 2:+.2f}) px "
+                             f"in {len(shifted)} of {n} view(s) (lens shift): loaders that read only camera_angle_x "
+                             f"({ANGLE_ONLY_LOADERS}) assume the centre"))
+    skewed = [c for c in cams if abs(c[1] - c[0]) > 1e-4 * c[0]]
+    if skewed:
+        fx, fy = skewed[0][:2]
+        out.append(("fl_y", f"fl_y {fy:.6g} differs from fl_x {fx:.6g} in {len(skewed)} of {n} view(s) (non-square "
+                            f"pixels, Blender's pixel aspect): loaders that read only camera_angle_x "
+                            f"({ANGLE_ONLY_LOADERS}) assume fl_y = fl_x"))
+    distinct = {tuple(round(v, 4) for v in c) for c in cams}
+    if len(distinct) > 1:
+        out.append(("fl_x", f"the views have {len(distinct)} different cameras (focal length, principal point or "
+                            f"size): loaders that read one top-level camera_angle_x ({ANGLE_ONLY_LOADERS}) use "
+                            "the first view's for all; nerfstudio-data (nerfstudio/transforms.json) and instant-ngp "
+                            "read each view's own"))
+    return out

@@ -67,6 +67,10 @@ CASES = {
                                       ["transforms.json", "test_filenames", "zzz.png"]),
     "missing depth file": ("transforms_test.json", lambda m: m["frames"][1].update(depth_file_path="nope.exr"),
                            ["transforms_test.json", "frame 1", "depth_file_path", "nope.exr"]),
+    # nerfstudio-data takes the top-level value for every frame and never reads the frame's own.
+    "nerfstudio frame intrinsics hidden by the top level": (
+        "nerfstudio/transforms.json", lambda m: m["frames"][2].update(fl_x=m["fl_x"] * 1.5),
+        ["transforms.json", "frame 2", "fl_x", "top-level", "nerfstudio-data uses for every frame"]),
     "bad aabb": ("transforms_train.json", lambda m: m.update(aabb=[[0, 0, 0], [0, 0, 0]]), ["transforms_train.json", "aabb"]),
 }
 
@@ -183,3 +187,23 @@ def test_invalid_json_and_json_report(sphere_dataset, capsys):
     assert main(["check", str(sphere_dataset), "--json"]) == 1
     rep = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert not rep["ok"] and any("transforms_test.json" in e and "invalid JSON" in e for e in rep["errors"])
+
+
+def test_a_scene_off_the_synthetic_scale_is_warned_about_once(sphere_dataset):
+    report, errors = _errors(sphere_dataset)
+    assert not [w for w in report.warnings if "synthetic" in str(w)]
+
+    def grow(meta):  # the same scene, five times larger: legal, and read right by loaders that read aabb
+        meta["aabb"] = (np.asarray(meta["aabb"]) * 5).tolist()
+        meta["near"], meta["far"] = meta["near"] * 5, meta["far"] * 5
+        for fr in meta["frames"]:
+            m = np.asarray(fr["transform_matrix"])
+            m[:3, 3] *= 5
+            fr["transform_matrix"] = m.tolist()
+
+    for name in ("transforms_train.json", "transforms_val.json", "transforms_test.json", "nerfstudio/transforms.json"):
+        _edit(sphere_dataset / name, grow)
+    report, errors = _errors(sphere_dataset)
+    scale = [str(w) for w in report.warnings if "synthetic" in str(w)]
+    assert len(scale) == 1 and "transforms_train.json" in scale[0] and "near 2, far 6" in scale[0], scale
+    assert "8 of 8 train cameras lie 15-15 units" in scale[0] and "aabb reaches" in scale[0]

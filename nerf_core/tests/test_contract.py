@@ -128,3 +128,23 @@ def test_read_transforms_names_file_frame_and_field(tmp_path):
     path.write_text(json.dumps(bad))
     with pytest.raises(contract.DatasetError, match=r"transforms_train.json: frame 0 \(./train/r_0\): field 'transform_matrix'.*scaled"):
         contract.read_transforms(path)
+
+
+def test_angle_only_caveats_name_shift_pixel_aspect_and_mixed_lenses():
+    from nerf_core.contract import angle_only_caveats
+
+    centred = (100.0, 100.0, 32.0, 24.0, 64, 48)
+    assert angle_only_caveats([centred, centred]) == []
+    assert angle_only_caveats([]) == []
+    # Half a pixel off the centre is rounding, not a shift.
+    assert angle_only_caveats([(100.0, 100.0, 32.4, 24.0, 64, 48)]) == []
+    shifted = (100.0, 100.0, 20.0, 30.0, 64, 48)  # principal point 12 px left, 6 px down
+    ((field, msg),) = angle_only_caveats([shifted])
+    assert field == "cx/cy" and "(-12.00, +6.00) px in 1 of 1 view(s)" in msg and "TensoRF" in msg
+    tall = (100.0, 50.0, 32.0, 24.0, 64, 48)  # Blender pixel aspect 1:2
+    ((field, msg),) = angle_only_caveats([tall, tall])
+    assert field == "fl_y" and "fl_y 50 differs from fl_x 100 in 2 of 2 view(s)" in msg
+    zoom = (140.0, 140.0, 32.0, 24.0, 64, 48)
+    ((field, msg),) = angle_only_caveats([centred, zoom, centred])
+    assert field == "fl_x" and "2 different cameras" in msg and "nerfstudio-data" in msg
+    assert [f for f, _ in angle_only_caveats([centred, shifted, tall])] == ["cx/cy", "fl_y", "fl_x"]
