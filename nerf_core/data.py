@@ -32,7 +32,8 @@ from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import DISTORTION_KEYS
 from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
 from .dataset_checks import (check_duplicate_images, check_near_far, check_train_count,  # noqa: F401
-                             dataset_problems, depth_scale, empty_masks_problem, parse_aabb, scene_fields)
+                             dataset_problems, depth_scale, empty_masks_problem, parse_aabb, scene_fields,
+                             transparent_train_problem)
 from .lens import fold_pixel
 from .metrics import composite
 from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
@@ -68,6 +69,18 @@ class Split:
     @property
     def has_alpha(self) -> bool:
         return self.images.shape[-1] == 4
+
+    def shows_nothing(self) -> bool:
+        """True when every image is transparent everywhere (alpha 0): no pixel shows the scene."""
+        return self.has_alpha and len(self.frames) > 0 and not bool((self.images[..., 3] > 0).any())
+
+    def masks_select_nothing(self) -> bool:
+        """True when there are masks and they mark no pixel that shows something (transparent pixels
+        count whatever the masks say, ``load_split``): every loss term would be empty background."""
+        if self.masks is None:
+            return False
+        shown = self.masks & (self.images[..., 3] > 0) if self.has_alpha else self.masks
+        return not bool(shown.any())
 
     @property
     def height(self) -> int:
@@ -319,6 +332,11 @@ def load_split(
         if any(getattr(f, EXTRAS[attr][0]) for f in frames):
             setattr(split, attr, torch.from_numpy(np.stack([_load_extra(attr, fr, h, w, downscale, depth_scale)
                                                             for fr in frames])))
+    if split.masks is not None and split.has_alpha:
+        # A pixel the image leaves transparent shows empty space along its whole ray: a fact about the
+        # scene, masked or not. Left out, free space would never be taught, and fog or floaters stay
+        # where the masked objects are not (the masks mark objects, not the pixels worth learning).
+        split.masks = split.masks | (stack[..., 3] == 0)
     return split
 
 
@@ -360,7 +378,9 @@ def load_dataset(
     near, far, film, world, beyond = scene_fields(scene)
     check_near_far(scene, infos)
     loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
-    if "train" in loaded and loaded["train"].masks is not None and not bool(loaded["train"].masks.any()):
+    if "train" in loaded and loaded["train"].shows_nothing():
+        raise DatasetError(transparent_train_problem(infos["train"]))
+    if "train" in loaded and loaded["train"].masks_select_nothing():
         raise DatasetError(empty_masks_problem(infos["train"]))
     for name in SPLITS:
         if name not in loaded:

@@ -56,6 +56,14 @@ def empty_masks_problem(frames: List[FrameInfo]) -> str:
             "the pixels to learn")
 
 
+def transparent_train_problem(frames: List[FrameInfo]) -> str:
+    """The message for a train split whose every image is transparent everywhere: no pixel shows the
+    scene, so a model would learn empty space and training would exit having learnt nothing."""
+    return (f"{frames[0].json_file}: field 'file_path': all {len(frames)} train images are fully transparent "
+            "(alpha 0 everywhere), so no pixel shows the scene; the cameras look past it, or the film hid it "
+            "(a holdout, a camera inside an object)")
+
+
 def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
     """Refuse two frames of one split that name the same image with different poses (DatasetError
     naming both): one photograph cannot have been taken from two places, so one pose is wrong and
@@ -178,6 +186,7 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
         # Some pixel left to learn: a frame without a mask keeps every pixel. A broken frame leaves
         # it unknown, and is reported instead.
         pixels_left = False
+        shows_something = False
         for fr in infos[name]:
             try:
                 sp = load_split(name, [fr], downscale, scale)
@@ -187,7 +196,8 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
                 continue
             if visit is not None:
                 visit(name, fr, sp)
-            pixels_left = pixels_left or sp.masks is None or bool(sp.masks.any())
+            pixels_left = pixels_left or not sp.masks_select_nothing()
+            shows_something = shows_something or not sp.shows_nothing()
             shape = (sp.width, sp.height, sp.images.shape[-1])
             if first is None:
                 first = (fr, shape)
@@ -204,7 +214,9 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
                         "images do; the alpha channel is the mask of the object, export every image as RGBA")
             except DatasetError as exc:
                 problems.append(str(exc))
-        if name == "train" and not pixels_left and any(f.mask is not None for f in infos[name]):
+        if name == "train" and infos[name] and not shows_something:
+            problems.append(transparent_train_problem(infos[name]))
+        elif name == "train" and not pixels_left and any(f.mask is not None for f in infos[name]):
             problems.append(empty_masks_problem(infos[name]))
     return problems
 

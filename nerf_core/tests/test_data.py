@@ -106,13 +106,17 @@ def test_exr_images_and_png_depth_in_millimetres(tmp_path, dataset_factory):
 def test_masks_black_means_ignore(sphere_dataset):
     meta = _meta(sphere_dataset)
     mask = np.full((20, 24), 255, np.uint8)
-    mask[:, :5] = 0
+    mask[:, :12] = 0
     Image.fromarray(mask).save(sphere_dataset / "mask0.png")
     meta["frames"][0]["mask_path"] = "mask0.png"
     _write_meta(sphere_dataset, meta)
     tr = load_dataset(sphere_dataset).splits["train"]
     assert tr.masks.dtype == torch.bool
-    assert not tr.masks[0, :, :5].any() and tr.masks[0, :, 5:].all() and tr.masks[1].all()
+    seen = tr.images[0, :, :12, 3] > 0  # the sphere's pixels in the masked-out columns
+    assert seen.any() and (~seen).any()
+    assert not tr.masks[0, :, :12][seen].any() and tr.masks[0, :, 12:].all() and tr.masks[1].all()
+    # A transparent pixel shows empty space whatever the mask says: it still teaches free space.
+    assert tr.masks[0, :, :12][~seen].all()
 
 
 def test_downscale_halves_images_and_intrinsics(sphere_dataset):

@@ -142,10 +142,12 @@ def _train_and_eval(ds: Path, run: Path) -> dict:
     return done[-1]["metrics"]
 
 
-def test_all_transparent_images_train_without_nan(tmp_path):
+def test_all_transparent_images_are_refused_clearly(tmp_path):
+    # Nothing to learn: once a run that trained to exit 0 (finite, but a model of nothing).
     ds = make_dataset(tmp_path / "clear", pixels=lambda c2w, f: np.zeros((SIZE, SIZE, 4), np.uint8))
-    metrics = _train_and_eval(ds, tmp_path / "run")
-    assert metrics.get("psnr") is not None and math.isfinite(metrics["psnr"]), metrics
+    proc = nerf_core("train", ds, "--out", tmp_path / "run", *FAST)
+    message = assert_clear_failure(proc)
+    assert "train images are fully transparent" in message and "transforms_train.json" in message, message
 
 
 def test_all_black_images_train_without_nan(tmp_path):
