@@ -45,6 +45,17 @@ def test_capture_arguments_are_checked_before_anything_runs(tmp_path, args, flag
     assert not out.exists()
 
 
+def test_save_blend_never_replaces_an_existing_file(tmp_path):
+    other = tmp_path / "other_project.blend"
+    other.write_bytes(b"BLENDER-v500 someone else's work")
+    out = tmp_path / "ds"
+    proc = subprocess.run([PY, SCRIPT, "--out", str(out), "--quiet", "--save-blend", str(other)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "--save-blend" in proc.stderr and "already exists" in proc.stderr, proc.stderr
+    assert other.read_bytes() == b"BLENDER-v500 someone else's work" and not out.exists()
+
+
 def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)

@@ -138,9 +138,11 @@ class Trainer:
         try:
             return self._fit(dataset, ckpt)
         except KeyboardInterrupt as exc:  # also distributed.PeerLost: another rank left the job
-            distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
             try:
-                with DeferredInterrupts(self.dist.active, reraise=False):  # torchrun's SIGTERM follows a lost rank
+                # Shielded: a second Ctrl-C (people press it twice) or torchrun's SIGTERM after a lost
+                # rank must not cut the save short and lose every step since the last checkpoint.
+                with DeferredInterrupts(True, reraise=False):
+                    distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
                     path = self._save_checkpoint() if hasattr(self, "opt") else None
             except TrainError as err:
                 self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {err}")
@@ -333,6 +335,12 @@ class Trainer:
         if ckpt is not None:
             self._restore(ckpt)
             resumed_from = self.step
+            spent = ([f"--max-steps {cfg.max_steps}"] if cfg.max_steps is not None and self.step >= cfg.max_steps else []) \
+                + ([f"--max-seconds {cfg.max_seconds:g}"] if cfg.max_seconds is not None and self.elapsed >= cfg.max_seconds else [])
+            if spent:  # refused before anything is rewritten: the checkpoints stay as they are
+                raise TrainError(f"--resume: the run is already at step {self.step} ({self.elapsed:.0f} s trained), "
+                                 f"which meets {' and '.join(spent)}; nothing is left to train. Give a larger budget to "
+                                 "continue it")
         if self.dist.is_main:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
@@ -357,6 +365,14 @@ class Trainer:
         self._eval_marks = sorted(t for t in cfg.eval_at if t > self.elapsed)
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
             last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
+        if self.step == (resumed_from or 0):
+            # A budget spent before the first step (fitting the world counts as training time): a
+            # checkpoint and metrics of an untrained model must not look like a finished run.
+            budget = f"--max-seconds {cfg.max_seconds:g}" if cfg.max_seconds is not None else f"--max-steps {cfg.max_steps}"
+            raise TrainError(f"nothing was trained: the budget ({budget}) ran out before the "
+                             f"first step, after {self.elapsed:.1f} s" + (" of fitting the world (the background)"
+                                                                           if self.model.environment is not None else "")
+                             + "; give a larger --max-seconds")
         distributed.report_checksum(self.model, self.dist, self.step)
         summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
         if not self.dist.is_main:

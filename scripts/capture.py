@@ -77,6 +77,11 @@ def argument_errors(args) -> list[str]:
                               ("--turns", args.turns, True)):
         if not math.isfinite(v) or (v <= 0 if positive else v < 0):
             errors.append(f"{flag}: must be {'> 0' if positive else '>= 0'}, got {v}")
+    if args.save_blend and os.path.lexists(args.save_blend):
+        # A user's .blend (or any file) is never replaced: Blender's one .blend1 backup would not
+        # survive a second run, and the --blend input itself could be the path.
+        errors.append(f"--save-blend: {args.save_blend} already exists; choose a new file name "
+                      "(nothing was captured)")
     for flag, v in (("--elevation-min", args.elevation_min), ("--elevation-max", args.elevation_max)):
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
@@ -198,6 +203,7 @@ def main(argv: list[str]) -> int:
         bar.set(done, info)
 
     job = capture.CaptureJob(scene, settings, progress=progress)
+    job.plan()  # its notes (the cameras' intrinsics) come before any render
     for note in job.notes:
         print(f"capture: note: {note}", file=sys.stderr)
     try:

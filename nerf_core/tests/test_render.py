@@ -39,7 +39,7 @@ def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, caps
     assert Image.open(out / "r_0.png").size == (12, 10)
 
 
-@pytest.mark.parametrize("cameras", ["dataset", "run's dataset", "other split"])
+@pytest.mark.parametrize("cameras", ["dataset", "run's dataset", "other split", "another dataset"])
 def test_render_never_writes_over_the_datasets_own_images(trained_run, tmp_path, capsys, cameras):
     import shutil
 
@@ -49,6 +49,8 @@ def test_render_never_writes_over_the_datasets_own_images(trained_run, tmp_path,
     args = ["render", str(run), "--out", str(ds / "test"), "--overwrite", "--no-bar"]
     if cameras == "dataset":
         args += ["--cameras", str(ds)]
+    elif cameras == "another dataset":  # the run's own cameras, into a second capture's test folder
+        args = ["render", str(run), "--out", str(ds / "test"), "--overwrite", "--no-bar"]
     elif cameras == "other split":  # test cameras rendered into the train images' folder
         args = ["render", str(run), "--cameras", str(ds), "--out", str(ds / "train"), "--overwrite", "--no-bar"]
     else:  # no --cameras: the run's own dataset (the shared fixture's), rendered into that dataset

@@ -257,6 +257,34 @@ def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkey
     assert train(_cfg(sphere_dataset, run, max_steps=15, resume=True))["step"] == 15
 
 
+def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(sphere_dataset, tmp_path, monkeypatch):
+    import os
+    import signal
+
+    from nerf_core.methods.base import method_class
+    from nerf_core.train import Trainer
+
+    def hook(self, step, frac):
+        if step == 7:
+            raise KeyboardInterrupt
+        return False
+
+    save = Trainer._save_checkpoint
+
+    def impatient_save(self):
+        os.kill(os.getpid(), signal.SIGINT)  # pressed again while the checkpoint is being written
+        return save(self)
+
+    monkeypatch.setattr(method_class("test-grid"), "training_hook", hook)
+    monkeypatch.setattr(Trainer, "_save_checkpoint", impatient_save)
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(_cfg(sphere_dataset, run, max_steps=15))
+    assert torch.load(run / "checkpoints" / "latest.pt", weights_only=False)["step"] == 7
+    assert not list((run / "checkpoints").glob("*.tmp"))
+    assert "checkpoint saved" in read_events(run / "progress.jsonl")[-1]["message"]
+
+
 def test_white_then_random_background(sphere_dataset):
     from nerf_core.data import load_dataset
     from nerf_core.backgrounds import AUTO_WHITE_FRACTION
@@ -326,3 +354,21 @@ def test_vmgrid_evaluation_during_training_sees_the_current_weights(sphere_datas
     again = evaluate_run(run, max_views=1)
     assert logged["step"] == out["step"] == 40
     assert again["psnr"] == pytest.approx(logged["psnr"], abs=1e-4)
+
+
+def test_a_run_that_would_train_nothing_is_an_error(sphere_dataset, tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=6, eval_views=0))
+    before = (run / "checkpoints" / "latest.pt").read_bytes()
+    # Resuming a run whose budget is already met used to rewrite its checkpoints and exit 0.
+    with pytest.raises(TrainError, match=r"already at step 6 .* meets --max-steps 4; nothing is left to train"):
+        train(_cfg(sphere_dataset, run, max_steps=4, eval_views=0, resume=True))
+    assert (run / "checkpoints" / "latest.pt").read_bytes() == before
+    # A time budget spent before the first step (on an opaque capture, by fitting the world) is not a
+    # finished run either: a loop that finds its budget gone at once stands in for that prefit.
+    from nerf_core.train import Trainer
+
+    monkeypatch.setattr(Trainer, "_train_loop", lambda self, batcher, stop: None)
+    with pytest.raises(TrainError, match=r"nothing was trained: the budget \(--max-seconds 0.5\) ran out"):
+        train(_cfg(sphere_dataset, tmp_path / "run2", max_steps=None, max_seconds=0.5, eval_views=0))
+    assert not (tmp_path / "run2" / "checkpoints" / "latest.pt").exists()
