@@ -259,9 +259,8 @@ class CaptureJob:
                                                    self.s.points, export.MANIFEST_DIR))
                 frames.append(fr)
         self.frames = frames
-        cameras = [tuple(fr["intrinsics"][k] for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")) for fr in frames]
         # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
-        self.notes += [msg for _, msg in contract.angle_only_caveats(cameras)]
+        self.notes += [msg for _, msg in contract.angle_only_caveats([fr["intrinsics"] for fr in frames])]
         if any(fr["frame"] is not None for fr in frames):
             # Views at their own frames (the animation layout): the scene at the current frame is not
             # what they show, and resuming at another frame must not look like an edit.

@@ -320,7 +320,7 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         cameras = []
         for k, fr, fp, intr in _frame_entries(report, fname, meta, seen):
             if intr is not None:
-                cameras.append(tuple(intr[key] for key in REQUIRED_INTRINSICS))
+                cameras.append(intr)
             if Path(fp).suffix.lower() in IMAGE_EXTS:
                 report.error(fname, f"{fp!r} has an extension; loaders of this layout add '.png' themselves "
                                     f"(write {str(Path(fp).with_suffix(''))!r})", k, fp, "file_path")

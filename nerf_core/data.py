@@ -70,17 +70,20 @@ class Split:
     def has_alpha(self) -> bool:
         return self.images.shape[-1] == 4
 
+    def shown(self) -> torch.Tensor:
+        """(n, h, w) bool: pixels that show something (alpha above 0; every pixel without alpha)."""
+        return self.images[..., 3] > 0 if self.has_alpha else torch.ones(self.images.shape[:3], dtype=torch.bool)
+
     def shows_nothing(self) -> bool:
         """True when every image is transparent everywhere (alpha 0): no pixel shows the scene."""
-        return self.has_alpha and len(self.frames) > 0 and not bool((self.images[..., 3] > 0).any())
+        return len(self.frames) > 0 and not bool(self.shown().any())
 
     def masks_select_nothing(self) -> bool:
         """True when there are masks and they mark no pixel that shows something (transparent pixels
         count whatever the masks say, ``load_split``): every loss term would be empty background."""
         if self.masks is None:
             return False
-        shown = self.masks & (self.images[..., 3] > 0) if self.has_alpha else self.masks
-        return not bool(shown.any())
+        return not bool((self.masks & self.shown()).any())
 
     @property
     def height(self) -> int:
@@ -336,7 +339,7 @@ def load_split(
         # A pixel the image leaves transparent shows empty space along its whole ray: a fact about the
         # scene, masked or not. Left out, free space would never be taught, and fog or floaters stay
         # where the masked objects are not (the masks mark objects, not the pixels worth learning).
-        split.masks = split.masks | (stack[..., 3] == 0)
+        split.masks = split.masks | ~split.shown()
     return split
 
 

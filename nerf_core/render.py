@@ -295,18 +295,6 @@ def dataset_files(*paths) -> Dict[Path, str]:
     return out
 
 
-def enclosing_datasets(out) -> List[Path]:
-    """The dataset folders (any holding a transforms file) that ``out`` is, or lies inside: a render
-    into ``OTHER_DATASET/test`` must not replace that dataset's images either."""
-    found = []
-    folder = Path(out).resolve()
-    for d in (folder, *folder.parents):
-        if any((d / name).is_file() for name in ("transforms.json", "transforms_train.json",
-                                                  "transforms_val.json", "transforms_test.json")):
-            found.append(d)
-    return found
-
-
 def render_to_dir(
     model,
     cameras: Cameras,
@@ -456,5 +444,6 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         show_progress=show_progress,
         ground_truth=frames if gt_downscale else None,
         metrics_background=config.get("eval_background", [1.0, 1.0, 1.0]), gt_downscale=gt_downscale or 1,
-        protected=dataset_files(cameras_path, config.get("dataset"), *enclosing_datasets(out)),
+        # and any dataset that --out is or lies in (dataset_files skips folders that hold none)
+        protected=dataset_files(cameras_path, config.get("dataset"), out, *Path(out).resolve().parents),
     )

@@ -372,7 +372,7 @@ class Trainer:
             raise TrainError(f"nothing was trained: the budget ({budget}) ran out before the "
                              f"first step, after {self.elapsed:.1f} s" + (" of fitting the world (the background)"
                                                                            if self.model.environment is not None else "")
-                             + "; give a larger --max-seconds")
+                             + f"; give a larger {budget.split()[0]}")
         distributed.report_checksum(self.model, self.dist, self.step)
         summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
         if not self.dist.is_main:

@@ -62,15 +62,16 @@ def resolve_intrinsics(meta: Optional[dict], frame: Optional[dict], size: Option
 ANGLE_ONLY_LOADERS = "original NeRF, nerfstudio blender-data, 3DGS, TensoRF"
 
 
-def angle_only_caveats(cameras: Sequence[Tuple[float, float, float, float, float, float]]) -> list:
+def angle_only_caveats(intrinsics: Sequence[dict]) -> list:
     """[(field, message)] for what loaders that read only ``camera_angle_x`` misread in these views.
 
-    ``cameras``: one (fx, fy, cx, cy, w, h) per view, in pixels. Three things, each said once: a
+    ``intrinsics``: one dict per view with ``fl_x fl_y cx cy w h`` in pixels (other keys are ignored:
+    the capture's intrinsics and ``check``'s resolved ones both pass). Three things, each said once: a
     principal point off the image centre (lens shift), non-square pixels (fl_y != fl_x), and views
     that differ in focal length, principal point or size (one top-level angle cannot hold them).
     The capture says these before rendering and ``nerf_core check`` says them of each split file.
     """
-    cams = [tuple(float(v) for v in c) for c in cameras]
+    cams = [tuple(float(i[k]) for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")) for i in intrinsics]
     if not cams:
         return []
     n = len(cams)
