@@ -101,8 +101,15 @@ def read_checkpoint(path: Path) -> dict:
     writes only tensors and plain Python data, which ``torch.load(weights_only=True)`` accepts; the
     numpy state of older checkpoints is admitted through ``_legacy_checkpoint_globals`` and nothing else.
     """
+    if path.is_dir():
+        raise RunError(f"{path}: is a folder; give a checkpoint file such as "
+                       f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}")
     if not path.is_file():
         raise RunError(f"{path}: checkpoint not found")
+    kind = _file_kind(path)
+    if kind is not None:
+        raise RunError(f"{path}: not a checkpoint ({kind}); `python -m nerf_core train` writes "
+                       f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}")
     try:
         with torch.serialization.safe_globals(_legacy_checkpoint_globals()):
             ckpt = torch.load(path, map_location="cpu", weights_only=True)
@@ -132,8 +139,34 @@ def _unpickler_detail(exc: BaseException) -> str:
 
 
 def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's message, without torch's advice paragraph after it."""
     lines = [ln for ln in str(exc).splitlines() if ln.strip()]
-    return lines[0] if lines else type(exc).__name__
+    line = lines[0] if lines else type(exc).__name__
+    return line.split(". This is an internal miniz error")[0]  # torch's paragraph on corrupted zips
+
+
+# The first bytes of what ``torch.save`` writes: a zip archive (the default since torch 1.6), or the
+# legacy format, which starts with a pickle protocol opcode.
+_TORCH_MAGIC = (b"PK\x03\x04", b"\x80")
+
+
+def _file_kind(path: Path) -> Optional[str]:
+    """None when ``path`` starts like a file ``torch.save`` writes, else what it looks like instead
+    (an empty file, text, another kind of file): a plainer message than torch's ``KeyError: 101``."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return None  # torch.load reports it, with the reason
+    if not head:
+        return "the file is empty"
+    if head.startswith(_TORCH_MAGIC):
+        return None
+    try:
+        head.decode("utf-8")
+        return "it holds text"
+    except UnicodeDecodeError:
+        return "it is not a file written by torch.save"
 
 
 def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
@@ -141,16 +174,33 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
     (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
     from .methods import build_model
 
+    for key in ("method", "options", "aabb", "model"):
+        if key not in ckpt:
+            raise RunError(f"{where}: missing entry {key!r} (not a nerf_core checkpoint?)")
+    method, options, aabb, weights = ckpt["method"], ckpt["options"], ckpt["aabb"], ckpt["model"]
+    # A foreign or edited checkpoint must fail here, by name, not deep inside torch with a TypeError.
+    if not isinstance(method, str):
+        raise RunError(f"{where}: entry 'method' must be a method name, got a {type(method).__name__}")
+    if not (isinstance(options, dict) and all(isinstance(k, str) for k in options)):
+        raise RunError(f"{where}: entry 'options' must be a dict of the method's options, got a {type(options).__name__}")
     try:
-        method, options, aabb = ckpt["method"], ckpt["options"], ckpt["aabb"]
-        model = build_model(method, torch.as_tensor(aabb), **options)
-        load_state_resizing(model, ckpt["model"])
-    except KeyError as exc:
-        raise RunError(f"{where}: missing entry {exc} (not a nerf_core checkpoint?)") from exc
+        box = torch.as_tensor(aabb, dtype=torch.float32)
+    except (TypeError, ValueError, RuntimeError, OverflowError):
+        box = None
+    if box is None or box.shape != (2, 3) or not bool(torch.isfinite(box).all()):
+        raise RunError(f"{where}: entry 'aabb' must be the scene box, 2 x 3 finite numbers (min, max)")
+    if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
+        raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
+                       f"got a {type(weights).__name__}")
+    try:
+        model = build_model(method, box, **options)
+        load_state_resizing(model, weights)
     except ValueError as exc:  # unknown method name
         raise RunError(f"{where}: {exc}") from exc
-    except RuntimeError as exc:
-        raise RunError(f"{where}: the saved weights do not fit method {ckpt.get('method')!r}: {str(exc).splitlines()[0]}") from exc
+    except TypeError as exc:  # an option the method does not take
+        raise RunError(f"{where}: entry 'options' does not fit method {method!r}: {_first_line(exc)}") from exc
+    except (RuntimeError, KeyError) as exc:
+        raise RunError(f"{where}: the saved weights do not fit method {method!r}: {_first_line(exc)}") from exc
     return model.to(device).eval()
 
 
@@ -174,7 +224,51 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
     _check_run_config(config, cfg_path)
     ck = Path(checkpoint) if checkpoint else Path(contract.latest_checkpoint(run))
     ckpt = read_checkpoint(ck)
+    _check_checkpoint_of_run(ckpt, config, ck, run)
     return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+
+
+def _check_checkpoint_of_run(ckpt: dict, config: dict, ck: Path, run: Path) -> None:
+    """Refuse (RunError) a checkpoint that another run wrote: another method, or another dataset.
+
+    ``eval RUN --checkpoint C`` and ``render RUN --checkpoint C`` apply RUN's config.json to C (near
+    and far, the evaluation background, the dataset) and ``eval`` writes C's scores into RUN's
+    metrics.json, so a checkpoint of another run would be scored against the wrong data and filed
+    under the wrong run. An older checkpoint of the same run, or one of a moved run folder, passes.
+    """
+    record = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else {}
+    mine, theirs = config.get("method"), ckpt.get("method")
+    problems = []
+    if isinstance(mine, str) and isinstance(theirs, str) and mine != theirs:
+        problems.append(f"method {theirs!r}, where {run} trained {mine!r}")
+    want, have = config.get("dataset_hash"), record.get("dataset_hash")
+    if isinstance(want, str) and isinstance(have, str) and want != have:
+        problems.append(f"another dataset ({record.get('dataset', 'unknown')})")
+    if problems:
+        origin = record.get("out")
+        raise RunError(f"{ck}: this checkpoint belongs to another run" + (f" ({origin})" if origin else "")
+                       + ": " + "; ".join(problems) + f". {run}'s settings and metrics would be applied to it; "
+                       "evaluate or render it through its own run folder")
+
+
+def dataset_changed_note(config: dict) -> Optional[str]:
+    """A note when the dataset a run's config.json names no longer holds the data it trained on
+    (its transforms files' hash differs), else None: ``eval`` and ``render`` still work on it, but
+    their scores then compare the model with other data (``--resume`` refuses it outright)."""
+    from .contract.transforms import DatasetError
+    from .runfolder import dataset_hash
+
+    path, want = config.get("dataset"), config.get("dataset_hash")
+    if not (isinstance(path, str) and isinstance(want, str) and Path(path).exists()):
+        return None
+    try:
+        have = dataset_hash(path)
+    except (DatasetError, OSError):
+        return None  # loading the dataset reports it, naming the file
+    if have == want:
+        return None
+    return (f"{path} changed since the run trained on it (transforms hash {have[:12]}, trained on {want[:12]}); "
+            "the scores compare the model with the data there now")
 
 
 def _check_run_config(config: dict, cfg_path: Path) -> None:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
@@ -137,16 +138,33 @@ def evaluate_held_out(model, dataset, max_views: Optional[int] = None, seconds: 
     return split_name, evaluate_split(model, split, spread_views(n, min(n, max_views or n)), **kw)
 
 
+def read_metrics_file(path: Path) -> dict:
+    """RUN/metrics.json as a dict ({} when there is none yet). A file that is not the JSON object
+    ``train`` and ``eval`` write (hand-edited, or another tool's) raises RunError naming it: merging
+    into it would throw away the scores it holds for other splits."""
+    from .checkpoints import RunError
+
+    path = Path(path)
+    if not path.exists():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise RunError(f"{path}: not readable as JSON ({type(exc).__name__}); eval merges its scores into this "
+                       "file, so move it aside (or delete it) and run eval again") from None
+    except OSError as exc:
+        raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not isinstance(data, dict):
+        raise RunError(f"{path}: expected the JSON object that train and eval write, got a {type(data).__name__}; "
+                       "move it aside (or delete it) and run eval again")
+    return data
+
+
 def update_metrics_file(path: Path, split: str, result: dict, step: Optional[int]) -> dict:
     """Merge ``result`` into RUN/metrics.json: top-level keys describe the latest evaluation,
     ``splits`` keeps the latest result per split. Written atomically."""
     path = Path(path)
-    data: dict = {}
-    if path.is_file():
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError:
-            data = {}
+    data = read_metrics_file(path)
     summary = {k: v for k, v in result.items() if k != "per_view"}
     summary.update({"split": split, "step": step, "time": time.time()})
     data.update(summary)
@@ -188,7 +206,7 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     from .device import pick_device
     from .progress import EventLog
     from .progressbar import ProgressBar
-    from .checkpoints import RunError, load_run
+    from .checkpoints import RunError, dataset_changed_note, load_run
 
     dev = pick_device(device)
     run = Path(run)
@@ -196,6 +214,11 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     dataset_path = config.get("dataset")
     if not dataset_path:
         raise RunError(f"{contract.config_path(run)}: no 'dataset' recorded")
+    metrics_path = Path(contract.metrics_path(run))
+    read_metrics_file(metrics_path)  # a damaged file is refused before the evaluation, not after it
+    changed = dataset_changed_note(config)
+    if changed:
+        print(f"eval: note: {changed}", file=sys.stderr)
     ds = load_dataset(dataset_path, splits=(split,), downscale=max(int(downscale), int(config.get("downscale", 1))))
     sp = ds.split(split)
     n = len(sp) if not max_views else min(len(sp), int(max_views))
@@ -218,7 +241,7 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     result = evaluate_split(model, sp, views, background=bg, near=config.get("near"), far=config.get("far"), chunk=chunk, on_view=show)
     bar.close()
     step = ckpt.get("step")
-    update_metrics_file(Path(contract.metrics_path(run)), split, result, step)
+    update_metrics_file(metrics_path, split, result, step)
     with EventLog([contract.progress_path(run)], stdout=False) as log:
         log.emit("eval", step=step, split=split, psnr=result["psnr"], ssim=result["ssim"])
     summary = {"psnr": result["psnr"], "ssim": result["ssim"], "split": split, "n_views": result["n_views"],

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional
@@ -22,7 +23,8 @@ import torch
 from .cameras import Cameras, ray_bounds, rays_for_view
 # Checkpoint reading moved to nerf_core.checkpoints; the names stay importable from here for callers
 # written against render (scripts/benchmark.py reads model sizes through them).
-from .checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint  # noqa: F401
+from .checkpoints import (CheckpointRefused, RunError, dataset_changed_note, load_run,  # noqa: F401
+                          model_from_checkpoint, read_checkpoint)
 from .contract import config_path
 from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import parse_lens
@@ -428,6 +430,9 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         cameras_path = config.get("dataset")
         if not cameras_path:
             raise RunError(f"{config_path(run)}: no 'dataset' recorded; pass --cameras")
+        changed = dataset_changed_note(config)
+        if changed:
+            print(f"render: note: {changed}", file=sys.stderr)
     cams, stems, frames = camera_views(cameras_path, split)
     smallest = int(torch.minimum(cams.width, cams.height).min())
     if not (math.isfinite(downscale) and 0 < downscale <= smallest):

@@ -3,13 +3,14 @@ after training (``eval`` events, ``RUN/metrics.json``). Only rank 0 of a ``torch
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
 from typing import Optional, Sequence
 
 from . import contract
-from .evaluate import evaluate_held_out, update_metrics_file
+from .evaluate import evaluate_held_out, read_metrics_file, update_metrics_file
 from .runfolder import record_written
 
 
@@ -65,7 +66,22 @@ def final_eval(log, model, dataset, cfg, background, run: Path, step: int, elaps
         print(f"train: {result['note']}", file=sys.stderr)
     metrics = Path(contract.metrics_path(run))
     record_written(run, metrics)
+    _set_aside_if_damaged(metrics)
     update_metrics_file(metrics, split_name, result, step)
     log.emit("eval", step=step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
              n_views=result["n_views"], depth_mae=result.get("depth_mae"))
     return {k: v for k, v in result.items() if k != "per_view"} | {"split": split_name}
+
+
+def _set_aside_if_damaged(metrics: Path) -> None:
+    """Rename a metrics.json that is not the JSON object train writes (edited by hand since the run
+    started) to ``metrics.json.damaged`` so that the end of a long training neither fails on it nor
+    silently drops what it held."""
+    from .checkpoints import RunError
+
+    try:
+        read_metrics_file(metrics)
+    except RunError as exc:
+        aside = metrics.with_name(metrics.name + ".damaged")
+        os.replace(metrics, aside)
+        print(f"train: {exc.args[0].split(';')[0]}; kept it as {aside} and wrote a new one", file=sys.stderr)
