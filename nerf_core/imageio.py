@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Dict, Optional
+from typing import Dict, Optional, Sequence
 
 import numpy as np
 
@@ -60,7 +60,9 @@ def png_info(path: Path | str) -> tuple[int, int, str, int]:
 
 
 def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
-    """All channels of an EXR as float32 arrays (h, w), keyed by channel name (``R``, ``Z``, ``V.X`` ...)."""
+    """All channels of an EXR as float32 arrays (h, w), keyed by channel name (``R``, ``Z``,
+    ``ViewLayer.Combined.R`` ...), from every part: Blender 5 writes a multilayer EXR as one part
+    per pass, and reading the first part alone would see only one pass."""
     import OpenEXR
 
     path = Path(path)
@@ -68,47 +70,96 @@ def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
         raise ImageReadError(f"{path}: file not found")
     try:
         with OpenEXR.File(str(path), separate_channels=True) as f:
-            return {name: np.asarray(ch.pixels, dtype=np.float32) for name, ch in f.channels().items()}
+            out: Dict[str, np.ndarray] = {}
+            for part in f.parts:
+                for name, ch in part.channels.items():
+                    out.setdefault(name, np.asarray(ch.pixels, dtype=np.float32))
+            return out
     except Exception as exc:
         raise ImageReadError(f"{path}: cannot read EXR ({exc})") from exc
 
 
-def _pick(channels: Dict[str, np.ndarray], names) -> Optional[np.ndarray]:
-    for n in names:
-        for key, value in channels.items():
-            if key == n or key.endswith("." + n):
-                return value
-    return None
+def _layers(channels: Dict[str, np.ndarray]) -> Dict[str, Dict[str, np.ndarray]]:
+    """Channels grouped by layer: ``ViewLayer.Combined.R`` -> ``{"ViewLayer.Combined": {"R": ...}}``;
+    the channels of a plain EXR (``R``, ``Z``) form the layer ``""``."""
+    layers: Dict[str, Dict[str, np.ndarray]] = {}
+    for key, value in channels.items():
+        layer, _, name = key.rpartition(".")
+        layers.setdefault(layer, {})[name] = value
+    return layers
+
+
+def _first(chans: Dict[str, np.ndarray], names: Sequence[str]) -> Optional[np.ndarray]:
+    return next((chans[n] for n in names if n in chans), None)
+
+
+def _pick_layer(path: Path, channels: Dict[str, np.ndarray], needs: Sequence[Sequence[str]],
+                passes: Sequence[str], what: str) -> Optional[Dict[str, np.ndarray]]:
+    """The channels ({name: array}) of the EXR layer that holds ``what``: one with a channel of each
+    group in ``needs`` (``[("X", "R"), ...]``: X, else R); None when no layer has them.
+
+    A plain EXR's own channels come first. In a multilayer EXR (Blender's, with a layer per pass
+    and view layer: ``ViewLayer.Combined``, ``ViewLayer.Ambient Occlusion`` ...) the layer whose
+    pass is named in ``passes`` (``Combined`` for colour) is taken, so that another pass never
+    stands in for the image because its name sorts first. When several view layers hold that pass,
+    or several layers qualify and none is such a pass, ImageReadError names them.
+    """
+    layers = {name: chans for name, chans in _layers(channels).items()
+              if all(_first(chans, group) is not None for group in needs)}
+    if "" in layers:
+        return layers[""]
+    if not layers:
+        return None
+    named = [name for name in layers if name.rpartition(".")[2] in passes]
+    if len(named) == 1:
+        return layers[named[0]]
+    if len(named) > 1:
+        raise ImageReadError(f"{path}: multilayer EXR holds {what} in several layers ({', '.join(sorted(named))}); "
+                             "save one view layer per file")
+    if len(layers) == 1:
+        return next(iter(layers.values()))
+    raise ImageReadError(f"{path}: multilayer EXR has several layers that could be {what} "
+                         f"({', '.join(sorted(layers))}) and none is the {' or '.join(passes)} pass; "
+                         "save that pass alone")
+
+
+# Names of the colour pass in multilayer EXRs: Blender's render result, its compositor output, and
+# the names other tools give the beauty layer.
+COLOUR_PASSES = ("Combined", "Composite", "Image", "rgba")
 
 
 def read_exr_rgba(path: Path | str) -> np.ndarray:
-    """A colour EXR as float32 (h, w, 3) or (h, w, 4) when it has alpha."""
+    """A colour EXR as float32 (h, w, 3) or (h, w, 4) when it has alpha. In a multilayer EXR the
+    ``Combined`` pass is the colour, with its own alpha."""
+    path = Path(path)
     ch = read_exr(path)
-    rgb = [_pick(ch, [c]) for c in "RGB"]
-    if any(c is None for c in rgb):
+    layer = _pick_layer(path, ch, [("R",), ("G",), ("B",)], COLOUR_PASSES, "colour")
+    if layer is None:
         if len(ch) == 1:  # greyscale EXR
             (only,) = ch.values()
-            rgb = [only, only, only]
-        else:
-            raise ImageReadError(f"{path}: EXR has no R, G, B channels (found {sorted(ch)})")
-    alpha = _pick(ch, ["A"])
-    return np.stack(rgb + ([alpha] if alpha is not None else []), axis=-1)
+            return np.stack([only, only, only], axis=-1)
+        raise ImageReadError(f"{path}: EXR has no R, G, B channels (found {sorted(ch)})")
+    return np.stack([layer[c] for c in "RGBA" if c in layer], axis=-1)
 
 
 def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
     """Depth map as float32 (h, w) in scene units; 0 where there is no value.
 
-    EXR: channel ``Z`` (else ``R``/``Y``/``V``/the only channel), already in scene units.
+    EXR: channel ``Z`` (else ``R``/``Y``/``V``/``D``/the only channel), already in scene units; in a
+    multilayer EXR, the ``Depth`` pass (Blender's name for Z).
     PNG: 16-bit integers multiplied by ``png_scale`` (nerfstudio's millimetres -> metres is 1e-3).
     """
     path = Path(path)
     if path.suffix.lower() == ".exr":
         ch = read_exr(path)
-        depth = _pick(ch, ["Z", "R", "Y", "V", "D"])
-        if depth is None:
+        names = ("Z", "R", "Y", "V", "D")
+        layer = _pick_layer(path, ch, [names], ("Depth", "Z"), "depth")
+        if layer is None:
             if len(ch) != 1:
                 raise ImageReadError(f"{path}: depth EXR has no Z channel (found {sorted(ch)})")
             (depth,) = ch.values()
+        else:
+            depth = _first(layer, names)
     else:
         raw = read_png(path)
         if raw.ndim == 3:
@@ -123,10 +174,11 @@ def read_normals(path: Path | str) -> np.ndarray:
     path = Path(path)
     if path.suffix.lower() == ".exr":
         ch = read_exr(path)
-        comps = [_pick(ch, [a, b]) for a, b in (("X", "R"), ("Y", "G"), ("Z", "B"))]
-        if any(c is None for c in comps):
+        axes = (("X", "R"), ("Y", "G"), ("Z", "B"))
+        layer = _pick_layer(path, ch, axes, ("Normal",), "normals")
+        if layer is None:
             raise ImageReadError(f"{path}: normal EXR needs X/Y/Z or R/G/B channels (found {sorted(ch)})")
-        return np.stack(comps, axis=-1).astype(np.float32)
+        return np.stack([_first(layer, a) for a in axes], axis=-1).astype(np.float32)
     raw = read_png(path)
     if raw.ndim != 3 or raw.shape[2] < 3:
         raise ImageReadError(f"{path}: normal PNG must have 3 channels")

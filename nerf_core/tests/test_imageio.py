@@ -1,0 +1,80 @@
+"""Which pass of a multilayer EXR is the colour, the depth and the normals (``nerf_core.imageio``).
+
+Blender writes a multilayer EXR as ``ViewLayer.<Pass>.<channel>``: Blender 4 in one part with the
+channels sorted by name (``ViewLayer.AO.R`` before ``ViewLayer.Combined.R``), Blender 5 in one part
+per pass. Both layouts are built here with OpenEXR, with an ambient-occlusion pass that sorts (or
+comes) first, which was read as the image before.
+"""
+import numpy as np
+import OpenEXR
+import pytest
+
+from nerf_core.imageio import ImageReadError, read_depth, read_exr_rgba, read_normals
+
+H, W = 3, 4
+
+
+def _full(v):
+    return np.full((H, W), v, dtype=np.float32)
+
+
+# Pass -> channels, as Blender names them; every value tells the passes apart.
+PASSES = {
+    "AO": {"R": _full(0.25), "G": _full(0.25), "B": _full(0.25)},
+    "Combined": {"R": _full(0.9), "G": _full(0.5), "B": _full(0.1), "A": _full(0.75)},
+    "Depth": {"Z": _full(3.5)},
+    "Diffuse Color": {"R": _full(0.6), "G": _full(0.6), "B": _full(0.6)},
+    "Normal": {"X": _full(0.0), "Y": _full(1.0), "Z": _full(0.0)},
+}
+
+
+def _write(path, passes, multipart, view_layers=("ViewLayer",)):
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if multipart:  # Blender 5: one part per pass, the AO part first here
+        parts = [OpenEXR.Part(dict(header), {f"{vl}.{p}.{c}": v for c, v in chans.items()}, f"{vl}.{p}")
+                 for vl in view_layers for p, chans in passes.items()]
+        with OpenEXR.File(parts) as f:
+            f.write(str(path))
+    else:  # Blender 4: one part, the channels sorted by name
+        chans = {f"{vl}.{p}.{c}": v for vl in view_layers for p, cs in passes.items() for c, v in cs.items()}
+        with OpenEXR.File(header, dict(sorted(chans.items()))) as f:
+            f.write(str(path))
+    return path
+
+
+@pytest.mark.parametrize("multipart", [False, True], ids=["blender4_one_part", "blender5_part_per_pass"])
+def test_the_combined_pass_is_the_colour_whatever_sorts_first(tmp_path, multipart):
+    path = _write(tmp_path / "r_0.exr", PASSES, multipart)
+    rgba = read_exr_rgba(path)
+    assert rgba.shape == (H, W, 4)
+    assert np.allclose(rgba[0, 0], [0.9, 0.5, 0.1, 0.75])  # not the AO's 0.25, and the Combined alpha
+    assert np.allclose(read_depth(path), 3.5)  # the Depth pass, not Normal.Z (0)
+    assert np.allclose(read_normals(path)[0, 0], [0.0, 1.0, 0.0])
+
+
+def test_one_colour_layer_of_another_name_is_still_the_colour(tmp_path):
+    path = _write(tmp_path / "r_0.exr", {"Noisy Image": PASSES["Combined"]}, multipart=False)
+    assert np.allclose(read_exr_rgba(path)[0, 0], [0.9, 0.5, 0.1, 0.75])
+
+
+def test_plain_channels_come_before_any_layer(tmp_path):
+    path = tmp_path / "plain.exr"
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    chans = {"R": _full(0.2), "G": _full(0.3), "B": _full(0.4), "A": _full(1.0), "Z": _full(2.0),
+             "ViewLayer.AO.R": _full(0.25), "ViewLayer.AO.G": _full(0.25), "ViewLayer.AO.B": _full(0.25)}
+    with OpenEXR.File(header, dict(sorted(chans.items()))) as f:
+        f.write(str(path))
+    assert np.allclose(read_exr_rgba(path)[0, 0], [0.2, 0.3, 0.4, 1.0])
+    assert np.allclose(read_depth(path), 2.0)
+
+
+def test_two_view_layers_are_named_not_guessed(tmp_path):
+    path = _write(tmp_path / "r_0.exr", PASSES, multipart=True, view_layers=("Front", "Back"))
+    with pytest.raises(ImageReadError, match=r"colour in several layers \(Back.Combined, Front.Combined\)"):
+        read_exr_rgba(path)
+
+
+def test_several_passes_and_no_combined_are_named(tmp_path):
+    path = _write(tmp_path / "r_0.exr", {k: PASSES[k] for k in ("AO", "Diffuse Color")}, multipart=False)
+    with pytest.raises(ImageReadError, match=r"ViewLayer.AO, ViewLayer.Diffuse Color\) and none is the Combined"):
+        read_exr_rgba(path)
