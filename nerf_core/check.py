@@ -19,8 +19,8 @@ import numpy as np
 from .contract.intrinsics import angle_only_caveats, focal_from_fov
 from .contract.lens import lens_problem, parse_lens
 from .contract.naming import evenly_spaced
-from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos,
-                                  parse_json_file)
+from .contract.transforms import (IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos, parse_json_file,
+                                  resolve_image, why_not_a_file)
 from .imageio import ImageReadError, png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
@@ -102,6 +102,15 @@ def _load_json(report: CheckReport, path: Path) -> Optional[dict]:
     if not isinstance(meta, dict):
         report.error(path.name, "expected a JSON object")
         return None
+    try:
+        with open(path, "rb") as f:
+            bom = f.read(3) == b"\xef\xbb\xbf"
+    except OSError:
+        bom = False
+    if bom:
+        report.warn(path.name, "starts with a UTF-8 byte-order mark (as Windows editors save): read here, but "
+                               "Python's json.load, and so nerfstudio's and instant-ngp's loaders, refuse it; "
+                               "save it as UTF-8 without BOM")
     frames = meta.get("frames")
     if not isinstance(frames, list):
         report.error(path.name, "missing or not a list", field="frames")
@@ -171,9 +180,14 @@ def _check_intrinsics_consistency(report: CheckReport, fname: str, intr: dict, k
                          k, fpath, "camera_angle_x")
 
 
+def _missing(path: Path, written: str) -> str:
+    """``contract.why_not_a_file`` in check's words ("does not exist; r_1.PNG exists there ...")."""
+    return why_not_a_file(path, written).replace("not found", "does not exist", 1)
+
+
 def _check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict], k: int, fpath: str, field_name: str, rgba: bool) -> None:
     if not img.is_file():
-        report.error(fname, f"image {img} does not exist", k, fpath, field_name)
+        report.error(fname, f"image {img} {_missing(img, fpath)}", k, fpath, field_name)
         return
     if img.suffix.lower() == ".exr":
         return
@@ -233,7 +247,7 @@ def _check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int,
         if key in fr:
             p = root / str(fr[key])
             if not p.is_file():
-                report.error(fname, f"{p} does not exist", k, fpath, key)
+                report.error(fname, f"{p} {_missing(p, str(fr[key]))}", k, fpath, key)
             elif key == "depth_file_path" and p.suffix.lower() not in (".exr", ".png"):
                 report.warn(fname, f"{p.name}: depth should be EXR (float) or 16-bit PNG (millimetres)", k, fpath, key)
 
@@ -281,6 +295,8 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     trains, and the add-on runs this before training.
     """
     root = Path(path)
+    if root.is_file() and root.suffix == ".json" and root.name.startswith("transforms"):
+        root = root.parent  # DATASET/transforms_train.json, as `train` accepts it: check its dataset
     report = CheckReport(root)
     if not root.is_dir():
         report.error(str(root), "dataset folder not found" if not root.exists() else "not a folder")
@@ -321,12 +337,10 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         for k, fr, fp, intr in _frame_entries(report, fname, meta, seen):
             if intr is not None:
                 cameras.append(intr)
-            if Path(fp).suffix.lower() in IMAGE_EXTS:
+            img = resolve_image(root, fp, add_png=True)
+            if Path(fp).suffix and img.name == Path(fp).name:
                 report.error(fname, f"{fp!r} has an extension; loaders of this layout add '.png' themselves "
                                     f"(write {str(Path(fp).with_suffix(''))!r})", k, fp, "file_path")
-                img = root / fp
-            else:
-                img = root / (fp + ".png")
             _check_image(report, fname, img, intr, k, fp, "file_path", rgba=True)
             m = _check_pose(report, fname, fr, k, fp)
             _check_extras(report, fname, root, fr, k, fp)
@@ -488,7 +502,7 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
         fp = frames[k].get("file_path") if isinstance(frames[k], dict) else None
         if not isinstance(fp, str):
             continue
-        img = root / fp if Path(fp).suffix.lower() in IMAGE_EXTS else root / (fp + ".png")
+        img = resolve_image(root, fp, add_png=True)
         try:
             px = read_png(img) if img.suffix.lower() == ".png" else None
         except (ImageReadError, OSError):

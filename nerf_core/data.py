@@ -30,7 +30,8 @@ from .cameras import Cameras
 # detect_layout and dataset_problems stay importable from here for data's long-standing callers.
 from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import DISTORTION_KEYS
-from .contract.transforms import SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos  # noqa: F401
+from .contract.transforms import (SPLITS, DatasetError, FrameInfo, detect_layout, frame_infos,  # noqa: F401
+                                  why_not_a_file)
 from .dataset_checks import (check_duplicate_images, check_near_far, check_train_count,  # noqa: F401
                              dataset_problems, depth_scale, empty_masks_problem, parse_aabb, scene_fields,
                              transparent_train_problem)
@@ -177,7 +178,7 @@ def _checked_float_pixels(fr: FrameInfo, img: np.ndarray) -> np.ndarray:
 
 def _load_pixels(fr: FrameInfo, downscale: int) -> np.ndarray:
     if not fr.image.is_file():
-        raise DatasetError(f"{fr.where}: field 'file_path': image {fr.image} not found")
+        raise DatasetError(f"{fr.where}: field 'file_path': image {fr.image} {why_not_a_file(fr.image, fr.file_path)}")
     try:
         if fr.image.suffix.lower() == ".exr":
             img = _checked_float_pixels(fr, read_exr_rgba(fr.image))
@@ -273,6 +274,8 @@ def _load_extra(attr: str, fr: FrameInfo, h: int, w: int, downscale: int, depth_
     path = getattr(fr, fr_attr)
     if path is None:
         return missing(h, w)
+    if not path.is_file():
+        raise DatasetError(f"{fr.where}: field {json_field!r}: {path} {why_not_a_file(path)}")
     try:
         m = read_depth(path, png_scale=depth_scale) if attr == "depth" else reader(path)
     except ImageReadError as exc:

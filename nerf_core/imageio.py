@@ -7,6 +7,7 @@ render never leaves a truncated image behind.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import Dict, Optional, Sequence
 
@@ -29,14 +30,21 @@ def read_png(path: Path | str) -> np.ndarray:
     if not path.is_file():
         raise ImageReadError(f"{path}: file not found")
     try:
-        with Image.open(path) as im:
-            im.load()
-            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
-                arr = np.asarray(im).astype(np.uint16 if im.mode != "I" else np.int32)
-            elif im.mode in ("P", "PA", "LA", "CMYK", "YCbCr", "1"):
-                arr = np.asarray(im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB"))
-            else:
-                arr = np.asarray(im)
+        with warnings.catch_warnings():
+            # Pillow warns (as a raw two-line Python warning) past 89 MP and refuses past twice that;
+            # the refusal is reported below with the file's name, and a large real photo just loads.
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                im.load()
+                if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                    arr = np.asarray(im).astype(np.uint16 if im.mode != "I" else np.int32)
+                elif im.mode in ("P", "PA", "LA", "CMYK", "YCbCr", "1") or (
+                        im.mode in ("RGB", "L") and "transparency" in im.info):
+                    # A tRNS chunk (one colour that is transparent) is alpha too, in RGB and grey PNGs
+                    # as in palette ones: a cut-out saved that way is not an opaque image.
+                    arr = np.asarray(im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB"))
+                else:
+                    arr = np.asarray(im)
     except ImageReadError:
         raise
     except Exception as exc:  # Pillow raises many types for corrupt files
@@ -69,6 +77,15 @@ def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
     if not path.is_file():
         raise ImageReadError(f"{path}: file not found")
     try:
+        with OpenEXR.File(str(path), header_only=True) as f:
+            claimed = sum(_window_pixels(part.header) * max(1, len(part.header.get("channels") or ())) for part in f.parts)
+    except Exception as exc:
+        raise ImageReadError(f"{path}: cannot read EXR ({exc})") from exc
+    if claimed > MAX_EXR_VALUES:
+        raise ImageReadError(f"{path}: the EXR header claims {claimed / 1e6:.0f} million values "
+                             f"(more than {MAX_EXR_VALUES / 1e6:.0f} million, {4 * claimed / 2**30:.1f} GiB as float32); "
+                             "damaged, or far larger than a dataset image")
+    try:
         with OpenEXR.File(str(path), separate_channels=True) as f:
             out: Dict[str, np.ndarray] = {}
             for part in f.parts:
@@ -77,6 +94,22 @@ def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
             return out
     except Exception as exc:
         raise ImageReadError(f"{path}: cannot read EXR ({exc})") from exc
+
+
+# Values (pixels x channels, over all parts) an EXR may hold: 8k x 8k RGBA with depth and normals
+# (about 550 million). A damaged header that claims more would otherwise make OpenEXR allocate it
+# (13 GiB for 60000 x 60000) before failing.
+MAX_EXR_VALUES = 8192 * 8192 * 8
+
+
+def _window_pixels(header: dict) -> int:
+    """Pixels in an EXR part's ``dataWindow`` (0 when the header has none)."""
+    window = header.get("dataWindow")
+    if window is None:
+        return 0
+    lo, hi = (np.asarray(v, dtype=np.int64) for v in window)
+    w, h = (hi - lo + 1).tolist()
+    return max(0, w) * max(0, h)
 
 
 def _layers(channels: Dict[str, np.ndarray]) -> Dict[str, Dict[str, np.ndarray]]:
@@ -162,6 +195,11 @@ def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
             depth = _first(layer, names)
     else:
         raw = read_png(path)
+        if raw.dtype == np.uint8:
+            # 8 bits hold 0-255 mm: a picture of depth (normalised for viewing), not a measurement.
+            raise ImageReadError(f"{path}: an 8-bit depth PNG holds 256 levels, so it is a visualisation of depth, "
+                                 "not a depth map; depth must be a 16-bit PNG (millimetres, or the dataset's depth "
+                                 "scale) or a float EXR")
         if raw.ndim == 3:
             raw = raw[..., 0]
         depth = raw.astype(np.float32) * np.float32(png_scale)

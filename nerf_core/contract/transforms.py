@@ -96,14 +96,14 @@ def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3)
         raise PoseError(f"{where}: entries must be JSON numbers, got {bad!r}")
     try:
         m = np.asarray(matrix, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise PoseError(f"{where}: not a numeric matrix ({exc})") from exc
     if m.shape == (3, 4):
         m = np.vstack([m, [0, 0, 0, 1]])
     if m.shape != (4, 4):
         raise PoseError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
     if not np.all(np.isfinite(m)):
-        raise PoseError(f"{where}: contains NaN or inf")
+        raise PoseError(f"{where}: contains NaN or inf (or a number too large for a float)")
     far_out = coordinate_problem(m[:3, 3], "the camera position")
     if far_out:
         raise PoseError(f"{where}: {far_out}")
@@ -125,19 +125,55 @@ def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3)
     return m
 
 
+class _DuplicateKey(ValueError):
+    def __init__(self, key: str):
+        super().__init__(key)
+        self.key = key
+
+
+def _no_conflicting_keys(pairs: list) -> dict:
+    """``object_pairs_hook`` for transforms files: a key written twice with two values is refused.
+
+    Python's json keeps the last value silently, so two ``frames`` arrays (a merge gone wrong) would
+    train on half the views with nothing said. A key repeated with the same value is harmless.
+    """
+    out: dict = {}
+    for key, value in pairs:
+        if key in out and out[key] != value:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
+# The most digits an integer may have and still fit a float64 (about 1.8e308); beyond, a number in
+# a transforms file becomes inf, which every field's check refuses by name. Python's int() would
+# instead raise, with no file or field named, past 4300 digits or when converted to float.
+_FLOAT_DIGITS = 308
+
+
+def _parse_int(text: str):
+    return int(text) if len(text.lstrip("-")) <= _FLOAT_DIGITS else float(text)
+
+
 def parse_json_file(path: Path | str):
     """The JSON value in ``path``; DatasetError naming the file when it cannot be read or parsed
-    (missing, unreadable, not UTF-8, invalid, or nested too deeply for the parser)."""
+    (missing, unreadable, not UTF-8, invalid, nested too deeply for the parser, or a key given
+    twice with different values). A UTF-8 byte-order mark, which Windows editors write, is skipped."""
     path = Path(path)
     try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
+        with open(path, encoding="utf-8-sig") as f:
+            return json.load(f, object_pairs_hook=_no_conflicting_keys, parse_int=_parse_int)
     except FileNotFoundError as exc:
         raise DatasetError(f"{path}: file not found") from exc
+    except IsADirectoryError:
+        raise DatasetError(f"{path}: is a folder, not a JSON file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read ({exc})") from exc
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
+    except _DuplicateKey as exc:
+        raise DatasetError(f"{path}: key {exc.key!r} appears twice in one object with different values; "
+                           "JSON readers keep either one, so the file is ambiguous") from None
     except RecursionError:
         raise DatasetError(f"{path}: JSON nested too deeply to read (thousands of levels of [ or {{)") from None
 
@@ -222,6 +258,8 @@ def resolve_dataset_path(root: Path, value, where: str, field_name: str) -> tupl
 def resolve_image(root: Path, file_path: str, add_png: bool) -> Path:
     """The image a ``file_path`` names. ``add_png`` (synthetic layout): a path without extension gets
     ``.png`` (else ``.exr``, when only that exists), as the original loaders add it."""
+    if "\0" in file_path:  # no file has this name (resolve() would raise); the caller names the field
+        return Path(root) / file_path
     p = (Path(root) / file_path).resolve() if not Path(file_path).is_absolute() else Path(file_path)
     if p.suffix.lower() in IMAGE_EXTS and p.is_file():
         return p
@@ -232,6 +270,39 @@ def resolve_image(root: Path, file_path: str, add_png: bool) -> Path:
                 return cand
         return p.with_name(p.name + ".png") if not p.suffix else p
     return p
+
+
+def why_not_a_file(path: Path | str, written: Optional[str] = None) -> str:
+    """Why ``path`` (a file a dataset names; ``written``: the value as written in the JSON) cannot be
+    read, as the end of a message after its name: "not found; r_1.PNG exists there (names are
+    case-sensitive)". The hints cover what other tools and operating systems write differently:
+    case, an extension left out or added, Windows separators, a folder, a dangling link."""
+    path = Path(path)
+    if path.is_dir():
+        return "is a folder, not a file"
+    if path.is_symlink():
+        try:
+            target = os.readlink(path)
+        except OSError:
+            target = "?"
+        return f"is a link to {target}, which does not exist"
+    if written is not None and "\\" in written:
+        return f"not found; the path is written with '\\' ({written!r}): write '/' between folders"
+    folder = path.parent
+    if not folder.is_dir():
+        return f"not found (its folder {folder} does not exist)"
+    try:
+        names = [n for n in os.listdir(folder) if not n.startswith(".")]
+    except OSError:
+        return "not found"
+    same_case = [n for n in names if n.lower() == path.name.lower()]
+    if same_case:
+        return f"not found; {same_case[0]} exists there (file names are case-sensitive)"
+    stem = path.name[: -len(path.suffix)] if path.suffix.lower() in IMAGE_EXTS else path.name
+    other_ext = sorted(n for n in names if Path(n).stem.lower() == stem.lower() and n != path.name)
+    if other_ext:
+        return f"not found; {', '.join(other_ext[:3])} exists there: write the file name with its extension"
+    return "not found"
 
 
 @dataclass
@@ -342,8 +413,14 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
     if layout == "synthetic":
         for name in splits:
             jf = root / f"transforms_{name}.json"
-            if path.is_file() and path.name.startswith("transforms_") and jf != path and name == "train" and not jf.is_file():
-                jf = path
+            if path.is_file() and path.name.startswith("transforms_") and jf != path and name == "train":
+                if not jf.is_file():
+                    jf = path
+                else:
+                    # `train DS/transforms_test.json` looks like a request to train on the test views.
+                    scene.setdefault("notes", []).append(
+                        f"{path.name} is given as the dataset: the dataset is its folder, {root}, so training "
+                        f"uses {jf.name} and {path.name} stays held out")
             if not jf.is_file():
                 if name == "train":
                     raise DatasetError(f"{jf}: file not found (the training split is required)")
@@ -427,6 +504,12 @@ def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Se
             out[name] = chosen
         if not out.get("train"):
             raise DatasetError(f"{jf}: field 'train_filenames' is empty")
+        if lists["val"] is None and lists["test"] is None:
+            unused = len(frames) - len(out["train"])
+            # nerfstudio itself refuses this file; we train, but must say why no score comes out.
+            scene.setdefault("notes", []).append(
+                f"{jf}: train_filenames is given without val_filenames or test_filenames, so no view is held "
+                "out and nothing is evaluated" + (f"; {unused} frame(s) in no list are not used" if unused else ""))
         return
     order = sorted(range(len(frames)), key=lambda k: frames[k].file_path)
     held = {k for pos, k in enumerate(order) if len(frames) > 1 and pos % HOLDOUT_EVERY == 0}

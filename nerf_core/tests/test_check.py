@@ -207,3 +207,29 @@ def test_a_scene_off_the_synthetic_scale_is_warned_about_once(sphere_dataset):
     scale = [str(w) for w in report.warnings if "synthetic" in str(w)]
     assert len(scale) == 1 and "transforms_train.json" in scale[0] and "near 2, far 6" in scale[0], scale
     assert "8 of 8 train cameras lie 15-15 units" in scale[0] and "aabb reaches" in scale[0]
+
+
+def test_check_takes_a_transforms_file_as_train_does(sphere_dataset):
+    # `train DS/transforms_train.json` trains; check called the same path "not a folder".
+    report = check_dataset(sphere_dataset / "transforms_train.json")
+    assert [str(e) for e in report.errors] == []
+
+
+def test_a_byte_order_mark_is_a_warning_for_other_tools(sphere_dataset):
+    path = sphere_dataset / "transforms_train.json"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    report = check_dataset(sphere_dataset)
+    assert [str(e) for e in report.errors] == []
+    assert any("byte-order mark" in str(w) for w in report.warnings)
+
+
+def test_an_image_with_another_extension_is_checked_as_train_reads_it(sphere_dataset):
+    # check looked for "r_1.webp.png" where train reads r_1.webp: one rule (resolve_image) now.
+    image = sphere_dataset / "train" / "r_1.png"
+    Image.open(image).save(image.with_suffix(".webp"), lossless=True)
+    image.unlink()
+    _edit(sphere_dataset / "transforms_train.json",
+          lambda m: m["frames"][1].__setitem__("file_path", "./train/r_1.webp"))
+    report, errors = _errors(sphere_dataset)
+    assert not any(".webp.png" in e for e in errors + [str(w) for w in report.warnings])
+    assert _has(errors, "frame 1", "'./train/r_1.webp' has an extension")

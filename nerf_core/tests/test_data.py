@@ -154,6 +154,47 @@ def test_missing_image_names_file_and_frame(sphere_dataset):
     _expect(sphere_dataset, "transforms_train.json", "frame 3", "r_3", "file_path")
 
 
+@pytest.mark.parametrize("change, hint", [
+    ("upper_case", "r_1.PNG exists there (file names are case-sensitive)"),
+    ("jpg", "r_1.jpg exists there: write the file name with its extension"),
+    ("backslash", "written with '\\'"),
+    ("folder", "is a folder, not a file"),
+    ("dangling_link", "is a link to"),
+])
+def test_a_missing_image_says_what_is_there_instead(sphere_dataset, change, hint):
+    meta = _meta(sphere_dataset)
+    image = sphere_dataset / "train" / "r_1.png"
+    if change == "upper_case":
+        image.rename(image.with_name("r_1.PNG"))
+    elif change == "jpg":
+        image.rename(image.with_name("r_1.jpg"))
+    elif change == "backslash":
+        meta["frames"][1]["file_path"] = ".\\train\\r_1"
+        _write_meta(sphere_dataset, meta)
+    elif change == "folder":
+        image.unlink()
+        image.mkdir()
+    else:
+        image.unlink()
+        image.symlink_to(sphere_dataset / "gone.png")
+    msg = _expect(sphere_dataset, "frame 1", "file_path")
+    assert hint in msg, msg
+
+
+def test_nerfstudio_with_only_train_filenames_says_nothing_is_evaluated(tmp_path, dataset_factory):
+    ds = dataset_factory(tmp_path / "ns", layouts=("nerfstudio",))
+    path = ds / "transforms.json"
+    meta = json.loads(path.read_text())
+    names = [f["file_path"] for f in meta["frames"]]
+    for key in ("val_filenames", "test_filenames"):
+        meta.pop(key, None)
+    meta["train_filenames"] = names[:-1]
+    path.write_text(json.dumps(meta))
+    loaded = load_dataset(ds)
+    assert len(loaded.splits["train"]) == len(names) - 1
+    assert any("nothing is evaluated" in n and "1 frame(s) in no list" in n for n in loaded.notes), loaded.notes
+
+
 def test_unreadable_image_is_named(sphere_dataset):
     (sphere_dataset / "test" / "r_1.png").write_bytes(b"\x89PNG garbage")
     _expect(sphere_dataset, "transforms_test.json", "frame 1", "r_1.png", "cannot read")
@@ -231,6 +272,50 @@ def test_invalid_json_and_missing_folder(tmp_path, sphere_dataset):
     (sphere_dataset / "transforms_test.json").write_text("{ not json")
     _expect(sphere_dataset, "transforms_test.json", "line 1")
     _expect(tmp_path / "nowhere", "nowhere", "not found")
+
+
+def _json_text_with_frames_twice(meta, second_frames):
+    head = json.dumps({k: v for k, v in meta.items() if k != "frames"})[:-1]
+    return head + ', "frames": ' + json.dumps(meta["frames"]) + ', "frames": ' + json.dumps(second_frames) + "}"
+
+
+def test_a_key_written_twice_with_two_values_is_refused(sphere_dataset):
+    # Python's json keeps the last "frames" silently: a merge gone wrong trained on 2 of 8 views.
+    meta = _meta(sphere_dataset)
+    (sphere_dataset / "transforms_train.json").write_text(_json_text_with_frames_twice(meta, meta["frames"][:2]))
+    _expect(sphere_dataset, "transforms_train.json", "key 'frames' appears twice")
+    # the same value twice is harmless
+    (sphere_dataset / "transforms_train.json").write_text(_json_text_with_frames_twice(meta, meta["frames"]))
+    assert len(load_dataset(sphere_dataset).splits["train"]) == len(meta["frames"])
+
+
+def test_integers_beyond_a_float_are_named_not_a_traceback(sphere_dataset):
+    def written_with(field_edit, placeholder, digits):
+        meta = _meta(sphere_dataset)
+        field_edit(meta, placeholder)
+        text = json.dumps(meta).replace(json.dumps(placeholder), digits, 1)
+        (sphere_dataset / "transforms_train.json").write_text(text)
+
+    # 400 digits: past float64's range (an OverflowError traceback in numpy before)
+    written_with(lambda m, v: m["frames"][1]["transform_matrix"][0].__setitem__(3, v), 123456.5, "9" * 400)
+    _expect(sphere_dataset, "frame 1", "transform_matrix", "too large for a float")
+    # 5001 digits: past Python's int-string limit, a message that named no file or field
+    written_with(lambda m, v: m.__setitem__("w", v), 123456.5, "7" * 5001)
+    _expect(sphere_dataset, "transforms_train.json", "'w'")
+
+
+def test_a_utf8_byte_order_mark_is_read(sphere_dataset):
+    path = sphere_dataset / "transforms_train.json"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())  # what Windows editors save
+    assert len(load_dataset(sphere_dataset).splits["train"]) == 8
+
+
+def test_a_held_out_split_file_given_as_the_dataset_says_what_trains(sphere_dataset):
+    ds = load_dataset(sphere_dataset / "transforms_test.json")
+    assert len(ds.splits["train"]) == 8
+    assert any("transforms_test.json is given as the dataset" in n and "training uses transforms_train.json" in n
+               for n in ds.notes)
+    assert not any("given as the dataset" in n for n in load_dataset(sphere_dataset / "transforms_train.json").notes)
 
 
 def test_declared_size_must_match_the_images(sphere_dataset):

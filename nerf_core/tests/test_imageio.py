@@ -78,3 +78,45 @@ def test_several_passes_and_no_combined_are_named(tmp_path):
     path = _write(tmp_path / "r_0.exr", {k: PASSES[k] for k in ("AO", "Diffuse Color")}, multipart=False)
     with pytest.raises(ImageReadError, match=r"ViewLayer.AO, ViewLayer.Diffuse Color\) and none is the Combined"):
         read_exr_rgba(path)
+
+
+# ---------------------------------------------------------------------------------------------- other files
+
+
+@pytest.mark.parametrize("mode", ["RGB", "L"])
+def test_a_trns_colour_in_an_rgb_or_grey_png_is_alpha(tmp_path, mode):
+    from PIL import Image
+
+    from nerf_core.imageio import read_png
+
+    px = np.zeros((H, W, 3) if mode == "RGB" else (H, W), np.uint8)
+    px[0, 0] = 200  # one opaque pixel; the black rest is the transparent colour
+    path = tmp_path / "cut.png"
+    Image.fromarray(px, mode).save(path, transparency=(0, 0, 0) if mode == "RGB" else 0)
+    arr = read_png(path)
+    assert arr.shape == (H, W, 4)
+    assert arr[0, 0, 3] == 255 and (arr[..., 3] == 0).sum() == H * W - 1
+
+
+def test_an_8_bit_depth_png_is_refused_as_a_picture_of_depth(tmp_path):
+    from PIL import Image
+
+    path = tmp_path / "d.png"
+    Image.fromarray(np.full((H, W), 128, np.uint8)).save(path)
+    with pytest.raises(ImageReadError, match="8-bit depth PNG .* visualisation"):
+        read_depth(path)
+    Image.fromarray(np.full((H, W), 2500, np.uint16)).save(path)  # 16-bit millimetres stay depth
+    assert np.allclose(read_depth(path), 2.5)
+
+
+def test_an_exr_header_claiming_a_huge_image_is_refused_before_reading(tmp_path):
+    import struct
+
+    path = _write(tmp_path / "r_0.exr", {"Combined": PASSES["Combined"]}, multipart=False)
+    data = bytearray(path.read_bytes())
+    for name in (b"dataWindow\x00box2i\x00", b"displayWindow\x00box2i\x00"):
+        at = data.index(name) + len(name) + 4  # after the attribute's size
+        data[at:at + 16] = struct.pack("<iiii", 0, 0, 59999, 59999)  # 60000 x 60000: 54 GiB of float32
+    path.write_bytes(bytes(data))
+    with pytest.raises(ImageReadError, match="header claims 14400 million values"):
+        read_exr_rgba(path)
