@@ -216,6 +216,8 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
         raise RunError(f"{contract.config_path(run)}: no 'dataset' recorded")
     metrics_path = Path(contract.metrics_path(run))
     read_metrics_file(metrics_path)  # a damaged file is refused before the evaluation, not after it
+    if Path(contract.progress_path(run)).is_dir():
+        raise RunError(f"{contract.progress_path(run)}: is a folder; eval appends its event to this file")
     changed = dataset_changed_note(config)
     if changed:
         print(f"eval: note: {changed}", file=sys.stderr)

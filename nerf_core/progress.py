@@ -23,11 +23,14 @@ class EventLog:
         self._files: List[IO[str]] = []
         seen = set()
         for p in paths:
-            p = Path(p).resolve()
-            if p in seen:
+            p = Path(p).absolute()
+            key = p.resolve()
+            if key in seen:
                 continue
-            seen.add(p)
+            seen.add(key)
             p.parent.mkdir(parents=True, exist_ok=True)
+            # Open the path as given, not as resolved: /dev/stdout resolves to /proc/PID/fd/pipe:[N]
+            # when stdout is a pipe, a name that cannot be opened.
             self._files.append(open(p, "a", encoding="utf-8"))
         self.events: List[dict] = []  # kept for callers (tests, the trainer's summary)
 
@@ -35,10 +38,25 @@ class EventLog:
         record = {"event": event, "time": time.time(), **contract.json_safe(fields)}
         line = json.dumps(record, allow_nan=False)
         for f in ([self.stream] if self.stream is not None else []) + self._files:
-            f.write(line + "\n")
-            f.flush()
+            try:
+                f.write(line + "\n")
+                f.flush()
+            except OSError as exc:
+                if f is not self.stream:
+                    self._drop(f)  # its buffer still holds the line: closing it later would fail again
+                if exc.filename is None and getattr(f, "name", None):
+                    # A failed write does not say which file: the trainer names this one, not RUN.
+                    raise OSError(exc.errno, exc.strerror, str(f.name)) from None
+                raise
         self.events.append(record)
         return record
+
+    def _drop(self, f: IO[str]) -> None:
+        self._files.remove(f)
+        try:
+            f.close()
+        except OSError:
+            pass  # the write that failed has been reported
 
     def close(self) -> None:
         for f in self._files:

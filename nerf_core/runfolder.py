@@ -242,6 +242,12 @@ def check_progress_file(path: Path, dataset) -> None:
                          "to your data. Choose a file outside the dataset")
     if target.is_dir():
         raise TrainError(f"--progress {path}: is a folder; name a file")
+    if path.exists():
+        try:  # /proc files, devices and read-only files fail here, named, rather than at the first event
+            with open(path, "a", encoding="utf-8"):
+                pass
+        except OSError as exc:
+            raise TrainError(f"--progress {path}: cannot append to it ({os_reason(exc)}); name a file") from None
     if target.is_file() and target.stat().st_size > 0:
         with open(target, "rb") as fh:
             first = fh.readline(1 << 16).decode("utf-8", errors="replace")

@@ -156,7 +156,10 @@ class Trainer:
             raise
         except OSError as exc:  # a full disk while writing config, previews or metrics: name the file
             msg = f"{exc.filename or self.run}: {os_reason(exc)} (at step {getattr(self, 'step', 0)})"
-            self.log.emit("error", message=msg)
+            try:
+                self.log.emit("error", message=msg)
+            except OSError:
+                pass  # the failing file may be the --progress log itself; the message still reaches stderr
             raise TrainError(msg) from None
         except (RuntimeError, MemoryError) as exc:  # e.g. out of memory inside a model: one clear line, no traceback
             msg = (str(exc).splitlines() or [type(exc).__name__])[0]

@@ -785,3 +785,19 @@ def test_an_empty_out_is_refused_not_the_current_folder(trained_run, sphere_data
         main([*args, "--out", "", "--no-bar"])
     assert exc.value.code == 2 and "argument --out: is empty" in capsys.readouterr().err
     assert os.listdir(cwd) == []
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="Linux special files")
+def test_progress_to_special_files_works_or_is_named(sphere_dataset, tmp_path):
+    # /dev/stdout on a pipe (as the add-on runs the trainer) resolved to /proc/PID/fd/pipe:[N];
+    # /dev/full and /proc files failed with messages naming the run folder, or nothing.
+    proc = _cli("train", sphere_dataset, "--out", tmp_path / "a", "--method", "test-grid", "--max-steps", "2",
+                "--no-bar", "--progress", "/dev/stdout")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count('"event": "done"') == 2  # once for stdout, once through --progress
+    _clear_error(_cli("train", sphere_dataset, "--out", tmp_path / "b", "--method", "test-grid", "--max-steps", "2",
+                      "--no-bar", "--progress", "/proc/self/status"), "--progress /proc/self/status", "cannot append")
+    proc = _cli("train", sphere_dataset, "--out", tmp_path / "c", "--method", "test-grid", "--max-steps", "2",
+                "--no-bar", "--progress", "/dev/full")
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].endswith("/dev/full: no space left on device (at step 0)")

@@ -119,6 +119,15 @@ def test_a_damaged_metrics_file_is_refused_before_evaluating(run_copy, content, 
     assert (run_copy / "metrics.json").read_text() == content  # and the file is left as it was
 
 
+def test_a_progress_log_that_is_a_folder_is_refused_before_evaluating(run_copy):
+    (run_copy / "progress.jsonl").unlink()
+    (run_copy / "progress.jsonl").mkdir()
+    before = (run_copy / "metrics.json").read_bytes()
+    with pytest.raises(RunError, match="progress.jsonl: is a folder"):
+        evaluate_run(run_copy, print_fn=lambda *_: None, show_progress=False)
+    assert (run_copy / "metrics.json").read_bytes() == before
+
+
 def test_a_resumed_training_keeps_a_damaged_metrics_file_aside(sphere_dataset, tmp_path):
     run = tmp_path / "run"
     cfg = dict(dataset=str(sphere_dataset), out=str(run), method="test-grid", batch_rays=64, seed=0,
