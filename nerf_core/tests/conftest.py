@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 from typing import Optional
 
@@ -223,6 +224,14 @@ def trained_run(tmp_path_factory):
     summary = train(TrainConfig(dataset=str(ds), out=str(run), method="test-grid", max_steps=30, batch_rays=256,
                                 seed=0, stdout_events=False, show_bar=False, log_every=10, eval_views=2))
     return {"dataset": ds, "run": run, "summary": summary}
+
+
+@pytest.fixture
+def run_copy(trained_run, tmp_path):
+    """A private copy of the shared trained run (the shared one is read-only for tests)."""
+    run = tmp_path / "run"
+    shutil.copytree(trained_run["run"], run)
+    return run
 
 
 @pytest.fixture

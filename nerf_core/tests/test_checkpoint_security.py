@@ -3,7 +3,6 @@ checkpoints the trainer writes (and those of older runs, with numpy RNG state) s
 import json
 import os
 import pickle
-import shutil
 import subprocess
 import sys
 import types
@@ -46,14 +45,6 @@ PAYLOADS = {
     "subprocess": lambda m: Payload(subprocess.call, ["touch", str(m)]),
     "class": lambda m: Note(),
 }
-
-
-@pytest.fixture
-def run_copy(trained_run, tmp_path):
-    """A private copy of the shared trained run (the shared one is read-only for tests)."""
-    run = tmp_path / "run"
-    shutil.copytree(trained_run["run"], run)
-    return run
 
 
 def _cli(*args):

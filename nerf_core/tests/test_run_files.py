@@ -4,7 +4,6 @@ after training. Each is named in one line; none is a traceback, and no score is 
 wrong run."""
 import json
 import os
-import shutil
 import subprocess
 import sys
 
@@ -16,13 +15,6 @@ from nerf_core.evaluate import evaluate_run
 from nerf_core.train import TrainConfig, train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-@pytest.fixture
-def run_copy(trained_run, tmp_path):
-    run = tmp_path / "run"
-    shutil.copytree(trained_run["run"], run)
-    return run
 
 
 def _cli(*args):
