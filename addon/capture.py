@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import bpy
 
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts
-from . import scene_bounds
+from . import scene_appearance, scene_bounds
 from .capture_plan import CaptureError
 from .core_contract import contract
 from .capture_world import world_description  # noqa: F401  (public: the panel and tests describe worlds)
@@ -185,6 +185,7 @@ class CaptureJob:
         self.start_frame = scene.frame_current  # views without a frame of their own render at this one
         self.render_sig = None
         self.scene_sig = None  # scene_bounds.scene_signature at plan(): resuming an edited scene is a conflict
+        self.appearance_sig = None  # scene_appearance.appearance_signature at plan(): materials, world, lights
         self.world = None
         self.frames = []
         self.plan_doc = None  # capture_plan.make_plan: the JSON plan every shard computes alike
@@ -230,6 +231,7 @@ class CaptureJob:
                                "generate a camera layout first")
         self.render_sig = self._render_signature()
         self.scene_sig = scene_bounds.scene_signature(self.scene)
+        self.appearance_sig = scene_appearance.appearance_signature(self.scene)
         self.world = world_description(self.scene.world)
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
         render = RenderView(self.scene.render, self.s.res_x, self.s.res_y)
@@ -323,6 +325,11 @@ class CaptureJob:
             return manifest, (f"output folder {out} holds frames of this scene as it was before it changed (objects "
                               "added, removed, moved or edited since); choose another folder or confirm overwrite "
                               "(--overwrite) to render them again")
+        looked = manifest.get("appearance_signature")  # absent in captures made before it was recorded
+        if looked and self.appearance_sig and looked != self.appearance_sig and any(v.get("done") for v in old.values()):
+            return manifest, (f"output folder {out} holds frames of this scene as it looked before it changed "
+                              "(materials, world or lights edited since); choose another folder or confirm "
+                              "overwrite (--overwrite) to render them again")
         differing = sorted(k for k, v in old.items() if new.get(k) != v.get("hash"))
         if differing:
             same_render = manifest.get("render") == capture_plan.round6(self.render_sig)
@@ -553,7 +560,7 @@ class CaptureJob:
     def _manifest_info(self) -> dict:
         return {"created": self.created, "blend_file": bpy.data.filepath or None, "blend_sha256": self.blend_sha256,
                 "blend_unsaved_changes": bool(bpy.data.is_dirty), "plan_hash": self.plan_hash,
-                "scene_signature": self.scene_sig,
+                "scene_signature": self.scene_sig, "appearance_signature": self.appearance_sig,
                 "file_sha256": {k: v for k, v in self.file_sha256.items() if k in self.done_keys}}
 
     def _write_dataset(self, complete: bool) -> None:

@@ -132,7 +132,7 @@ def manifest(plan: dict, done_keys: set, info: dict) -> dict:
         "blender_version": plan["blender_version"], "addon_version": addon_version(),
         "blend_file": info.get("blend_file"), "blend_sha256": info.get("blend_sha256"),
         "blend_unsaved_changes": bool(info.get("blend_unsaved_changes")),
-        "scene_signature": info.get("scene_signature"),
+        "scene_signature": info.get("scene_signature"), "appearance_signature": info.get("appearance_signature"),
         "scene": plan["scene"],
         "render": round6(plan["render"]),
         "film_transparent": bool(plan["film_transparent"]), "world": plan["world"],

@@ -73,6 +73,14 @@ def renderable_objects(scene, view_layer=None, only_selected: bool = False) -> l
             and (not only_selected or obj.select_get(view_layer=view_layer))]
 
 
+def rendering_lights(scene, view_layer=None) -> list:
+    """Light objects of ``scene`` that light a render of ``view_layer`` (lights are never in the
+    picture themselves, so ``renderable_objects`` leaves them out)."""
+    view_layer = view_layer or render_view_layer(scene)
+    rendered = _rendered_collections(view_layer)
+    return [obj for obj in scene.objects if obj.type == "LIGHT" and _in_render(obj, rendered)]
+
+
 def _box_of(bound_box, matrix) -> tuple[Vector, Vector]:
     """World (min, max) of a local ``bound_box`` (8 corners) placed by ``matrix``."""
     corners = [matrix @ Vector(c) for c in bound_box]

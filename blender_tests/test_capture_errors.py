@@ -214,6 +214,33 @@ def test_resuming_after_the_scene_changed_is_a_conflict(tmp_path):
     assert summary["rendered"] == summary["frames"]
 
 
+def test_resuming_after_the_look_changed_is_a_conflict_but_moving_a_node_is_not(tmp_path):
+    # A material's colour, the world's strength or a lamp's power change every picture without moving
+    # a vertex: scene_signature did not see them, and a resume mixed old and new pictures.
+    scene = scene_with_cameras(train=2)
+    material = bpy.data.materials.new("Look")  # Blender 5 gives it a node tree (use_nodes is always on)
+    bpy.data.objects["Cube"].data.materials.append(material)
+    bpy.ops.object.light_add(type="POINT", location=(2.0, 2.0, 2.0))
+    lamp = bpy.context.object
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new("World")
+    background = next(n for n in scene.world.node_tree.nodes if n.type == "BACKGROUND")
+    capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    assert manifest(tmp_path / "ds")["appearance_signature"]
+    bsdf = material.node_tree.nodes["Principled BSDF"]
+    bsdf.location.x += 200  # tidying the node editor changes no pixel
+    _, conflict = capture.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
+    assert conflict is None
+    edits = [lambda: setattr(bsdf.inputs["Base Color"], "default_value", (1.0, 0.0, 0.0, 1.0)),
+             lambda: setattr(background.inputs["Strength"], "default_value", 3.0),
+             lambda: setattr(lamp.data, "energy", 5000.0)]
+    for edit in edits:
+        capture.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
+        edit()
+        with pytest.raises(capture.CaptureError, match="as it looked before it changed"):
+            capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+
+
 def test_an_overwrite_says_what_it_would_delete(tmp_path):
     scene = scene_with_cameras(train=2)
     out = tmp_path / "ds"
