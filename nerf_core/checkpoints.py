@@ -251,26 +251,6 @@ def _check_checkpoint_of_run(ckpt: dict, config: dict, ck: Path, run: Path) -> N
                        "evaluate or render it through its own run folder")
 
 
-def dataset_changed_note(config: dict) -> Optional[str]:
-    """A note when the dataset a run's config.json names no longer holds the data it trained on
-    (its transforms files' hash differs), else None: ``eval`` and ``render`` still work on it, but
-    their scores then compare the model with other data (``--resume`` refuses it outright)."""
-    from .contract.transforms import DatasetError
-    from .runfolder import dataset_hash
-
-    path, want = config.get("dataset"), config.get("dataset_hash")
-    if not (isinstance(path, str) and isinstance(want, str) and Path(path).exists()):
-        return None
-    try:
-        have = dataset_hash(path)
-    except (DatasetError, OSError):
-        return None  # loading the dataset reports it, naming the file
-    if have == want:
-        return None
-    return (f"{path} changed since the run trained on it (transforms hash {have[:12]}, trained on {want[:12]}); "
-            "the scores compare the model with the data there now")
-
-
 def _check_run_config(config: dict, cfg_path: Path) -> None:
     """Refuse (RunError naming the field) the values of a run's config.json that ``eval``, ``render``
     and ``serve`` read, when they are not what ``train`` writes (an edited or damaged file)."""

@@ -206,7 +206,8 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     from .device import pick_device
     from .progress import EventLog
     from .progressbar import ProgressBar
-    from .checkpoints import RunError, dataset_changed_note, load_run
+    from .checkpoints import RunError, load_run
+    from .runfolder import dataset_changed_note
 
     dev = pick_device(device)
     run = Path(run)

@@ -23,14 +23,14 @@ import torch
 from .cameras import Cameras, ray_bounds, rays_for_view
 # Checkpoint reading moved to nerf_core.checkpoints; the names stay importable from here for callers
 # written against render (scripts/benchmark.py reads model sizes through them).
-from .checkpoints import (CheckpointRefused, RunError, dataset_changed_note, load_run,  # noqa: F401
-                          model_from_checkpoint, read_checkpoint)
+from .checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint  # noqa: F401
 from .contract import config_path
 from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import parse_lens
 from .contract.naming import frame_stem, render_files, unique_stems
 from .contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, parse_json_file, read_transforms
 from .progressbar import ProgressBar
+from .runfolder import dataset_changed_note
 
 
 # ----------------------------------------------------------------------------------------------

@@ -390,6 +390,23 @@ def dataset_hash(path) -> str:
     return h.hexdigest()
 
 
+def dataset_changed_note(config: dict) -> Optional[str]:
+    """A note when the dataset a run's config.json names no longer holds the data it trained on
+    (its transforms files' hash differs), else None: ``eval`` and ``render`` still work on it, but
+    their scores then compare the model with other data (``--resume`` refuses it outright)."""
+    path, want = config.get("dataset"), config.get("dataset_hash")
+    if not (isinstance(path, str) and isinstance(want, str) and Path(path).exists()):
+        return None
+    try:
+        have = dataset_hash(path)
+    except (DatasetError, OSError):
+        return None  # loading the dataset reports it, naming the file
+    if have == want:
+        return None
+    return (f"{path} changed since the run trained on it (transforms hash {have[:12]}, trained on {want[:12]}); "
+            "the scores compare the model with the data there now")
+
+
 def resume_dataset(saved: dict, dataset: str, dataset_moved: bool) -> str:
     """The dataset to resume on: the recorded one (``saved``: the run's config), or ``dataset`` (the
     DATASET argument) when it holds the same dataset.
