@@ -325,11 +325,6 @@ class CaptureJob:
             return manifest, (f"output folder {out} holds frames of this scene as it was before it changed (objects "
                               "added, removed, moved or edited since); choose another folder or confirm overwrite "
                               "(--overwrite) to render them again")
-        looked = manifest.get("appearance_signature")  # absent in captures made before it was recorded
-        if looked and self.appearance_sig and looked != self.appearance_sig and any(v.get("done") for v in old.values()):
-            return manifest, (f"output folder {out} holds frames of this scene as it looked before it changed "
-                              "(materials, world or lights edited since); choose another folder or confirm "
-                              "overwrite (--overwrite) to render them again")
         differing = sorted(k for k, v in old.items() if new.get(k) != v.get("hash"))
         if differing:
             same_render = manifest.get("render") == capture_plan.round6(self.render_sig)
@@ -337,6 +332,12 @@ class CaptureJob:
             return manifest, (f"output folder {out} holds a different capture ({reason}: {len(differing)} of "
                               f"{len(old)} frames differ, e.g. {differing[0]}); choose another folder or "
                               "confirm overwrite (--overwrite)")
+        # After the frame hashes, whose message is more precise: an opaque film's world is in them.
+        looked = manifest.get("appearance_signature")  # absent in captures made before it was recorded
+        if looked and self.appearance_sig and looked != self.appearance_sig and any(v.get("done") for v in old.values()):
+            return manifest, (f"output folder {out} holds frames of this scene as it looked before it changed "
+                              "(materials, world or lights edited since); choose another folder or confirm "
+                              "overwrite (--overwrite) to render them again")
         return manifest, None
 
     def _check_folder(self) -> dict | None:
