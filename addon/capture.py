@@ -236,6 +236,26 @@ class CaptureJob:
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
         render = RenderView(self.scene.render, self.s.res_x, self.s.res_y)
         frames = []
+        with scene_bounds.fresh_matrices(self.scene, [o for split in layouts.SPLITS for o in cams[split]]):
+            self._plan_frames(cams, render, frames)
+        self.frames = frames
+        # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
+        self.notes += [msg for _, msg in contract.angle_only_caveats([fr["intrinsics"] for fr in frames])]
+        if any(fr["frame"] is not None for fr in frames):
+            # Views at their own frames (the animation layout): the scene at the current frame is not
+            # what they show, and resuming at another frame must not look like an edit.
+            self.scene_sig = None
+        self.plan_doc = capture_plan.make_plan(frames, settings=self.s, render_sig=self.render_sig, world=self.world,
+                                               bounds=self.bounds, scene_name=self.scene.name,
+                                               blender_version=bpy.app.version_string,
+                                               surroundings=self.surroundings)
+        self.plan_hash = capture_plan.plan_hash(self.plan_doc)
+        own = capture_plan.shard_frames(frames, *self.shard) if self.shard else frames
+        self.share = {fr["key"] for fr in own}
+        return frames
+
+    def _plan_frames(self, cams: dict, render, frames: list) -> None:
+        """Append a frame dict per camera of ``cams`` to ``frames`` (inside ``fresh_matrices``)."""
         for split in layouts.SPLITS:
             for k, obj in enumerate(cams[split]):
                 err = layouts.camera_scale_error(obj)
@@ -260,21 +280,6 @@ class CaptureJob:
                 fr.update(capture_plan.frame_files(split, fr["name"], self.s.depth, self.s.normals, self.s.masks,
                                                    self.s.points, export.MANIFEST_DIR))
                 frames.append(fr)
-        self.frames = frames
-        # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
-        self.notes += [msg for _, msg in contract.angle_only_caveats([fr["intrinsics"] for fr in frames])]
-        if any(fr["frame"] is not None for fr in frames):
-            # Views at their own frames (the animation layout): the scene at the current frame is not
-            # what they show, and resuming at another frame must not look like an edit.
-            self.scene_sig = None
-        self.plan_doc = capture_plan.make_plan(frames, settings=self.s, render_sig=self.render_sig, world=self.world,
-                                               bounds=self.bounds, scene_name=self.scene.name,
-                                               blender_version=bpy.app.version_string,
-                                               surroundings=self.surroundings)
-        self.plan_hash = capture_plan.plan_hash(self.plan_doc)
-        own = capture_plan.shard_frames(frames, *self.shard) if self.shard else frames
-        self.share = {fr["key"] for fr in own}
-        return frames
 
     # ------------------------------------------------------------------ folder checks
 

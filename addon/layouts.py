@@ -563,7 +563,9 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
         sources = _user_cameras(scene, coll_existing)
         if not sources:
             raise LayoutError(f"layout 'scene-cameras': scene {scene.name!r} has no camera of its own")
-        plan = _plan_from_sources(spec, [(o, o.matrix_world.copy(), None) for o in sources])
+        with scene_bounds.fresh_matrices(scene, sources):  # a camera disabled in viewports reads as identity
+            placed = [(o, o.matrix_world.copy(), None) for o in sources]
+        plan = _plan_from_sources(spec, placed)
     elif spec.layout == "animation":
         cam = scene.camera
         if cam is None or (coll_existing is not None and cam.name in coll_existing.all_objects):

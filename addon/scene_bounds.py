@@ -8,6 +8,8 @@ their own. Cameras, lights and empties have no extent.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import bpy
 from mathutils import Vector
 
@@ -81,6 +83,62 @@ def rendering_lights(scene, view_layer=None) -> list:
     return [obj for obj in scene.objects if obj.type == "LIGHT" and _in_render(obj, rendered)]
 
 
+def _with_their_drivers(objects) -> list:
+    """``objects`` and what places them: parents and constraint targets, each once, in order."""
+    out, seen, todo = [], set(), list(objects)
+    while todo:
+        obj = todo.pop(0)
+        if obj is None or obj.as_pointer() in seen:
+            continue
+        seen.add(obj.as_pointer())
+        out.append(obj)
+        todo.append(obj.parent)
+        todo += [getattr(c, "target", None) for c in getattr(obj, "constraints", ())
+                 if isinstance(getattr(c, "target", None), bpy.types.Object)]
+    return out
+
+
+@contextmanager
+def fresh_matrices(scene, objects, view_layer=None):
+    """Inside the block, ``matrix_world`` of ``objects`` (and of their evaluated geometry) is where
+    the render puts them, also for objects the viewport does not evaluate.
+
+    Blender 5 does not save ``matrix_world`` in the .blend: an object disabled in viewports (monitor
+    icon, of the object or of a collection) or in an excluded collection is never evaluated after
+    the file is opened, and reads back as the identity, while the render, which evaluates it, places
+    it where it belongs. A camera read that way gave a dataset of identity poses. The block links
+    such objects (and their parents and constraint targets) into the scene collection with viewport
+    display on, so the viewport evaluates them, and undoes both afterwards. Only matrices and
+    geometry are meant to be read inside: whether an object renders is decided outside.
+    """
+    view_layer = view_layer or render_view_layer(scene)
+    if bpy.context.scene != scene:
+        yield
+        return
+    graph = bpy.context.evaluated_depsgraph_get()
+    evaluated = {inst.object.original.as_pointer() for inst in graph.object_instances if not inst.is_instance}
+    stale = [o for o in _with_their_drivers(objects) if o.as_pointer() not in evaluated]
+    linked, shown = [], []
+    try:
+        for obj in stale:
+            if obj.hide_viewport:
+                obj.hide_viewport = False
+                shown.append(obj)
+            if scene.collection.objects.get(obj.name) is not obj:
+                scene.collection.objects.link(obj)
+                linked.append(obj)
+        if stale:
+            view_layer.update()
+        yield
+    finally:
+        for obj in linked:
+            scene.collection.objects.unlink(obj)
+        for obj in shown:
+            obj.hide_viewport = True
+        if stale:
+            view_layer.update()
+
+
 def _box_of(bound_box, matrix) -> tuple[Vector, Vector]:
     """World (min, max) of a local ``bound_box`` (8 corners) placed by ``matrix``."""
     corners = [matrix @ Vector(c) for c in bound_box]
@@ -142,9 +200,16 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
             if ev.type == "MESH" and not ev.data.vertices:
                 continue
         out.append((_box_of(ev.bound_box, matrix), name))
-    # Hidden in the viewport, an object still renders but is not evaluated there: its own box (without
-    # what its modifiers add, and without the instances it makes) is the best at hand.
-    out += [(_box_of(o.bound_box, o.matrix_world), o.name) for o in objects if o.as_pointer() not in seen]
+    # Disabled in the viewport, an object still renders but is not evaluated there: evaluate it for the
+    # moment (``fresh_matrices``; its stored matrix_world is the identity) and take its box then
+    # (instances it makes are still not seen).
+    hidden = [o for o in objects if o.as_pointer() not in seen]
+    if hidden:
+        with fresh_matrices(scene, hidden, view_layer):
+            graph = bpy.context.evaluated_depsgraph_get()
+            for o in hidden:
+                ev = o.evaluated_get(graph)
+                out.append((_box_of(ev.bound_box, ev.matrix_world), o.name))
     return out
 
 

@@ -241,6 +241,32 @@ def test_resuming_after_the_look_changed_is_a_conflict_but_moving_a_node_is_not(
             capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
+def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reopening(tmp_path):
+    # Blender 5 does not save matrix_world: what the viewport does not evaluate (monitor icon, an
+    # excluded collection) read back as the identity once the file was opened again. The render still
+    # placed it right, so every such camera's pose was wrong and the subject was boxed at the origin.
+    scene = scene_with_cameras(train=3, val=0, test=1)
+    cube = bpy.data.objects["Cube"]
+    cube.location = (1.5, 0.5, 0.25)
+    cameras = [o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA"]
+    poses = {o.name: [v for row in o.matrix_world.normalized() for v in row] for o in cameras}
+    for obj in cameras + [cube]:
+        obj.hide_viewport = True
+    blend = str(tmp_path / "disabled.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    bpy.ops.wm.open_mainfile(filepath=blend)
+    scene = bpy.context.scene
+    assert bpy.data.objects["Cube"].matrix_world.translation.length < 1e-6  # what the capture used to read
+    homes = {o.name: sorted(c.name for c in o.users_collection) for o in bpy.data.objects}
+    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    for fr in job.plan():
+        assert sum(fr["transform_matrix"], []) == pytest.approx(poses[fr["camera"]], abs=1e-5), fr["camera"]
+    lo, hi = job.bounds
+    assert lo[0] == pytest.approx(1.0, abs=1e-3) and hi[0] == pytest.approx(2.0, abs=1e-3)  # the cube, moved
+    assert all(bpy.data.objects[name].hide_viewport for name in list(poses) + ["Cube"])  # left as they were
+    assert homes == {o.name: sorted(c.name for c in o.users_collection) for o in bpy.data.objects}
+
+
 def test_an_overwrite_says_what_it_would_delete(tmp_path):
     scene = scene_with_cameras(train=2)
     out = tmp_path / "ds"
