@@ -438,6 +438,12 @@ class CaptureJob:
             self._set(sc.eevee, "taa_render_samples", self.s.samples)
         vl = scene_bounds.render_view_layer(sc)
         self.view_layer = vl
+        # The layer the bounds, framing and masks were read from must be the one rendered and saved.
+        # use_single_layer is ignored in background mode: every layer used for rendering renders and
+        # the first is saved, so a file whose active layer had "Use for Rendering" off gave pictures of
+        # another layer (or, with no other, none and a failed save). Only this layer is used.
+        for layer in sc.view_layers:
+            self._set(layer, "use", layer == vl)
         want_passes = self.s.depth or self.s.points
         self._set(vl, "use_pass_z", bool(want_passes) or vl.use_pass_z)
         if self.engine != "BLENDER_WORKBENCH":

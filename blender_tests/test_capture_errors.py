@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import bpy
+import numpy as np
 import pytest
 from mathutils import Matrix
 
@@ -265,6 +266,37 @@ def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reop
     assert lo[0] == pytest.approx(1.0, abs=1e-3) and hi[0] == pytest.approx(2.0, abs=1e-3)  # the cube, moved
     assert all(bpy.data.objects[name].hide_viewport for name in list(poses) + ["Cube"])  # left as they were
     assert homes == {o.name: sorted(c.name for c in o.users_collection) for o in bpy.data.objects}
+
+
+def test_the_layer_the_box_comes_from_is_the_layer_rendered_whatever_its_use_flag(tmp_path):
+    # In background mode every layer "Used for Rendering" renders and the first is saved: with the
+    # active layer's flag off, the pictures came from another layer than the box (or, with no other
+    # layer, saving the render failed with a traceback).
+    scene = scene_with_cameras(train=2, val=0, test=1)
+    subject = bpy.data.collections.new("Subject")
+    scene.collection.children.link(subject)
+    cube = bpy.data.objects["Cube"]
+    scene.collection.objects.unlink(cube)
+    subject.objects.link(cube)
+    active = bpy.context.view_layer
+    active.use = False
+    summary = capture.CaptureJob(scene, settings(tmp_path / "one")).run()  # its only layer: rendered anyway
+    assert summary["rendered"] == summary["frames"]
+    other = scene.view_layers.new("Other")
+    other.layer_collection.children["Subject"].exclude = True  # this layer renders nothing
+    capture.CaptureJob(scene, settings(tmp_path / "two")).run()
+    assert _alpha(tmp_path / "two" / "train" / "r_0.png").max() > 0  # the cube of the active layer, not the empty other layer
+    assert active.use is False and other.use is True  # the file's flags are restored
+
+
+def _alpha(path):
+    image = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        px = np.empty(image.size[0] * image.size[1] * 4, np.float32)
+        image.pixels.foreach_get(px)
+        return px[3::4]
+    finally:
+        bpy.data.images.remove(image)
 
 
 def test_an_overwrite_says_what_it_would_delete(tmp_path):

@@ -54,6 +54,11 @@ def test_save_blend_never_replaces_an_existing_file(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "--save-blend" in proc.stderr and "already exists" in proc.stderr, proc.stderr
     assert other.read_bytes() == b"BLENDER-v500 someone else's work" and not out.exists()
+    # a folder that does not exist failed only after the whole capture, with a traceback
+    proc = subprocess.run([PY, SCRIPT, "--out", str(out), "--quiet", "--save-blend", str(tmp_path / "no" / "x.blend")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and not out.exists()
+    assert "--save-blend: folder" in proc.stderr and "does not exist" in proc.stderr, proc.stderr
 
 
 def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):

@@ -82,6 +82,13 @@ def argument_errors(args) -> list[str]:
         # survive a second run, and the --blend input itself could be the path.
         errors.append(f"--save-blend: {args.save_blend} already exists; choose a new file name "
                       "(nothing was captured)")
+    elif args.save_blend:
+        folder = os.path.dirname(os.path.abspath(args.save_blend))
+        if not os.path.isdir(folder):
+            # Blender would fail only after the whole capture, with a traceback.
+            errors.append(f"--save-blend: folder {folder} does not exist (nothing was captured)")
+        elif not os.access(folder, os.W_OK):
+            errors.append(f"--save-blend: folder {folder} is not writable (nothing was captured)")
     for flag, v in (("--elevation-min", args.elevation_min), ("--elevation-max", args.elevation_max)):
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
