@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass, field
 
 import bpy
+from mathutils import Matrix, Vector
 
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts
 from . import scene_appearance, scene_bounds
@@ -92,6 +93,41 @@ def _empty_tree(path: str) -> bool:
     if not os.path.isdir(path) or os.path.islink(path):
         return False
     return all(_empty_tree(os.path.join(path, e)) for e in os.listdir(path))
+
+
+def clipping_notes(frames: list, bounds) -> list:
+    """A warning when cameras' clipping planes cut into the scene box (empty when none).
+
+    Generated layouts set clipping to fit the box (``layouts.create_cameras``); cameras the user set
+    up keep theirs, and a clip_end short of the far side (or a clip_start beyond the near side of a
+    box in front of the camera) leaves part of the scene out of some pictures only: views that
+    disagree about what is there, which a radiance field turns into floaters or holes. The planes are
+    the user's choice (clipping into a room is a way to look inside), so this is said, not changed.
+    """
+    if bounds is None:
+        return []
+    lo, hi = bounds
+    corners = [Vector((x, y, z)) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    cut = []
+    for fr in frames:
+        obj = bpy.data.objects.get(fr["camera"])
+        if obj is None or obj.type != "CAMERA":
+            continue
+        w2c = Matrix(fr["transform_matrix"]).inverted()
+        depths = [-(w2c @ c).z for c in corners]  # planar depth along the view axis
+        near, far = min(depths), max(depths)
+        if far <= 0:
+            continue  # the box is behind this camera
+        start, end = obj.data.clip_start, obj.data.clip_end
+        if end < far or (near > 0 and start > near):
+            cut.append((obj.name, start, end, max(near, 0.0), far))
+    if not cut:
+        return []
+    name, start, end, near, far = cut[0]
+    return [f"{len(cut)} camera(s) clip the scene box, e.g. {name!r}: clip {start:g}-{end:g}, the box lies "
+            f"{near:.3g}-{far:.3g} away along its view; parts of the scene will be missing from some views "
+            "only, which a NeRF learns as holes or floaters. Widen Clip Start/End (Camera properties) unless "
+            "the cut is meant"]
 
 
 def capture_notes(scene) -> list:
@@ -241,6 +277,7 @@ class CaptureJob:
         self.frames = frames
         # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
         self.notes += [msg for _, msg in contract.angle_only_caveats([fr["intrinsics"] for fr in frames])]
+        self.notes += clipping_notes(frames, self.bounds)
         if any(fr["frame"] is not None for fr in frames):
             # Views at their own frames (the animation layout): the scene at the current frame is not
             # what they show, and resuming at another frame must not look like an edit.

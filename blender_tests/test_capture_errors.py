@@ -299,6 +299,20 @@ def _alpha(path):
         bpy.data.images.remove(image)
 
 
+def test_cameras_whose_clipping_cuts_the_scene_box_are_named(tmp_path):
+    # Generated layouts fit their clipping to the box; a user's own clip_end short of the scene left
+    # parts of it out of some views only, with no word.
+    scene = scene_with_cameras(train=3, val=0, test=1)
+    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job.plan()
+    assert not any("clip the scene box" in n for n in job.notes)
+    cameras = [o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras[0].data.clip_end = 0.5
+    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job.plan()
+    assert any(n.startswith(f"1 camera(s) clip the scene box, e.g. {cameras[0].name!r}: clip") for n in job.notes), job.notes
+
+
 def test_an_overwrite_says_what_it_would_delete(tmp_path):
     scene = scene_with_cameras(train=2)
     out = tmp_path / "ds"
