@@ -301,7 +301,14 @@ def _scale_owner(obj) -> str:
     parent = cur.parent
     while parent is not None and all(abs(v - 1.0) <= 1e-4 for v in parent.scale):
         parent = parent.parent
-    return f"the scale of its parent {parent.name!r}" if parent is not None else "its own scale"
+    if parent is not None:
+        return f"the scale of its parent {parent.name!r}"
+    # Neither its own scale nor a parent's: a constraint (Child Of, Copy Transforms, Copy Scale...)
+    # brings it, and Ctrl+A would change nothing.
+    active = [c for c in getattr(cur, "constraints", ()) if c.enabled and c.influence > 0]
+    if active:
+        return f"its constraint {active[-1].name!r}"
+    return "its own scale"
 
 
 def camera_shape_error(obj) -> str | None:
@@ -329,7 +336,9 @@ def camera_scale_error(obj) -> str | None:
     lengths = [obj.matrix_world.col[i].xyz.length for i in range(3)]
     if any(abs(length - 1.0) > 1e-4 for length in lengths):
         owner = _scale_owner(obj)
-        fix = "apply or clear it (Ctrl+A > Scale)" if owner == "its own scale" else "clear that scale"
+        fix = ("apply or clear it (Ctrl+A > Scale)" if owner == "its own scale" else
+               "turn off its scale (or clear its target's)" if owner.startswith("its constraint") else
+               "clear that scale")
         return (f"{camera_label(obj)} has scale {tuple(round(v, 4) for v in lengths)} from {owner}; {fix}, or "
                 "let the capture normalise camera scale (--normalize-camera-scale, or the panel's Normalise "
                 "Camera Scale)")

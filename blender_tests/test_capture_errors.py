@@ -142,6 +142,21 @@ def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
         layouts.create_cameras(scene, spec, 24, 16)
 
 
+def test_a_scale_a_constraint_brings_is_named_as_the_constraints(tmp_path):
+    # Ctrl+A on the camera changes nothing when a Child Of constraint's target carries the scale.
+    scene = scene_with_cameras(train=2, val=0, test=1)
+    rig = bpy.data.objects.new("Rig", None)
+    scene.collection.objects.link(rig)
+    rig.scale = (1.5, 1.5, 1.5)
+    camera = next(o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA")
+    constraint = camera.constraints.new("CHILD_OF")
+    constraint.target = rig
+    constraint.set_inverse_pending = False
+    bpy.context.view_layer.update()
+    with pytest.raises(capture.CaptureError, match=r"from its constraint 'Child Of'; turn off its scale"):
+        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+
+
 def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
