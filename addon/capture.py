@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 
 import bpy
-from mathutils import Matrix, Vector
+import numpy as np
 
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts
 from . import scene_appearance, scene_bounds
@@ -106,16 +106,15 @@ def clipping_notes(frames: list, bounds) -> list:
     """
     if bounds is None:
         return []
-    lo, hi = bounds
-    corners = [Vector((x, y, z)) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    corners = export.box_corners(*bounds)
     cut = []
     for fr in frames:
         obj = bpy.data.objects.get(fr["camera"])
         if obj is None or obj.type != "CAMERA":
             continue
-        w2c = Matrix(fr["transform_matrix"]).inverted()
-        depths = [-(w2c @ c).z for c in corners]  # planar depth along the view axis
-        near, far = min(depths), max(depths)
+        c2w = np.asarray(fr["transform_matrix"], float)
+        depths = -(corners - c2w[:3, 3]) @ c2w[:3, 2]  # planar depth along the view axis (the camera looks down -Z)
+        near, far = float(depths.min()), float(depths.max())
         if far <= 0:
             continue  # the box is behind this camera
         start, end = obj.data.clip_start, obj.data.clip_end

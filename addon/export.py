@@ -261,10 +261,15 @@ def ngp_aabb_scale(lo, hi, camera_positions=(), beyond_box: bool = False) -> int
     return scale
 
 
+def box_corners(lo, hi) -> np.ndarray:
+    """(8, 3) float64: the corners of the axis-aligned box (lo, hi)."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], float)
+
+
 def near_far(camera_positions, lo, hi) -> tuple[float, float]:
     """Near/far that bracket the box (lo, hi) from every camera: nearest box point, farthest corner."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    corners = box_corners(lo, hi)
     near, far = float("inf"), 0.0
     for p in camera_positions:
         p = np.asarray(p, float)

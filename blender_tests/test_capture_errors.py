@@ -8,11 +8,10 @@ import subprocess
 import sys
 
 import bpy
-import numpy as np
 import pytest
 from mathutils import Matrix
 
-from addon import capture, export, layouts
+from addon import capture, capture_render, export, layouts
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -300,18 +299,9 @@ def test_the_layer_the_box_comes_from_is_the_layer_rendered_whatever_its_use_fla
     other = scene.view_layers.new("Other")
     other.layer_collection.children["Subject"].exclude = True  # this layer renders nothing
     capture.CaptureJob(scene, settings(tmp_path / "two")).run()
-    assert _alpha(tmp_path / "two" / "train" / "r_0.png").max() > 0  # the cube of the active layer, not the empty other layer
+    alpha = capture_render.read_png_rgba(str(tmp_path / "two" / "train" / "r_0.png"))[..., 3]
+    assert alpha.max() > 0  # the cube of the active layer, not the empty other layer
     assert active.use is False and other.use is True  # the file's flags are restored
-
-
-def _alpha(path):
-    image = bpy.data.images.load(str(path), check_existing=False)
-    try:
-        px = np.empty(image.size[0] * image.size[1] * 4, np.float32)
-        image.pixels.foreach_get(px)
-        return px[3::4]
-    finally:
-        bpy.data.images.remove(image)
 
 
 def test_cameras_whose_clipping_cuts_the_scene_box_are_named(tmp_path):
