@@ -91,7 +91,18 @@ class Context:
         return bool(flag.item())
 
     def close(self) -> None:
+        """Leave the job: wait (briefly) for the other ranks, then destroy the process group.
+
+        Rank 0 evaluates and writes the run while the others are done; a rank that tore its gloo
+        group down while a peer still held the connection sometimes aborted at exit ("terminate
+        called without an active exception", SIGABRT), failing a run that had trained. A barrier lets
+        the ranks tear down together; a peer that is gone (an error, a kill) ends it at once.
+        """
         if self.active and torch.distributed.is_initialized():
+            try:
+                torch.distributed.barrier()
+            except Exception:  # noqa: BLE001 - a lost peer: nothing left to wait for
+                pass
             torch.distributed.destroy_process_group()
 
 
