@@ -369,11 +369,15 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     opaque = _check_background(report, root, background)
     if opaque:
         _check_world_coverage(report, root)
+    converted: List[Problem] = []
     if for_training:
-        report.warnings = [Problem(p.file, f"(conventions of an export) {p.message}", p.frame, p.frame_path, p.field)
-                           for p in report.errors] + report.warnings
+        converted = [Problem(p.file, f"(conventions of an export) {p.message}", p.frame, p.frame_path, p.field)
+                     for p in report.errors]
+        report.warnings = converted + report.warnings
         report.errors = []
     _check_loadable(report, root, empty_views=opaque is False)
+    if converted:
+        _drop_repeats(report, converted)
     _check_paths(report, root)
     if report.ok:
         _training_plan(report, root, background)
@@ -461,6 +465,24 @@ def _check_loadable(report: CheckReport, root: Path, empty_views: bool = False) 
         else:
             report.error(str(root), msg)
     _warn_empty_views(report, root, empty)
+
+
+_FIELD_RE = re.compile(r"^field '(?P<field>[^']+)'")
+
+
+def _where(p: Problem) -> tuple:
+    """(file name, frame, field) of a problem; the loader's messages carry the field in their text."""
+    m = _FIELD_RE.match(p.message.removeprefix("(conventions of an export) "))
+    return Path(p.file).name, p.frame, p.field or (m["field"] if m else None)
+
+
+def _drop_repeats(report: CheckReport, converted: List[Problem]) -> None:
+    """With ``--for-training``, the convention checks' errors became warnings before the loader's rules
+    ran, so a problem both report (a missing image, a matrix entry that is text) showed twice: once as
+    an error, once as a warning. Keep the error."""
+    errors = {_where(p) for p in report.errors}
+    ids = {id(p) for p in converted}
+    report.warnings = [w for w in report.warnings if id(w) not in ids or _where(w) not in errors]
 
 
 def _relative(root: Path, file: str) -> str:

@@ -132,6 +132,30 @@ def test_for_training_another_tools_dataset_is_valid_and_what_train_refuses_is_n
     assert not report.trainable and "train reads" not in check_dataset(sphere_dataset).format()
 
 
+def test_for_training_names_a_problem_once(sphere_dataset):
+    # A missing image, or a matrix entry written as text, breaks both the conventions and the loader;
+    # --for-training turned the first into a warning and listed the loader's error beside it.
+    import shutil
+
+    def only_once(report, frame, word):
+        lines = [str(p) for p in report.errors + report.warnings]
+        assert _has([str(p) for p in report.errors], frame, word), lines
+        assert sum(f"{frame} " in line for line in lines) == 1, lines
+
+    clean = sphere_dataset.parent / "clean"
+    shutil.copytree(sphere_dataset, clean)
+    _edit(sphere_dataset / "transforms_train.json", lambda m: m["frames"][1].update(file_path="./train/missing"))
+    only_once(check_dataset(sphere_dataset, for_training=True), "frame 1", "not found")
+    shutil.copy(clean / "transforms_train.json", sphere_dataset / "transforms_train.json")
+    _edit(sphere_dataset / "transforms_train.json", lambda m: m["frames"][2]["transform_matrix"][0].__setitem__(0, "x"))
+    only_once(check_dataset(sphere_dataset, for_training=True), "frame 2", "'x'")
+    # what is only a convention stays a warning
+    shutil.copy(clean / "transforms_train.json", sphere_dataset / "transforms_train.json")
+    _edit(sphere_dataset / "transforms_train.json", lambda m: m.pop("fl_x"))
+    report = check_dataset(sphere_dataset, for_training=True)
+    assert report.ok and _has([str(p) for p in report.warnings], "fl_x", "(conventions of an export)")
+
+
 def test_a_lone_transforms_json_is_not_said_to_sit_beside_split_files(tmp_path, dataset_factory):
     ds = dataset_factory(tmp_path / "ns", layouts=("nerfstudio",))  # instant-ngp / nerfstudio: one file
     report = check_dataset(ds)
