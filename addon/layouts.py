@@ -450,7 +450,9 @@ def framing_bounds(scene, spec: LayoutSpec) -> tuple:
     from . import scene_bounds
 
     if spec.target == "SELECTION":
-        return (*scene_bounds.scene_bounds(scene, only_selected=True), [])
+        # with_thickness refuses a selection that spans no space (an empty curve, a lone vertex): its
+        # cameras would all stand at one point
+        return (*scene_bounds.with_thickness(*scene_bounds.scene_bounds(scene, only_selected=True)), [])
     return scene_bounds.subject_bounds(scene)
 
 

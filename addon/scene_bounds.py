@@ -195,11 +195,12 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
     for ev, matrix, name, owner in _rendered_pieces(scene, view_layer, objects, only_selected):
         if owner is None:
             seen.add(ev.original.as_pointer())
-            # A mesh whose modifiers leave only instances has no geometry of its own: its empty box
-            # would pin the bounds to its origin.
-            if ev.type == "MESH" and not ev.data.vertices:
-                continue
-        out.append((_box_of(ev.bound_box, matrix), name))
+        box = _piece_box(ev, matrix, owner is not None)
+        if box is not None:
+            out.append((box, name))
+        hair = _hair_box(ev, matrix) if owner is None else None
+        if hair is not None:
+            out.append((hair, f"{name} (hair)"))
     # Disabled in the viewport, an object still renders but is not evaluated there: evaluate it for the
     # moment (``fresh_matrices``; its stored matrix_world is the identity) and take its box then
     # (instances it makes are still not seen).
@@ -209,8 +210,78 @@ def renderable_boxes(scene, view_layer=None, only_selected: bool = False) -> lis
             graph = bpy.context.evaluated_depsgraph_get()
             for o in hidden:
                 ev = o.evaluated_get(graph)
-                out.append((_box_of(ev.bound_box, ev.matrix_world), o.name))
+                box = _piece_box(ev, ev.matrix_world, False, hidden=True)
+                if box is not None:
+                    out.append((box, o.name))
+                hair = _hair_box(ev, ev.matrix_world)
+                if hair is not None:
+                    out.append((hair, f"{o.name} (hair)"))
     return out
+
+
+# Object types whose evaluated surface the depsgraph hands out as a mesh instance of the object itself
+# (owner = the object): their own bound_box is the curve's control cage padded by one unit (an
+# unbevelled 8-unit camera path gave a box 2 units thick), so the instance's box is the one to use.
+CONVERTED_TYPES = {"CURVE", "FONT", "SURFACE", "META"}
+
+
+def _piece_box(ev, matrix, is_instance: bool, hidden: bool = False):
+    """World (min, max) of one rendered piece, or None where it shows nothing: a mesh without faces
+    (loose edges and vertices do not render: a rig's guide, an emitter of hair only), a curve or
+    text whose evaluated geometry is empty (a camera path without bevel, a text with no body, the
+    second metaball of a family, whose surface its basis object holds), a Grease Pencil object
+    without strokes. Such objects counted as a point at their origin and stretched the box to it.
+    ``hidden``: an object the viewport does not evaluate (``fresh_matrices``), whose surface is not
+    handed out as an instance; it is converted here."""
+    if ev.type in CONVERTED_TYPES and not is_instance:
+        if not hidden:
+            return None  # its surface arrives as a mesh instance of itself (or nothing renders)
+        try:
+            mesh = ev.to_mesh()
+        except RuntimeError:
+            return _box_of(ev.bound_box, matrix)
+        try:
+            if not mesh.polygons:
+                return None
+            return _box_of([v.co for v in mesh.vertices], matrix)
+        finally:
+            ev.to_mesh_clear()
+    if ev.type == "MESH" and not ev.data.polygons:
+        return None
+    lo, hi = _box_of(ev.bound_box, matrix)
+    if ev.type != "MESH" and lo == hi:
+        return None  # an empty Grease Pencil, point cloud or volume: a box of no size at its origin
+    return lo, hi
+
+
+# Hair strands read for the box: the roots of every strand, the keys of this many spread over them.
+HAIR_SAMPLE = 2000
+
+
+def _hair_box(ev, matrix):
+    """World (min, max) of the hair that the particle systems of an evaluated object render as strands
+    (``render_type`` PATH), or None. Hair is drawn from the object's particles, not its mesh, so its
+    bound_box leaves it out: a plane with 4-unit hair was boxed 0.04 units thick and the hair cut off
+    in every view. Child strands spread about their parents by the children's radius."""
+    import numpy as np
+
+    if ev.type != "MESH":
+        return None
+    points, pad = [], 0.0
+    for psys in getattr(ev, "particle_systems", ()):
+        st = psys.settings
+        if st.type != "HAIR" or st.render_type != "PATH" or not len(psys.particles):
+            continue
+        n = len(psys.particles)
+        for i in np.unique(np.linspace(0, n - 1, min(n, HAIR_SAMPLE)).astype(int)):
+            points += [k.co for k in psys.particles[int(i)].hair_keys]
+        if st.child_type != "NONE":
+            pad = max(pad, float(getattr(st, "child_radius", 0.0) or 0.0))
+    if not points:
+        return None
+    lo, hi = _box_of(points, matrix)
+    grow = pad * max(matrix.to_scale())
+    return lo - Vector((grow,) * 3), hi + Vector((grow,) * 3)
 
 
 def scene_signature(scene, view_layer=None) -> str | None:
@@ -257,6 +328,27 @@ def instanced_objects(scene, view_layer=None, only_selected: bool = False) -> li
         if owner is not None:
             found.setdefault(ev.original.as_pointer(), ev.original)
     return list(found.values())
+
+
+# Cycles' object index pass holds the index of the surface a ray hits: volumes have no surface, and
+# Grease Pencil is drawn over the render by its own engine, so neither ever gets an index.
+NO_INDEX_TYPES = {"VOLUME": "volume", "GREASEPENCIL": "Grease Pencil"}
+
+
+def unindexed_pieces(scene, view_layer=None, only_selected: bool = False) -> list:
+    """Names ("name (kind)") of the rendered pieces, instances and evaluated geometry included (a mesh
+    turned into a volume by a modifier), that Cycles' object index pass never marks: an object mask
+    built from it calls their pixels background. Empty when ``scene`` is not the context's."""
+    view_layer = view_layer or render_view_layer(scene)
+    if bpy.context.scene != scene:
+        return []
+    objects = renderable_objects(scene, view_layer, only_selected)
+    out = []
+    for ev, _m, name, owner in _rendered_pieces(scene, view_layer, objects, only_selected):
+        label = f"{(owner or ev.original).name} ({NO_INDEX_TYPES[ev.type]})" if ev.type in NO_INDEX_TYPES else None
+        if label and label not in out:
+            out.append(label)
+    return out
 
 
 def _has_holdout_shader(tree, seen=None) -> bool:

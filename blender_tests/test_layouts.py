@@ -377,6 +377,43 @@ def test_collection_instances_are_bounded_like_the_objects_they_show():
     assert np.allclose(lo, (3.5, -0.5, 0.0)) and np.allclose(hi, (4.5, 0.5, 1.0))
 
 
+def test_what_renders_nothing_stretches_no_box_and_hair_does():
+    # A camera path (a curve without bevel), an empty Grease Pencil object, a text with no body, the
+    # second metaball of a family and a mesh of loose edges render nothing, yet each counted as its
+    # (padded) control box or as a point at its origin: Suzanne came out 0.2 % of the frame.
+    from addon import scene_bounds
+
+    scene = _monkey_scene()
+    bpy.ops.curve.primitive_bezier_circle_add(radius=8.0, location=(0, 0, 2))
+    bpy.ops.object.grease_pencil_add(type="EMPTY", location=(0, 0, -6))
+    bpy.ops.object.text_add(location=(6, 0, 3))
+    bpy.context.active_object.data.body = ""
+    bpy.ops.object.metaball_add(type="BALL", radius=0.5, location=(0, 0, 1.2))
+    bpy.ops.object.metaball_add(type="BALL", radius=0.3, location=(0.9, 0, 1.2))  # its surface is the first's
+    guide = bpy.data.meshes.new("guide")
+    guide.from_pydata([(0, 0, 0), (0, 30, 0)], [(0, 1)], [])
+    scene.collection.objects.link(bpy.data.objects.new("Guide", guide))
+    lo, hi = scene_bounds.scene_bounds(scene)
+    assert np.allclose(lo, (-1.37, -0.86, 0.01), atol=0.03) and np.allclose(hi, (1.37, 0.86, 1.99), atol=0.03), (lo, hi)
+    # A bevelled curve and a text with a body render: their own surfaces bound them, not the cage.
+    curve = next(o for o in scene.objects if o.type == "CURVE")
+    curve.data.bevel_depth = 0.1
+    assert scene_bounds.scene_bounds(scene)[1][0] == pytest.approx(8.1, abs=0.02)
+    assert scene_bounds.scene_bounds(scene)[1][2] == pytest.approx(2.1, abs=0.02)
+    # Particle hair renders from the particles, not the mesh: a plane with 4-unit hair is 4 units tall.
+    bpy.ops.mesh.primitive_plane_add(size=0.5, location=(0, 5, 0))
+    hairy = bpy.context.active_object
+    hair = hairy.modifiers.new("hair", "PARTICLE_SYSTEM").particle_system.settings
+    hair.type, hair.hair_length, hair.count = "HAIR", 4.0, 50
+    boxes = dict((name, box) for box, name in scene_bounds.renderable_boxes(scene))
+    assert boxes["Plane (hair)"][1][2] == pytest.approx(4.0, abs=0.01)
+    # A selection that spans no space is refused, not framed by cameras standing at one point.
+    for obj in scene.objects:
+        obj.select_set(obj.type == "GREASEPENCIL")
+    with pytest.raises(scene_bounds.BoundsError, match="no selected visible objects"):
+        layouts.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
+
+
 def test_bounds_follow_the_view_layer_that_renders():
     # A capture renders the active view layer only; the bounds read the first one. With the file's
     # second layer active, an object only it renders fell outside the box (44-60 % of a view's
