@@ -31,7 +31,7 @@ import bpy
 import numpy as np
 
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts
-from . import scene_appearance, scene_bounds
+from . import scene_appearance, scene_bounds, scene_files
 from .capture_plan import CaptureError
 from .core_contract import contract
 from .capture_world import world_description  # noqa: F401  (public: the panel and tests describe worlds)
@@ -132,14 +132,48 @@ def clipping_notes(frames: list, bounds) -> list:
 def capture_notes(scene) -> list:
     """Warnings about what the scene will render that no radiance field can learn (empty when none);
     the panel reports them and ``scripts/capture.py`` prints them before rendering."""
+    notes = scene_files.missing_file_notes(scene)
     held = scene_bounds.holdout_objects(scene)
     if not held:
-        return []
+        return notes
     shown = ", ".join(repr(n) for n in held[:5]) + (f" and {len(held) - 5} more" if len(held) > 5 else "")
-    return [f"{shown} render(s) as holdout: a holdout cuts a transparent hole (alpha 0) through everything "
+    return notes + [f"{shown} render(s) as holdout: a holdout cuts a transparent hole (alpha 0) through everything "
             "behind it, blocking what lies behind yet adding no opacity, which a radiance field cannot represent, "
             "so the NeRF will show gaps or fog there. Turn Holdout off for the capture (object or collection "
             "visibility, or the material's Holdout shader), or leave them out of the render"]
+
+
+# nerfstudio reads depth PNGs as 16-bit integers times its depth_unit_scale_factor, a command-line
+# option that is 1e-3 unless the user sets it: the PNGs hold millimetres, 1 to 65535.
+NERFSTUDIO_DEPTH_RANGE_MM = (1, 65535)
+# Fewer millimetre levels than this across the scene make a depth map of a few steps.
+NERFSTUDIO_DEPTH_MIN_LEVELS = 256
+
+
+def depth_png_notes(frames: list, bounds) -> list:
+    """A warning when the scene box lies (partly) where nerfstudio's millimetre depth PNGs cannot
+    hold it: farther than 65.535 units from a camera (written as 0, no depth) or so close and small
+    that its depth takes under 256 millimetre steps. The EXR depth maps hold every depth; only the
+    PNGs under nerfstudio/depth/ are affected."""
+    if bounds is None or not frames:
+        return []
+    corners = export.box_corners(*bounds)
+    far = 0.0
+    for fr in frames:
+        c2w = np.asarray(fr["transform_matrix"], float)
+        far = max(far, float((-(corners - c2w[:3, 3]) @ c2w[:3, 2]).max()))
+    top = NERFSTUDIO_DEPTH_RANGE_MM[1] / 1000.0
+    if far > top:
+        return [f"the scene box reaches {far:.4g} units from the cameras, but nerfstudio's depth PNGs hold "
+                f"millimetres in 16 bits (up to {top:g} units): depth farther away is written there as 0 (no "
+                "depth), so nerfstudio learns no depth for it (the EXR depth maps keep all of it). Scale the "
+                "scene down for nerfstudio's depth supervision"]
+    levels = far * 1000.0
+    if levels < NERFSTUDIO_DEPTH_MIN_LEVELS:
+        return [f"the scene box lies within {far:.3g} units of the cameras: nerfstudio's millimetre depth PNGs "
+                f"hold its depth in at most {max(int(levels), 0)} steps (the EXR depth maps keep full precision). "
+                "Scale the scene up for nerfstudio's depth supervision"]
+    return []
 
 
 def scene_box(scene, settings) -> tuple:
@@ -210,6 +244,13 @@ class CaptureJob:
                                  + scene_bounds.instanced_objects(scene, only_selected=only))
             if not self.mask_objects:
                 raise CaptureError("masks for the selection: nothing visible is selected")
+            unseen = scene_bounds.unindexed_pieces(scene, only_selected=only) if self.engine == "CYCLES" else []
+            if unseen:
+                shown = ", ".join(repr(n) for n in unseen[:5]) + (f" and {len(unseen) - 5} more" if len(unseen) > 5 else "")
+                raise CaptureError(
+                    f"object masks: Cycles' object index pass never marks {shown}, so every mask would call "
+                    "their pixels background and training would ignore them. Capture without masks"
+                    + ("" if only else ", or render the masks from the alpha: EEVEE or Workbench with a transparent film"))
             if settings.target == "SELECTION" and self.engine != "CYCLES":
                 raise CaptureError("object masks of a selection need Cycles (its object index pass)")
             if not settings.film_transparent and self.engine != "CYCLES":
@@ -255,7 +296,7 @@ class CaptureJob:
         if not self.s.film_transparent:
             # The world is in every pixel behind the scene. Only opaque captures carry it, so the
             # hashes of transparent captures (and the folders they resume) stay what they were.
-            sig["world"] = world_description(sc.world)
+            sig["world"] = world_description(sc.world, self.engine)
         return sig
 
     def plan(self) -> list[dict]:
@@ -267,7 +308,7 @@ class CaptureJob:
         self.render_sig = self._render_signature()
         self.scene_sig = scene_bounds.scene_signature(self.scene)
         self.appearance_sig = scene_appearance.appearance_signature(self.scene)
-        self.world = world_description(self.scene.world)
+        self.world = world_description(self.scene.world, self.engine)
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
         render = RenderView(self.scene.render, self.s.res_x, self.s.res_y)
         frames = []
@@ -277,6 +318,8 @@ class CaptureJob:
         # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
         self.notes += [msg for _, msg in contract.angle_only_caveats([fr["intrinsics"] for fr in frames])]
         self.notes += clipping_notes(frames, self.bounds)
+        if self.s.depth:
+            self.notes += depth_png_notes(frames, self.bounds)
         if any(fr["frame"] is not None for fr in frames):
             # Views at their own frames (the animation layout): the scene at the current frame is not
             # what they show, and resuming at another frame must not look like an edit.

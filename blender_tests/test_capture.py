@@ -543,6 +543,68 @@ def test_holdouts_are_named_before_a_capture(tmp_path):
     assert alpha[int(v[0]), int(u[0])] == 0 and alpha[0, 0] == 255
 
 
+def test_missing_textures_and_libraries_are_named_before_a_capture(tmp_path):
+    # Blender renders a missing texture magenta and a missing library's objects not at all, without
+    # a word: the capture was "complete" and check said "valid" for a dataset of the wrong scene.
+    build_test_scene()
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+
+    def notes():
+        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
+
+    assert notes() == []
+    tex = tmp_path / "wood.png"
+    bpy.data.images.new("wood", 4, 4).save(filepath=str(tex))
+    mat = bpy.data.materials.new("Wood")
+    if mat.node_tree is None:  # Blender < 5.0 creates materials without nodes
+        mat.use_nodes = True
+    group = bpy.data.node_groups.new("Wood group", "ShaderNodeTree")
+    group.nodes.new("ShaderNodeTexImage").image = bpy.data.images.load(str(tex))  # inside a group counts too
+    mat.node_tree.nodes.new("ShaderNodeGroup").node_tree = group
+    bpy.data.objects["Cube"].data.materials.append(mat)
+    assert notes() == []
+    tex.unlink()
+    assert len(notes()) == 1 and "'wood.png'" in notes()[0] and "magenta" in notes()[0]
+    bpy.data.images["wood.png"].pack(data=b"\x89PNG", data_len=4)  # packed: nothing is read from disk
+    assert notes() == []
+    # a library of linked objects, moved away after the file was saved
+    lib_path, main_path = tmp_path / "assets.blend", tmp_path / "main.blend"
+    bpy.ops.mesh.primitive_monkey_add(location=(9, 9, 9))
+    bpy.data.libraries.write(str(lib_path), {bpy.context.active_object})
+    bpy.data.objects.remove(bpy.context.active_object)
+    with bpy.data.libraries.load(str(lib_path), link=True) as (_src, dst):
+        dst.objects = ["Suzanne"]
+    scene.collection.objects.link(dst.objects[0])
+    bpy.ops.wm.save_as_mainfile(filepath=str(main_path))
+    lib_path.rename(tmp_path / "moved.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(main_path))
+    scene = bpy.context.scene
+    found = notes()
+    assert any("'assets.blend'" in n and "'Suzanne' will not render" in n for n in found), found
+
+
+def test_masks_refuse_what_the_object_index_pass_never_marks(tmp_path):
+    # Cycles' object index pass has no value for Grease Pencil (drawn over the render) or volumes:
+    # masks called those pixels background, and check then refused the dataset, or passed it with
+    # the drawing marked "ignore".
+    build_test_scene()
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    bpy.ops.object.grease_pencil_add(type="MONKEY", location=(0, 0, 1))
+
+    def job(engine, target="ALL"):
+        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine=engine, res_x=40,
+                                                                 res_y=30, masks=True, target=target))
+
+    with pytest.raises(capture.CaptureError, match=r"never marks 'Suzanne \(Grease Pencil\)'.*alpha"):
+        job("cycles")
+    job("workbench")  # masks from the alpha, which the drawing has
+    for obj in scene.objects:
+        obj.select_set(obj.name == "Cube")
+    job("cycles", "SELECTION")  # the drawing is not masked: nothing to refuse
+
+
 def test_animation_layout_renders_each_sampled_frame(tmp_path):
     build_test_scene()
     scene = bpy.context.scene
@@ -575,3 +637,19 @@ def test_animation_layout_renders_each_sampled_frame(tmp_path):
             assert alpha[int(v[0]), int(u[0])] == 255, f"ball of frame {fr['blender_frame']} not where expected"
             seen[fr["blender_frame"]] = True
     assert sorted(seen) == [1, 21, 41]
+
+
+def test_depth_beyond_what_nerfstudio_pngs_hold_is_named():
+    # nerfstudio's depth PNGs hold millimetres in 16 bits: a 500-unit scene came out as PNGs of zeros,
+    # a 1 mm one as three levels, with nothing said (the EXR depth maps were right).
+    def frames_at(distance):
+        return [{"transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, distance], [0, 0, 0, 1]]}]
+
+    def box(half):
+        return (-half, -half, -half), (half, half, half)
+
+    assert capture.depth_png_notes(frames_at(5.0), box(1.0)) == []
+    huge = capture.depth_png_notes(frames_at(900.0), box(250.0))
+    assert len(huge) == 1 and "reaches 1150 units" in huge[0] and "written there as 0" in huge[0]
+    tiny = capture.depth_png_notes(frames_at(0.004), box(0.001))
+    assert len(tiny) == 1 and "at most 5 steps" in tiny[0]
