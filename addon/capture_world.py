@@ -42,7 +42,7 @@ def _background_node(node, depth=0):
     return None
 
 
-def world_description(world) -> dict:
+def world_description(world, engine: str | None = None) -> dict:
     """What the scene's world shows behind everything (what an opaque film renders), as JSON.
 
     ``{"name", "kind", "image", "color", "strength"}`` with ``kind`` one of:
@@ -50,13 +50,15 @@ def world_description(world) -> dict:
     linear RGB), ``other`` (a Background fed by other nodes, or a surface that is not a Background),
     ``none`` (no world, or nothing linked to the World Output: renders black). ``strength`` is the
     Background's Strength (null when driven by a link). The World Output is the active one.
+    ``engine`` "BLENDER_WORKBENCH": Workbench ignores the nodes and shows the world's viewport colour.
     """
     out = {"name": world.name if world is not None else None, "kind": "none", "image": None, "color": None,
            "strength": None}
     if world is None:
         return out
     tree = world.node_tree
-    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):  # 5.0 worlds always use nodes
+    if (tree is None or engine == "BLENDER_WORKBENCH"
+            or (bpy.app.version < (5, 0, 0) and not world.use_nodes)):  # 5.0 worlds always use nodes
         out.update(kind="color", color=_round_color(world.color), strength=1.0)
         return out
     outputs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]

@@ -96,6 +96,9 @@ def _id_rows(idblock, seen: set) -> list[str]:
     if idblock is None:
         return ["none"]
     rows = [f"{type(idblock).__name__}:{idblock.name}", *_settings(idblock)]
+    if isinstance(idblock, bpy.types.World):
+        # "color" is skipped as a node's UI colour, but a world's is what Workbench shows behind everything
+        rows.append(f"color={_value(idblock.color)}")
     # Blender 5 always uses the node tree (use_nodes is deprecated, gone in 6); 4.x may not.
     if getattr(idblock, "node_tree", None) is not None:
         rows += _tree_rows(idblock.node_tree, seen)

@@ -248,7 +248,8 @@ def test_resuming_after_the_look_changed_is_a_conflict_but_moving_a_node_is_not(
     assert conflict is None
     edits = [lambda: setattr(bsdf.inputs["Base Color"], "default_value", (1.0, 0.0, 0.0, 1.0)),
              lambda: setattr(background.inputs["Strength"], "default_value", 3.0),
-             lambda: setattr(lamp.data, "energy", 5000.0)]
+             lambda: setattr(lamp.data, "energy", 5000.0),
+             lambda: setattr(scene.world, "color", (0.9, 0.1, 0.1))]  # the background Workbench shows
     for edit in edits:
         capture.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
         edit()

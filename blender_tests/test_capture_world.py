@@ -102,11 +102,14 @@ def test_switching_the_film_or_an_opaque_world_changes_what_resume_keeps(tmp_pat
     summary = _capture(scene, out, spec, res=16, film_transparent=True, overwrite=True)
     assert summary["rendered"] == 3 and _records(out)[0]["film_transparent"] is True
     _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)
-    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 2.5
+    scene.world.color = (0.6, 0.2, 0.2)  # what Workbench shows behind the scene (it ignores the nodes)
     with pytest.raises(capture.CaptureError, match="render settings changed"):
         _capture(scene, out, spec, res=16, film_transparent=False)
     assert _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)["rendered"] == 3
-    assert _records(out)[1]["nerfstudio/transforms.json"]["world"]["strength"] == 2.5
+    assert _records(out)[1]["nerfstudio/transforms.json"]["world"]["color"] == pytest.approx([0.6, 0.2, 0.2])
+    rgba = np.asarray(Image.open(out / "train" / "r_0.png"))
+    r, g, b = map(int, rgba[0, 0, :3])
+    assert r > g + 30 and r > b + 30, (r, g, b)  # red, as recorded: the nodes' colour is grey
 
 
 def _world(name):
@@ -126,6 +129,9 @@ def test_world_description_of_each_kind_of_world():
     bg.inputs["Strength"].default_value = 0.5
     d = capture.world_description(world)
     assert d["kind"] == "color" and d["color"] == pytest.approx([0.2, 0.4, 0.6]) and d["strength"] == 0.5
+    world.color = (0.9, 0.1, 0.1)  # Workbench ignores the nodes and shows the viewport colour
+    d = capture.world_description(world, "BLENDER_WORKBENCH")
+    assert d["kind"] == "color" and d["color"] == pytest.approx([0.9, 0.1, 0.1])
 
     world, tree, bg, _out = _world("Sky")
     sky = tree.nodes.new("ShaderNodeTexSky")
