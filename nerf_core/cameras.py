@@ -121,6 +121,16 @@ class Cameras:
         lens = (None, None) if self.dist is None else (self.dist.clone(), self.fisheye.clone())
         return Cameras(self.c2w.clone(), self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, w, h, *lens)
 
+    def downscaled(self, factor: int) -> "Cameras":
+        """Intrinsics for images downscaled by the integer ``factor`` as the loader does it (cropped to a
+        multiple of ``factor``, then box-filtered; ``data._downscale``): sizes floor, and every intrinsic
+        divides by ``factor``, so a render matches the ground truth that ``eval`` compares it with."""
+        f = int(factor)
+        w = torch.clamp(self.width // f, min=1)
+        h = torch.clamp(self.height // f, min=1)
+        lens = (None, None) if self.dist is None else (self.dist.clone(), self.fisheye.clone())
+        return Cameras(self.c2w.clone(), self.fx / f, self.fy / f, self.cx / f, self.cy / f, w, h, *lens)
+
     def fov_x(self) -> torch.Tensor:
         """(n,) horizontal field of view in radians (``camera_angle_x``)."""
         return 2.0 * torch.atan(self.width.float() / (2.0 * self.fx))

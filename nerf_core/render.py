@@ -438,7 +438,9 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     if not (math.isfinite(downscale) and 0 < downscale <= smallest):
         raise RunError(f"--downscale {downscale:g}: the smallest camera is {smallest} px across, so the factor must "
                        f"lie in (0, {smallest}] to leave at least one pixel")
-    if downscale != 1.0:
+    if float(downscale).is_integer() and downscale > 1:
+        cams = cams.downscaled(int(downscale))  # the sizes and cameras of eval's box-filtered ground truth
+    elif downscale != 1.0:
         cams = cams.scaled(1.0 / downscale)
     # Ground truth is box-filtered like eval's; a fractional downscale has no such image: no metrics.
     gt_downscale = int(downscale) if float(downscale).is_integer() and downscale >= 1 else None

@@ -127,6 +127,30 @@ def test_downscale_halves_images_and_intrinsics(sphere_dataset):
     assert float(half.cameras.fx[0]) == pytest.approx(float(full.cameras.fx[0]) / 2)
 
 
+@pytest.mark.parametrize("declared", [True, False], ids=["w_h_given", "camera_angle_x_only"])
+def test_downscale_by_a_factor_that_does_not_divide_the_size_keeps_the_cameras(tmp_path, dataset_factory, declared):
+    # The loader crops 35x27 to 32x24 and box-filters by 4, so pixel u of the result averages file
+    # pixels [4u, 4u + 4): every intrinsic divides by 4. Scaling by (35 // 4) / 35 instead put cx at
+    # 4.0 rather than 4.375, and with w/h given made square pixels non-square (fx 11.1, fy 10.8).
+    ds = dataset_factory(tmp_path / "odd", w=35, h=27, layouts=("synthetic",))
+    if not declared:
+        for split in ("train", "val", "test"):
+            path = ds / f"transforms_{split}.json"
+            meta = json.loads(path.read_text())
+            for key in ("fl_x", "fl_y", "cx", "cy", "w", "h"):
+                meta.pop(key, None)
+            path.write_text(json.dumps(meta))
+    full = load_dataset(ds).splits["train"].cameras
+    quarter = load_dataset(ds, downscale=4).splits["train"]
+    assert quarter.images.shape[1:3] == (6, 8)
+    for name in ("fx", "fy", "cx", "cy"):
+        assert float(getattr(quarter.cameras, name)[0]) == pytest.approx(float(getattr(full, name)[0]) / 4), name
+    # render --downscale 4 of the same cameras: eval's sizes and cameras, so its metrics line up
+    rendered = full.downscaled(4)
+    assert (int(rendered.width[0]), int(rendered.height[0])) == (8, 6)
+    assert float(rendered.cx[0]) == pytest.approx(float(quarter.cameras.cx[0]))
+
+
 def test_missing_aabb_is_estimated_with_a_note(tmp_path, dataset_factory):
     ds = load_dataset(dataset_factory(tmp_path / "noaabb", aabb=False))
     assert "no 'aabb'" in ds.aabb_source and ds.notes
