@@ -70,10 +70,13 @@ _nonneg_int = _checked_number(int, "an integer", lambda v: v >= 0, "must be >= 0
 def _add_model_args(p, split_help: str, downscale, chunk_help: str) -> None:
     """The arguments ``render`` and ``eval`` share: the run, which views, and how to run the model.
     ``downscale``: (argparse type, verb for its help)."""
-    kind, verb = downscale
+    kind, verb, *rest = downscale
     p.add_argument("run", metavar="RUN", help="run folder written by `train`")
     p.add_argument("--split", default="test", help=split_help)
-    p.add_argument("--downscale", type=kind, default=kind("1"), metavar="F", help=f"{verb} at 1/F resolution")
+    if rest:  # no default: the run's own
+        p.add_argument("--downscale", type=kind, default=None, metavar="F", help=f"{verb} at 1/F resolution ({rest[0]})")
+    else:
+        p.add_argument("--downscale", type=kind, default=kind("1"), metavar="F", help=f"{verb} at 1/F resolution")
     p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
     p.add_argument("--chunk", type=_positive_int, default=8192, help=chunk_help)
     p.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
@@ -192,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("eval", help="evaluate a run on held-out views (PSNR, SSIM, depth error)", formatter_class=fmt,
                        description="Prints one line per view, then one JSON object as the last line of stdout.")
-    _add_model_args(e, split_help="split to evaluate (test or val)", downscale=(_positive_int, "evaluate"),
+    _add_model_args(e, split_help="split to evaluate (test or val)", downscale=(_positive_int, "evaluate", "default: the --downscale the run trained at"),
                     chunk_help="most rays per model call (CPU calls are smaller)")
     e.add_argument("--views", type=_positive_int, metavar="N", help="evaluate N evenly spaced views only")
 

@@ -198,7 +198,7 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
             for v in views}
 
 
-def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: int = 1,
+def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: Optional[int] = None,
                  chunk: int = 8192, checkpoint=None, print_fn=print, show_progress: bool = True) -> dict:
     """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
     view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl)."""
@@ -222,7 +222,15 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     changed = dataset_changed_note(config)
     if changed:
         print(f"eval: note: {changed}", file=sys.stderr)
-    ds = load_dataset(dataset_path, splits=(split,), downscale=max(int(downscale), int(config.get("downscale", 1))))
+    trained_at = int(config.get("downscale", 1))
+    if downscale is None:
+        downscale = trained_at  # score at the resolution the model learnt, as papers report downscaled scenes
+    elif int(downscale) != trained_at:
+        # said, since a score at another resolution is not comparable with the run's own evaluations
+        finer = "finer than" if int(downscale) < trained_at else "coarser than"
+        print(f"eval: note: evaluating at --downscale {int(downscale)}, {finer} the --downscale {trained_at} the run "
+              "trained at; its logged PSNR is not comparable with this one", file=sys.stderr)
+    ds = load_dataset(dataset_path, splits=(split,), downscale=int(downscale))
     sp = ds.split(split)
     n = len(sp) if not max_views else min(len(sp), int(max_views))
     views = evenly_spaced(len(sp), n)

@@ -87,6 +87,25 @@ def test_eval_prints_per_view_lines_and_json_last(trained_run, capsys):
     assert metrics["splits"]["test"]["n_views"] == 2
 
 
+def test_eval_scores_at_the_runs_downscale_unless_told_and_says_when_told(tmp_path, dataset_factory, capsys):
+    # eval took max(--downscale, the run's): an explicit --downscale 1 on a run trained at 2 scored
+    # at half resolution without a word.
+    from nerf_core.train import TrainConfig, train
+
+    ds = dataset_factory(tmp_path / "ds", w=48, h=40, n_train=4, n_test=1)
+    run = tmp_path / "run"
+    train(TrainConfig(dataset=str(ds), out=str(run), method="test-grid", max_steps=2, batch_rays=64, downscale=2,
+                      stdout_events=False, show_bar=False, eval_views=1))
+    capsys.readouterr()
+    assert main(["eval", str(run), "--no-bar"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out.strip().splitlines()[-1])["rays"] == 24 * 20 and "note" not in out.err
+    assert main(["eval", str(run), "--no-bar", "--downscale", "1"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out.strip().splitlines()[-1])["rays"] == 48 * 40
+    assert "evaluating at --downscale 1, finer than the --downscale 2 the run trained at" in out.err
+
+
 def test_eval_as_a_subprocess_with_a_plugin_method(trained_run):
     env = dict(os.environ, PYTHONPATH=REPO_ROOT, NERF_CORE_PLUGINS="nerf_core.tests.conftest")
     proc = subprocess.run([sys.executable, "-m", "nerf_core", "eval", str(trained_run["run"]), "--split", "val",
