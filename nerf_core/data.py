@@ -139,8 +139,11 @@ class Dataset:
 
     def split(self, name: str) -> Split:
         if name not in self.splits or len(self.splits[name]) == 0:
-            have = ", ".join(k for k, v in self.splits.items() if len(v)) or "none"
-            raise DatasetError(f"{self.root}: the dataset has no {name!r} split (splits with views: {have})")
+            have = ", ".join(k for k, v in self.splits.items() if len(v)) or "none loaded"
+            # the loader's note says why a split is empty (cameras only, no held-out list): say it here
+            why = [n for n in self.notes if f"_{name}.json" in n or "nothing is evaluated" in n]
+            raise DatasetError(f"{self.root}: the dataset has no {name!r} views with images"
+                               + (f": {why[0]}" if why else f" (splits with views: {have})"))
         return self.splits[name]
 
     def held_out_split(self, preferred: Sequence[str] = ("test", "val")) -> Optional[str]:
@@ -400,8 +403,14 @@ def load_dataset(
         source = f"dataset ({Path(scene['aabb_file']).name})"
     else:
         all_cams = [s.cameras for s in loaded.values() if len(s)]
+        if not all_cams and infos["train"]:
+            # eval of a split without images (BlenderNeRF's camera-only test poses): the train cameras
+            # place the box, read without their pixels
+            all_cams = [cameras_of_frames(infos["train"])]
+        if not all_cams:
+            raise DatasetError(f"{root}: no frames with images in {', '.join(splits)}, and no 'aabb' to place the scene")
         cams = Cameras.cat(all_cams)
-        aabb, source = estimate_aabb(cams, far, depth_points(loaded["train"]) if "train" in loaded else None)
+        aabb, source = estimate_aabb(cams, far, depth_points(loaded["train"]) if len(loaded["train"]) else None)
         notes.append(source)
     inside_note = None
     if len(loaded["train"]):

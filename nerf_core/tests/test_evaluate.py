@@ -106,6 +106,24 @@ def test_eval_scores_at_the_runs_downscale_unless_told_and_says_when_told(tmp_pa
     assert "evaluating at --downscale 1, finer than the --downscale 2 the run trained at" in out.err
 
 
+def test_eval_of_a_split_of_cameras_only_says_so(tmp_path, dataset_factory, capsys):
+    # BlenderNeRF writes test poses without images; with no 'aabb' either, eval estimated the box from
+    # the cameras of the loaded split alone, found none, and stopped on torch.cat of an empty list.
+    from nerf_core.train import TrainConfig, train
+
+    ds = dataset_factory(tmp_path / "ds", n_train=4, n_test=2, aabb=False, layouts=("synthetic",))
+    for png in (ds / "test").glob("*.png"):
+        png.unlink()
+    run = tmp_path / "run"
+    train(TrainConfig(dataset=str(ds), out=str(run), method="test-grid", max_steps=2, batch_rays=64,
+                      stdout_events=False, show_bar=False, eval_views=1))
+    capsys.readouterr()
+    assert main(["eval", str(run), "--no-bar"]) == 2
+    err = capsys.readouterr().err
+    assert "no 'test' views with images" in err and "none of its 2 images exists" in err and "--cameras" in err, err
+    assert "Traceback" not in err and "torch.cat" not in err
+
+
 def test_eval_as_a_subprocess_with_a_plugin_method(trained_run):
     env = dict(os.environ, PYTHONPATH=REPO_ROOT, NERF_CORE_PLUGINS="nerf_core.tests.conftest")
     proc = subprocess.run([sys.executable, "-m", "nerf_core", "eval", str(trained_run["run"]), "--split", "val",
