@@ -125,11 +125,25 @@ def parse_request(req: Any) -> Dict[str, Any]:
 
 
 def _save_npy(path: str, array: np.ndarray) -> None:
-    """np.save through a temporary name in the same folder, then rename (readers never see half a file)."""
+    """np.save through a temporary name in the same folder, then into place (readers never see half a
+    file) without replacing a file: ``parse_request`` refused existing outputs, but one created while
+    the view rendered was replaced by the rename. A hard link fails where the name exists; where the
+    file system has no hard links, the check is repeated just before the rename."""
     tmp = f"{path}.partial{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        np.save(fh, np.ascontiguousarray(array, dtype=np.float32))
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            np.save(fh, np.ascontiguousarray(array, dtype=np.float32))
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            raise RequestError(f"{path} appeared while the view rendered; the server never overwrites a file") from None
+        except OSError:  # no hard links here (FAT, some network shares)
+            if os.path.exists(path):
+                raise RequestError(f"{path} appeared while the view rendered; the server never overwrites a file") from None
+            os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 class RenderServer:
@@ -178,9 +192,13 @@ class RenderServer:
                 continue
             try:
                 obj = json.loads(line)
-            except ValueError:
+            except (ValueError, RecursionError):
                 continue
             if isinstance(obj, dict) and obj.get("group") == group and "cmd" not in obj:
+                try:
+                    parse_request(obj)
+                except (RequestError, TypeError):
+                    continue  # a bad newer request gets its error; it does not cancel a good one
                 return True
         return False
 
@@ -229,6 +247,9 @@ class RenderServer:
             obj = json.loads(line)
         except ValueError as exc:
             self.emit("error", id=None, message=f"input line is not JSON ({exc}): {line.strip()[:80]!r}")
+            return True
+        except RecursionError:  # json recurses once per level: 100 000 '[' stopped the server
+            self.emit("error", id=None, message=f"input line is JSON nested too deeply to read: {line.strip()[:80]!r}")
             return True
         if not isinstance(obj, dict):
             self.emit("error", id=None, message=f"a request must be a JSON object, got {type(obj).__name__}: "

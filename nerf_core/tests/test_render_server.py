@@ -129,6 +129,43 @@ def test_a_newer_request_of_the_same_group_replaces_a_waiting_one(trained_run, t
     assert not (tmp_path / "v1.npy").exists() and (tmp_path / "v3.npy").exists()
 
 
+def test_a_line_nested_too_deeply_is_one_error_and_the_server_goes_on(trained_run, tmp_path):
+    # json recurses once per level: 100 000 '[' raised RecursionError, which ended the server.
+    events = _serve(trained_run["run"], ["[" * 100_000 + "]" * 100_000, json.dumps(_req(1, tmp_path / "ok.npy"))])
+    assert [e["event"] for e in events] == ["ready", "error", "result"]
+    assert "nested too deeply" in events[1]["message"]
+
+
+def test_a_bad_newer_request_does_not_cancel_a_good_one(trained_run, tmp_path):
+    lines = [json.dumps(_req(1, tmp_path / "v1.npy", group="viewport")),
+             json.dumps(_req(2, tmp_path / "v2.npy", group="viewport", w=-5))]
+    out = io.StringIO()
+    server = RenderServer(str(trained_run["run"]), device="cpu", out=out)
+    for line in lines:
+        server._inbox.put(line + "\n")
+    assert server.serve(io.StringIO("")) == 0
+    events = [json.loads(x) for x in out.getvalue().splitlines()][1:]
+    assert [(e["event"], e["id"]) for e in events] == [("result", 1), ("error", 2)]
+
+
+def test_a_file_that_appears_while_the_view_renders_is_never_replaced(trained_run, tmp_path, monkeypatch):
+    # parse_request checks that the output does not exist; the rename after rendering replaced a file
+    # created meanwhile.
+    target = tmp_path / "late.npy"
+    real = render_view
+
+    def render_then_someone_writes(*a, **k):
+        res = real(*a, **k)
+        target.write_bytes(b"the user's data")
+        return res
+
+    monkeypatch.setattr("nerf_core.render.render_view", render_then_someone_writes)
+    events = _serve(trained_run["run"], [json.dumps(_req(1, target, depth=False))])
+    assert events[1]["event"] == "error" and "appeared while the view rendered" in events[1]["message"]
+    assert target.read_bytes() == b"the user's data"
+    assert [p.name for p in tmp_path.iterdir()] == ["late.npy"]  # no partial file left
+
+
 def test_parse_request_accepts_flat_row_major_matrices():
     req = parse_request(_req(1, "/tmp/x_never_written.npy", c2w=C2W.reshape(-1).tolist(), depth=False))
     assert np.array_equal(req["c2w"], C2W) and req["depth_out"] is None and req["near"] is None
