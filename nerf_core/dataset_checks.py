@@ -183,8 +183,9 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
         scale = 1e-3
     for name in SPLITS:
         first = None
-        # Some pixel left to learn: a frame without a mask keeps every pixel. A broken frame leaves
-        # it unknown, and is reported instead.
+        # Some pixel left to learn (and some pixel that shows the scene): a frame without a mask keeps
+        # every pixel. A broken frame leaves both unknown, and is reported instead: with every frame
+        # broken, "all train images are fully transparent" was added to the real errors.
         pixels_left = False
         shows_something = False
         for fr in infos[name]:
@@ -192,7 +193,7 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
                 sp = load_split(name, [fr], downscale, scale)
             except DatasetError as exc:
                 problems.append(str(exc))
-                pixels_left = True
+                pixels_left = shows_something = True  # unknown: the frame's own error is what to fix
                 continue
             if visit is not None:
                 visit(name, fr, sp)

@@ -496,6 +496,19 @@ def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_f
     assert "r_1" in text and "r_2_depth.exr" in text
 
 
+def test_train_images_that_all_fail_to_load_are_not_also_called_transparent(dataset_factory, tmp_path):
+    # Every train frame failing (images deleted, masks unreadable) left "shows something" unknown, and
+    # check added "all 8 train images are fully transparent" to the real errors.
+    from nerf_core.data import dataset_problems
+
+    ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
+    for png in (ds / "train").glob("r_*.png"):
+        png.unlink()
+    problems = dataset_problems(ds)
+    assert len(problems) == 8 and all("not found" in p for p in problems), problems
+    assert not any("fully transparent" in p for p in problems)
+
+
 def test_a_valid_dataset_passes_both(sphere_dataset):
     from nerf_core.check import check_dataset
     from nerf_core.data import dataset_problems
