@@ -25,7 +25,7 @@ from typing import Any, Dict, Optional
 from .intrinsics import (ANGLE_ONLY_LOADERS, angle_only_caveats, focal_from_fov, fov_from_focal,  # noqa: F401
                          resolve_intrinsics)
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
-from .naming import (ERRORS_DIR, MAX_STEM_CHARS, evenly_spaced, file_safe, frame_stem, output_stems,  # noqa: F401
+from .naming import (ERRORS_DIR, MAX_STEM_BYTES, MAX_STEM_CHARS, evenly_spaced, file_safe, frame_stem, output_stems,  # noqa: F401
                      path_stem, render_files, unique_stems)
 from .transforms import (EXTRA_FIELDS, HOLDOUT_EVERY, IMAGE_EXTS, INTRINSIC_KEYS, SPLITS,  # noqa: F401
                          DatasetError, FrameInfo, PoseError, check_pose, detect_layout, frame_infos,

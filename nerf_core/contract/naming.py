@@ -19,15 +19,23 @@ def path_stem(file_path: str) -> str:
 
 
 # Longest output stem: the longest file made from it ("<stem>_depth.exr", and its temporary name
-# while written) stays well inside the 255 bytes most file systems allow for a name.
+# while written) stays well inside the 255 bytes most file systems allow for a name. Counted in the
+# UTF-8 bytes the file system stores: 200 'é' are 120 characters cut but 240 bytes, and 84 CJK
+# characters 252 bytes, which failed on the temporary name after the PNG was written.
 MAX_STEM_CHARS = 120
+MAX_STEM_BYTES = 120
 
 
 def file_safe(stem: str) -> str:
     """``stem`` as a file name: control characters (NUL included) become '_', leading dots go (no
-    hidden files, no '.' or '..'), and it is cut to ``MAX_STEM_CHARS``; '' when nothing is left."""
-    cleaned = "".join("_" if ord(c) < 32 or c == "\x7f" else c for c in stem).lstrip(".")
-    return cleaned[:MAX_STEM_CHARS]
+    hidden files, no '.' or '..'), and it is cut to ``MAX_STEM_CHARS`` characters and ``MAX_STEM_BYTES``
+    bytes of UTF-8; '' when nothing is left."""
+    # a lone surrogate (from a JSON "\\ud800") cannot be a file name in any encoding
+    cleaned = "".join("_" if ord(c) < 32 or c == "\x7f" or 0xD800 <= ord(c) <= 0xDFFF else c for c in stem).lstrip(".")
+    cleaned = cleaned[:MAX_STEM_CHARS]
+    while len(cleaned.encode("utf-8")) > MAX_STEM_BYTES:
+        cleaned = cleaned[:-1]
+    return cleaned
 
 
 def frame_stem(frame, index: int) -> str:

@@ -98,6 +98,12 @@ def test_output_stems_follow_render_naming_and_never_collide():
     odd = [{"name": "."}, {"name": ".."}, {"name": "a\0b"}, {"name": "x" * 300}, {"name": ".hidden"}]
     assert contract.output_stems(odd) == ["view_000", "view_001", "a_b", "x" * contract.MAX_STEM_CHARS, "hidden"]
     assert contract.render_files("r_0") == {"image": "r_0.png", "depth": "r_0_depth.exr", "error_map": "errors/r_0.png"}
+    # ... and in bytes: 200 'é' cut to 120 characters were 240 bytes, 84 CJK characters 252 (the
+    # depth file's temporary name failed after the PNG was written); a lone surrogate is no name.
+    for name in ("x" + "é" * 200, "カメラ" * 28, "a\ud800b"):
+        stem = contract.output_stems([{"name": name}])[0]
+        assert len(stem.encode("utf-8")) <= contract.MAX_STEM_BYTES and stem, name
+    assert contract.output_stems([{"name": "a\ud800b"}]) == ["a_b"]
 
 
 def test_evenly_spaced_by_hand():
