@@ -355,6 +355,10 @@ def render_to_dir(
     from .volrend import composite_background
 
     out.mkdir(parents=True, exist_ok=True)
+    # The old renders.json describes the images about to be replaced: an interrupted --overwrite left
+    # it naming the previous run (and its PSNRs) beside new images. It goes first; the new one is
+    # written once every view is.
+    (out / "renders.json").unlink(missing_ok=True)
     frames = []
     bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
     opaque = getattr(model, "environment", None) is not None

@@ -39,6 +39,36 @@ def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, caps
     assert Image.open(out / "r_0.png").size == (12, 10)
 
 
+def test_an_interrupted_overwrite_leaves_no_renders_json_of_the_old_images(trained_run, tmp_path, monkeypatch):
+    # Ctrl-C during render --overwrite left the previous renders.json (its run, step and PSNRs)
+    # describing a folder of new images.
+    import nerf_core.render as render_mod
+
+    ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "renders"
+    args = ["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]
+    assert main(args) == 0 and (out / "renders.json").is_file()
+    real, calls = render_mod.render_view, []
+
+    def interrupted_after_one(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(render_mod, "render_view", interrupted_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        render_mod.render_to_dir(*_run_and_cameras(run, ds), out, overwrite=True, show_progress=False)
+    assert not (out / "renders.json").exists()
+
+
+def _run_and_cameras(run, ds):
+    from nerf_core.render import camera_views, load_run
+
+    model, _config, _ckpt = load_run(run, "cpu")
+    cams, stems, _frames = camera_views(ds / "transforms_test.json", "test")
+    return model, cams, stems
+
+
 @pytest.mark.parametrize("cameras", ["dataset", "run's dataset", "other split", "another dataset"])
 def test_render_never_writes_over_the_datasets_own_images(trained_run, tmp_path, capsys, cameras):
     import shutil
