@@ -463,6 +463,9 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
             scene.setdefault("notes", []).append(
                 f"{jf}: instant-ngp's {' and '.join(repr(k) for k in ngp)} are not applied: poses are read as "
                 "written, and the scene box comes from 'aabb' or the cameras")
+        overridden = _overridden_intrinsics(meta)
+        if overridden:
+            scene.setdefault("notes", []).append(f"{jf}: {overridden}")
         _nerfstudio_splits(meta, jf, frames, splits, out, scene)
     for name in splits:
         out.setdefault(name, [])
@@ -473,6 +476,27 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
                               f"{f.where}: field {key!r}; they are read, but a copy of the folder or another "
                               "machine will not find them")
     return layout, root, out, scene
+
+
+def _overridden_intrinsics(meta: dict) -> Optional[str]:
+    """A sentence when frames of one ``transforms.json`` give a camera value (focal, centre, size,
+    model, distortion) that differs from the top level's, else None. The tools disagree on which wins:
+    instant-ngp (and this loader) take the frame's, nerfstudio's parser the top level's for every
+    frame, so the one file means two cameras."""
+    from .lens import DISTORTION_KEYS
+
+    frames = meta.get("frames") if isinstance(meta.get("frames"), list) else []
+    for key in (*INTRINSIC_KEYS, "camera_model", *DISTORTION_KEYS):
+        if key not in meta:
+            continue
+        differ = [(k, fr[key]) for k, fr in enumerate(frames)
+                  if isinstance(fr, dict) and key in fr and fr[key] != meta[key]]
+        if differ:
+            k, value = differ[0]
+            return (f"{len(differ)} frame(s) give their own {key!r} beside the top-level one (frame {k}: {value!r}, "
+                    f"top level: {meta[key]!r}); train uses each frame's own, as instant-ngp does, but nerfstudio's "
+                    "parser uses the top-level value for every frame. Keep one of the two")
+    return None
 
 
 def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Sequence[str],

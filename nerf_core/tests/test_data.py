@@ -61,6 +61,23 @@ def test_nerfstudio_layout_matches_synthetic(tmp_path, dataset_factory):
         assert torch.equal(a.images, b.images) and torch.equal(a.depth, b.depth)
 
 
+def test_frame_intrinsics_that_contradict_the_top_level_are_named(tmp_path, dataset_factory):
+    # instant-ngp takes a frame's own fl_x, nerfstudio's parser the top level's for every frame: one
+    # file, two cameras, and train said nothing about which it used.
+    ds = dataset_factory(tmp_path / "ns", layouts=("nerfstudio",))
+    assert not any("beside the top-level one" in n for n in load_dataset(ds).notes)
+    path = ds / "transforms.json"
+    meta = json.loads(path.read_text())
+    top = meta["fl_x"]
+    for fr in meta["frames"]:
+        fr["fl_x"] = top * 1.5
+    path.write_text(json.dumps(meta))
+    loaded = load_dataset(ds)
+    note = next(n for n in loaded.notes if "beside the top-level one" in n)
+    assert "'fl_x'" in note and "nerfstudio's parser uses the top-level value" in note
+    assert float(loaded.splits["train"].cameras.fx[0]) == pytest.approx(top * 1.5)  # the frame's own, as said
+
+
 def test_nerfstudio_without_split_lists_holds_out_every_eighth(tmp_path, dataset_factory):
     ds_path = dataset_factory(tmp_path / "ns", n_train=14, n_val=1, n_test=1, layouts=("nerfstudio",))
     meta = json.loads((ds_path / "transforms.json").read_text())
