@@ -254,7 +254,8 @@ def _piece_box(ev, matrix, is_instance: bool, hidden: bool = False):
     return lo, hi
 
 
-# Hair strands read for the box: the roots of every strand, the keys of this many spread over them.
+# Hair strands read for the box: every key of at most this many strands, spread evenly over them
+# (reading 100 000 strands key by key through the Python API takes seconds).
 HAIR_SAMPLE = 2000
 
 
