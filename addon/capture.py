@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts
+from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts, passes
 from . import scene_appearance, scene_bounds, scene_files
 from .capture_plan import CaptureError
 from .core_contract import contract
@@ -95,6 +95,14 @@ def _empty_tree(path: str) -> bool:
     return all(_empty_tree(os.path.join(path, e)) for e in os.listdir(path))
 
 
+def _box_depths(fr: dict, corners: np.ndarray) -> tuple[float, float]:
+    """(nearest, farthest) planar depth of the box ``corners`` (8, 3) along a planned frame's view axis
+    (the camera looks down -Z); negative where a corner is behind the camera."""
+    c2w = np.asarray(fr["transform_matrix"], float)
+    depths = -(corners - c2w[:3, 3]) @ c2w[:3, 2]
+    return float(depths.min()), float(depths.max())
+
+
 def clipping_notes(frames: list, bounds) -> list:
     """A warning when cameras' clipping planes cut into the scene box (empty when none).
 
@@ -112,9 +120,7 @@ def clipping_notes(frames: list, bounds) -> list:
         obj = bpy.data.objects.get(fr["camera"])
         if obj is None or obj.type != "CAMERA":
             continue
-        c2w = np.asarray(fr["transform_matrix"], float)
-        depths = -(corners - c2w[:3, 3]) @ c2w[:3, 2]  # planar depth along the view axis (the camera looks down -Z)
-        near, far = float(depths.min()), float(depths.max())
+        near, far = _box_depths(fr, corners)
         if far <= 0:
             continue  # the box is behind this camera
         start, end = obj.data.clip_start, obj.data.clip_end
@@ -143,9 +149,6 @@ def capture_notes(scene) -> list:
             "visibility, or the material's Holdout shader), or leave them out of the render"]
 
 
-# nerfstudio reads depth PNGs as 16-bit integers times its depth_unit_scale_factor, a command-line
-# option that is 1e-3 unless the user sets it: the PNGs hold millimetres, 1 to 65535.
-NERFSTUDIO_DEPTH_RANGE_MM = (1, 65535)
 # Fewer millimetre levels than this across the scene make a depth map of a few steps.
 NERFSTUDIO_DEPTH_MIN_LEVELS = 256
 
@@ -158,11 +161,8 @@ def depth_png_notes(frames: list, bounds) -> list:
     if bounds is None or not frames:
         return []
     corners = export.box_corners(*bounds)
-    far = 0.0
-    for fr in frames:
-        c2w = np.asarray(fr["transform_matrix"], float)
-        far = max(far, float((-(corners - c2w[:3, 3]) @ c2w[:3, 2]).max()))
-    top = NERFSTUDIO_DEPTH_RANGE_MM[1] / 1000.0
+    far = max(_box_depths(fr, corners)[1] for fr in frames)
+    top = passes.MAX_DEPTH_MM / 1000.0
     if far > top:
         return [f"the scene box reaches {far:.4g} units from the cameras, but nerfstudio's depth PNGs hold "
                 f"millimetres in 16 bits (up to {top:g} units): depth farther away is written there as 0 (no "

@@ -165,11 +165,16 @@ def write_png_gray(path: str, image: np.ndarray) -> None:
     _atomic_write(path, png)
 
 
+# The most a 16-bit depth PNG holds, in millimetres: nerfstudio reads them as integers times its
+# depth_unit_scale_factor, a command-line option that is 1e-3 unless the user sets it.
+MAX_DEPTH_MM = 65535
+
+
 def depth_millimetres(depth: np.ndarray) -> np.ndarray:
     """(h, w) float depth in scene units -> uint16 millimetres, 0 where there is no depth or it is
     beyond 65.535 units (what 16 bits hold): nerfstudio's depth PNG, read as ``depth > 0`` valid."""
     mm = np.where(np.isfinite(depth), np.round(depth.astype(np.float64) * 1000.0), 0.0)
-    return np.where((mm > 0) & (mm <= 65535), mm, 0).astype(np.uint16)
+    return np.where((mm > 0) & (mm <= MAX_DEPTH_MM), mm, 0).astype(np.uint16)
 
 
 def planar_depth(depth: np.ndarray, clip_end: float | None = None) -> np.ndarray:

@@ -32,10 +32,8 @@ def file_safe(stem: str) -> str:
     bytes of UTF-8; '' when nothing is left."""
     # a lone surrogate (from a JSON "\\ud800") cannot be a file name in any encoding
     cleaned = "".join("_" if ord(c) < 32 or c == "\x7f" or 0xD800 <= ord(c) <= 0xDFFF else c for c in stem).lstrip(".")
-    cleaned = cleaned[:MAX_STEM_CHARS]
-    while len(cleaned.encode("utf-8")) > MAX_STEM_BYTES:
-        cleaned = cleaned[:-1]
-    return cleaned
+    # cut in bytes; a character the cut splits is dropped whole
+    return cleaned[:MAX_STEM_CHARS].encode("utf-8")[:MAX_STEM_BYTES].decode("utf-8", "ignore")
 
 
 def frame_stem(frame, index: int) -> str:
