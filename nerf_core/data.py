@@ -427,8 +427,9 @@ def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[F
     JSON, or from the image headers when ``w``/``h`` are absent)."""
     if split not in SPLITS:
         raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
-    layout, root, infos, _ = frame_infos(path, SPLITS)
-    frames = infos.get(split) or []
+    layout, root, infos, scene = frame_infos(path, SPLITS)
+    # a split of cameras only (BlenderNeRF's test poses) has nothing to score, but its views render
+    frames = infos.get(split) or scene.get("cameras_only", {}).get(split) or []
     if not frames:
         raise DatasetError(f"{path}: no frames in split {split!r}")
     return cameras_of_frames(frames), frames

@@ -403,8 +403,9 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
 
     Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
     ``far``, ``depth_unit_scale_factor``, ``integer_depth_scale``, ``film_transparent``, ``world`` and ``beyond_box`` when the dataset gives
-    them (each with ``KEY_file``, the file it came from), ``split_note``/``path_note``, and ``notes``
-    (held-out splits left out, instant-ngp fields not applied).
+    them (each with ``KEY_file``, the file it came from), ``split_note``/``path_note``, ``notes``
+    (held-out splits left out, instant-ngp fields not applied), and ``cameras_only``: {split: [FrameInfo]}
+    of held-out splits none of whose images exists (left out of the split itself, but views to render).
     """
     path = Path(path)
     layout, root = detect_layout(path)
@@ -440,7 +441,9 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
                 # draw them (``render RUN --cameras`` that file).
                 scene.setdefault("notes", []).append(
                     f"{jf}: none of its {len(out[name])} images exists (a split of cameras only): not evaluated; "
-                    f"`python -m nerf_core render RUN --cameras {jf}` renders those views")
+                    f"`python -m nerf_core render RUN` renders those views")
+                # kept apart: they hold no pixels to train or score, but they are views to render
+                scene.setdefault("cameras_only", {})[name] = out[name]
                 out[name] = []
             for key in SCENE_KEYS:
                 if key in meta and key not in scene:

@@ -106,7 +106,7 @@ def test_eval_scores_at_the_runs_downscale_unless_told_and_says_when_told(tmp_pa
     assert "evaluating at --downscale 1, finer than the --downscale 2 the run trained at" in out.err
 
 
-def test_eval_of_a_split_of_cameras_only_says_so(tmp_path, dataset_factory, capsys):
+def test_a_split_of_cameras_only_is_not_evaluated_but_renders(tmp_path, dataset_factory, capsys):
     # BlenderNeRF writes test poses without images; with no 'aabb' either, eval estimated the box from
     # the cameras of the loaded split alone, found none, and stopped on torch.cat of an empty list.
     from nerf_core.train import TrainConfig, train
@@ -120,8 +120,14 @@ def test_eval_of_a_split_of_cameras_only_says_so(tmp_path, dataset_factory, caps
     capsys.readouterr()
     assert main(["eval", str(run), "--no-bar"]) == 2
     err = capsys.readouterr().err
-    assert "no 'test' views with images" in err and "none of its 2 images exists" in err and "--cameras" in err, err
+    assert "no 'test' views with images" in err and "none of its 2 images exists" in err, err
     assert "Traceback" not in err and "torch.cat" not in err
+    # ...and `render RUN`, which the note points to, draws those views (it said "no frames in split 'test'")
+    assert "render RUN` renders those views" in err, err
+    assert main(["render", str(run), "--out", str(tmp_path / "views"), "--no-bar"]) == 0, capsys.readouterr().err
+    manifest = json.loads((tmp_path / "views" / "renders.json").read_text())
+    assert sorted(p.name for p in (tmp_path / "views").glob("*.png")) == ["r_0.png", "r_1.png"]
+    assert all("psnr" not in fr for fr in manifest["frames"]), manifest  # no ground truth to score against
 
 
 def test_eval_as_a_subprocess_with_a_plugin_method(trained_run):
