@@ -248,8 +248,10 @@ def _check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int,
             p = root / str(fr[key])
             if not p.is_file():
                 report.error(fname, f"{p} {_missing(p, str(fr[key]))}", k, fpath, key)
-            elif key == "depth_file_path" and p.suffix.lower() not in (".exr", ".png"):
-                report.warn(fname, f"{p.name}: depth should be EXR (float) or 16-bit PNG (millimetres)", k, fpath, key)
+            elif key == "depth_file_path" and p.suffix.lower() not in (".exr", ".png", ".npy"):
+                # nerfstudio's loader reads .npy, and 16-bit PNGs through OpenCV; train reads EXR too
+                report.warn(fname, f"{p.name}: depth should be EXR (float), 16-bit PNG (millimetres) or .npy", k,
+                            fpath, key)
 
 
 def _camera_model(report: CheckReport, fname: str, src: dict, k: Optional[int] = None, fpath: Optional[str] = None) -> None:

@@ -181,9 +181,13 @@ def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
     EXR: channel ``Z`` (else ``R``/``Y``/``V``/``D``/the only channel), already in scene units; in a
     multilayer EXR, the ``Depth`` pass (Blender's name for Z).
     PNG: 16-bit integers multiplied by ``png_scale`` (nerfstudio's millimetres -> metres is 1e-3).
+    NPY: a (h, w) or (h, w, 1) array multiplied by ``png_scale`` too, as nerfstudio's loader does
+    (``get_depth_image_from_path`` scales both by ``depth_unit_scale_factor``).
     """
     path = Path(path)
-    if path.suffix.lower() == ".exr":
+    if path.suffix.lower() == ".npy":
+        depth = _read_npy_depth(path) * np.float32(png_scale)
+    elif path.suffix.lower() == ".exr":
         ch = read_exr(path)
         names = ("Z", "R", "Y", "V", "D")
         layer = _pick_layer(path, ch, [names], ("Depth", "Z"), "depth")
@@ -205,6 +209,33 @@ def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
         depth = raw.astype(np.float32) * np.float32(png_scale)
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
     return depth
+
+
+def _read_npy_depth(path: Path) -> np.ndarray:
+    """A NumPy ``.npy`` depth map as float32 (h, w), unscaled. Never unpickles (a ``.npy`` of objects
+    would run code on load), and checks the shape in the header before reading the values."""
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+    except OSError as exc:
+        raise ImageReadError(f"{path}: cannot read depth .npy ({exc.strerror or exc})") from exc
+    if magic != b"\x93NUMPY":
+        kind = "a .npz archive" if magic.startswith(b"PK") else "no NumPy header"
+        raise ImageReadError(f"{path}: not a .npy array ({kind})")
+    try:
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError) as exc:  # a damaged header; object arrays cannot be mapped (nor unpickled here)
+        reason = "it holds Python objects, not numbers" if "object" in str(exc).lower() else exc
+        raise ImageReadError(f"{path}: cannot read depth .npy ({reason})") from exc
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim != 2 or arr.dtype.kind not in "fiub":
+        raise ImageReadError(f"{path}: a depth .npy must be a (height, width) array of numbers, got shape "
+                             f"{tuple(arr.shape)} of {arr.dtype}")
+    if arr.size > MAX_EXR_VALUES:
+        raise ImageReadError(f"{path}: the .npy header claims {arr.shape[1]}x{arr.shape[0]} values, more than "
+                             f"{MAX_EXR_VALUES / 1e6:.0f} million")
+    return np.array(arr, dtype=np.float32)
 
 
 def read_normals(path: Path | str) -> np.ndarray:

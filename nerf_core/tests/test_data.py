@@ -118,6 +118,15 @@ def test_exr_images_and_png_depth_in_millimetres(tmp_path, dataset_factory):
     Image.fromarray(np.round(z / scale).astype(np.uint16)).save(ds_path / "d0.png")
     (ds_path / "transforms.json").write_text(json.dumps({**meta, "integer_depth_scale": scale}))
     np.testing.assert_allclose(load_dataset(ds_path).splits["train"].depth[0].numpy(), z, atol=scale)
+    # nerfstudio also reads .npy depth, scaled like its PNGs (depth_unit_scale_factor, 1e-3 by default);
+    # it was refused as "cannot identify image file".
+    np.save(ds_path / "d0.npy", z * 1000)
+    fr["depth_file_path"] = "d0.npy"
+    (ds_path / "transforms.json").write_text(json.dumps(meta))
+    np.testing.assert_allclose(load_dataset(ds_path).splits["train"].depth[0].numpy(), z, rtol=1e-6)
+    np.save(ds_path / "d0.npy", z[:, :-1])  # the wrong size is named like any other depth map's
+    with pytest.raises(DatasetError, match=r"field 'depth_file_path': .*d0.npy is 23x20, image is 24x20"):
+        load_dataset(ds_path)
 
 
 def test_masks_black_means_ignore(sphere_dataset):

@@ -109,6 +109,30 @@ def test_an_8_bit_depth_png_is_refused_as_a_picture_of_depth(tmp_path):
     assert np.allclose(read_depth(path), 2.5)
 
 
+def test_npy_depth_is_read_without_unpickling_and_bad_ones_are_named(tmp_path):
+    np.save(tmp_path / "d.npy", np.full((H, W, 1), 2500.0))
+    assert read_depth(tmp_path / "d.npy").shape == (H, W) and np.allclose(read_depth(tmp_path / "d.npy"), 2.5)
+    assert np.allclose(read_depth(tmp_path / "d.npy", png_scale=1.0), 2500.0)
+    # an array of objects would unpickle, which runs code: refused, never loaded
+    np.save(tmp_path / "o.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(ImageReadError, match="o.npy: .*holds Python objects"):
+        read_depth(tmp_path / "o.npy")
+    np.save(tmp_path / "rgb.npy", np.zeros((H, W, 3)))
+    with pytest.raises(ImageReadError, match=r"rgb.npy: a depth .npy must be a \(height, width\) array"):
+        read_depth(tmp_path / "rgb.npy")
+    np.savez(tmp_path / "z.npz", depth=np.zeros((H, W)))
+    (tmp_path / "z.npz").rename(tmp_path / "z.npy")
+    with pytest.raises(ImageReadError, match="z.npy: not a .npy array \\(a .npz archive\\)"):
+        read_depth(tmp_path / "z.npy")
+    (tmp_path / "t.npy").write_bytes((tmp_path / "d.npy").read_bytes()[:90])  # cut inside its header
+    with pytest.raises(ImageReadError, match="t.npy: cannot read depth .npy"):
+        read_depth(tmp_path / "t.npy")
+    with open(tmp_path / "huge.npy", "wb") as fh:  # a header claiming 60000 x 60000, and no values
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<f4", "fortran_order": False, "shape": (60000, 60000)})
+    with pytest.raises(ImageReadError, match="huge.npy: cannot read depth .npy"):
+        read_depth(tmp_path / "huge.npy")
+
+
 def test_an_exr_header_claiming_a_huge_image_is_refused_before_reading(tmp_path):
     import struct
 
