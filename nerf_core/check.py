@@ -377,7 +377,7 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
                      for p in report.errors]
         report.warnings = converted + report.warnings
         report.errors = []
-    _check_loadable(report, root, empty_views=opaque is False)
+    _check_loadable(report, root)
     if converted:
         _drop_repeats(report, converted)
     _check_paths(report, root)
@@ -430,22 +430,26 @@ _FRAME_RE = re.compile(r"^(?P<file>.+?\.json): frame (?P<frame>\d+) \((?P<path>.
 _FILE_RE = re.compile(r"^(?P<file>.+?\.json): (?P<rest>.*)$", re.S)
 
 
-def _check_loadable(report: CheckReport, root: Path, empty_views: bool = False) -> None:
+def _check_loadable(report: CheckReport, root: Path) -> None:
     """Add every problem that makes ``train`` refuse the dataset (``nerf_core.dataset_checks.dataset_problems``,
     the loader's own rules), so that `check` never calls valid what `train` refuses. A problem the
     convention checks above already reported for the same file and frame (or file and field) is not
-    repeated. ``empty_views`` (a transparent film): also warn about views that show nothing."""
+    repeated. Also warns about views that show nothing (transparent everywhere, or opaque and black
+    everywhere)."""
     from .dataset_checks import dataset_problems
 
     reported = {(Path(p.file).name, p.frame) for p in report.errors}
     fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
     empty: Dict[str, list] = {}
+    black: Dict[str, list] = {}
 
     def look(split, fr, sp) -> None:  # pixels the loader decodes anyway
-        if sp.images.shape[-1] == 4 and not bool(sp.images[..., 3].any()):
+        if sp.shows_nothing():
             empty.setdefault(split, []).append(fr)
+        elif sp.is_black():
+            black.setdefault(split, []).append(fr)
 
-    problems = dataset_problems(root, visit=look if empty_views else None)
+    problems = dataset_problems(root, visit=look)
     report.trainable = not problems
     for msg in problems:
         m = _FRAME_RE.match(msg)
@@ -466,7 +470,11 @@ def _check_loadable(report: CheckReport, root: Path, empty_views: bool = False) 
             report.error(_relative(root, m["file"]), m["rest"])
         else:
             report.error(str(root), msg)
-    _warn_empty_views(report, root, empty)
+    _warn_empty_views(report, root, empty, "transparent everywhere",
+                      "does its camera look away from it, or stand inside an object?")
+    _warn_empty_views(report, root, black, "opaque and black everywhere",
+                      "is the scene lit where this camera looks? A camera inside a closed object, lights that are "
+                      "off or an exposure far too low all render black")
 
 
 _FIELD_RE = re.compile(r"^field '(?P<field>[^']+)'")
@@ -557,21 +565,21 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
     return bool(opaque)
 
 
-def _warn_empty_views(report: CheckReport, root: Path, empty: Dict[str, list]) -> None:
-    """Warn about views whose image is transparent everywhere (``empty``: split -> FrameInfos, found
-    while ``_check_loadable`` reads the pixels): on a transparent film the camera saw none of the
-    scene (it looks away, or stands inside an object). A held-out one measures nothing, and a train
-    one teaches only empty space. Most readers would call such a dataset fine."""
+def _warn_empty_views(report: CheckReport, root: Path, empty: Dict[str, list], how: str, ask: str) -> None:
+    """Warn about views whose image shows nothing (``empty``: split -> FrameInfos, found while
+    ``_check_loadable`` reads the pixels): transparent everywhere on a transparent film, where the
+    camera saw none of the scene, or opaque and black everywhere, where it saw no light. A held-out
+    one measures nothing, and a train one teaches nothing of the scene. ``how`` says which, ``ask``
+    what to look at. Most readers would call such a dataset fine."""
     for split, frames in empty.items():
         for fr in frames[:10]:
             report.warn(_relative(root, str(fr.json_file)),
-                        "the image is transparent everywhere: this view shows nothing of the scene (does its "
-                        "camera look away from it, or stand inside an object?)"
+                        f"the image is {how}: this view shows nothing of the scene ({ask})"
                         + ("; a held-out view of nothing measures nothing" if split != "train" else ""),
                         fr.index, fr.file_path)
         if len(frames) > 10:
             report.warn(_relative(root, str(frames[0].json_file)),
-                        f"{len(frames) - 10} more views show nothing (transparent everywhere)")
+                        f"{len(frames) - 10} more views show nothing ({how})")
 
 
 UNSEEN_WORLD_WARN = 0.02  # share of a held-out view's pixels on unseen world that earns a warning

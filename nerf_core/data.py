@@ -34,11 +34,15 @@ from .contract.transforms import (SPLITS, DatasetError, FrameInfo, detect_layout
                                   why_not_a_file)
 from .dataset_checks import (check_duplicate_images, check_near_far, check_train_count,  # noqa: F401
                              dataset_problems, depth_scale, empty_masks_problem, parse_aabb, scene_fields,
-                             transparent_train_problem)
+                             transparent_train_problem, black_train_problem)
 from .lens import fold_pixel
 from .metrics import composite
 from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
+
+
+# An opaque image whose brightest value is at most this (of 1) shows no light: 1 of 255 in an 8-bit PNG.
+BLACK_LEVEL = 1.5 / 255
 
 
 @dataclass
@@ -78,6 +82,17 @@ class Split:
     def shows_nothing(self) -> bool:
         """True when every image is transparent everywhere (alpha 0): no pixel shows the scene."""
         return len(self.frames) > 0 and not bool(self.shown().any())
+
+    def is_black(self) -> bool:
+        """True when every image is opaque (no alpha, or alpha 1 everywhere) and black everywhere (no
+        value above ``BLACK_LEVEL``): the cameras saw no light. Also a cut-out's transparent pixels
+        count as showing something (empty space)."""
+        if not len(self.frames):
+            return False
+        full = 255 if self.images.dtype == torch.uint8 else 1.0
+        if self.has_alpha and not bool((self.images[..., 3] >= full).all()):
+            return False
+        return float(self.images[..., :3].max()) / full <= BLACK_LEVEL
 
     def masks_select_nothing(self) -> bool:
         """True when there are masks and they mark no pixel that shows something (transparent pixels
@@ -393,6 +408,8 @@ def load_dataset(
     loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
     if "train" in loaded and loaded["train"].shows_nothing():
         raise DatasetError(transparent_train_problem(infos["train"]))
+    if "train" in loaded and loaded["train"].is_black():
+        raise DatasetError(black_train_problem(infos["train"]))
     if "train" in loaded and loaded["train"].masks_select_nothing():
         raise DatasetError(empty_masks_problem(infos["train"]))
     for name in SPLITS:

@@ -64,6 +64,14 @@ def transparent_train_problem(frames: List[FrameInfo]) -> str:
             "(a holdout, a camera inside an object)")
 
 
+def black_train_problem(frames: List[FrameInfo]) -> str:
+    """The message for a train split whose every image is opaque and black everywhere
+    (``Split.is_black``): no camera saw any light, so a model would learn a black fog."""
+    return (f"{frames[0].json_file}: field 'file_path': all {len(frames)} train images are opaque and black "
+            "everywhere, so no camera saw any light: the cameras stand inside a closed object (the 'inside' "
+            "layout on a single object), the lights are off, or the exposure is far too low")
+
+
 def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
     """Refuse two frames of one split that name the same image with different poses (DatasetError
     naming both): one photograph cannot have been taken from two places, so one pose is wrong and
@@ -188,17 +196,19 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
         # broken, "all train images are fully transparent" was added to the real errors.
         pixels_left = False
         shows_something = False
+        lit = False
         for fr in infos[name]:
             try:
                 sp = load_split(name, [fr], downscale, scale)
             except DatasetError as exc:
                 problems.append(str(exc))
-                pixels_left = shows_something = True  # unknown: the frame's own error is what to fix
+                pixels_left = shows_something = lit = True  # unknown: the frame's own error is what to fix
                 continue
             if visit is not None:
                 visit(name, fr, sp)
             pixels_left = pixels_left or not sp.masks_select_nothing()
             shows_something = shows_something or not sp.shows_nothing()
+            lit = lit or not sp.is_black()
             shape = (sp.width, sp.height, sp.images.shape[-1])
             if first is None:
                 first = (fr, shape)
@@ -217,6 +227,8 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
                 problems.append(str(exc))
         if name == "train" and infos[name] and not shows_something:
             problems.append(transparent_train_problem(infos[name]))
+        elif name == "train" and infos[name] and not lit:
+            problems.append(black_train_problem(infos[name]))
         elif name == "train" and not pixels_left and any(f.mask is not None for f in infos[name]):
             problems.append(empty_masks_problem(infos[name]))
     return problems

@@ -112,6 +112,34 @@ def test_views_that_show_nothing_are_warned_about(sphere_dataset):
     assert _has(empty, "transforms_train.json", "frame 2") and not _has(empty, "train", "measures nothing")
 
 
+def test_opaque_views_that_are_black_everywhere_are_warned_about(sphere_dataset):
+    # Cameras standing inside a closed object (the 'inside' layout on a single object), or a scene with
+    # its lights off, render black opaque images: valid files that teach nothing. check was silent.
+    for split in ("train", "val", "test"):  # an opaque capture: the sphere on a grey world
+        for path in (sphere_dataset / split).glob("*.png"):
+            im = Image.open(path).convert("RGBA")
+            grey = Image.new("RGBA", im.size, (128, 128, 128, 255))
+            Image.alpha_composite(grey, im).save(path)
+    report, errors = _errors(sphere_dataset)
+    assert errors == [] and not [w for w in report.warnings if "shows nothing" in str(w)]
+    for split, k in (("test", 0), ("train", 3)):
+        path = sphere_dataset / split / f"r_{k}.png"
+        Image.new("RGBA", Image.open(path).size, (1, 0, 1, 255)).save(path)
+    report, errors = _errors(sphere_dataset)
+    assert errors == []
+    black = [str(w) for w in report.warnings if "opaque and black everywhere" in str(w)]
+    assert len(black) == 2, report.warnings
+    assert _has(black, "transforms_test.json", "frame 0", "measures nothing", "is the scene lit")
+    assert _has(black, "transforms_train.json", "frame 3") and not _has(black, "train", "measures nothing")
+    # a dark view that still shows something (one pixel at 2/255) is not called black
+    path = sphere_dataset / "train" / "r_3.png"
+    px = np.zeros((20, 24, 4), np.uint8)
+    px[..., 3], px[5, 5, 0] = 255, 2
+    Image.fromarray(px).save(path)
+    report, _ = _errors(sphere_dataset)
+    assert len([w for w in report.warnings if "opaque and black everywhere" in str(w)]) == 1
+
+
 def test_for_training_another_tools_dataset_is_valid_and_what_train_refuses_is_not(sphere_dataset, capsys):
     # The original NeRF scenes give camera_angle_x only and no nerfstudio/ folder: 19 errors as an
     # export of ours, yet train reads them; the add-on's Train ran check first and refused them all.

@@ -150,10 +150,18 @@ def test_all_transparent_images_are_refused_clearly(tmp_path):
     assert "train images are fully transparent" in message and "transforms_train.json" in message, message
 
 
-def test_all_black_images_train_without_nan(tmp_path):
+def test_all_black_images_are_refused_clearly(tmp_path):
     black = np.zeros((SIZE, SIZE, 4), np.uint8)
     black[..., 3] = 255
     ds = make_dataset(tmp_path / "black", pixels=lambda c2w, f: black)
+    message = assert_clear_failure(nerf_core("train", ds, "--out", tmp_path / "run", *FAST))
+    assert "train images are opaque and black everywhere" in message and "transforms_train.json" in message, message
+
+
+def test_nearly_black_images_train_without_nan(tmp_path):
+    dim = np.full((SIZE, SIZE, 4), 3, np.uint8)  # 3/255: a dark scene, not a black one
+    dim[..., 3] = 255
+    ds = make_dataset(tmp_path / "dim", pixels=lambda c2w, f: dim)
     metrics = _train_and_eval(ds, tmp_path / "run")
     assert metrics.get("psnr") is not None and math.isfinite(metrics["psnr"]), metrics
 

@@ -455,9 +455,19 @@ def _all_transparent(ds):
     return "train images are fully transparent"
 
 
+def _all_black(ds):
+    # Cameras standing inside one closed object (the 'inside' layout on a lone cube), or the lights off:
+    # opaque black everywhere. check said "valid" and train learnt a black fog.
+    from PIL import Image
+
+    for png in (ds / "train").glob("r_*.png"):
+        Image.new("RGBA", Image.open(png).size, (0, 0, 0, 255)).save(png)
+    return "train images are opaque and black everywhere"
+
+
 BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_train_frame, _fov_beyond_pi,
           _near_is_text, _camera_far_out, _huge_box, _flat_box, _tiny_focal, _focal_as_text, _lone_width,
-          _empty_masks, _one_image_twice, _far_at_1e300, _near_far_short_of_the_box, _all_transparent]
+          _empty_masks, _one_image_twice, _far_at_1e300, _near_far_short_of_the_box, _all_transparent, _all_black]
 
 
 @pytest.mark.parametrize("breaker", BROKEN, ids=lambda f: f.__name__.strip("_"))
