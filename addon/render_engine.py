@@ -23,6 +23,7 @@ import weakref
 from typing import Optional
 
 import bpy
+import numpy as np
 from bpy.props import IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 
@@ -94,6 +95,29 @@ def camera_request(cam_obj, render) -> dict:
     return {"c2w": [[float(v) for v in row] for row in c2w], "fx": intr["fl_x"], "fy": intr["fl_y"],
             "cx": intr["cx"], "cy": intr["cy"], "w": intr["w"], "h": intr["h"],
             "near": float(cam.clip_start), "far": float(cam.clip_end)}
+
+
+def border_window(render, w: int, h: int) -> Optional[tuple]:
+    """The Render Region (border) of a ``w`` x ``h`` frame in pixels, as Blender's pipeline cuts it:
+    (x0, y0, width, height) with (x0, y0) its bottom-left pixel, each edge truncated from the border
+    fraction times the size in float32, as Blender does; None without a border."""
+    if not render.use_border:
+        return None
+    f = np.float32
+    x0, x1 = int(f(render.border_min_x) * f(w)), int(f(render.border_max_x) * f(w))
+    y0, y1 = int(f(render.border_min_y) * f(h)), int(f(render.border_max_y) * f(h))
+    if x1 <= x0 or y1 <= y0:
+        raise export.ExportError(f"the Render Region covers no pixel of the {w}x{h} px frame: draw a larger region "
+                                 "(Ctrl+B in the camera view) or turn Render Region off")
+    return x0, y0, x1 - x0, y1 - y0
+
+
+def crop_request(request: dict, window: tuple) -> dict:
+    """``request`` narrowed to the pixels of ``window`` (``border_window``): the same camera, with its
+    principal point moved into the crop (rows of a request count from the top, Blender's from the bottom)."""
+    x0, y0, bw, bh = window
+    top = request["h"] - (y0 + bh)
+    return dict(request, cx=request["cx"] - x0, cy=request["cy"] - top, w=bw, h=bh)
 
 
 def viewport_request(region, rv3d, space, scale: float = 1.0) -> Optional[dict]:
@@ -218,7 +242,10 @@ class NerfRenderEngine(bpy.types.RenderEngine):
 
     def __del__(self):
         # Blender frees the engine object; the state must not outlive it in the timer's set.
-        state = getattr(self, "_viewport", None)
+        try:
+            state = getattr(self, "_viewport", None)
+        except ReferenceError:  # Blender removed the engine's RNA first: nothing of ours to free
+            return
         if state is not None:
             _VIEWPORTS.discard(state)
             if state.pending is not None and state.client is not None:
@@ -241,6 +268,9 @@ class NerfRenderEngine(bpy.types.RenderEngine):
             if (request["w"], request["h"]) != (w, h):
                 raise export.ExportError(f"camera {cam.name!r}: intrinsics are for {request['w']}x{request['h']} px "
                                          f"but Blender renders {w}x{h} px")
+            window = border_window(scene.render, w, h)
+            if window is not None:  # Render Region: Blender's result holds the region's pixels only
+                request = crop_request(request, window)
             want_depth = bool(depsgraph.view_layer.use_pass_z)
             client = _client_for(scene)
             got = client.render(request, depth=want_depth, should_stop=self.test_break,
@@ -251,8 +281,14 @@ class NerfRenderEngine(bpy.types.RenderEngine):
         if got is None:  # cancelled (Esc)
             return
         rgba, depth = got
-        result = self.begin_result(0, 0, w, h)
+        result = self.begin_result(0, 0, request["w"], request["h"])
         layer = result.layers[0]
+        have = len(layer.passes["Combined"].rect)
+        if have != request["w"] * request["h"]:
+            self.end_result(result, cancel=True)
+            self.report({"ERROR"}, f"NeRF render, frame {scene.frame_current}: Blender's result holds {have} "
+                                   f"pixels, not the {request['w']}x{request['h']} rendered (an unusual Render Region?)")
+            return
         layer.passes["Combined"].rect = render_client.blender_rect(rgba)
         if depth is not None and "Depth" in layer.passes:
             layer.passes["Depth"].rect = render_client.blender_depth_rect(depth)

@@ -140,6 +140,24 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
     assert np.abs(nerf[..., 3] - cli[..., 3]).max() <= 1.5 / 255
     assert np.abs(nerf[..., :3] - cli[..., :3])[visible].max() <= 2.5 / 255
 
+    # 1b. A Render Region renders its own pixels, the same as the full frame's there (it raised
+    #     "RenderPass.rect: array length cannot be changed"). Blender truncates each edge: x 14.4..38.4,
+    #     y 3..19.5 from the bottom of 48 x 30 px give columns 14-37 and rows 11-26 from the top.
+    r.use_border = True
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.3, 0.8, 0.1, 0.65
+    r.use_crop_to_border = True
+    cropped = _render_still(scene, str(tmp_path / "border_crop.png"))
+    assert cropped.shape == (16, 24, 4)
+    assert np.abs(cropped - nerf[11:27, 14:38]).max() <= 2.5 / 255  # the tolerance of part 1; one pixel off fails
+    r.use_crop_to_border = False
+    framed = _render_still(scene, str(tmp_path / "border.png"))
+    assert framed.shape == (30, 48, 4)
+    assert np.abs(framed[11:27, 14:38] - nerf[11:27, 14:38]).max() <= 2.5 / 255
+    outside = np.ones((30, 48), bool)
+    outside[11:27, 14:38] = False
+    assert framed[outside][:, 3].max() == 0.0
+    r.use_border = False
+
     # 2. Cycles, same camera (shift, 5:4 pixels, 75 %): the NeRF is a fair picture of the scene there.
     _cycles_frame(scene, scene.frame_current, str(tmp_path / "cycles.png"))
     ref = _read_png(str(tmp_path / "cycles.png"))
