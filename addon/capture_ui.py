@@ -13,7 +13,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
                        StringProperty)
 
 from . import capture, demo_scenes, export, jobs, layouts, scene_bounds
-from .ui_common import NerfPanel, path_options, property_split, report_and_cancel
+from .ui_common import NerfPanel, draw_wrapped, path_options, property_split, report_and_cancel
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 
@@ -192,7 +192,9 @@ class NERF_OT_capture(bpy.types.Operator):
             job.prepare()
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
-        for note in job.notes:
+        s = context.scene.nerf_capture
+        stale = layouts.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        for note in ([stale] if stale else []) + list(job.notes):
             self.report({"WARNING"}, note)
         if context.window is None or bpy.app.background:
             # Scripts and tests (no event loop to deliver timer events): render everything now.
@@ -326,6 +328,12 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         row.operator(NERF_OT_clear_cameras.bl_idname, text="", icon="TRASH")
         cams = layouts.capture_cameras(context.scene)
         col.label(text=f"{len(cams['train'])} train, {len(cams['val'])} val, {len(cams['test'])} test cameras")
+        try:
+            stale = layouts.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        except layouts.LayoutError:
+            stale = None
+        if stale:
+            draw_wrapped(col, "Cameras out of date: " + stale, "ERROR")
 
         col = layout.column(heading="Render")
         col.prop(s, "engine")

@@ -11,6 +11,7 @@ that surround the camera: cameras stand inside the target's box and look outward
 """
 from __future__ import annotations
 
+import json
 import math
 import random
 from dataclasses import dataclass
@@ -378,6 +379,8 @@ def clear_cameras(scene) -> int:
     if coll is None:
         return 0
     objs = [o for o in coll.objects if o.type == "CAMERA" and "nerf_split" in o]
+    if LAYOUT_RECORD in coll:
+        del coll[LAYOUT_RECORD]  # cameras the user adds later were not laid out by these settings
     for obj in objs:
         data = obj.data
         bpy.data.objects.remove(obj, do_unlink=True)
@@ -619,7 +622,58 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
         obj.data.clip_end = max(obj.data.clip_end, 4.0 * (radius or 0.0))
         if clip_start is not None:
             obj.data.clip_start = min(obj.data.clip_start, clip_start)
+    coll[LAYOUT_RECORD] = json.dumps(_layout_record(spec, res_x, res_y))
     return made
+
+
+LAYOUT_RECORD = "nerf_layout"  # the collection's record of the settings its cameras were laid out with
+
+# The settings each layout's cameras depend on, with the names the panel gives them.
+_RECORD_NAMES = {"layout": "layout", "train": "train count", "val": "val count", "test": "test count",
+                 "radius": "radius", "elevation_min": "elevation min", "elevation_max": "elevation max",
+                 "seed": "seed", "rings": "rings", "turns": "turns", "frame_step": "frame step",
+                 "focal_length": "focal length", "target": "target", "margin": "margin", "resolution": "resolution"}
+_AROUND = ("train", "radius", "elevation_min", "elevation_max", "focal_length", "target", "margin")
+_LAYOUT_USES = {"hemisphere": _AROUND, "sphere": _AROUND, "random": _AROUND, "rings": _AROUND + ("rings",),
+                "spiral": _AROUND + ("turns",),
+                "inside": ("train", "elevation_min", "elevation_max", "focal_length", "target"),
+                "scene-cameras": (), "animation": ("frame_step",)}
+
+
+def _layout_record(spec: LayoutSpec, res_x: int, res_y: int) -> dict:
+    return dict(spec.to_dict(), resolution=[int(res_x), int(res_y)])
+
+
+def stale_layout_note(scene, spec: LayoutSpec, res_x: int, res_y: int) -> str | None:
+    """A sentence when the "NeRF Cameras" were laid out with other settings than ``spec`` asks for now
+    (the panel's Radius, Focal Length, counts ... changed after Generate Cameras, or after a capture
+    made them): a capture renders the cameras as they are, so the new values would be silently
+    ignored. None when they agree, when there are no cameras, or when the collection holds no record
+    (cameras the user placed). Only the settings the layout uses are compared (``_LAYOUT_USES``).
+    """
+    coll = nerf_collection(scene, create=False)
+    if coll is None or not any(capture_cameras(scene).values()) or not isinstance(coll.get(LAYOUT_RECORD), str):
+        return None
+    try:
+        was = json.loads(coll[LAYOUT_RECORD])
+        now = _layout_record(spec, res_x, res_y)
+    except (ValueError, LayoutError):
+        return None
+    keys = ("layout", "val", "test", "seed", "resolution") + _LAYOUT_USES.get(spec.layout, ())
+    changed = [f"{_RECORD_NAMES[k]} {_show(was.get(k))} -> {_show(now[k])}" for k in keys
+               if _show(was.get(k)) != _show(now[k])]
+    if not changed:
+        return None
+    return (f"the cameras in {coll.name!r} were laid out with other settings ({', '.join(changed)}): a capture "
+            "renders them as they are. Press Generate Cameras to lay them out with the panel's settings")
+
+
+def _show(value) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, list):
+        return "x".join(str(v) for v in value)
+    return str(value)
 
 
 POSE_TOLERANCE = 1e-5  # matrix entries closer than this (scene units / cosines) count as the same pose

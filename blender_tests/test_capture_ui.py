@@ -227,6 +227,45 @@ def test_panel_draws_every_layout_and_the_running_state(registered, layout_name,
     assert ("progress", 0.25, "3/12 train/r_2") in log and ("operator", "nerf.capture_cancel") in log
 
 
+def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered, tmp_path):
+    # The panel's Radius, Focal Length and Train count changed after the cameras were made: Capture
+    # rendered the old cameras and said nothing, so the dataset was not what the panel showed.
+    from types import SimpleNamespace
+
+    bpy.ops.mesh.primitive_cube_add()
+    scene = bpy.context.scene
+    s = scene.nerf_capture
+    s.layout, s.train_count, s.val_count, s.test_count = "hemisphere", 3, 1, 1
+    s.resolution_x = s.resolution_y = 16
+    s.radius, s.focal_length = 0.0, 50.0
+
+    def stale():
+        return layouts.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+
+    def panel_lines():
+        log = []
+        capture_ui.NERF_PT_capture.draw(SimpleNamespace(layout=_RecordingLayout(log)), bpy.context)
+        return " ".join(entry[1] for entry in log if entry[0] == "label")
+
+    assert stale() is None  # no cameras yet
+    assert bpy.ops.nerf.generate_cameras() == {"FINISHED"}
+    assert stale() is None and "out of date" not in panel_lines()
+    s.radius, s.focal_length, s.train_count = 12.0, 120.0, 6
+    s.turns = 7.0  # the hemisphere layout does not use it: not named
+    note = stale()
+    assert note and "radius 0 -> 12" in note and "focal length 50 -> 120" in note and "train count 3 -> 6" in note
+    assert "turns" not in note and "Generate Cameras" in note
+    assert "Cameras out of date" in panel_lines()
+    assert bpy.ops.nerf.generate_cameras() == {"FINISHED"}
+    assert stale() is None
+    assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
+    # cameras the user puts in the collection were laid out by no settings of ours
+    user = bpy.data.objects.new("mine", bpy.data.cameras.new("mine"))
+    layouts.nerf_collection(scene).objects.link(user)
+    s.radius = 3.0
+    assert stale() is None
+
+
 def test_relative_output_of_an_unsaved_file_is_refused(registered):
     bpy.ops.mesh.primitive_cube_add()
     bpy.context.scene.nerf_capture.output_dir = "//nerf_dataset/"
