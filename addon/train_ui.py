@@ -41,12 +41,20 @@ def start_training(context, resume: bool = False) -> jobs.TrainJob:
     if not run:
         raise SetupError("No run folder is set: choose where the training run should be written.")
     state = trainer_process.run_folder_state(run)
+    if state == "file":
+        raise SetupError(f"Run folder {run} is a file, not a folder: choose a folder for the run.")
     if resume and state != "resumable":
         latest = os.path.relpath(contract.latest_checkpoint(run), run)
-        raise SetupError(f"Run folder {run} has no checkpoint to resume ({latest}): press Train instead.")
+        if state in ("new", "empty"):
+            raise SetupError(f"Run folder {run} holds no run to resume: press Train to start one.")
+        raise SetupError(f"Run folder {run} holds no checkpoint to resume ({latest} or "
+                         f"{contract.CHECKPOINTS_DIR}/{contract.step_glob('.pt')}; a run stopped before its first "
+                         f"checkpoint has none): press New Name to train into {trainer_process.suggest_run_name(run)}. "
+                         "Nothing was overwritten.")
     if not resume and state in ("resumable", "occupied"):
-        what = "holds a training run: press Resume to continue it" if state == "resumable" else "is not empty"
-        raise SetupError(f"Run folder {run} already {what}, or press New Name to train into "
+        what = ("holds a training run: press Resume to continue it, or" if state == "resumable"
+                else "is not empty and holds no run to resume:")
+        raise SetupError(f"Run folder {run} {what} press New Name to train into "
                          f"{trainer_process.suggest_run_name(run)}. Nothing was overwritten.")
     python = trainer_process.resolve_interpreter(prefs.python_preference(context))
     cmd = trainer_process.train_command(python, dataset, run, method=s.method.strip(), max_seconds=s.max_seconds,

@@ -11,6 +11,7 @@ scripts and tests use it without bpy.
 from __future__ import annotations
 
 import errno
+import glob
 import json
 import os
 import queue
@@ -170,14 +171,18 @@ def check_dataset(python: str, dataset: str, timeout: float = 300.0, addon_dir: 
 
 # -- run folders ---------------------------------------------------------------------------------
 def run_folder_state(run: str) -> str:
-    """'new' (absent), 'empty', 'resumable' (has checkpoints/latest.pt) or 'occupied' (other files)."""
+    """'new' (absent), 'empty', 'file' (not a folder), 'resumable' (a checkpoint the trainer resumes
+    from: ``checkpoints/latest.pt``, else a ``checkpoints/step_*.pt``, as ``--resume`` falls back to
+    them) or 'occupied' (other files)."""
     if not os.path.exists(run):
         return "new"
     if not os.path.isdir(run):
-        return "occupied"
+        return "file"
     if not os.listdir(run):
         return "empty"
     if os.path.isfile(contract.latest_checkpoint(run)):
+        return "resumable"
+    if glob.glob(os.path.join(glob.escape(run), contract.CHECKPOINTS_DIR, contract.step_glob(".pt"))):
         return "resumable"
     return "occupied"
 

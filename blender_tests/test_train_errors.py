@@ -104,15 +104,31 @@ def test_existing_run_folder_is_never_overwritten(s, tmp_path):
     for name, data in (("config.json", "{}"), ("checkpoints/latest.pt", "weights")):
         with open(os.path.join(s.run_dir, name), "w") as fh:
             fh.write(data)
-    with pytest.raises(SetupError, match=r"already holds a training run: press Resume.*New Name.*run_2"):
+    with pytest.raises(SetupError, match=r"holds a training run: press Resume to continue it, or press New Name.*run_2"):
         train_ui.start_training(bpy.context)
-    os.remove(os.path.join(s.run_dir, "checkpoints", "latest.pt"))
-    with pytest.raises(SetupError, match=r"is not empty, or press New Name"):
+    # latest.pt gone, a step_*.pt intact: the trainer resumes from it, so the panel must let Resume
+    # through (Resume said "press Train instead", and Train said "press Resume").
+    os.rename(os.path.join(s.run_dir, "checkpoints", "latest.pt"),
+              os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
+    assert trainer_process.run_folder_state(s.run_dir) == "resumable"
+    with pytest.raises(SetupError, match=r"holds a training run: press Resume"):
         train_ui.start_training(bpy.context)
-    with pytest.raises(SetupError, match=r"no checkpoint to resume"):
+    os.remove(os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
+    # a run stopped before its first checkpoint: both buttons point to New Name, which exists
+    with pytest.raises(SetupError, match=r"is not empty and holds no run to resume: press New Name to train into .*run_2"):
+        train_ui.start_training(bpy.context)
+    with pytest.raises(SetupError, match=r"no checkpoint to resume .*step_\*\.pt.*press New Name"):
         train_ui.start_training(bpy.context, resume=True)
     assert open(os.path.join(s.run_dir, "config.json")).read() == "{}"
     assert bpy.ops.nerf.run_new_name() == {"FINISHED"} and s.run_dir == str(tmp_path / "run_2")
+    with pytest.raises(SetupError, match=r"holds no run to resume: press Train"):
+        train_ui.start_training(bpy.context, resume=True)
+    with open(tmp_path / "notes.txt", "w") as fh:
+        fh.write("mine")
+    s.run_dir = str(tmp_path / "notes.txt")  # "already is not empty", and New Name offered notes.txt_2
+    with pytest.raises(SetupError, match=r"notes.txt is a file, not a folder"):
+        train_ui.start_training(bpy.context)
+    assert open(tmp_path / "notes.txt").read() == "mine"
 
 
 def test_trainer_that_dies_is_reported_with_its_log_tail(s, tmp_path):

@@ -145,7 +145,11 @@ def test_run_folder_states_and_new_names(tmp_path):
     (run / "config.json").write_text("{}")
     assert trainer_process.run_folder_state(str(run)) == "occupied"
     (run / "checkpoints").mkdir()
+    (run / "checkpoints" / "step_0000010.pt").write_bytes(b"x")  # what --resume falls back to
+    assert trainer_process.run_folder_state(str(run)) == "resumable"
     (run / "checkpoints" / "latest.pt").write_bytes(b"x")
     assert trainer_process.run_folder_state(str(run)) == "resumable"
+    (tmp_path / "notes.txt").write_text("mine")
+    assert trainer_process.run_folder_state(str(tmp_path / "notes.txt")) == "file"
     (tmp_path / "run_2").mkdir()
     assert trainer_process.suggest_run_name(str(run)) == str(tmp_path / "run_3")
