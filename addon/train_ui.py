@@ -17,7 +17,8 @@ from . import compare, jobs, planes, prefs, runs, train_props, trainer_process
 from .core_contract import contract
 from .train_props import settings_of
 from .trainer_process import SetupError
-from .ui_common import NerfPanel, abs_path, draw_error, format_seconds, property_split, report_and_cancel
+from .ui_common import (NerfPanel, abs_path, draw_error, draw_wrapped, format_seconds, property_split,
+                        report_and_cancel)
 
 TRAIN, RENDER = "train", "render"  # this module's keys in the job registry
 _PREVIEWS = None  # bpy.utils.previews collection holding the latest training preview
@@ -348,7 +349,13 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
         else:
             row.operator(NERF_OT_train.bl_idname, icon="PLAY").resume = False
             row.operator(NERF_OT_train.bl_idname, text="Resume", icon="FF").resume = True
-        if running or s.step:
+        if s.running and not running:
+            # Saved with the file mid-training (or left by an add-on reload): the numbers are a snapshot
+            # of a job that no longer reports here, so no progress bar or ETA that would never move.
+            draw_wrapped(layout, f"Training was running when this was saved (step {s.step}); it is not running in "
+                                 "this session. Its run folder keeps what it wrote: Resume continues it, Refresh Runs "
+                                 "lists it.", "INFO")
+        elif running or s.step:
             box = layout.box()
             box.progress(factor=s.fraction, type="BAR", text=s.status or "Training")
             grid = box.grid_flow(columns=2, align=True)

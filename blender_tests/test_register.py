@@ -117,23 +117,27 @@ def test_panels_draw_in_every_state(tmp_path):
         assert "Runs" in _labels(_draw(train_ui.NERF_PT_train))
         s.running, s.step, s.loss, s.psnr, s.elapsed, s.eta, s.fraction, s.rollbacks = True, 120, 0.01, 21.5, 65, 30, .5, 1
         s.status = "Step 120 (50%)"
-        labels = _labels(_draw(train_ui.NERF_PT_train))
-        for text in ("Step 120 (50%)", "PSNR 21.50 dB", "Elapsed 1:05", "ETA 0:30", "1 rollback(s)"):
-            assert text in labels
-        assert "Background:" not in labels  # no start event yet: nothing to say
-        # The flag is saved with the file: with no training job in this session it is stale, and the
-        # panel offers Train and Resume rather than only a Cancel that has nothing to cancel.
-        ops = [c[1][0] for c in _draw(train_ui.NERF_PT_train) if c[0] == "operator"]
-        assert "nerf.train" in ops and "nerf.train_cancel" not in ops
         from addon import jobs
 
         real = jobs.is_running
         jobs.is_running = lambda key: key == train_ui.TRAIN
         try:
-            ops = [c[1][0] for c in _draw(train_ui.NERF_PT_train) if c[0] == "operator"]
+            calls = _draw(train_ui.NERF_PT_train)
         finally:
             jobs.is_running = real
+        labels, ops = _labels(calls), [c[1][0] for c in calls if c[0] == "operator"]
+        for text in ("Step 120 (50%)", "PSNR 21.50 dB", "Elapsed 1:05", "ETA 0:30", "1 rollback(s)"):
+            assert text in labels
+        assert "Background:" not in labels  # no start event yet: nothing to say
         assert "nerf.train_cancel" in ops and "nerf.train" not in ops
+        # The flag is saved with the file: with no training job in this session it is stale, and the
+        # panel offers Train and Resume rather than only a Cancel that has nothing to cancel, and no
+        # progress bar or ETA frozen at the moment of saving.
+        calls = _draw(train_ui.NERF_PT_train)
+        labels, ops = _labels(calls), [c[1][0] for c in calls if c[0] == "operator"]
+        assert "nerf.train" in ops and "nerf.train_cancel" not in ops
+        assert "ETA" not in labels and "Step 120 (50%)" not in labels
+        assert "Training was running when this was saved (step 120)" in labels and "Resume" in labels
         # A Compare render (a fly-through of hundreds of frames) is stopped from the Compare panel.
         jobs.is_running = lambda key: key == train_ui.RENDER
         try:
@@ -142,6 +146,7 @@ def test_panels_draw_in_every_state(tmp_path):
             jobs.is_running = real
         cancel = [c for c in calls if c[0] == "operator" and c[1][0] == "nerf.train_cancel"]
         assert cancel and cancel[0][2]["text"] == "Cancel Render"
+        s.running = False  # a run that ended in this session: its last numbers stay on show
         s.background = "environment: the images have no alpha channel (RGB)"
         assert "Background: environment: the images have no alpha channel (RGB)" in _labels(_draw(train_ui.NERF_PT_train))
         s.running = False
