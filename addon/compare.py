@@ -137,6 +137,17 @@ def rendered_count(out_dir: str) -> int:
         return 0
 
 
+def render_notes(out_dir: str) -> List[str]:
+    """The notes ``nerf_core render`` left in ``out_dir``/renders.json (the run's dataset changed since
+    it trained, ...); [] when there are none or the file cannot be read (the import reports that)."""
+    try:
+        with open(os.path.join(out_dir, "renders.json"), encoding="utf-8") as fh:
+            notes = json.load(fh).get("notes")
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [n for n in notes if isinstance(n, str)] if isinstance(notes, list) else []
+
+
 def import_views(scene, views: List[planes.View], layout: str, out_dir: str, run: str, distance: float = 0.0) -> str:
     """Import ``views`` with ``layout`` ('CAMERA' or 'GALLERY'), keep their images as the Compare
     panel's ``image_storage`` says (``image_storage``: pack by default) and list their metrics on the

@@ -43,6 +43,7 @@ class Job:
         self.scene_name = scene_name
         self.state = "running"
         self.message = ""
+        self.warnings: List[str] = []  # reported beside the message when the job is done
         self.on_update: Optional[Callable[["Job"], None]] = None
         self.on_end: Optional[Callable[["Job"], None]] = None
         self.ended = False  # on_end has run
@@ -201,6 +202,7 @@ class RenderJob(ProcessJob):
             return self.fail(trainer_process.describe_os_error(exc, self.out))
         self.state = "done"
         self.message = f"Imported {len(self.views)} view(s) from {self.out}" + (f"; {note}" if note else "")
+        self.warnings = compare.render_notes(self.out)  # e.g. the scores are against a re-captured dataset
         return self.state
 
 
@@ -337,6 +339,8 @@ def _report(op, job: Job) -> None:
         op.report({job.cancel_report}, job.message)
     else:
         op.report({"INFO"}, job.message)
+        for warning in job.warnings:
+            op.report({"WARNING"}, warning)
 
 
 class NERF_OT_follow_jobs(bpy.types.Operator):

@@ -203,6 +203,30 @@ def test_render_without_a_trained_run(s, tmp_path):
     assert "has no trained checkpoint yet: train first" in s.error
 
 
+def test_notes_of_the_render_reach_the_user_beside_the_import(tmp_path):
+    # nerf_core render notes a run whose dataset was re-captured since training (its scores compare the
+    # model with other images); the Compare panel said only "Imported 3 view(s)".
+    out = tmp_path / "views"
+    out.mkdir()
+    (out / "renders.json").write_text(json.dumps({"frames": [], "notes": ["DS changed since the run trained on it", 5]}))
+    assert compare.render_notes(str(out)) == ["DS changed since the run trained on it"]
+    (out / "renders.json").write_text("[1]")
+    assert compare.render_notes(str(out)) == [] and compare.render_notes(str(tmp_path / "none")) == []
+
+    class Op:
+        def __init__(self):
+            self.reports = []
+
+        def report(self, kind, text):
+            self.reports.append((sorted(kind)[0], text))
+
+    job = jobs.Job(bpy.context.scene.name)
+    job.state, job.message, job.warnings = "done", "Imported 3 view(s) from V", ["DS changed since the run trained on it"]
+    op = Op()
+    jobs._report(op, job)
+    assert op.reports == [("INFO", "Imported 3 view(s) from V"), ("WARNING", "DS changed since the run trained on it")]
+
+
 def test_quitting_blender_leaves_no_orphan_trainer(tmp_path, repo_root):
     """The trainer runs in its own session; the add-on stops it when Blender's Python exits."""
     script = tmp_path / "session.py"

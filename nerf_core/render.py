@@ -422,6 +422,17 @@ def render_to_dir(
     return out / "renders.json"
 
 
+def _inside_dataset(path, dataset) -> bool:
+    """Whether ``path`` is the folder ``dataset`` or lies in it."""
+    if not isinstance(dataset, str) or not dataset:
+        return False
+    try:
+        path, dataset = Path(path).resolve(), Path(dataset).resolve()
+    except (OSError, RuntimeError):
+        return False
+    return path == dataset or dataset in path.parents
+
+
 def render_run(run, cameras_path, out, split="test", overwrite=False, device=None, downscale: float = 1.0,
                chunk: int = 8192, checkpoint=None, show_progress=True) -> Path:
     """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
@@ -434,8 +445,13 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         cameras_path = config.get("dataset")
         if not cameras_path:
             raise RunError(f"{config_path(run)}: no 'dataset' recorded; pass --cameras")
+    notes = []
+    if _inside_dataset(cameras_path, config.get("dataset")):
+        # the run's own dataset, or a file of it (the add-on's Compare passes transforms_test.json):
+        # its images are the ground truth of the scores, so say when they are no longer the ones trained on
         changed = dataset_changed_note(config)
         if changed:
+            notes.append(changed)
             print(f"render: note: {changed}", file=sys.stderr)
     cams, stems, frames = camera_views(cameras_path, split)
     smallest = int(torch.minimum(cams.width, cams.height).min())
@@ -451,7 +467,7 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     return render_to_dir(
         model, cams, stems, out, overwrite=overwrite, near=config.get("near"), far=config.get("far"), chunk=chunk,
         extra={"run": str(Path(run).resolve()), "step": ckpt.get("step"), "method": ckpt.get("method"),
-               "cameras": str(Path(cameras_path).resolve())},
+               "cameras": str(Path(cameras_path).resolve()), **({"notes": notes} if notes else {})},
         show_progress=show_progress,
         ground_truth=frames if gt_downscale else None,
         metrics_background=config.get("eval_background", [1.0, 1.0, 1.0]), gt_downscale=gt_downscale or 1,

@@ -144,7 +144,15 @@ def test_eval_and_render_note_a_dataset_that_changed_since_training(sphere_datas
     data = json.loads(test_file.read_text())
     data["frames"][0]["transform_matrix"][0][3] += 0.5  # a new capture written over the old one
     test_file.write_text(json.dumps(data))
-    for args in (["eval", run], ["render", run, "--out", tmp_path / "renders"]):
+    # `render --cameras` of the dataset's own file, as the add-on's Compare runs it, was silent
+    for args in (["eval", run], ["render", run, "--out", tmp_path / "renders"],
+                 ["render", run, "--cameras", test_file, "--out", tmp_path / "compare"]):
         proc = _cli(*args, "--no-bar")
         assert proc.returncode == 0, proc.stderr
         assert "changed since the run trained on it" in proc.stderr and str(sphere_dataset.resolve()) in proc.stderr
+    # ...and renders.json carries it, for the add-on to show beside the imported scores
+    assert "changed since the run trained on it" in json.loads((tmp_path / "compare" / "renders.json").read_text())["notes"][0]
+    other = tmp_path / "cams.json"  # cameras of the user's own: no dataset of the run's involved
+    other.write_text(json.dumps({"camera_angle_x": 0.7, "w": 8, "h": 8, "frames": [data["frames"][0]]}))
+    proc = _cli("render", run, "--cameras", other, "--out", tmp_path / "own", "--no-bar")
+    assert proc.returncode == 0 and "changed since" not in proc.stderr, proc.stderr
