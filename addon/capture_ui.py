@@ -53,7 +53,8 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
     target: EnumProperty(name="Target", items=[
         ("SCENE", "Whole Scene", "Aim at and frame everything visible"),
         ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
-    train_count: IntProperty(name="Train", default=100, min=1, soft_max=1000)
+    # At least 2: `train` and `check` refuse a train split of one view (there is nothing to triangulate).
+    train_count: IntProperty(name="Train", default=100, min=2, soft_max=1000)
     # At least 1 each: `train` and `check` refuse a dataset with an empty split (layouts.held_out_problem).
     val_count: IntProperty(name="Val", default=10, min=1, soft_max=200)
     test_count: IntProperty(name="Test", default=20, min=1, soft_max=400)

@@ -83,6 +83,8 @@ def test_the_panel_cannot_capture_a_dataset_without_val_or_test_views(registered
     s = bpy.context.scene.nerf_capture
     s.val_count = 0  # the property clamps: the panel cannot ask for an empty split
     assert s.val_count == 1
+    s.train_count = 1  # nor for a train split of one view, which train and check refuse
+    assert s.train_count == 2
     # A collection made elsewhere (a script, an older file) without test cameras is refused, naming it.
     layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
     s.output_dir, s.engine = str(tmp_path / "ds"), "workbench"

@@ -24,6 +24,7 @@ SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
     (["--resolution", "32x0"], "--resolution"),
     (["--resolution", "32", "--resolution-y", "0"], "--resolution-y"),
     (["--count", "0"], "--count"),
+    (["--count", "1"], "--count"),  # a train split of one view: train and check would refuse the dataset
     (["--val-count", "-1"], "--val-count"),
     (["--val-count", "0"], "--val-count"),  # an empty split: train and check would refuse the dataset
     (["--test-count", "0"], "--test-count"),

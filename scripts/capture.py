@@ -60,8 +60,9 @@ def argument_errors(args) -> list[str]:
     for flag, v in (("--count", args.count), ("--val-count", args.val_count), ("--test-count", args.test_count)):
         if v < 0:
             errors.append(f"{flag}: must be >= 0, got {v}")
-    if args.count < 1 and not args.keep_cameras:
-        errors.append(f"--count: a capture needs at least 1 train view, got {args.count}")
+    if args.count < 2 and not args.keep_cameras:
+        # `train` and `check` refuse a train split of one view: a capture must not write one
+        errors.append(f"--count: a capture needs at least 2 train views, got {args.count}")
     for flag, v in (("--val-count", args.val_count), ("--test-count", args.test_count)):
         # An empty split file is refused by `train` and `check` (the original NeRF loader and 3DGS read
         # every split): a capture must not write a dataset our own tools reject.
