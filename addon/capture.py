@@ -578,7 +578,13 @@ class CaptureJob:
         frame = fr["frame"] if fr["frame"] is not None else self.start_frame
         if sc.frame_current != frame:
             sc.frame_set(frame)
-        bpy.ops.render.render()
+        try:
+            capture_render.render_still()
+        except RuntimeError as exc:  # Blender's own refusal, e.g. "Failed to allocate GPU buffers"
+            reason = str(exc).replace("Error: ", "").strip()
+            raise CaptureError(f"{fr['key']}: Blender could not render this view at {self.s.res_x}x{self.s.res_y} px "
+                               f"with {self.engine} ({reason}); a lower resolution may fit. The frames rendered so "
+                               "far are kept, and capturing again resumes") from exc
         result = bpy.data.images["Render Result"]
         capture_render.save_png(sc, result, os.path.join(self.out, fr["image"]))
         if self._needs_passes():

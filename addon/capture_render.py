@@ -18,6 +18,11 @@ from .capture_shards import unique_suffix
 PARTIAL_TAG = ".partial"
 
 
+def render_still() -> None:
+    """Render the scene's active camera into "Render Result" (F12); RuntimeError when Blender cannot."""
+    bpy.ops.render.render()
+
+
 def save_png(scene, result, path: str) -> None:
     """The render result as an 8-bit RGBA PNG at ``path``."""
     img = scene.render.image_settings

@@ -387,6 +387,27 @@ def test_resume_keeps_finished_frames(tmp_path):
     assert (third["rendered"], third["kept"]) == (1, 5) and (out / "val" / "r_0.png").exists()
 
 
+def test_a_view_blender_cannot_render_is_named_with_the_resolution(tmp_path, monkeypatch):
+    # Workbench fails past 16384 px ("Failed to allocate GPU buffers"), inside the 1..65536 the field
+    # allows: a traceback reached the user, or "capture stopped: Error: ..." that named no resolution.
+    scene = scene_with_cameras()
+    out = tmp_path / "ds"
+    job = capture.CaptureJob(scene, settings(out))
+    job.prepare()
+    assert job.step()  # one frame is rendered before the failure
+
+    def cannot(*args, **kwargs):
+        raise RuntimeError("Error: Failed to allocate GPU buffers\n")
+
+    monkeypatch.setattr(capture_render, "render_still", cannot)
+    with pytest.raises(capture.CaptureError, match=r"train/r_1: Blender could not render this view at 24x16 px with "
+                                                   r"BLENDER_WORKBENCH \(Failed to allocate GPU buffers\); a lower "
+                                                   r"resolution may fit.*resumes"):
+        job.step()
+    job.cancel()
+    assert manifest(out)["status"] == "incomplete" and (out / "train" / "r_0.png").exists()
+
+
 def test_cancel_leaves_consistent_resumable_folder(tmp_path):
     scene = scene_with_cameras()
     user_camera = bpy.data.objects.new("Mine", bpy.data.cameras.new("Mine"))
