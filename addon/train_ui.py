@@ -31,14 +31,21 @@ def start_training(context, resume: bool = False) -> jobs.TrainJob:
         raise SetupError("A training run is already in progress: cancel it first.")
     s = settings_of(context)
     capture = getattr(context.scene, "nerf_capture", None)
-    if not s.dataset_dir and capture is not None and getattr(capture, "output_dir", ""):
+    chosen = s.dataset_dir
+    if not chosen and capture is not None and getattr(capture, "output_dir", ""):
         # Nothing chosen yet: train on what the Capture panel writes, the usual next step.
-        s.dataset_dir = capture.output_dir
-    dataset, run = abs_path(s.dataset_dir), abs_path(s.run_dir)
+        chosen = capture.output_dir
+    dataset, run = abs_path(chosen), abs_path(s.run_dir)
     if not dataset:
         raise SetupError("No dataset folder is set: capture a dataset (Capture panel) or choose its folder.")
-    if not os.path.isdir(dataset):
-        raise SetupError(f"Dataset folder {dataset} does not exist: capture a dataset first.")
+    # a path the user did not type must say where it came from
+    origin = "" if s.dataset_dir else " (the Capture panel's Output, as the Dataset field is empty)"
+    if os.path.isfile(dataset) and not dataset.lower().endswith(".json"):
+        raise SetupError(f"Dataset {dataset}{origin} is a file: choose the dataset's folder (or its transforms .json "
+                         "file).")
+    if not os.path.exists(dataset):  # a folder, or a transforms file, which nerf_core train reads too
+        raise SetupError(f"Dataset folder {dataset}{origin} does not exist: capture a dataset first, or choose one.")
+    s.dataset_dir = chosen
     if not run:
         raise SetupError("No run folder is set: choose where the training run should be written.")
     state = trainer_process.run_folder_state(run)

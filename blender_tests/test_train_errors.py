@@ -54,6 +54,31 @@ def test_no_dataset(s, tmp_path):
     s.dataset_dir = str(tmp_path / "nowhere")
     with pytest.raises(SetupError, match=r"nowhere does not exist: capture a dataset first"):
         train_ui.start_training(bpy.context)
+    # an empty field takes the Capture panel's Output: a failure names where that path came from, and
+    # the field stays as the user left it
+    from addon import capture_ui
+
+    capture_ui.register()
+    try:
+        s.dataset_dir = ""
+        bpy.context.scene.nerf_capture.output_dir = str(tmp_path / "captured")
+        with pytest.raises(SetupError, match=r"captured \(the Capture panel's Output, as the Dataset field is empty\) "
+                                             r"does not exist"):
+            train_ui.start_training(bpy.context)
+        assert s.dataset_dir == ""
+    finally:
+        capture_ui.unregister()
+    # a transforms file is a dataset too (nerf_core train reads it); another file is not
+    (tmp_path / "ds").mkdir()
+    (tmp_path / "ds" / "transforms_train.json").write_text("{}")
+    (tmp_path / "notes.txt").write_text("mine")
+    s.dataset_dir = str(tmp_path / "notes.txt")
+    with pytest.raises(SetupError, match=r"notes.txt is a file: choose the dataset's folder"):
+        train_ui.start_training(bpy.context)
+    s.dataset_dir = str(tmp_path / "ds" / "transforms_train.json")
+    with pytest.raises(SetupError, match=r"No run folder is set|run"):  # past the dataset check
+        s.run_dir = ""
+        train_ui.start_training(bpy.context)
 
 
 def test_paths_relative_to_an_unsaved_blend_or_home_are_not_the_working_folder(s, tmp_path, monkeypatch):
