@@ -329,10 +329,7 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         row.operator(NERF_OT_clear_cameras.bl_idname, text="", icon="TRASH")
         cams = layouts.capture_cameras(context.scene)
         col.label(text=f"{len(cams['train'])} train, {len(cams['val'])} val, {len(cams['test'])} test cameras")
-        try:
-            stale = layouts.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
-        except layouts.LayoutError:
-            stale = None
+        stale = layouts.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y, cams)
         if stale:
             draw_wrapped(col, "Cameras out of date: " + stale, "ERROR")
 

@@ -628,11 +628,7 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
 
 LAYOUT_RECORD = "nerf_layout"  # the collection's record of the settings its cameras were laid out with
 
-# The settings each layout's cameras depend on, with the names the panel gives them.
-_RECORD_NAMES = {"layout": "layout", "train": "train count", "val": "val count", "test": "test count",
-                 "radius": "radius", "elevation_min": "elevation min", "elevation_max": "elevation max",
-                 "seed": "seed", "rings": "rings", "turns": "turns", "frame_step": "frame step",
-                 "focal_length": "focal length", "target": "target", "margin": "margin", "resolution": "resolution"}
+# The settings each layout's cameras depend on (names as the panel gives them: "focal length", "train count").
 _AROUND = ("train", "radius", "elevation_min", "elevation_max", "focal_length", "target", "margin")
 _LAYOUT_USES = {"hemisphere": _AROUND, "sphere": _AROUND, "random": _AROUND, "rings": _AROUND + ("rings",),
                 "spiral": _AROUND + ("turns",),
@@ -644,15 +640,18 @@ def _layout_record(spec: LayoutSpec, res_x: int, res_y: int) -> dict:
     return dict(spec.to_dict(), resolution=[int(res_x), int(res_y)])
 
 
-def stale_layout_note(scene, spec: LayoutSpec, res_x: int, res_y: int) -> str | None:
+def stale_layout_note(scene, spec: LayoutSpec, res_x: int, res_y: int, cams: dict | None = None) -> str | None:
     """A sentence when the "NeRF Cameras" were laid out with other settings than ``spec`` asks for now
     (the panel's Radius, Focal Length, counts ... changed after Generate Cameras, or after a capture
     made them): a capture renders the cameras as they are, so the new values would be silently
     ignored. None when they agree, when there are no cameras, or when the collection holds no record
     (cameras the user placed). Only the settings the layout uses are compared (``_LAYOUT_USES``).
+    ``cams``: ``capture_cameras(scene)`` when the caller has it already (the panel, on every redraw).
     """
     coll = nerf_collection(scene, create=False)
-    if coll is None or not any(capture_cameras(scene).values()) or not isinstance(coll.get(LAYOUT_RECORD), str):
+    if cams is None:
+        cams = capture_cameras(scene)
+    if coll is None or not any(cams.values()) or not isinstance(coll.get(LAYOUT_RECORD), str):
         return None
     try:
         was = json.loads(coll[LAYOUT_RECORD])
@@ -660,7 +659,8 @@ def stale_layout_note(scene, spec: LayoutSpec, res_x: int, res_y: int) -> str | 
     except (ValueError, LayoutError):
         return None
     keys = ("layout", "val", "test", "seed", "resolution") + _LAYOUT_USES.get(spec.layout, ())
-    changed = [f"{_RECORD_NAMES[k]} {_show(was.get(k))} -> {_show(now[k])}" for k in keys
+    names = {"train": "train count", "val": "val count", "test": "test count"}
+    changed = [f"{names.get(k, k.replace('_', ' '))} {_show(was.get(k))} -> {_show(now[k])}" for k in keys
                if _show(was.get(k)) != _show(now[k])]
     if not changed:
         return None

@@ -90,9 +90,10 @@ class Split:
         if not len(self.frames):
             return False
         full = 255 if self.images.dtype == torch.uint8 else 1.0
-        if self.has_alpha and not bool((self.images[..., 3] >= full).all()):
+        # the colour maximum first: it settles almost every dataset without a mask the size of the split
+        if float(self.images[..., :3].max()) / full > BLACK_LEVEL:
             return False
-        return float(self.images[..., :3].max()) / full <= BLACK_LEVEL
+        return not self.has_alpha or bool((self.images[..., 3] >= full).all())
 
     def masks_select_nothing(self) -> bool:
         """True when there are masks and they mark no pixel that shows something (transparent pixels
