@@ -173,6 +173,7 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
     """The checkpoint's model, rebuilt with ``build_model`` and its weights, in eval mode on ``device``
     (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
     from .methods import build_model
+    from .methods.base import saved_options
 
     for key in ("method", "options", "aabb", "model"):
         if key not in ckpt:
@@ -193,7 +194,7 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
         raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
                        f"got a {type(weights).__name__}")
     try:
-        model = build_model(method, box, **options)
+        model = build_model(method, box, **saved_options(method, options))
         load_state_resizing(model, weights)
     except ValueError as exc:  # unknown method name
         raise RunError(f"{where}: {exc}") from exc

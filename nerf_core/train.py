@@ -177,13 +177,14 @@ class Trainer:
 
     def _build(self, dataset: Dataset, ckpt: Optional[dict]):
         from .methods import build_model
+        from .methods.base import saved_options
 
         cfg = self.cfg
         train = dataset.split("train")
         self.method = cfg.method or default_method()
         self.size_reasons: List[str] = []
         if ckpt is not None:
-            options = dict(ckpt["options"])
+            options = saved_options(self.method, ckpt["options"])
             self.size_reasons = list(ckpt.get("size_reasons", []))
             aabb = torch.as_tensor(ckpt["aabb"])
         else:

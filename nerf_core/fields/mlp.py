@@ -22,11 +22,16 @@ class NeRFMLP(nn.Module):
             after that layer (the original uses 8 x 256 with the skip after layer 4).
         aabb: (2, 3) box; positions are mapped to [-1, 1] inside it before encoding, so the encoding's
             frequencies mean the same thing for every scene scale.
+        length_unit: scene units per unit of length the network's density is measured in (the box
+            unit, ``scene_box.box_length_unit``, for scale-free training; 1: per scene unit). The
+            returned density is per scene unit either way.
     """
 
     def __init__(self, aabb: Tensor, use_pe: bool = True, pos_freqs: int = 10, dir_freqs: int = 4,
-                 width: int = 128, depth: int = 4, skip: int = 2, density_activation: str = "softplus"):
+                 width: int = 128, depth: int = 4, skip: int = 2, density_activation: str = "softplus",
+                 length_unit: float = 1.0):
         super().__init__()
+        self.inv_length_unit = 1.0 / float(length_unit)
         if density_activation not in DENSITY_ACTIVATIONS:
             raise ValueError(f"density_activation must be one of {', '.join(DENSITY_ACTIVATIONS)}, got {density_activation!r}")
         self.density_activation = density_activation
@@ -65,8 +70,10 @@ class NeRFMLP(nn.Module):
         # few units instead of hundreds, so surfaces, and the texture on them, sharpen sooner. Both are
         # shifted by -1, so that a fresh network starts as the same thin fog (~0.3-0.4 per unit length).
         if self.density_activation == "exp":
-            return torch.exp((raw - 1.0).clamp(-15.0, 15.0))
-        return F.softplus(raw - 1.0)
+            sigma = torch.exp((raw - 1.0).clamp(-15.0, 15.0))
+        else:
+            sigma = F.softplus(raw - 1.0)
+        return sigma * self.inv_length_unit if self.inv_length_unit != 1.0 else sigma
 
     def density(self, x: Tensor) -> Tensor:
         """(m, 3) positions -> (m,) densities >= 0."""

@@ -54,6 +54,15 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> "RadianceModel":
     return model
 
 
+def saved_options(name: str, options: dict) -> dict:
+    """The options a checkpoint of method ``name`` was trained with: ``options`` as saved, plus, for
+    each option added after the checkpoint was written, the value that behaviour had before the
+    option existed (the method's ``options_before``). A checkpoint's model must be rebuilt as it
+    was trained, not with today's defaults; ``train --resume`` and every loader go through here."""
+    before = getattr(method_class(name), "options_before", {})
+    return {**before, **options}
+
+
 def method_class(name: str) -> Optional[type]:
     """The ``RadianceModel`` subclass registered as ``name`` (built-in or plugin), or None."""
     _load_builtin_methods()
@@ -119,6 +128,24 @@ def check_options(name: str, defaults: dict, options: dict, positive=(), fractio
             raise bad(key, f"between 2 and {MAX_GRID_RES} cells per axis")
 
 
+DENSITY_UNITS = ("box", "scene")
+
+
+def check_density_unit(name: str, options: dict) -> None:
+    """Refuse a ``density_unit`` option other than "box" or "scene" (ValueError naming it)."""
+    unit = options.get("density_unit", "box")
+    if unit not in DENSITY_UNITS:
+        raise ValueError(f"{name}: option 'density_unit' must be one of {', '.join(DENSITY_UNITS)}, got {unit!r}")
+
+
+def density_length(aabb: torch.Tensor, unit: str) -> float:
+    """Scene units per unit of length that a field's density is measured against: the box unit
+    (``scene_box.box_length_unit``) for "box", 1 for "scene" (checkpoints from before the option)."""
+    from ..scene_box import box_length_unit
+
+    return box_length_unit(aabb) if unit == "box" else 1.0
+
+
 class RadianceModel(nn.Module):
     """Base class of every method.
 
@@ -127,6 +154,9 @@ class RadianceModel(nn.Module):
     """
 
     method_name = "base"
+    # Options added after checkpoints existed -> the value that matches how those checkpoints were
+    # trained (``saved_options``). New runs get ``defaults``.
+    options_before: dict = {}
     environment_lr = 0.02  # Adam step for the environment's texture logits, at the method's default_lr
 
     def __init__(self, aabb: torch.Tensor, **options):

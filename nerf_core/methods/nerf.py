@@ -37,7 +37,7 @@ import torch
 from .. import grad_scaling, profiling, sampling, volrend
 from ..fields.mlp import NeRFMLP
 from ..occupancy import OccupancyGrid
-from .base import RadianceModel, check_options, register
+from .base import RadianceModel, check_density_unit, check_options, density_length, register
 
 Tensor = torch.Tensor
 
@@ -71,6 +71,9 @@ class NeRF(RadianceModel):
         n_coarse, n_fine: samples per ray of the hierarchical sampler's two networks.
         grad_reach: share of the box diagonal within which a camera's samples learn with
             distance-scaled gradients (``nerf_core.grad_scaling``); 0 disables it.
+        density_unit: "box" (default): the network's density is per ``scene_box.box_length_unit``, so
+            its initial fog and the raw values a surface needs are the same at every scene scale;
+            "scene": per scene unit, as checkpoints before this option were trained (``options_before``).
     """
 
     # 1024 rays a step keeps the per-step overhead (sampling, the optimiser) small against the MLP work
@@ -82,7 +85,8 @@ class NeRF(RadianceModel):
     defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, use_pe=True, density_activation="exp",
                     sampler="occupancy", march_steps=128, warmup_step_scale=4.0, occ_res=48, occ_every=16,
                     occ_decay=0.8, occ_alpha=0.01, train_ert=False,
-                    n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE)
+                    n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE, density_unit="box")
+    options_before = {"density_unit": "scene"}
 
     @classmethod
     def validate_options(cls, options: dict) -> None:
@@ -94,6 +98,7 @@ class NeRF(RadianceModel):
         if options.get("sampler", cls.defaults["sampler"]) not in SAMPLERS:
             raise ValueError(f"{cls.method_name}: option 'sampler' must be one of {', '.join(SAMPLERS)}, "
                              f"got {options['sampler']!r}")
+        check_density_unit(cls.method_name, options)
 
     def __init__(self, aabb: Tensor, **options):
         self.validate_options(options)
@@ -101,7 +106,8 @@ class NeRF(RadianceModel):
         super().__init__(aabb, **opts)
         net = dict(use_pe=opts["use_pe"], pos_freqs=opts["pos_freqs"], dir_freqs=opts["dir_freqs"],
                    width=opts["width"], depth=opts["depth"], skip=opts["skip"],
-                   density_activation=opts["density_activation"])
+                   density_activation=opts["density_activation"],
+                   length_unit=density_length(self.aabb, opts["density_unit"]))
         self._net_options = net
         # ``coarse`` is the only network of the occupancy sampler (the name keeps checkpoints loadable).
         self.coarse = NeRFMLP(self.aabb, **net)

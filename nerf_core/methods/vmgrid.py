@@ -28,7 +28,7 @@ from .. import grad_scaling, profiling, ray_termination, sampling, volrend
 from ..contraction import contract, outer_box
 from ..fields.tensorf import TensorVMField
 from ..occupancy import OccupancyGrid
-from .base import RadianceModel, check_options, register
+from .base import RadianceModel, check_density_unit, check_options, density_length, register
 
 Tensor = torch.Tensor
 
@@ -82,6 +82,9 @@ class VMGrid(RadianceModel):
             otherwise grow fog screens in front of their lenses: on the interior demo scene, 400 steps
             gave 20.5 dB with the fog and 31.3 dB with the default 0.24 (2 m there; 5 test views).
             Cameras outside the box rarely have samples that near; then no scaling op is added at all.
+        density_unit: "box" (default): the field's density is per ``scene_box.box_length_unit`` (the box
+            rescaled to [-1, 1]^3), so a scene modelled in millimetres trains as one in metres; "scene":
+            per scene unit, as every checkpoint before this option was trained (``options_before``).
         contract: model the world beyond the box too (``nerf_core.contraction``): the grid spans the
             contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
@@ -102,7 +105,8 @@ class VMGrid(RadianceModel):
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-4, occ_probe="max")
+                    color_weight=1e-4, occ_probe="max", density_unit="box")
+    options_before = {"density_unit": "scene"}
 
     def __init__(self, aabb: Tensor, **options):
         self.validate_options(options)
@@ -127,13 +131,15 @@ class VMGrid(RadianceModel):
                              f"got {options['upsample_at']!r}")
         if options.get("occ_probe", "max") not in ("random", "max"):
             raise ValueError(f"vmgrid: occ_probe must be 'random' or 'max', got {options['occ_probe']!r}")
+        check_density_unit("vmgrid", options)
 
     def _build(self, opts: dict) -> None:
         # Density shift from alpha_init at the *initial* grid's step, so a rebuilt model gets the same one.
         extent = (self.aabb[1] - self.aabb[0]).double()
         step0 = opts["step_ratio"] * float((extent / (opts["res_init"] - 1)).mean())
         sigma0 = -math.log1p(-opts["alpha_init"]) / step0
-        density_scale = 25.0
+        # 25 per box unit: the grids' raw values stay a few units for an opaque surface at any scale.
+        density_scale = 25.0 / density_length(self.aabb, opts["density_unit"])
         shift = math.log(math.expm1(sigma0 / density_scale))  # softplus^-1
         # With contraction the grids span the contracted world (twice the box); points are warped into it.
         self.contracted = bool(opts["contract"])
