@@ -54,6 +54,7 @@ class CheckReport:
     warnings: List[Problem] = field(default_factory=list)
     n_frames: Dict[str, int] = field(default_factory=dict)
     plan: List[str] = field(default_factory=list)  # what `train` will decide for a valid dataset
+    notes: List[str] = field(default_factory=list)  # what was checked, when it is not the folder given
     trainable: Optional[bool] = None  # train reads the dataset (``dataset_problems`` is empty); None: not asked
 
     @property
@@ -67,7 +68,8 @@ class CheckReport:
         self.warnings.append(Problem(*a, **k))
 
     def format(self) -> str:
-        lines = [f"ERROR   {p}" for p in self.errors] + [f"WARNING {p}" for p in self.warnings]
+        lines = [f"NOTE    {n}" for n in self.notes]
+        lines += [f"ERROR   {p}" for p in self.errors] + [f"WARNING {p}" for p in self.warnings]
         lines += [f"TRAIN   {line}" for line in self.plan]
         counts = ", ".join(f"{k} {v}" for k, v in self.n_frames.items())
         verdict = "valid" if self.ok else f"INVALID: {len(self.errors)} error(s)"
@@ -81,7 +83,7 @@ class CheckReport:
     def as_dict(self) -> dict:
         return {"dataset": str(self.root), "ok": self.ok, "errors": [str(p) for p in self.errors],
                 "warnings": [str(p) for p in self.warnings], "frames": self.n_frames, "train_plan": self.plan,
-                "trainable": self.trainable}
+                "trainable": self.trainable, "notes": self.notes}
 
 
 def _resolved(path: Path) -> Path:
@@ -196,9 +198,14 @@ def _check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict
     except ImageReadError as exc:
         report.error(fname, str(exc), k, fpath, field_name)
         return
+    fmt, _, pil_mode = mode.rpartition(" ")  # png_info prefixes a format the suffix does not say
+    what = (f"a {fmt} image ({pil_mode} {bits}-bit) under a {img.suffix} name" if fmt
+            else f"{mode} {bits}-bit")
     if rgba and (mode != "RGBA" or bits != 8):
-        report.error(fname, f"{img.name} is {mode} {bits}-bit; images must be RGBA 8-bit rendered with a transparent film",
+        report.error(fname, f"{img.name} is {what}; images must be RGBA 8-bit PNGs rendered with a transparent film",
                      k, fpath, field_name)
+    elif fmt:  # nerfstudio and instant-ngp decode by content, but a misnamed file misleads every other tool
+        report.warn(fname, f"{img.name} is {what}", k, fpath, field_name)
     if intr is not None and (w, h) != (int(intr["w"]), int(intr["h"])):
         report.error(fname, f"{img.name} is {w}x{h} but w x h says {int(intr['w'])}x{int(intr['h'])}", k, fpath, field_name)
 
@@ -299,6 +306,15 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     root = Path(path)
     if root.is_file() and root.suffix == ".json" and root.name.startswith("transforms"):
         root = root.parent  # DATASET/transforms_train.json, as `train` accepts it: check its dataset
+    ns_folder = Path(NERFSTUDIO_FILE).parent.name
+    if root.name == ns_folder and (root / "transforms.json").is_file() \
+            and any((root.parent / name).is_file() for name in SPLIT_FILES):
+        # Our export's nerfstudio/ copy: its file is one layout of the dataset above, checked with it.
+        # Checked on its own, the folder looked like a dataset missing every file it is not meant to hold.
+        report = check_dataset(root.parent, background, for_training)
+        report.notes.insert(0, f"{root} holds the nerfstudio-data file of the dataset {root.parent}: checked that "
+                               f"dataset, its {NERFSTUDIO_FILE} included (`--data {root}` is what nerfstudio reads)")
+        return report
     report = CheckReport(root)
     if not root.is_dir():
         report.error(str(root), "dataset folder not found" if not root.exists() else "not a folder")
@@ -306,7 +322,12 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
 
     # instant-ngp loads every *.json at the root as a transforms file.
     splits_here = any((root / name).is_file() for name in SPLIT_FILES)
+    # One transforms.json and no split files: the layout nerfstudio-data and instant-ngp read, where
+    # that file is the dataset, not a stray JSON or a misplaced copy of nerfstudio's.
+    one_file = (root / "transforms.json").is_file() and not splits_here
     for j in sorted(root.glob("*.json")):
+        if j.name == "transforms.json" and one_file:
+            continue
         if j.name == "transforms.json" and splits_here:
             report.error(j.name, "beside transforms_{train,val,test}.json at the dataset root, instant-ngp loads "
                                  "every frame twice (it reads every *.json here); nerfstudio's file belongs in "
@@ -323,7 +344,9 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         split = fname[len("transforms_"):-len(".json")]
         fpath_json = root / fname
         if not fpath_json.is_file():
-            report.error(fname, f"missing: the original NeRF loader reads train, val and test; 3DGS needs train and test")
+            layout = ("this is the one-file layout (transforms.json, read by nerfstudio-data and instant-ngp), but "
+                      if one_file else "")
+            report.error(fname, f"missing: {layout}the original NeRF loader reads train, val and test; 3DGS needs train and test")
             continue
         meta = _load_json(report, fpath_json)
         if meta is None:
@@ -367,7 +390,7 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
                     break
 
     _check_synthetic_scale(report, boxes, poses)
-    _check_nerfstudio(report, root, frame_intrinsics)
+    _check_nerfstudio(report, root, frame_intrinsics, "transforms.json" if one_file else NERFSTUDIO_FILE)
     opaque = _check_background(report, root, background)
     if opaque:
         _check_world_coverage(report, root)
@@ -658,54 +681,57 @@ def _check_synthetic_scale(report: CheckReport, boxes: Dict[str, object], poses:
                 field="aabb")
 
 
-def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict]) -> None:
-    path = root / NERFSTUDIO_FILE
+def _check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict],
+                      name: str = NERFSTUDIO_FILE) -> None:
+    """nerfstudio-data's file ``name`` (relative to ``root``): ``nerfstudio/transforms.json`` of an export
+    of ours, or ``transforms.json`` of the one-file layout. Its frames' images, poses and intrinsics."""
+    path = root / name
     if not path.is_file():
-        report.error(NERFSTUDIO_FILE, "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names "
+        report.error(name, "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names "
                                       "(`--data DATASET/nerfstudio`)")
         return
     base = path.parent  # nerfstudio resolves file paths against the JSON's own folder
     meta = _load_json(report, path)
     if meta is None:
         return
-    _check_meta_common(report, NERFSTUDIO_FILE, meta)
+    _check_meta_common(report, name, meta)
     names = set()
     seen: set = set()
-    for k, fr, fp, intr in _frame_entries(report, NERFSTUDIO_FILE, meta, seen):
+    for k, fr, fp, intr in _frame_entries(report, name, meta, seen):
         names.add(str(Path(fp)))
         if Path(fp).suffix.lower() not in IMAGE_EXTS:
-            report.error(NERFSTUDIO_FILE, f"{fp!r} needs its real file name with the extension (nerfstudio does not add one)",
+            report.error(name, f"{fp!r} needs its real file name with the extension (nerfstudio does not add one)",
                          k, fp, "file_path")
             continue
         img = base / fp
-        _check_image(report, NERFSTUDIO_FILE, img, intr, k, fp, "file_path", rgba=False)
-        _check_pose(report, NERFSTUDIO_FILE, fr, k, fp)
-        _check_extras(report, NERFSTUDIO_FILE, base, fr, k, fp)
+        _check_image(report, name, img, intr, k, fp, "file_path", rgba=False)
+        _check_pose(report, name, fr, k, fp)
+        _check_extras(report, name, base, fr, k, fp)
         # nerfstudio-data takes a top-level intrinsic for every frame and never reads the frame's own.
         ignored = [key for key in REQUIRED_INTRINSICS if key in meta and key in fr and fr[key] != meta[key]]
         if ignored:
-            report.error(NERFSTUDIO_FILE, f"{ignored[0]} {fr[ignored[0]]!r} differs from the top-level {meta[ignored[0]]!r}, "
+            report.error(name, f"{ignored[0]} {fr[ignored[0]]!r} differs from the top-level {meta[ignored[0]]!r}, "
                          "which nerfstudio-data uses for every frame: leave the top-level intrinsics out when the "
                          "frames differ", k, fp, ignored[0])
         other = split_intrinsics.get(str(_resolved(img)))
         if other is not None and intr is not None:
             diff = [key for key in REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]
             if diff:
-                report.error(NERFSTUDIO_FILE, "differs from the transforms_<split>.json entry of the same image "
+                report.error(name, "differs from the transforms_<split>.json entry of the same image "
                              + ", ".join(f"{d}: {intr[d]:g} vs {other[d]:g}" for d in diff), k, fp, diff[0])
     for key in ("train_filenames", "val_filenames", "test_filenames"):
         if key in meta:
             lst = meta[key]
             if not isinstance(lst, list):
-                report.error(NERFSTUDIO_FILE, "must be a list of file names", field=key)
+                report.error(name, "must be a list of file names", field=key)
                 continue
             for n in lst:
                 if str(Path(str(n))) not in names:
-                    report.error(NERFSTUDIO_FILE, f"lists {n!r}, which is not the file_path of any frame", field=key)
+                    report.error(name, f"lists {n!r}, which is not the file_path of any frame", field=key)
     if "train_filenames" in meta and isinstance(meta["train_filenames"], list):
         train = {str(Path(str(n))) for n in meta["train_filenames"]}
         for key in ("val_filenames", "test_filenames"):
             if isinstance(meta.get(key), list):
                 both = sorted(train & {str(Path(str(n))) for n in meta[key]})
                 if both:
-                    report.error(NERFSTUDIO_FILE, f"{len(both)} file(s) are also in train_filenames (e.g. {both[0]!r})", field=key)
+                    report.error(name, f"{len(both)} file(s) are also in train_filenames (e.g. {both[0]!r})", field=key)

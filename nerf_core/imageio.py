@@ -53,14 +53,30 @@ def read_png(path: Path | str) -> np.ndarray:
 
 
 def png_info(path: Path | str) -> tuple[int, int, str, int]:
-    """(width, height, mode, bits per channel) of an image without decoding its pixels."""
+    """(width, height, mode, bits per channel) of an image without decoding its pixels.
+
+    ``mode`` is Pillow's, prefixed with the format when the content is not what the suffix says
+    ("JPEG RGB" for a JPEG named .png). ``bits`` is the file's own depth: Pillow opens a 16-bit RGB(A)
+    PNG as 8-bit "RGBA", so the depth is read from the PNG header (IHDR) itself; loaders that divide
+    by 255 (the original NeRF's imageio) read such a file as values up to 257.
+    """
     from PIL import Image
 
     path = Path(path)
     try:
         with Image.open(path) as im:
             bits = 16 if im.mode.startswith("I;16") or im.mode == "I" else 8
-            return im.width, im.height, im.mode, bits
+            if im.format == "PNG":
+                with open(path, "rb") as fh:
+                    head = fh.read(26)  # signature (8), IHDR length and type (8), w, h (8), depth, colour type
+                if len(head) == 26 and head[12:16] == b"IHDR":
+                    bits = head[24]
+            mode = im.mode
+            suffix = path.suffix.lower().lstrip(".")
+            fmt = (im.format or "").upper()
+            if fmt and suffix and fmt != suffix.upper() and not (fmt == "JPEG" and suffix in ("jpg", "jpeg")):
+                mode = f"{fmt} {mode}"
+            return im.width, im.height, mode, bits
     except FileNotFoundError as exc:
         raise ImageReadError(f"{path}: file not found") from exc
     except Exception as exc:

@@ -184,10 +184,53 @@ def test_for_training_names_a_problem_once(sphere_dataset):
     assert report.ok and _has([str(p) for p in report.warnings], "fl_x", "(conventions of an export)")
 
 
-def test_a_lone_transforms_json_is_not_said_to_sit_beside_split_files(tmp_path, dataset_factory):
-    ds = dataset_factory(tmp_path / "ns", layouts=("nerfstudio",))  # instant-ngp / nerfstudio: one file
-    report = check_dataset(ds)
-    assert not any("beside transforms_{train,val,test}.json" in str(p) for p in report.errors)
+def test_a_lone_transforms_json_is_checked_as_the_one_file_layout(tmp_path, dataset_factory):
+    """instant-ngp's and nerfstudio's own layout: transforms.json is the dataset. check called it a
+    stray JSON, asked for nerfstudio/transforms.json beside it, and never looked at its frames."""
+    ds = dataset_factory(tmp_path / "ns", layouts=("nerfstudio",))
+    report, errors = _errors(ds)
+    assert not any("beside transforms_{train,val,test}.json" in e or "stray JSON" in e for e in errors), errors
+    assert not _has(errors, "nerfstudio/transforms.json"), errors
+    assert _has(errors, "transforms_train.json", "missing", "one-file layout")
+    _edit(ds / "transforms.json", lambda m: m["frames"][1].update(file_path="train/gone.png"))
+    _, errors = _errors(ds)
+    assert _has(errors, "transforms.json: frame 1 (train/gone.png)", "does not exist"), errors
+
+
+def test_our_nerfstudio_folder_is_checked_as_part_of_its_dataset(sphere_dataset, capsys):
+    """`check DATASET/nerfstudio` (the folder nerfstudio is given) on an export of ours said the file was
+    a stray JSON and that DATASET/nerfstudio/nerfstudio/transforms.json and the split files were missing."""
+    report = check_dataset(sphere_dataset / "nerfstudio")
+    assert report.ok and report.root == sphere_dataset, report.format()
+    assert "holds the nerfstudio-data file of the dataset" in report.notes[0]
+    _edit(sphere_dataset / "nerfstudio" / "transforms.json", lambda m: m.update(cy=m["cy"] + 2))
+    assert main(["check", str(sphere_dataset / "nerfstudio")]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("NOTE") and "nerfstudio/transforms.json: frame 0" in out and "differs" in out
+
+
+def test_image_depth_and_format_are_read_from_the_file(sphere_dataset):
+    """Pillow opens a 16-bit RGBA PNG as 8-bit "RGBA", so check passed it while refusing an LA PNG; the
+    original NeRF loader divides it by 255 (values up to 257). A JPEG under a .png name was "RGB 8-bit"."""
+    import struct
+    import zlib
+
+    rgba = np.asarray(Image.open(sphere_dataset / "train" / "r_0.png").convert("RGBA")).astype(">u2") * 257
+    h, w = rgba.shape[:2]  # Pillow cannot write 16-bit RGBA: the PNG by hand (filter 0 on every row)
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    raw = b"".join(b"\x00" + row.tobytes() for row in rgba)
+    (sphere_dataset / "train" / "r_0.png").write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 6, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    Image.open(sphere_dataset / "train" / "r_1.png").convert("RGB").save(sphere_dataset / "train" / "r_1.png", "JPEG")
+    Image.open(sphere_dataset / "train" / "r_2.png").convert("LA").save(sphere_dataset / "train" / "r_2.png")
+    _, errors = _errors(sphere_dataset)
+    assert _has(errors, "frame 0", "RGBA 16-bit", "must be RGBA 8-bit"), errors
+    assert _has(errors, "frame 1", "a JPEG image (RGB 8-bit) under a .png name"), errors
+    assert _has(errors, "frame 2", "LA 8-bit"), errors
 
 
 def test_held_out_cameras_must_not_be_training_cameras(sphere_dataset):
