@@ -40,6 +40,38 @@ def transparent_share(images: torch.Tensor) -> float:
     return float((alpha.float() < limit).float().mean())
 
 
+def percent_text(share: float) -> str:
+    """``share`` in [0, 1] as "12.3 %", never rounded to "100.0 %" or "0.0 %" unless it is exactly that:
+    a train log said "100.0 % of the pixels are transparent" of a subject it then trained on."""
+    p = 100.0 * share
+    if 0.0 < share < 1.0 and (p < 0.05 or p >= 99.95):
+        return f"{p:.2g} %" if p < 0.05 else f"{100.0 - float(f'{100.0 - p:.2g}'):.10g} %"
+    return f"{p:.1f} %"
+
+
+# A cut-out whose subject (the mean alpha) covers less than this share of the train pixels gives the
+# subject few rays and a whole-image score that counts mostly background: a 170-degree lens framing a
+# 2-unit object at radius 4 gave it 1.3 % of the frame and a "33.6 dB" run that drew it as a smudge.
+SMALL_SUBJECT_SHARE = 0.02
+
+
+def small_subject_note(images: torch.Tensor) -> Optional[str]:
+    """A note when the subject of (n, h, w, 4) cut-out images covers less than ``SMALL_SUBJECT_SHARE``
+    of the pixels; None for opaque images, images without alpha, or a subject that fills enough."""
+    if images.shape[-1] != 4 or images.numel() == 0 or transparent_share(images) < TRANSPARENT_SHARE:
+        return None
+    alpha = images[..., 3]
+    if alpha.dtype == torch.uint8:  # summed as integers: no float copy of a large split
+        share = float(alpha.sum(dtype=torch.int64)) / (255.0 * alpha.numel())
+    else:
+        share = float(alpha.mean())
+    if share == 0.0 or share >= SMALL_SUBJECT_SHARE:
+        return None  # nothing at all is refused elsewhere (dataset_checks.transparent_train_problem)
+    return (f"the subject covers only {percent_text(share)} of the train pixels: it gets few rays, and a "
+            "whole-image PSNR counts mostly the empty background; frame it tighter (a longer focal length, "
+            "cameras nearer) for a model and a score of the subject")
+
+
 def images_are_opaque(images: torch.Tensor) -> bool:
     """True when (n, h, w, c) images have no alpha channel or (almost) no transparent pixel."""
     return transparent_share(images) < TRANSPARENT_SHARE
@@ -67,7 +99,7 @@ def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = 
     if film_transparent is True:
         if has_alpha and share >= TRANSPARENT_SHARE:
             return "random", (f"{where} declares film_transparent: true: random background colours behind the alpha "
-                              f"({100 * share:.1f} % of the pixels are transparent)")
+                              f"({percent_text(share)} of the pixels are transparent)")
         return "environment", (f"{where} declares film_transparent: true, but its images have "
                                f"{'no transparent pixels' if has_alpha else 'no alpha channel'}: "
                                "the background is learned as light from infinity")
@@ -77,7 +109,7 @@ def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = 
     if share < TRANSPARENT_SHARE:
         return "environment", ("the images' alpha is opaque everywhere: their background is part of the picture, "
                                "learned as light from infinity")
-    return "random", (f"{100 * share:.1f} % of the pixels are transparent (a cut-out on a transparent film): "
+    return "random", (f"{percent_text(share)} of the pixels are transparent (a cut-out on a transparent film): "
                       "random background colours behind the alpha")
 
 

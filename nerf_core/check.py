@@ -536,7 +536,7 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
     images could not be read."""
     import torch
 
-    from .backgrounds import BACKGROUNDS, FIXED_BACKGROUNDS, TRANSPARENT_SHARE, choose, transparent_share
+    from .backgrounds import BACKGROUNDS, FIXED_BACKGROUNDS, TRANSPARENT_SHARE, choose, percent_text, transparent_share
 
     fname = "transforms_train.json"
     meta = None
@@ -577,7 +577,7 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
         report.warn(fname, "declares a transparent film, but the train images have no transparent pixel "
                            "(train learns their background as an environment)", field="film_transparent")
     if film is False and not opaque:
-        report.warn(fname, f"declares an opaque film, but {100 * share:.1f} % of the train images' pixels are "
+        report.warn(fname, f"declares an opaque film, but {percent_text(share)} of the train images' pixels are "
                            "transparent", field="film_transparent")
     mode = choose(stack, film if isinstance(film, bool) else None)[0] if background == "auto" else background
     if opaque and mode in FIXED_BACKGROUNDS:

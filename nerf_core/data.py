@@ -25,6 +25,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 import torch
 
+from .backgrounds import small_subject_note
 from .cameras import Cameras
 # Reading transforms files is the contract's (shared with the add-on); DatasetError, FrameInfo,
 # detect_layout and dataset_problems stay importable from here for data's long-standing callers.
@@ -435,6 +436,9 @@ def load_dataset(
         aabb, inside_note = pad_box_for_interior(aabb, loaded["train"].cameras.origins)
         if inside_note:
             notes.append(inside_note)
+        small = small_subject_note(loaded["train"].images)
+        if small:
+            notes.append(small)
             source += "; padded around the cameras standing inside it"
     return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world,
                    cameras_inside=inside_note is not None, beyond_box=beyond)

@@ -166,6 +166,26 @@ def test_nearly_black_images_train_without_nan(tmp_path):
     assert metrics.get("psnr") is not None and math.isfinite(metrics["psnr"]), metrics
 
 
+def test_a_tiny_subject_is_named_before_training(tmp_path):
+    """A 170-degree lens left the subject 0.2 % of each frame: the log said "100.0 % of the pixels are
+    transparent" and the run's whole-image PSNR counted the empty film. Now check and train say so."""
+    from nerf_core.backgrounds import SMALL_SUBJECT_SHARE, percent_text, small_subject_note
+
+    speck = np.zeros((SIZE, SIZE, 4), np.uint8)
+    speck[7, 7] = [200, 100, 50, 255]  # one pixel of 256: 0.4 %
+    ds = make_dataset(tmp_path / "speck", pixels=lambda c2w, f: speck)
+    proc = nerf_core("check", ds, "--for-training")  # this helper's test cameras repeat train ones
+    assert proc.returncode == 0 and "the subject covers only 0.4 % of the train pixels" in proc.stdout, proc.stdout
+    assert "99.6 % of the pixels are transparent" in proc.stdout, proc.stdout
+    proc = nerf_core("train", ds, "--out", tmp_path / "run", *FAST)
+    assert proc.returncode == 0 and "note: the subject covers only 0.4 %" in proc.stderr, proc.stderr
+    # the sphere of the other tests fills enough; opaque images have no subject to measure
+    assert small_subject_note(torch.from_numpy(np.stack([_sphere_image(_look_at(np.array([0, -3.0, 0])), 20.0)]))) is None
+    assert small_subject_note(torch.full((2, 8, 8, 4), 255, dtype=torch.uint8)) is None
+    assert SMALL_SUBJECT_SHARE == 0.02
+    assert [percent_text(v) for v in (1.0, 0.99996, 0.5, 2e-5, 0.0)] == ["100.0 %", "99.996 %", "50.0 %", "0.002 %", "0.0 %"]
+
+
 def test_degenerate_scene_box_is_named(tmp_path):
     ds = make_dataset(tmp_path / "flat", aabb=[[0, 0, 0], [0, 0, 0]])
     check = nerf_core("check", ds)
