@@ -312,6 +312,15 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         # Our export's nerfstudio/ copy: its file is one layout of the dataset above, checked with it.
         # Checked on its own, the folder looked like a dataset missing every file it is not meant to hold.
         report = check_dataset(root.parent, background, for_training)
+        # nerfstudio reads this folder with its own loader rules (split lists, paths): what train would
+        # refuse in it is an error too, named as the parent's report names the file.
+        own = CheckReport(root)
+        _check_loadable(own, root)
+        known = {str(p) for p in report.errors}
+        for p in own.errors:
+            p.file = f"{root.name}/{p.file}" if not Path(p.file).is_absolute() else p.file
+            if str(p) not in known:
+                report.errors.append(p)
         report.notes.insert(0, f"{root} holds the nerfstudio-data file of the dataset {root.parent}: checked that "
                                f"dataset, its {NERFSTUDIO_FILE} included (`--data {root}` is what nerfstudio reads)")
         return report
