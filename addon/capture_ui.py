@@ -261,7 +261,14 @@ class NERF_OT_capture_cancel(bpy.types.Operator):
     bl_label = "Cancel Capture"
 
     def execute(self, context):
+        if not jobs.is_running(CAPTURE):
+            # No capture reads the flag: setting it would leave stale state behind (the next capture
+            # happens to reset it when it starts; nothing should depend on that), and clear a stale one.
+            context.scene.nerf_capture.cancel_requested = False
+            self.report({"WARNING"}, "No capture is running: nothing to cancel.")
+            return {"CANCELLED"}
         context.scene.nerf_capture.cancel_requested = True  # the follower stops before the next frame
+        self.report({"INFO"}, "Cancelling the capture after the current frame (the folder stays resumable).")
         return {"FINISHED"}
 
 

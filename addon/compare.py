@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
-from typing import List, Tuple
+from typing import List, Optional, Tuple
 
 import bpy
 
@@ -32,21 +32,59 @@ class RenderPlan:
     n_views: int
     label: str
     out: str
+    checkpoint: str = ""  # a step_*.pt to pass as --checkpoint when latest.pt is gone; '' for latest.pt
 
 
-def require_checkpoint(run: str) -> None:
-    """SetupError unless ``run`` has a trained checkpoint to render from."""
-    if not run or not os.path.isfile(contract.latest_checkpoint(run)):
-        raise SetupError(f"Run folder {run or '(not set)'} has no trained checkpoint yet: train first.")
+def require_checkpoint(run: str) -> str:
+    """The checkpoint ``nerf_core render`` should use: '' for RUN/checkpoints/latest.pt (its default),
+    else the newest step_*.pt, as ``train --resume`` falls back to when a full disk cost latest.pt.
+    SetupError when the run has neither."""
+    if run and os.path.isfile(contract.latest_checkpoint(run)):
+        return ""
+    steps = trainer_process.step_checkpoints(run) if run else []
+    if steps:
+        return steps[0]
+    raise SetupError(f"Run folder {run or '(not set)'} has no trained checkpoint yet: train first.")
 
 
 def prepare_render(context, run: str, source: str) -> RenderPlan:
     """Write the cameras for ``source`` ('TEST', 'VAL', 'SELECTED', 'ANIMATION') and create
     ``RUN/views/<label>_NNN``; SetupError says what to fix."""
-    require_checkpoint(run)
+    checkpoint = require_checkpoint(run)
     cameras, n_views, label = write_cameras_file(context, run, source)
-    out = fresh_dir(os.path.join(run, VIEWS_DIR), label)
-    return RenderPlan(run, cameras, n_views, label, out)
+    out = fresh_dir(views_dir(run), label)
+    return RenderPlan(run, cameras, n_views, label, out, checkpoint)
+
+
+def views_dir(run: str) -> str:
+    """``RUN/views``; SetupError when a file of that name is in the way (the user's: never replaced)."""
+    path = os.path.join(run, VIEWS_DIR)
+    if os.path.lexists(path) and not os.path.isdir(path):
+        what = "a file" if os.path.isfile(path) else "in the way"
+        raise SetupError(f"{path} is {what}, not a folder: Compare writes its cameras and renders there; move it "
+                         "away (it was left untouched).")
+    return path
+
+
+def run_dataset_of(run: str) -> str:
+    """The dataset folder RUN/config.json records; SetupError naming the file when it cannot be read,
+    is not the JSON object ``train`` writes, or records no dataset."""
+    path = contract.config_path(run)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            cfg = json.load(fh)
+    except FileNotFoundError:
+        raise SetupError(f"{path} not found: is {run} a folder written by training?") from None
+    except OSError as exc:
+        raise SetupError(f"{path}: cannot read ({exc.strerror or exc}).") from None
+    except (ValueError, RecursionError) as exc:  # invalid JSON or text (UnicodeDecodeError is a ValueError)
+        raise SetupError(f"{path}: invalid JSON ({exc}); the run's settings cannot be read.") from None
+    if not isinstance(cfg, dict):
+        raise SetupError(f"{path}: expected the JSON object that training writes, got a {type(cfg).__name__}.")
+    dataset = runs.config_dataset(cfg, run)
+    if not dataset:
+        raise SetupError(f"{path} records no dataset (key 'dataset'): the run's cameras and image size are unknown.")
+    return dataset
 
 
 def fresh_dir(parent: str, label: str) -> str:
@@ -62,9 +100,10 @@ def fresh_dir(parent: str, label: str) -> str:
     return path
 
 
-def dataset_meta(run: str) -> dict:
-    """The run's dataset's first transforms file (test, val, train, single) as a dict; {} if none reads."""
-    dataset = runs.run_dataset(run)
+def dataset_meta(run: str, dataset: Optional[str] = None) -> dict:
+    """The run's dataset's first transforms file (test, val, train, single) as a dict; {} if none reads.
+    ``dataset``: the folder when the caller has it, else the one RUN/config.json records."""
+    dataset = dataset if dataset is not None else runs.run_dataset(run)
     for name in SPLIT_FILES:
         path = os.path.join(dataset, name) if dataset else None
         if path and os.path.isfile(path):
@@ -80,13 +119,12 @@ def dataset_meta(run: str) -> dict:
 def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
     """(transforms path, number of views, label) for ``source``: the dataset's split file, or a file
     written into RUN/views/ for the selected cameras / the active camera's animation."""
-    dataset = runs.run_dataset(run)
+    dataset = run_dataset_of(run)
     if source in ("TEST", "VAL"):
         split = source.lower()
-        path = os.path.join(dataset, f"transforms_{split}.json") if dataset else ""
-        if not path or not os.path.isfile(path):
-            raise SetupError(f"The run's dataset ({dataset or 'unknown: config.json has no dataset'}) has no "
-                             f"transforms_{split}.json.")
+        path = os.path.join(dataset, f"transforms_{split}.json")
+        if not os.path.isfile(path):
+            raise SetupError(f"The run's dataset ({dataset}) has no transforms_{split}.json.")
         try:
             with open(path, encoding="utf-8") as fh:
                 doc = json.load(fh)
@@ -97,7 +135,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
             raise SetupError(f"{path}: expected a transforms object with a 'frames' list; run "
                              "`python -m nerf_core check` on the dataset")
         return path, len(frames), split
-    meta = dataset_meta(run)
+    meta = dataset_meta(run, dataset)
     if not meta.get("w") or not meta.get("h"):
         raise SetupError(f"The run's dataset has no image size (w, h) in its transforms: cannot match camera aspect.")
     scene = context.scene
@@ -120,7 +158,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
             label = "flythrough"
     except ValueError as exc:
         raise SetupError(str(exc)) from None
-    path = os.path.join(run, VIEWS_DIR, f"cameras_{label}.json")
+    path = os.path.join(views_dir(run), f"cameras_{label}.json")
     try:
         trainer_process.write_json_atomic(path, data)
     except OSError as exc:

@@ -181,12 +181,12 @@ class RenderJob(ProcessJob):
     kind = "rendering"
 
     def __init__(self, scene_name: str, python: str, run: str, cameras: str, out: str, layout: str,
-                 distance: float, n_views: int):
+                 distance: float, n_views: int, checkpoint: str = ""):
         super().__init__(scene_name)
         self.run, self.cameras, self.out, self.layout, self.distance = run, cameras, out, layout, distance
-        self.n_views = n_views
+        self.n_views, self.checkpoint = n_views, checkpoint
         self.process = trainer_process.BackgroundProcess(
-            trainer_process.render_command(python, run, cameras, out)).start()
+            trainer_process.render_command(python, run, cameras, out, checkpoint=checkpoint)).start()
         self.views: List[planes.View] = []
 
     def rendered(self) -> int:
@@ -203,6 +203,8 @@ class RenderJob(ProcessJob):
         self.state = "done"
         self.message = f"Imported {len(self.views)} view(s) from {self.out}" + (f"; {note}" if note else "")
         self.warnings = compare.render_notes(self.out)  # e.g. the scores are against a re-captured dataset
+        if self.checkpoint:  # latest.pt was gone: say which checkpoint the views show
+            self.warnings.insert(0, f"Rendered from {self.checkpoint}: the run has no checkpoints/latest.pt")
         return self.state
 
 

@@ -28,6 +28,10 @@ import numpy as np
 from . import trainer_process
 
 SERVE_START_TIMEOUT_S = 300.0  # importing torch and loading a checkpoint on a cold disk can be slow
+# The largest image side ``nerf_core serve`` renders (nerf_core.render_server.MAX_SIDE; that module
+# is not importable inside Blender). Checked here first, so the user hears of their Resolution
+# setting instead of the request's field 'w'.
+MAX_SIDE = 16384
 
 
 class RenderClientError(RuntimeError):

@@ -97,6 +97,16 @@ def camera_request(cam_obj, render) -> dict:
             "near": float(cam.clip_start), "far": float(cam.clip_end)}
 
 
+def resolution_problem(render, w: int, h: int) -> Optional[str]:
+    """Why a ``w`` x ``h`` px frame (Blender's size: Resolution x %) is too large for the NeRF, naming
+    the user's setting; else None."""
+    if max(w, h) <= render_client.MAX_SIDE:
+        return None
+    return (f"Output Properties > Resolution asks for {w}x{h} px ({render.resolution_x}x{render.resolution_y} at "
+            f"{render.resolution_percentage}%); the NeRF renders at most {render_client.MAX_SIDE} px a side: lower "
+            "Resolution X/Y or the %")
+
+
 def border_window(render, w: int, h: int) -> Optional[tuple]:
     """The Render Region (border) of a ``w`` x ``h`` frame in pixels, as Blender's pipeline cuts it:
     (x0, y0, width, height) with (x0, y0) its bottom-left pixel, each edge truncated from the border
@@ -263,8 +273,11 @@ class NerfRenderEngine(bpy.types.RenderEngine):
         try:
             if cam is None:
                 raise export.ExportError(f"scene {scene.name!r} has no active camera: set one (Ctrl+Numpad 0)")
-            request = camera_request(cam, scene.render)
             w, h = self.resolution_x, self.resolution_y
+            size_problem = resolution_problem(scene.render, w, h)
+            if size_problem:
+                raise export.ExportError(size_problem)
+            request = camera_request(cam, scene.render)
             if (request["w"], request["h"]) != (w, h):
                 raise export.ExportError(f"camera {cam.name!r}: intrinsics are for {request['w']}x{request['h']} px "
                                          f"but Blender renders {w}x{h} px")

@@ -139,10 +139,13 @@ def run_dataset(run: str) -> Optional[str]:
     """The dataset folder recorded in ``RUN/config.json`` (key ``dataset`` or ``dataset_path``)."""
     try:
         cfg = _read_json(contract.config_path(run))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
-    if not isinstance(cfg, dict):
-        return None
+    return config_dataset(cfg, run) if isinstance(cfg, dict) else None
+
+
+def config_dataset(cfg: dict, run: str) -> Optional[str]:
+    """The dataset folder a run's config dict records, relative paths taken from ``run``; else None."""
     for key in ("dataset", "dataset_path", "data"):
         value = cfg.get(key)
         if isinstance(value, dict):

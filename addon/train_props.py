@@ -8,6 +8,8 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 
 from .ui_common import path_options
 
+MAX_TIME_BUDGET_S = 7 * 24 * 3600.0  # the Time Budget's upper limit: a week of training
+
 
 class NerfViewMetric(bpy.types.PropertyGroup):
     name: StringProperty()
@@ -31,8 +33,10 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
                             description="Folder for the training run (checkpoints, previews, metrics)")
     method: StringProperty(name="Method", default="",
                            description="NeRF method name (e.g. nerf, nerf-nope); empty: the library's best fast method")
-    max_seconds: FloatProperty(name="Time Budget", default=300.0, min=0.0, unit="TIME_ABSOLUTE",
-                               description="Stop after this many seconds (0: no time limit)")
+    # Bounded: an unbounded field took 1e30 s and the panel then showed a 27-digit ETA.
+    max_seconds: FloatProperty(name="Time Budget", default=300.0, min=0.0, max=MAX_TIME_BUDGET_S,
+                               unit="TIME_ABSOLUTE",
+                               description="Stop after this many seconds (0: no time limit; at most 7 days)")
     max_steps: IntProperty(name="Max Steps", default=0, min=0, description="Stop after this many steps (0: no limit)")
     seed: IntProperty(name="Seed", default=0, min=0)
     # live state, mirrored from the job for drawing

@@ -64,6 +64,10 @@ def start_training(context, resume: bool = False) -> jobs.TrainJob:
                 else "is not empty and holds no run to resume:")
         raise SetupError(f"Run folder {run} {what} press New Name to train into "
                          f"{trainer_process.suggest_run_name(run)}. Nothing was overwritten.")
+    if s.max_seconds > train_props.MAX_TIME_BUDGET_S:
+        # The field is bounded, but a .blend saved by an older add-on keeps what it held.
+        raise SetupError(f"Time Budget is {s.max_seconds:g} s, more than 7 days ({train_props.MAX_TIME_BUDGET_S:g} s): "
+                         "lower it (0 means no time limit).")
     python = trainer_process.resolve_interpreter(prefs.python_preference(context))
     cmd = trainer_process.train_command(python, dataset, run, method=s.method.strip(), max_seconds=s.max_seconds,
                                         max_steps=s.max_steps, seed=s.seed, resume=resume)
@@ -137,18 +141,27 @@ def _load_preview(path: str) -> None:
     _PREVIEWS.load("latest", path, "IMAGE")
 
 
-def refresh_runs(settings) -> None:
+def refresh_runs(settings) -> tuple:
+    """List the runs beside the run folder; returns (report kind, message) saying what was listed or
+    why nothing was, for the Refresh Runs button (a job's end ignores it)."""
+    settings.runs.clear()
     try:
         run = abs_path(settings.run_dir)
-    except SetupError:
-        run = ""  # an unsaved .blend's "//" folder: nothing to list yet
-    root = os.path.dirname(os.path.normpath(run)) if run else ""
-    settings.runs.clear()
+    except SetupError as exc:  # an unsaved .blend's "//" folder: nothing to list yet
+        return "WARNING", f"No runs listed: {exc}"
+    if not run:
+        return "WARNING", "No runs listed: the Run folder is not set; choose it, and the runs beside it are listed."
+    root = os.path.dirname(os.path.normpath(run))
+    if not os.path.isdir(root):
+        return "WARNING", f"No runs listed: folder {root} (the Run folder's parent) does not exist."
     for info in runs.list_runs(root):
         item = settings.runs.add()
         item.name, item.path, item.method = info.name, info.path, info.method
         item.settings = info.settings_summary()
         item.metrics = info.problem or info.metrics_summary()
+    if not settings.runs:
+        return "INFO", f"No training runs found in {root}."
+    return "INFO", f"Listed {len(settings.runs)} run(s) in {root}."
 
 
 def highlighted_run(settings):
@@ -179,7 +192,7 @@ def start_render(context) -> jobs.RenderJob:
     python = trainer_process.resolve_interpreter(prefs.python_preference(context))
     plan = compare.prepare_render(context, run, s.view_source)
     job = jobs.RenderJob(context.scene.name, python, run, plan.cameras, plan.out, s.layout, s.plane_distance,
-                         plan.n_views)
+                         plan.n_views, checkpoint=plan.checkpoint)
     job.on_update, job.on_end = sync_render_settings, _refresh_after
     jobs.add(RENDER, job)
     s.status = f"Rendering {plan.n_views} view(s)..."
@@ -277,7 +290,8 @@ class NERF_OT_refresh_runs(bpy.types.Operator):
     bl_label = "Refresh Runs"
 
     def execute(self, context):
-        refresh_runs(settings_of(context))
+        kind, message = refresh_runs(settings_of(context))
+        self.report({kind}, message)
         return {"FINISHED"}
 
 
@@ -288,7 +302,13 @@ class NERF_OT_use_run(bpy.types.Operator):
     bl_label = "Use Run"
 
     def execute(self, context):
-        return {"FINISHED"} if use_highlighted_run(settings_of(context)) else {"CANCELLED"}
+        s = settings_of(context)
+        if not use_highlighted_run(s):
+            self.report({"WARNING"}, "No run is highlighted in the Runs list: press Refresh Runs, then click a run.")
+            return {"CANCELLED"}
+        dataset = runs.run_dataset(s.run_dir)  # the dataset field changed only when the run names one
+        self.report({"INFO"}, f"Using run {s.run_dir}" + (f" (dataset {dataset})" if dataset else ""))
+        return {"FINISHED"}
 
 
 class NERF_OT_render_views(_StartsJob, bpy.types.Operator):

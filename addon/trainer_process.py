@@ -143,10 +143,14 @@ def train_command(
     return cmd + list(extra)
 
 
-def render_command(python: str, run: str, cameras: str, out: str, split: str = "") -> List[str]:
+def render_command(python: str, run: str, cameras: str, out: str, split: str = "", checkpoint: str = "") -> List[str]:
+    """``nerf_core render``; ``checkpoint`` (a step_*.pt) when latest.pt is gone: render loads only
+    latest.pt unless told which file (nerf_core.checkpoints.load_run)."""
     cmd = [python, "-m", "nerf_core", "render", run, "--cameras", cameras, "--out", out]
     if split:
         cmd += ["--split", split]
+    if checkpoint:
+        cmd += ["--checkpoint", checkpoint]
     return cmd
 
 
@@ -180,11 +184,16 @@ def run_folder_state(run: str) -> str:
         return "file"
     if not os.listdir(run):
         return "empty"
-    if os.path.isfile(contract.latest_checkpoint(run)):
-        return "resumable"
-    if glob.glob(os.path.join(glob.escape(run), contract.CHECKPOINTS_DIR, contract.step_glob(".pt"))):
+    if os.path.isfile(contract.latest_checkpoint(run)) or step_checkpoints(run):
         return "resumable"
     return "occupied"
+
+
+def step_checkpoints(run: str) -> List[str]:
+    """``RUN/checkpoints/step_*.pt`` files, newest first: what ``train --resume`` falls back to when
+    latest.pt is gone (nerf_core.runfolder.resume_candidates, the same glob and order)."""
+    found = glob.glob(os.path.join(glob.escape(run), contract.CHECKPOINTS_DIR, contract.step_glob(".pt")))
+    return sorted((p for p in found if os.path.isfile(p)), reverse=True)
 
 
 def suggest_run_name(run: str) -> str:

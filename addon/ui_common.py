@@ -31,13 +31,23 @@ def report_and_cancel(op, error) -> set:
     return {"CANCELLED"}
 
 
+FORMAT_SECONDS_MAX_DAYS = 99  # beyond this a duration is shown as "more than 99 days"
+
+
 def format_seconds(seconds: Optional[float]) -> str:
-    """``75.2`` -> ``'1:15'``; None -> ``'?'`` (nerf_core.progressbar is not importable from an
-    installed extension, where nerf_core lives in the vendored folder for the child only)."""
-    if seconds is None or seconds != seconds or seconds in (float("inf"), float("-inf")):
+    """``75.2`` -> ``'1:15'``, ``90061`` -> ``'1d 1:01:01'``; None, NaN, inf or negative -> ``'?'``;
+    beyond 99 days ``'> 99 days'`` (a trainer's ETA for a huge step budget is a number, but no
+    27-digit clock). nerf_core.progressbar is not importable from an installed extension, where
+    nerf_core lives in the vendored folder for the child only."""
+    if seconds is None or seconds != seconds or seconds in (float("inf"), float("-inf")) or seconds < 0:
         return "?"
+    if seconds >= FORMAT_SECONDS_MAX_DAYS * 86400:
+        return f"> {FORMAT_SECONDS_MAX_DAYS} days"
     minutes, secs = divmod(int(round(seconds)), 60)
     hours, minutes = divmod(minutes, 60)
+    days, hours = divmod(hours, 24)
+    if days:
+        return f"{days}d {hours}:{minutes:02d}:{secs:02d}"
     return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
