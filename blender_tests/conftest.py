@@ -27,6 +27,20 @@ def repo_root() -> str:
 
 
 @pytest.fixture
+def train_settings(tmp_path):
+    """The Train panel's settings (its classes registered), with Dataset and Run folders under
+    ``tmp_path`` that do not exist yet."""
+    from addon import train_ui
+
+    train_ui.register()
+    settings = bpy.context.scene.nerf_train
+    settings.dataset_dir = str(tmp_path / "dataset")
+    settings.run_dir = str(tmp_path / "run")
+    yield settings
+    train_ui.unregister()
+
+
+@pytest.fixture
 def active_camera():
     """Factory: ``active_camera(name, frames=(start, end))`` adds a 2-unit box at the origin and a new
     camera, links it and makes it the scene's camera over that frame range; returns the camera. The

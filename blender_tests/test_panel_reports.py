@@ -16,13 +16,8 @@ from test_register import _draw, _labels
 
 
 @pytest.fixture
-def s(tmp_path):
-    train_ui.register()
-    settings = bpy.context.scene.nerf_train
-    settings.dataset_dir = str(tmp_path / "dataset")
-    settings.run_dir = str(tmp_path / "run")
-    yield settings
-    train_ui.unregister()
+def s(train_settings):  # conftest.train_settings, under the short name these tests use
+    return train_settings
 
 
 def reports(capfd) -> str:
