@@ -43,10 +43,10 @@ def transparent_share(images: torch.Tensor) -> float:
 def percent_text(share: float) -> str:
     """``share`` in [0, 1] as "12.3 %", never rounded to "100.0 %" or "0.0 %" unless it is exactly that:
     a train log said "100.0 % of the pixels are transparent" of a subject it then trained on."""
-    p = 100.0 * share
-    if 0.0 < share < 1.0 and (p < 0.05 or p >= 99.95):
-        return f"{p:.2g} %" if p < 0.05 else f"{100.0 - float(f'{100.0 - p:.2g}'):.10g} %"
-    return f"{p:.1f} %"
+    p, digits = 100.0 * share, 1
+    while 0.0 < share < 1.0 and round(p, digits) in (0.0, 100.0) and digits < 8:
+        digits += 1  # one more decimal until the text is neither 0 nor 100
+    return f"{p:.{digits}f} %"
 
 
 # A cut-out whose subject (the mean alpha) covers less than this share of the train pixels gives the

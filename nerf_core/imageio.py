@@ -72,10 +72,9 @@ def png_info(path: Path | str) -> tuple[int, int, str, int]:
                 if len(head) == 26 and head[12:16] == b"IHDR":
                     bits = head[24]
             mode = im.mode
-            suffix = path.suffix.lower().lstrip(".")
-            fmt = (im.format or "").upper()
-            if fmt and suffix and fmt != suffix.upper() and not (fmt == "JPEG" and suffix in ("jpg", "jpeg")):
-                mode = f"{fmt} {mode}"
+            named = Image.registered_extensions().get(path.suffix.lower())  # ".tif" -> "TIFF", ".jpg" -> "JPEG"
+            if im.format and named and im.format != named:
+                mode = f"{im.format} {mode}"
             return im.width, im.height, mode, bits
     except FileNotFoundError as exc:
         raise ImageReadError(f"{path}: file not found") from exc

@@ -13,6 +13,8 @@ from typing import Callable, Dict, Optional
 import torch
 from torch import nn
 
+from ..scene_box import box_length_unit
+
 _REGISTRY: Dict[str, Callable[..., "RadianceModel"]] = {}
 
 
@@ -141,8 +143,6 @@ def check_density_unit(name: str, options: dict) -> None:
 def density_length(aabb: torch.Tensor, unit: str) -> float:
     """Scene units per unit of length that a field's density is measured against: the box unit
     (``scene_box.box_length_unit``) for "box", 1 for "scene" (checkpoints from before the option)."""
-    from ..scene_box import box_length_unit
-
     return box_length_unit(aabb) if unit == "box" else 1.0
 
 

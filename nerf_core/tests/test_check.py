@@ -20,6 +20,14 @@ def _errors(ds):
     return report, [str(p) for p in report.errors]
 
 
+def _paint_views(ds, views, rgba):
+    """Fill each (split, index) view's image with one RGBA colour; then check ``ds`` (``_errors``)."""
+    for split, k in views:
+        path = ds / split / f"r_{k}.png"
+        Image.new("RGBA", Image.open(path).size, rgba).save(path)
+    return _errors(ds)
+
+
 def _has(errors, *words):
     return any(all(w in e for w in words) for e in errors)
 
@@ -101,10 +109,7 @@ def test_views_that_show_nothing_are_warned_about(sphere_dataset):
     # valid files, but a held-out view of nothing measures nothing.
     report, errors = _errors(sphere_dataset)
     assert not [w for w in report.warnings if "shows nothing" in str(w)]
-    for split, k in (("test", 1), ("train", 2)):
-        path = sphere_dataset / split / f"r_{k}.png"
-        Image.new("RGBA", Image.open(path).size, (40, 90, 200, 0)).save(path)
-    report, errors = _errors(sphere_dataset)
+    report, errors = _paint_views(sphere_dataset, (("test", 1), ("train", 2)), (40, 90, 200, 0))
     assert errors == []
     empty = [str(w) for w in report.warnings if "shows nothing" in str(w)]
     assert len(empty) == 2
@@ -122,10 +127,7 @@ def test_opaque_views_that_are_black_everywhere_are_warned_about(sphere_dataset)
             Image.alpha_composite(grey, im).save(path)
     report, errors = _errors(sphere_dataset)
     assert errors == [] and not [w for w in report.warnings if "shows nothing" in str(w)]
-    for split, k in (("test", 0), ("train", 3)):
-        path = sphere_dataset / split / f"r_{k}.png"
-        Image.new("RGBA", Image.open(path).size, (1, 0, 1, 255)).save(path)
-    report, errors = _errors(sphere_dataset)
+    report, errors = _paint_views(sphere_dataset, (("test", 0), ("train", 3)), (1, 0, 1, 255))
     assert errors == []
     black = [str(w) for w in report.warnings if "opaque and black everywhere" in str(w)]
     assert len(black) == 2, report.warnings
