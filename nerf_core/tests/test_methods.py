@@ -228,6 +228,41 @@ def test_nerf_early_ray_termination_while_training_changes_only_invisible_sample
     assert torch.allclose(outs[True]["rgb"], outs[False]["rgb"], atol=2e-4)
 
 
+def test_nerf_auto_early_termination_follows_what_it_would_drop():
+    """"auto" (the default) terminates rays early while that drops most samples (an opaque field) and
+    measures again only every ``ert_probe_every`` renders while it would not (a transparent one)."""
+    model, _, _ = overfit("nerf", 120, 128, lr=3e-3, **SMALL_NERF)
+    assert model.options["train_ert"] == "auto"
+    o, d, near, far, _ = sphere_scene(n_cams=2)
+    bg = torch.ones(o.shape[0], 3)
+
+    def samples(ert):
+        model.options["train_ert"] = ert
+        torch.manual_seed(1)  # the same jittered samples
+        return model.render_rays(o, d, near, far, bg, True)["n_samples"]
+
+    with torch.no_grad():
+        model.coarse.sigma_head.bias += 4.0  # opaque: most samples lie behind a surface
+    model._ert_keep, model._ert_wait = None, 0
+    everything, kept = samples(False), samples(True)
+    assert kept < 0.6 * everything
+    assert [samples("auto") for _ in range(3)] == [kept] * 3
+    with torch.no_grad():
+        model.coarse.sigma_head.bias -= 40.0  # transparent: nothing to drop
+    model._ert_keep, model._ert_wait = None, 0
+    assert samples("auto") == everything  # it measured: nothing dropped...
+    assert model._ert_keep > 0.99
+    model.options["ert_probe_every"], model._ert_wait = 3, 3
+    # ...so it stays off, and measures again every third training render.
+    assert [model._use_ert() for _ in range(6)] == [False, False, True, False, False, True]
+    model._ert_keep = 0.5  # a measurement that drops half the samples turns it on while that lasts
+    assert all(model._use_ert() for _ in range(5))
+    model.options["train_ert"] = False
+    assert not model._use_ert()
+    with pytest.raises(ValueError, match="train_ert"):
+        build_model("nerf", BOX, train_ert="sometimes")
+
+
 @pytest.mark.parametrize("name", ["vmgrid", "nerf"])
 def test_a_scaled_scene_renders_the_same(name):
     """Density is learnt per box unit (``scene_box.box_length_unit``): the same weights in a box 1000x
