@@ -79,9 +79,17 @@ class NeRFMLP(nn.Module):
         """(m, 3) positions -> (m,) densities >= 0."""
         return self._activate(self.sigma_head(self._trunk(x)).squeeze(-1))
 
+    def density_and_features(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """(m, 3) positions -> densities (m,) and the trunk's features (m, width), which
+        ``color_from_features`` turns into colour without running the trunk again."""
+        h = self._trunk(x)
+        return self._activate(self.sigma_head(h).squeeze(-1)), h
+
+    def color_from_features(self, h: Tensor, d: Tensor) -> Tensor:
+        """Trunk features (m, width) and unit directions (m, 3) -> rgb (m, 3) in [0, 1]."""
+        return torch.sigmoid(self.rgb_head(torch.cat([self.feature(h), self.dir_enc(d)], dim=-1)))
+
     def forward(self, x: Tensor, d: Tensor) -> tuple[Tensor, Tensor]:
         """(m, 3) positions and unit directions -> sigma (m,), rgb (m, 3) in [0, 1]."""
-        h = self._trunk(x)
-        sigma = self._activate(self.sigma_head(h).squeeze(-1))
-        rgb = torch.sigmoid(self.rgb_head(torch.cat([self.feature(h), self.dir_enc(d)], dim=-1)))
-        return sigma, rgb
+        sigma, h = self.density_and_features(x)
+        return sigma, self.color_from_features(h, d)

@@ -20,7 +20,10 @@ samples. Two samplers, chosen by the ``sampler`` option:
        every ``ert_probe_every``-th step while it is off, and uses it while that share is below
        ``ERT_WORTH`` (``_use_ert``). On highfreq at 200 px, 5 min of one core: 26.29 dB and 4017 steps
        with it, against 20.67 dB and 1750 steps without;
-    4. at render time one pass evaluates density and colour at every kept sample.
+    4. at render time (no gradients) rays are also terminated early, front to back in rounds of
+       ``render_round_size`` samples (``ray_termination.visible_samples``): the trunk runs on the
+       samples up to where each ray turns opaque, and the colour head, from the trunk's features kept
+       meanwhile, only on the samples still visible (``_render_visible``).
     One network, so every sample's cost buys the picture.
 
 ``"hierarchical"`` (the paper's): ``n_coarse`` stratified samples through a coarse network, then
@@ -38,7 +41,7 @@ import math
 
 import torch
 
-from .. import grad_scaling, profiling, sampling, volrend
+from .. import grad_scaling, profiling, ray_termination, sampling, volrend
 from ..fields.mlp import NeRFMLP
 from ..occupancy import OccupancyGrid
 from .base import RadianceModel, check_density_unit, check_options, density_length, register
@@ -129,6 +132,9 @@ class NeRF(RadianceModel):
         else:
             self.occupancy = OccupancyGrid(self.aabb, opts["occ_res"])
         self.render_chunk = 1 << 16  # samples per no-grad network call (bounds activation memory)
+        # Samples per ray per front-to-back round when rendering: an MLP sample costs far more than the
+        # bookkeeping of a round, so rounds are short and little is evaluated behind a surface.
+        self.render_round_size = 8
         self._ert_keep = None  # share of samples the last early-termination pass kept (None: not measured)
         self._ert_wait = 0  # training renders until "auto" measures that share again while it is off
 
@@ -187,6 +193,7 @@ class NeRF(RadianceModel):
 
     def _render_occupancy(self, rays_o, rays_d, near, far, background, training: bool):
         n_rays = rays_o.shape[0]
+        n_evaluated = None  # samples the network ran on, when that is not the samples composited
         with profiling.stage("sampling"):
             t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, self.step_size(),
                                                      self.occupancy.query, jitter=training, max_samples=4096,
@@ -205,23 +212,19 @@ class NeRF(RadianceModel):
             scale = grad_scaling.near_camera_scales(mids, grad_scaling.reach_for_box(self.aabb, self.options["grad_reach"]))
             if scale is not None:  # cameras inside the box: even out the gradient near each lens
                 sigma, rgb = grad_scaling.scale_gradient(sigma, scale), grad_scaling.scale_gradient(rgb, scale)
+            with profiling.stage("rendering"):
+                weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
         else:
-            # Rendering: one pass, density and colour together (a second pass would cost more than the
-            # samples that early termination could save).
-            dirs = rays_d[ridx]
-            with profiling.stage("field"):
-                outs = [self.coarse(pts[i:i + self.render_chunk], dirs[i:i + self.render_chunk])
-                        for i in range(0, max(1, pts.shape[0]), self.render_chunk)]
-                sigma = torch.cat([s for s, _ in outs]) if outs else pts.new_zeros(0)
-                rgb = torch.cat([c for _, c in outs]) if outs else pts.new_zeros(0, 3)
+            t0, t1, ridx, mids, weights, rgb, n_evaluated = self._render_visible(t0, t1, ridx, mids, pts, rays_d, n_rays)
         with profiling.stage("rendering"):
-            weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
             color = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, rgb)
             acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
             depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids.unsqueeze(-1)).squeeze(-1)
             depth = depth / acc.clamp_min(1e-6)
             color = volrend.composite_background(color, acc, background.to(color.dtype))
-        return {"rgb": color, "depth": depth, "acc": acc, "n_samples": int(ridx.shape[0])}
+        # Rendering reports what it cost (``render_rays_chunked`` sizes its calls from it).
+        return {"rgb": color, "depth": depth, "acc": acc,
+                "n_samples": int(ridx.shape[0]) if n_evaluated is None else n_evaluated}
 
     # The early-termination pass costs about a third of a training pass over the same samples (density
     # only, no backward), so it pays while it keeps less than about two thirds of them.
@@ -240,6 +243,39 @@ class NeRF(RadianceModel):
             return False
         self._ert_wait = int(self.options["ert_probe_every"])
         return True
+
+    @torch.no_grad()
+    def _render_visible(self, t0, t1, ridx, mids, pts, rays_d, n_rays):
+        """Rendering without gradients: the packed samples (k,) -> those still visible (T > 1e-4) as
+        (t0, t1, ridx, mids), their weights (n,), colours (n, 3) and how many samples the trunk ran on; the same as one pass over every
+        sample up to 1e-4 of a ray's colour. The trunk runs front to back until each ray is opaque; the
+        features of the samples it ran on are kept per round, so the colour head needs no second trunk
+        pass (memory: ``width`` floats per evaluated sample, about 8 MB per CPU call)."""
+        rounds = []  # (sample positions, features) of every round
+
+        def density(sel: Tensor) -> Tensor:
+            out = []
+            with profiling.stage("field"):
+                for i in range(0, max(1, sel.shape[0]), self.render_chunk):
+                    s = sel[i:i + self.render_chunk]
+                    sigma, h = self.coarse.density_and_features(pts[s])
+                    rounds.append((s, h))
+                    out.append(sigma)
+            return torch.cat(out)
+
+        keep, weights = ray_termination.visible_samples(t0, t1, ridx, n_rays, density, t_min=1e-4,
+                                                        round_size=self.render_round_size)
+        # The kept samples' features in packed order: each round's survivors, sorted by position.
+        pos = torch.cat([s[keep[s]] for s, _ in rounds]) if rounds else ridx.new_zeros(0)
+        feats = torch.cat([h[keep[s]] for s, h in rounds]) if rounds else pts.new_zeros(0, self.coarse.feature.in_features)
+        feats = feats.index_select(0, torch.argsort(pos))
+        kept = keep.nonzero().squeeze(-1)
+        t0, t1, ridx, mids = (x.index_select(0, kept) for x in (t0, t1, ridx, mids))
+        with profiling.stage("field"):
+            rgb = torch.cat([self.coarse.color_from_features(feats[i:i + self.render_chunk],
+                                                             rays_d.index_select(0, ridx[i:i + self.render_chunk]))
+                             for i in range(0, max(1, feats.shape[0]), self.render_chunk)])
+        return t0, t1, ridx, mids, weights, rgb, int(sum(p.shape[0] for p, _ in rounds))
 
     @torch.no_grad()
     def _visible(self, t0, t1, ridx, mids, pts, n_rays):

@@ -10,7 +10,7 @@ import math
 import pytest
 import torch
 
-from nerf_core import sampling
+from nerf_core import sampling, volrend
 from nerf_core.methods import available_methods, build_model
 from nerf_core.methods.base import saved_options
 from nerf_core.methods.catalog import DEFAULT_METHOD
@@ -226,6 +226,31 @@ def test_nerf_early_ray_termination_while_training_changes_only_invisible_sample
     # and on the opaque sphere there are such samples to drop.
     assert outs[True]["n_samples"] < outs[False]["n_samples"]
     assert torch.allclose(outs[True]["rgb"], outs[False]["rgb"], atol=2e-4)
+
+
+def test_nerf_renders_with_early_termination_as_one_full_pass_would():
+    """Rendering terminates rays front to back and colours only visible samples from the trunk's kept
+    features; the picture equals one pass of the whole network over every sample, computed here by hand."""
+    model, _, _ = overfit("nerf", 120, 128, lr=3e-3, **SMALL_NERF)
+    with torch.no_grad():
+        model.coarse.sigma_head.bias += 4.0  # opaque: rays end inside the occupied cells
+    model.eval()
+    o, d, near, far, _ = sphere_scene(n_cams=2)
+    bg = torch.ones(o.shape[0], 3)
+    with torch.no_grad():
+        out = model.render_rays(o, d, near, far, bg, False)
+        t0, t1, ridx = sampling.occupied_samples(o, d, near, far, model.step_size(), model.occupancy.query,
+                                                 jitter=False, max_samples=4096, near_fn=model.occupancy.query_near,
+                                                 near_reach=model.occupancy.near_reach())
+        pts = o[ridx] + d[ridx] * (0.5 * (t0 + t1)).unsqueeze(-1)
+        sigma, rgb = model.coarse(pts, d[ridx])
+        weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, o.shape[0])
+        acc = volrend.accumulate_along_rays_packed(weights, ridx, o.shape[0])
+        full = volrend.composite_background(volrend.accumulate_along_rays_packed(weights, ridx, o.shape[0], rgb), acc, bg)
+    assert float(acc.mean()) > 0.3  # something to compare
+    assert torch.allclose(out["rgb"], full, atol=2e-4)
+    assert torch.allclose(out["acc"], acc, atol=2e-4)
+    assert out["n_samples"] < 0.7 * t0.shape[0]  # the trunk ran on fewer samples than one full pass
 
 
 def test_nerf_auto_early_termination_follows_what_it_would_drop():
