@@ -132,8 +132,8 @@ class NeRF(RadianceModel):
         else:
             self.occupancy = OccupancyGrid(self.aabb, opts["occ_res"])
         self.render_chunk = 1 << 16  # samples per no-grad network call (bounds activation memory)
-        # Samples per ray per front-to-back round when rendering: an MLP sample costs far more than the
-        # bookkeeping of a round, so rounds are short and little is evaluated behind a surface.
+        # Samples per ray per front-to-back round of early termination (rendering, and the no-grad pass
+        # of training): an MLP sample costs far more than a round's bookkeeping, so rounds are short.
         self.render_round_size = 8
         self._ert_keep = None  # share of samples the last early-termination pass kept (None: not measured)
         self._ert_wait = 0  # training renders until "auto" measures that share again while it is off
@@ -226,8 +226,9 @@ class NeRF(RadianceModel):
         return {"rgb": color, "depth": depth, "acc": acc,
                 "n_samples": int(ridx.shape[0]) if n_evaluated is None else n_evaluated}
 
-    # The early-termination pass costs about a third of a training pass over the same samples (density
-    # only, no backward), so it pays while it keeps less than about two thirds of them.
+    # The early-termination pass costs at most about a third of a training pass over the same samples
+    # (density only, no backward, and none behind opaque points), so it pays while it keeps less than
+    # about two thirds of them.
     ERT_WORTH = 0.6
 
     def _use_ert(self) -> bool:
@@ -247,8 +248,8 @@ class NeRF(RadianceModel):
     @torch.no_grad()
     def _render_visible(self, t0, t1, ridx, mids, pts, rays_d, n_rays):
         """Rendering without gradients: the packed samples (k,) -> those still visible (T > 1e-4) as
-        (t0, t1, ridx, mids), their weights (n,), colours (n, 3) and how many samples the trunk ran on; the same as one pass over every
-        sample up to 1e-4 of a ray's colour. The trunk runs front to back until each ray is opaque; the
+        (t0, t1, ridx, mids), their weights (n,), colours (n, 3) and how many samples the trunk ran
+        on; the same as one pass over every sample up to 1e-4 of a ray's colour. The trunk runs front to back until each ray is opaque; the
         features of the samples it ran on are kept per round, so the colour head needs no second trunk
         pass (memory: ``width`` floats per evaluated sample, about 8 MB per CPU call)."""
         rounds = []  # (sample positions, features) of every round
@@ -279,11 +280,10 @@ class NeRF(RadianceModel):
 
     @torch.no_grad()
     def _visible(self, t0, t1, ridx, mids, pts, n_rays):
-        """The packed samples (same tuple) whose transmittance is still above 1e-4."""
-        sig = self._density_chunked(pts)
-        with profiling.stage("rendering"):
-            trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
-        keep = trans > 1e-4
+        """The packed samples (same tuple) whose transmittance is still above 1e-4, found front to back
+        (``ray_termination.visible_samples``): no density is evaluated behind a ray's opaque point."""
+        keep, _ = ray_termination.visible_samples(t0, t1, ridx, n_rays, lambda sel: self._density_chunked(pts[sel]),
+                                                  t_min=1e-4, round_size=self.render_round_size)
         return t0[keep], t1[keep], ridx[keep], mids[keep], pts[keep]
 
     # ------------------------------------------------------------------ hierarchical sampler
