@@ -136,20 +136,26 @@ class Cameras:
         return 2.0 * torch.atan(self.width.float() / (2.0 * self.fx))
 
 
-def camera_directions(fx, fy, cx, cy, i, j) -> torch.Tensor:
-    """Unnormalised camera-space directions (m, 3) through pixel centres (column i, row j)."""
-    x = (i.float() + 0.5 - cx) / fx
-    y = -(j.float() + 0.5 - cy) / fy
+def camera_directions(fx, fy, cx, cy, i, j, offset: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """Unnormalised camera-space directions (m, 3) through pixel centres (column i, row j), or through
+    the points ``offset`` (m, 2) pixels (x right, y down) from them."""
+    u, v = i.float() + 0.5, j.float() + 0.5
+    if offset is not None:
+        u, v = u + offset[:, 0], v + offset[:, 1]
+    x = (u - cx) / fx
+    y = -(v - cy) / fy
     return torch.stack([x, y, -torch.ones_like(x)], dim=-1)
 
 
 def rays_for_pixels(
-    cameras: Cameras, view: torch.Tensor, i: torch.Tensor, j: torch.Tensor
+    cameras: Cameras, view: torch.Tensor, i: torch.Tensor, j: torch.Tensor, offset: Optional[torch.Tensor] = None
 ) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Rays through given pixels of given views.
 
     Args:
         view, i, j: (m,) int64 view index, pixel column, pixel row.
+        offset: (m, 2) float sub-pixel offsets from the pixel centres (x right, y down, in pixels), for
+            rays drawn from the pixel filter (``nerf_core.pixel_filter``); None: the centres.
     Returns:
         rays_o (m, 3), rays_d (m, 3) unit length, z_per_t (m,) planar depth per unit of ray
         distance (multiply a ray distance by it to get z-depth).
@@ -157,17 +163,20 @@ def rays_for_pixels(
     rot = cameras.c2w[view, :3, :3]
     rays_o = cameras.c2w[view, :3, 3]
     if cameras.dist is None:
-        d_cam = camera_directions(cameras.fx[view], cameras.fy[view], cameras.cx[view], cameras.cy[view], i, j)
+        d_cam = camera_directions(cameras.fx[view], cameras.fy[view], cameras.cx[view], cameras.cy[view], i, j, offset)
         inv_norm = torch.rsqrt((d_cam * d_cam).sum(-1))
         rays_d = torch.einsum("mij,mj->mi", rot, d_cam) * inv_norm[:, None]
         return rays_o, rays_d, inv_norm  # |d_cam.z| = 1, so z-depth per unit distance is 1/|d_cam|
-    tables = _lens_tables(cameras)
+    tables = _lens_tables(cameras) if offset is None else None  # the tables hold pixel centres only
     if tables is not None:
         table, which = tables
         unit = table[which[view], j, i]
     else:
-        xd = (i.double() + 0.5 - cameras.cx[view].double()) / cameras.fx[view].double()
-        yd = (j.double() + 0.5 - cameras.cy[view].double()) / cameras.fy[view].double()
+        u, v = i.double() + 0.5, j.double() + 0.5
+        if offset is not None:
+            u, v = u + offset[:, 0].double(), v + offset[:, 1].double()
+        xd = (u - cameras.cx[view].double()) / cameras.fx[view].double()
+        yd = (v - cameras.cy[view].double()) / cameras.fy[view].double()
         unit = pixel_directions(xd, yd, cameras.dist[view], cameras.fisheye[view])[0].float()
     rays_d = torch.einsum("mij,mj->mi", rot, unit)
     return rays_o, rays_d, -unit[:, 2]  # z-depth per unit distance: the cosine to the axis

@@ -35,9 +35,11 @@ from .contract.transforms import (SPLITS, DatasetError, FrameInfo, detect_layout
                                   why_not_a_file)
 from .dataset_checks import (check_duplicate_images, check_near_far, check_train_count,  # noqa: F401
                              dataset_problems, depth_scale, empty_masks_problem, parse_aabb, scene_fields,
+                             scene_pixel_filter,
                              transparent_train_problem, black_train_problem)
 from .lens import fold_pixel
 from .metrics import composite
+from .pixel_filter import PixelFilter
 from .scene_box import depth_points, estimate_aabb, pad_box_for_interior
 from .imageio import ImageReadError, read_depth, read_exr_rgba, read_mask, read_normals, read_png
 
@@ -153,6 +155,8 @@ class Dataset:
     world: Optional[dict] = None  # the capture's description of the Blender world, when recorded
     cameras_inside: bool = False  # most train cameras stand inside the scene box: an interior
     beyond_box: List[str] = field(default_factory=list)  # objects the capture says reach beyond ``aabb`` (a floor)
+    # What one pixel of the images averages over (``nerf_core.pixel_filter``), at the loaded resolution.
+    pixel_filter: Optional[PixelFilter] = None
 
     def split(self, name: str) -> Split:
         if name not in self.splits or len(self.splits[name]) == 0:
@@ -406,6 +410,7 @@ def load_dataset(
                 notes.append(f"{leaked[0].where}: {len(leaked)} {name} frame(s) use training images; "
                              "their metrics will not measure novel views")
     near, far, film, world, beyond = scene_fields(scene)
+    pixel_filter = scene_pixel_filter(scene).downscaled(downscale)
     check_near_far(scene, infos)
     loaded = {name: load_split(name, infos[name], downscale, dscale) for name in splits}
     if "train" in loaded and loaded["train"].shows_nothing():
@@ -441,7 +446,7 @@ def load_dataset(
             notes.append(small)
             source += "; padded around the cameras standing inside it"
     return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world,
-                   cameras_inside=inside_note is not None, beyond_box=beyond)
+                   cameras_inside=inside_note is not None, beyond_box=beyond, pixel_filter=pixel_filter)
 
 
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:

@@ -88,7 +88,8 @@ def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
 
 def scene_fields(scene: dict) -> tuple:
     """(near, far, film_transparent, world, beyond_box) of a dataset's top-level fields, validated (raises
-    DatasetError). ``beyond_box``: names of objects that reach beyond the scene box ([] when not given)."""
+    DatasetError). ``beyond_box``: names of objects that reach beyond the scene box ([] when not given).
+    ``pixel_filter`` is validated here too; ``scene_pixel_filter`` reads it."""
     near = far = None
     for key in ("near", "far"):
         if key in scene:
@@ -115,7 +116,19 @@ def scene_fields(scene: dict) -> tuple:
     beyond = scene.get("beyond_box", [])
     if not isinstance(beyond, list) or not all(isinstance(n, str) for n in beyond):
         raise DatasetError(f"{scene['beyond_box_file']}: field 'beyond_box' must be a list of object names, got {beyond!r}")
+    scene_pixel_filter(scene)
     return near, far, film, world, beyond
+
+
+def scene_pixel_filter(scene: dict):
+    """The dataset's ``pixel_filter`` (``nerf_core.pixel_filter``; Blender's default when the field is
+    absent), validated: DatasetError names the file and the field."""
+    from .pixel_filter import parse
+
+    try:
+        return parse(scene.get("pixel_filter"), str(scene.get("pixel_filter_file", "dataset")))
+    except ValueError as exc:
+        raise DatasetError(str(exc)) from None
 
 
 def near_far_problem(near: Optional[float], far: Optional[float], aabb, origins, where: str) -> Optional[str]:

@@ -49,11 +49,13 @@ def evaluate_split(
     far: Optional[float] = None,
     chunk: int = 8192,
     on_view: Optional[Callable[[dict], None]] = None,
+    pixel_filter=None,
 ) -> dict:
     """Render ``views`` of a ``data.Split`` and compare with its images.
 
     Ground truth is composited onto ``background`` (white, like the original NeRF evaluation) and
-    the model renders onto the same colour. Returns ``psnr``, ``ssim``, ``n_views``, ``per_view``,
+    the model renders onto the same colour, through the images' ``pixel_filter`` (``render_view``;
+    None: one ray through each pixel centre). Returns ``psnr``, ``ssim``, ``n_views``, ``per_view``,
     the rendering time (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and
     ``depth_mae`` when the split has depth.
     """
@@ -61,11 +63,13 @@ def evaluate_split(
 
     views = list(range(len(split))) if views is None else list(views)
     per_view: List[dict] = []
-    render_seconds = 0.0
+    render_seconds, rays = 0.0, 0
     for v in views:
         started = time.perf_counter()
-        res = render_view(model, split.cameras, v, background=background, near=near, far=far, chunk=chunk)
+        res = render_view(model, split.cameras, v, background=background, near=near, far=far, chunk=chunk,
+                          pixel_filter=pixel_filter)
         render_seconds += time.perf_counter() - started
+        rays += res["n_rays"]
         scores, _ = score_view(res["rgb"], split, v, background, res["z_depth"])
         entry = {"view": v, "name": split.frames[v].stem, **scores}
         per_view.append(entry)
@@ -79,7 +83,7 @@ def evaluate_split(
         "width": split.width,
         "height": split.height,
         "per_view": per_view,
-        **render_rate(render_seconds, len(per_view) * split.width * split.height),
+        **render_rate(render_seconds, rays),
     }
     if split.depth is not None:
         out["depth_mae"] = mean_finite([e.get("depth_mae") for e in per_view])
@@ -93,7 +97,8 @@ def spread_views(n: int, k: int) -> List[int]:
 
 
 def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = None, background=(1.0, 1.0, 1.0),
-                       near: Optional[float] = None, far: Optional[float] = None, chunk: int = 8192) -> dict:
+                       near: Optional[float] = None, far: Optional[float] = None, chunk: int = 8192,
+                       pixel_filter=None) -> dict:
     """``evaluate_split`` on evenly spread views of ``split``: ``max_views`` of them when given, else
     as many as fit in ``seconds`` at the time view 0 took (at least one). The end-of-training
     evaluation, which must not take longer than a share of the training itself.
@@ -102,7 +107,8 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
 
     n = len(split)
     t0 = time.perf_counter()
-    first = evaluate_split(model, split, [0], background=background, near=near, far=far, chunk=chunk)
+    kw = dict(background=background, near=near, far=far, chunk=chunk, pixel_filter=pixel_filter)
+    first = evaluate_split(model, split, [0], **kw)
     per_view_s = time.perf_counter() - t0
     if max_views is not None:
         k = min(n, max_views)
@@ -111,7 +117,7 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
     rest = [v for v in spread_views(n, k) if v != 0]
     if not rest:
         return first
-    more = evaluate_split(model, split, rest, background=background, near=near, far=far, chunk=chunk)
+    more = evaluate_split(model, split, rest, **kw)
     per_view = first["per_view"] + more["per_view"]
     result = dict(first, per_view=per_view, n_views=len(per_view),
                   **render_rate(first["render_seconds"] + more["render_seconds"], first["rays"] + more["rays"]))
@@ -126,12 +132,12 @@ def evaluate_held_out(model, dataset, max_views: Optional[int] = None, seconds: 
     """(split name, ``evaluate_split`` result) on the held-out split of a ``data.Dataset`` (test, else
     val), None when it has neither. Views are evenly spread: ``max_views`` of them (all when None or
     0) or, when ``seconds`` is given and ``max_views`` is None, as many as fit in that time
-    (``evaluate_in_budget``)."""
+    (``evaluate_in_budget``). Views render through the dataset's pixel filter."""
     split_name = dataset.held_out_split(("test", "val"))
     if split_name is None:
         return None
     split = dataset.splits[split_name]
-    kw = dict(background=background, near=dataset.near, far=dataset.far, chunk=chunk)
+    kw = dict(background=background, near=dataset.near, far=dataset.far, chunk=chunk, pixel_filter=dataset.pixel_filter)
     if seconds is not None:
         return split_name, evaluate_in_budget(model, split, seconds, max_views, **kw)
     n = len(split)
@@ -199,9 +205,13 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
 
 
 def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: Optional[int] = None,
-                 chunk: int = 8192, checkpoint=None, print_fn=print, show_progress: bool = True) -> dict:
+                 chunk: int = 8192, checkpoint=None, print_fn=print, show_progress: bool = True,
+                 pixel_filter: str = "auto") -> dict:
     """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
-    view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl)."""
+    view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).
+    ``pixel_filter``: "auto" renders through the dataset's film filter (``nerf_core.pixel_filter``),
+    "none" one ray through each pixel centre."""
+    from .pixel_filter import POINT
     from .data import load_dataset
     from .device import pick_device
     from .progress import EventLog
@@ -249,14 +259,17 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
         print_fn(line)
         bar.update(1, info=entry["name"])
 
-    result = evaluate_split(model, sp, views, background=bg, near=config.get("near"), far=config.get("far"), chunk=chunk, on_view=show)
+    film_filter = POINT if pixel_filter == "none" else ds.pixel_filter
+    result = evaluate_split(model, sp, views, background=bg, near=config.get("near"), far=config.get("far"), chunk=chunk,
+                            on_view=show, pixel_filter=film_filter)
     bar.close()
     step = ckpt.get("step")
     update_metrics_file(metrics_path, split, result, step)
     with EventLog([contract.progress_path(run)], stdout=False) as log:
         log.emit("eval", step=step, split=split, psnr=result["psnr"], ssim=result["ssim"])
     summary = {"psnr": result["psnr"], "ssim": result["ssim"], "split": split, "n_views": result["n_views"],
-               "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method")}
+               "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method"),
+               "pixel_filter": film_filter.to_json()}
     if "depth_mae" in result:
         summary["depth_mae"] = result["depth_mae"]
     low = {sp.stems[v]: round(share, 4) for v, share in unseen.items() if share >= UNSEEN_WORLD_NOTE}

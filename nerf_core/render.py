@@ -20,7 +20,7 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 import torch
 
-from .cameras import Cameras, ray_bounds, rays_for_view
+from .cameras import Cameras, ray_bounds, rays_for_pixels, rays_for_view
 # Checkpoint reading moved to nerf_core.checkpoints; the names stay importable from here for callers
 # written against render (scripts/benchmark.py reads model sizes through them).
 from .checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint  # noqa: F401
@@ -29,6 +29,7 @@ from .contract.intrinsics import resolve_intrinsics
 from .contract.lens import parse_lens
 from .contract.naming import frame_stem, render_files, unique_stems
 from .contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, parse_json_file, read_transforms
+from .pixel_filter import DEFAULT_SAMPLES, POINT, PixelFilter, edge_pixels
 from .progressbar import ProgressBar
 from .runfolder import dataset_changed_note
 
@@ -90,8 +91,14 @@ def render_view(
     far: Optional[float] = None,
     chunk: int = 8192,
     on_chunk: Optional[Callable[[int, int], None]] = None,
+    pixel_filter: Optional[PixelFilter] = None,
+    filter_samples: int = DEFAULT_SAMPLES,
 ) -> Dict[str, torch.Tensor]:
     """Render a whole camera on the model's device (``on_chunk``: see ``render_rays_chunked``).
+
+    ``pixel_filter``: the film's filter (``nerf_core.pixel_filter``): pixels at an edge of the centre-ray
+    image become the mean of ``filter_samples`` rays drawn from it, as Cycles renders them; None (or
+    the filter "NONE"): one ray through each pixel centre.
 
     Returns CPU tensors: rgb (h, w, 3) composited onto ``background`` (onto the model's learned
     environment instead when it has one), acc (h, w), depth (h, w)
@@ -102,6 +109,31 @@ def render_view(
     h, w = int(cameras.height[view]), int(cameras.width[view])
     check_view_memory(w, h, f"view {view}")
     rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
+    res = _render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk)
+    rgb, acc = res["rgb"].cpu().clamp(0, 1).reshape(h, w, 3), res["acc"].clamp(0, 1).cpu().reshape(h, w)
+    n_rays = h * w
+    if pixel_filter is not None and not pixel_filter.is_point and filter_samples > 1:
+        rgb, acc, n_rays = _filter_edges(model, cameras, view, rgb, acc, pixel_filter, filter_samples, background, near, far,
+                                 chunk, on_chunk)
+    dist = res["depth"].cpu()
+    # Whether a model's depth is already divided by acc is method-specific; dividing again would be
+    # wrong, so only use acc to mark empty pixels. Depth stays the centre ray's: a filtered depth at a
+    # silhouette would be a surface that is not there.
+    acc_centre = res["acc"].clamp(0, 1).cpu()
+    z = torch.where(acc_centre >= 0.5, dist * z_per_t, torch.zeros_like(dist))
+    return {
+        "rgb": rgb,
+        "acc": acc,
+        "depth": dist.reshape(h, w),
+        "z_depth": z.reshape(h, w),
+        "n_rays": n_rays,  # rays rendered: one a pixel, and the filter's at edges
+    }
+
+
+def _render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk) -> Dict[str, torch.Tensor]:
+    """``render_rays_chunked`` of camera rays (origins (m, 3) or (1, 3), unit directions (m, 3)) on the
+    model's device, over the model's own ray interval and its learned world when it has one."""
+    device = model.aabb.device
     rays_o = rays_o.expand_as(rays_d).to(device)
     rays_d = rays_d.to(device)
     t0, t1 = model.ray_interval(rays_o, rays_d, near, far) if hasattr(model, "ray_interval") else \
@@ -109,18 +141,31 @@ def render_view(
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
     if getattr(model, "environment", None) is not None:
         bg = model.background(rays_d, bg)  # the learned world replaces the fixed colour
-    res = render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk, on_chunk)
-    acc = res["acc"].clamp(0, 1).cpu()
-    dist = res["depth"].cpu()
-    # Whether a model's depth is already divided by acc is method-specific; dividing again would be
-    # wrong, so only use acc to mark empty pixels.
-    z = torch.where(acc >= 0.5, dist * z_per_t, torch.zeros_like(dist))
-    return {
-        "rgb": res["rgb"].cpu().clamp(0, 1).reshape(h, w, 3),
-        "acc": acc.reshape(h, w),
-        "depth": dist.reshape(h, w),
-        "z_depth": z.reshape(h, w),
-    }
+    return render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk, on_chunk)
+
+
+def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: torch.Tensor, pixel_filter: PixelFilter,
+                  samples: int, background, near, far, chunk, on_chunk) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """rgb (h, w, 3) and acc (h, w) with every pixel at an edge of the centre-ray image (colour or
+    opacity, ``pixel_filter.edge_pixels``) replaced by the mean of ``samples`` rays drawn from the
+    filter, and the number of rays rendered in all. The draws are seeded by the view, so a render is
+    reproducible."""
+    jj, ii = edge_pixels(torch.cat([rgb, acc.unsqueeze(-1)], dim=-1)).nonzero(as_tuple=True)
+    q = int(jj.shape[0])
+    total = rgb.shape[0] * rgb.shape[1]
+    if q == 0:
+        return rgb, acc, total
+    gen = torch.Generator().manual_seed(int(view))
+    off = pixel_filter.offsets(q, samples, gen).reshape(-1, 2)
+    views = torch.full((q * samples,), int(view), dtype=torch.long)
+    rays_o, rays_d, _ = rays_for_pixels(cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples), off)
+    # The centre pass has reported the whole view; these calls only let ``on_chunk`` stop the render.
+    res = _render_rays_of(model, rays_o, rays_d, background, near, far, chunk,
+                          None if on_chunk is None else (lambda done, m: on_chunk(total, total)))
+    rgb, acc = rgb.clone(), acc.clone()
+    rgb[jj, ii] = res["rgb"].cpu().clamp(0, 1).reshape(q, samples, 3).mean(dim=1)
+    acc[jj, ii] = res["acc"].cpu().clamp(0, 1).reshape(q, samples).mean(dim=1)
+    return rgb, acc, total + q * samples
 
 
 def render_rate(seconds: float, rays: int) -> dict:
@@ -313,8 +358,11 @@ def render_to_dir(
     metrics_background=(1.0, 1.0, 1.0),
     gt_downscale: int = 1,
     protected: Optional[Dict[Path, str]] = None,
+    pixel_filter: Optional[PixelFilter] = None,
 ) -> Path:
     """Render every camera into ``out``; returns the path of ``renders.json``.
+
+    ``pixel_filter``: the film filter each view is rendered through (``render_view``; None: centre rays).
 
     ``protected``: files never to write over, even with ``overwrite`` (``dataset_files``: a dataset's
     own images); a target among them is refused (RunError naming it and its frame).
@@ -367,10 +415,11 @@ def render_to_dir(
     for v, stem in enumerate(stems):
         files = render_files(stem)
         started = time.perf_counter()
-        res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk)
+        res = render_view(model, cameras, v, background=(0.0, 0.0, 0.0), near=near, far=far, chunk=chunk,
+                          pixel_filter=pixel_filter)
         seconds = time.perf_counter() - started
         render_seconds += seconds
-        rays += int(cameras.width[v]) * int(cameras.height[v])
+        rays += res["n_rays"]
         rgba = straight_rgba(res, opaque)
         write_png(out / files["image"], rgba)
         write_exr(out / files["depth"], {"Z": res["z_depth"].numpy()})
@@ -411,7 +460,7 @@ def render_to_dir(
             "alpha": ("1: opaque, the learned environment is composited behind the scene" if opaque else
                       "accumulated opacity; colour is straight (not premultiplied)"),
             "background": "environment" if opaque else "transparent", "created": time.time(),
-            **render_rate(render_seconds, rays)}
+            "pixel_filter": (pixel_filter or POINT).to_json(), **render_rate(render_seconds, rays)}
     if any("psnr" in f for f in frames):
         meta["metrics_background"] = [float(c) for c in bg.tolist()]
         meta["error_map_vmax"] = HEATMAP_VMAX
@@ -434,9 +483,11 @@ def _inside_dataset(path, dataset) -> bool:
 
 
 def render_run(run, cameras_path, out, split="test", overwrite=False, device=None, downscale: float = 1.0,
-               chunk: int = 8192, checkpoint=None, show_progress=True) -> Path:
+               chunk: int = 8192, checkpoint=None, show_progress=True, pixel_filter: str = "auto") -> Path:
     """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
-    per-view PSNR / SSIM and error heat-maps where the cameras' frames have ground-truth images."""
+    per-view PSNR / SSIM and error heat-maps where the cameras' frames have ground-truth images.
+    ``pixel_filter``: "auto", the run's dataset's film filter (``pixel_filter.of_run``), or "none"."""
+    from . import pixel_filter as pf
     from .device import pick_device
 
     dev = pick_device(device)
@@ -471,6 +522,7 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         show_progress=show_progress,
         ground_truth=frames if gt_downscale else None,
         metrics_background=config.get("eval_background", [1.0, 1.0, 1.0]), gt_downscale=gt_downscale or 1,
+        pixel_filter=pf.of_run(config, pixel_filter, downscale),
         # and any dataset that --out is or lies in (dataset_files skips folders that hold none)
         protected=dataset_files(cameras_path, config.get("dataset"), out, *Path(out).resolve().parents),
     )

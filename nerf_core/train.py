@@ -31,6 +31,7 @@ from .checkpoints import RunError, load_state_resizing, read_resume_checkpoint, 
 from .data import Dataset, DatasetError, RayBatcher, load_dataset
 from .interrupts import DeferredInterrupts, terminate_as_interrupt
 from .losses import backward, masked_mse, psnr_from_mse
+from .pixel_filter import DEFAULT as DEFAULT_FILTER
 from .optim import clone_state, make_optimizer, rebuild_optimizer, rescale_base_lrs, schedule_factor, warmup_steps
 from .previews import Previews
 from .progress import EventLog
@@ -317,6 +318,8 @@ class Trainer:
             "dataset_notes": ds.notes, "n_train_views": len(tr), "image_size": [tr.width, tr.height],
             "device_used": str(self.device), "versions": versions(), "world_size": self.dist.world_size,
             "rays_per_step": self.cfg.batch_rays * self.dist.world_size,
+            # the dataset's film filter at its full resolution: render and eval draw edge pixels from it
+            "pixel_filter": (ds.pixel_filter.full_resolution() if ds.pixel_filter else DEFAULT_FILTER).to_json(),
         })
         return rec
 

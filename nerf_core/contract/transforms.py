@@ -31,7 +31,7 @@ SPLITS = ("train", "val", "test")
 # gives it. ``integer_depth_scale`` is instant-ngp's metres per 16-bit depth count, nerfstudio's
 # ``depth_unit_scale_factor`` the same (``dataset_checks.depth_scale``).
 SCENE_KEYS = ("aabb", "near", "far", "depth_unit_scale_factor", "integer_depth_scale", "film_transparent", "world",
-              "beyond_box")
+              "beyond_box", "pixel_filter")
 HOLDOUT_EVERY = 8  # nerfstudio-style deterministic split when transforms.json lists no split files
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")

@@ -11,6 +11,7 @@ from PIL import Image
 from nerf_core.cameras import Cameras
 from nerf_core.cli import main
 from nerf_core.imageio import read_exr
+from nerf_core.pixel_filter import PixelFilter
 from nerf_core.render import cameras_from_file, render_view
 
 
@@ -99,7 +100,9 @@ def test_render_png_alpha_and_depth_agree_with_the_model(trained_run, tmp_path):
     run, ds = trained_run["run"], trained_run["dataset"]
     model, cfg, _ = load_run(run, torch.device("cpu"))
     cams, stems = cameras_from_file(ds, "test")
-    res = render_view(model, cams, 0, background=(0.0, 0.0, 0.0), near=cfg["near"], far=cfg["far"])
+    # render draws through the run's film filter (the dataset records none: Blender's default)
+    res = render_view(model, cams, 0, background=(0.0, 0.0, 0.0), near=cfg["near"], far=cfg["far"],
+                      pixel_filter=PixelFilter())
     out = tmp_path / "r"
     assert main(["render", str(run), "--cameras", str(ds), "--split", "test", "--out", str(out), "--no-bar"]) == 0
     png = np.asarray(Image.open(out / "r_0.png")).astype(np.float32) / 255
@@ -185,7 +188,7 @@ def test_render_metrics_equal_eval_for_the_same_view_and_checkpoint(trained_run,
     model, cfg, _ = load_run(run, torch.device("cpu"))
     split = load_dataset(ds, splits=("test",)).split("test")
     bg = cfg.get("eval_background", [1.0, 1.0, 1.0])
-    ev = evaluate_split(model, split, background=bg, near=cfg.get("near"), far=cfg.get("far"))
+    ev = evaluate_split(model, split, background=bg, near=cfg.get("near"), far=cfg.get("far"), pixel_filter=PixelFilter())
     assert meta["metrics_background"] == pytest.approx(bg)
     assert [f["file_path"] for f in meta["frames"]] == [f"{e['name']}.png" for e in ev["per_view"]]
     for frame, e in zip(meta["frames"], ev["per_view"]):
@@ -197,7 +200,8 @@ def test_render_metrics_equal_eval_for_the_same_view_and_checkpoint(trained_run,
         heat = np.asarray(Image.open(out / frame["error_map"]))
         assert heat.shape == (split.height, split.width, 3)
     # The heat-map is the mean absolute error of those two images on the fixed colour scale.
-    res = render_view(model, split.cameras, 0, background=bg, near=cfg.get("near"), far=cfg.get("far"))
+    res = render_view(model, split.cameras, 0, background=bg, near=cfg.get("near"), far=cfg.get("far"),
+                      pixel_filter=PixelFilter())
     gt, _ = split.image(0, bg)
     want = (np.clip(error_heatmap(res["rgb"], gt), 0, 1) * 255 + 0.5).astype(np.uint8)
     got = np.asarray(Image.open(out / meta["frames"][0]["error_map"]))
@@ -218,18 +222,21 @@ def test_render_of_cameras_without_images_has_no_metrics(trained_run, tmp_path):
     assert not (out / "errors").exists()
 
 
-def test_render_and_eval_report_their_rendering_time(trained_run, tmp_path, capsys):
+def test_render_and_eval_report_their_rendering_time(trained_run, run_copy, tmp_path, capsys):
     # renders.json and eval's summary carry the time spent rendering (nothing else), the rays rendered
-    # (every pixel of every view: 2 test views of 24 x 20) and their ratio; scripts/bench_render.py reads them.
+    # (with --pixel-filter none one a pixel: 2 test views of 24 x 20) and their ratio; scripts/bench_render.py
+    # reads them.
     ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "timed"
-    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]) == 0
+    assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar",
+                 "--pixel-filter", "none"]) == 0
     meta = json.loads((out / "renders.json").read_text())
     assert meta["rays"] == 2 * 24 * 20
     assert all(f["render_seconds"] > 0 for f in meta["frames"])
     assert meta["render_seconds"] == pytest.approx(sum(f["render_seconds"] for f in meta["frames"]))
     assert meta["rays_per_s"] == pytest.approx(meta["rays"] / meta["render_seconds"])
     capsys.readouterr()
-    assert main(["eval", str(run), "--split", "test", "--no-bar"]) == 0
+    # (a copy of the run: eval records its scores in metrics.json, which other tests compare with training's)
+    assert main(["eval", str(run_copy), "--split", "test", "--no-bar", "--pixel-filter", "none"]) == 0
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert last["rays"] == 2 * 24 * 20 and last["render_seconds"] > 0
     assert last["rays_per_s"] == pytest.approx(last["rays"] / last["render_seconds"])
