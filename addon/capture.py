@@ -88,6 +88,17 @@ def resolve_engine(name: str) -> str:
     raise CaptureError(f"unknown render engine {name!r}; choose cycles, eevee or workbench")
 
 
+def film_filter(scene, engine: str) -> dict:
+    """The ``pixel_filter`` field (``contract.film``) of what ``engine`` renders with ``scene``'s settings:
+    Cycles' Film > Pixel Filter (type and width); EEVEE's and Workbench's Film > Filter Size, a
+    Blackman-Harris filter; none when Workbench renders without anti-aliasing."""
+    if engine == "CYCLES":
+        return contract.film_filter_field(scene.cycles.pixel_filter_type, scene.cycles.filter_width)
+    if engine == "BLENDER_WORKBENCH" and scene.display.render_aa == "OFF":
+        return contract.film_filter_field("NONE")
+    return contract.film_filter_field("BLACKMAN_HARRIS", scene.render.filter_size)
+
+
 def _empty_tree(path: str) -> bool:
     """True for a folder holding nothing but (nested) empty folders."""
     if not os.path.isdir(path) or os.path.islink(path):
@@ -293,6 +304,12 @@ class CaptureJob:
                 "sequencer_colorspace": sc.sequencer_colorspace_settings.name,
             },
         }
+        film = film_filter(sc, self.engine)
+        if film != contract.film_filter_field(contract.DEFAULT_FILTER_KIND):
+            # Only a filter other than Blender's default is part of the signature, so the hashes of
+            # earlier captures (and the folders they resume) stay what they were; the transforms
+            # always record it (capture_write).
+            sig["pixel_filter"] = film
         if not self.s.film_transparent:
             # The world is in every pixel behind the scene. Only opaque captures carry it, so the
             # hashes of transparent captures (and the folders they resume) stay what they were.

@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from . import export
+from .core_contract import contract
 from .capture_plan import SHARD_ASSIGNMENT, round6
 
 FORMAT = "nerf_bridge_capture"
@@ -86,7 +87,9 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
     cams = [[m[0][3], m[1][3], m[2][3]] for m in (fr["transform_matrix"] for fr in plan["frames"])]
     common = {"aabb": [list(map(float, lo)), list(map(float, hi))],
               "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(lo, hi, cams, beyond),
-              "film_transparent": bool(plan["film_transparent"]), "world": plan["world"]}
+              "film_transparent": bool(plan["film_transparent"]), "world": plan["world"],
+              # the film's pixel filter: a NeRF renders edge pixels through it to match the images
+              "pixel_filter": plan["render"].get("pixel_filter") or contract.film_filter_field(contract.DEFAULT_FILTER_KIND)}
     if plan["bounds"].get("surroundings"):  # left out of the box, they still render: a NeRF must reach past it
         common["beyond_box"] = list(plan["bounds"]["surroundings"])
     if plan["passes"]["depth"]:

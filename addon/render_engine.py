@@ -92,9 +92,11 @@ def camera_request(cam_obj, render) -> dict:
     loc, rot, _scale = cam_obj.matrix_world.decompose()
     c2w = Matrix.LocRotScale(loc, rot, None)
     cam = cam_obj.data
+    # pixel_filter: a final render draws edge pixels through the capture's film filter, as Cycles did
+    # for the images the run learnt from (the viewport's previews keep one ray a pixel, for speed)
     return {"c2w": [[float(v) for v in row] for row in c2w], "fx": intr["fl_x"], "fy": intr["fl_y"],
             "cx": intr["cx"], "cy": intr["cy"], "w": intr["w"], "h": intr["h"],
-            "near": float(cam.clip_start), "far": float(cam.clip_end)}
+            "near": float(cam.clip_start), "far": float(cam.clip_end), "pixel_filter": True}
 
 
 def resolution_problem(render, w: int, h: int) -> Optional[str]:

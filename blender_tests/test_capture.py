@@ -653,3 +653,38 @@ def test_depth_beyond_what_nerfstudio_pngs_hold_is_named():
     assert len(huge) == 1 and "reaches 1150 units" in huge[0] and "written there as 0" in huge[0]
     tiny = capture.depth_png_notes(frames_at(0.004), box(0.001))
     assert len(tiny) == 1 and "at most 5 steps" in tiny[0]
+
+
+def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
+    """Every transforms file names the film filter the images went through (nerf_core renders edge
+    pixels through it); a filter other than Blender's default is part of the render signature, so a
+    changed filter re-renders on resume instead of mixing two films in one dataset."""
+    spec = layouts.LayoutSpec(layout="sphere", train=2, val=0, test=1, radius=7.0, seed=4)
+    default = tmp_path / "default"
+    do_capture(default, (16, 12), "cycles", spec)
+    gauss = tmp_path / "gauss"
+    build_test_scene()
+    bpy.context.scene.cycles.pixel_filter_type = "GAUSSIAN"
+    bpy.context.scene.cycles.filter_width = 2.25
+    scene = bpy.context.scene
+    layouts.create_cameras(scene, spec, 16, 12)
+    settings = capture.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
+                                       layout=spec.to_dict())
+    capture.CaptureJob(scene, settings).run()
+    for out, want in ((default, {"type": "BLACKMAN_HARRIS", "width": 1.5}), (gauss, {"type": "GAUSSIAN", "width": 2.25})):
+        for name in ("transforms_train.json", "transforms_test.json", "nerfstudio/transforms.json"):
+            with open(out / name) as fh:
+                assert json.load(fh)["pixel_filter"] == want, (out, name)
+        with open(out / "nerf_capture" / "manifest.json") as fh:
+            render = json.load(fh)["render"]
+        assert render.get("pixel_filter") == (None if out == default else want)
+    # Workbench and EEVEE: Film > Filter Size, Blackman-Harris; Workbench without anti-aliasing: none
+    scene.render.filter_size = 0.75
+    assert capture.film_filter(scene, "BLENDER_EEVEE_NEXT") == {"type": "BLACKMAN_HARRIS", "width": 0.75}
+    scene.display.render_aa = "OFF"
+    assert capture.film_filter(scene, "BLENDER_WORKBENCH") == {"type": "NONE"}
+    # and nerf_core reads it back
+    proc = subprocess.run([PY, "-c", "import sys; from nerf_core.data import load_dataset; "
+                           "print(load_dataset(sys.argv[1]).pixel_filter)", str(gauss)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "PixelFilter(kind='GAUSSIAN', width=2.25, downscale=1)" in proc.stdout, proc.stderr

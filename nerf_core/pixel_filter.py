@@ -28,11 +28,9 @@ from typing import Optional
 
 import torch
 
-Tensor = torch.Tensor
+from .contract.film import DEFAULT_FILTER_KIND, DEFAULT_FILTER_WIDTH, film_filter_field, parse_film_filter
 
-KINDS = ("BLACKMAN_HARRIS", "GAUSSIAN", "BOX", "NONE")
-DEFAULT_KIND, DEFAULT_WIDTH = "BLACKMAN_HARRIS", 1.5  # Blender's defaults, Cycles and EEVEE alike
-MAX_WIDTH = 10.0  # Blender's own limit for Cycles' filter width (pixels)
+Tensor = torch.Tensor
 # Rays per edge pixel. On the multi demo scene (200 px, vmgrid, 5 test views) the mean of 9 filter
 # rays gained 0.90 dB over the centre ray, 16 rays 0.95 dB and 4 rays 0.65 dB.
 DEFAULT_SAMPLES = 9
@@ -45,11 +43,11 @@ _TABLE_SIZE = 1025
 
 @dataclass(frozen=True)
 class PixelFilter:
-    """A separable pixel filter: ``kind`` (one of ``KINDS``) over ``width`` pixels, centred on the pixel;
+    """A separable pixel filter: ``kind`` (one of ``contract.film.FILTER_KINDS``) over ``width`` pixels, centred on the pixel;
     ``downscale``: the images were box-filtered by this integer factor after rendering (see ``downscaled``)."""
 
-    kind: str = DEFAULT_KIND
-    width: float = DEFAULT_WIDTH
+    kind: str = DEFAULT_FILTER_KIND
+    width: float = DEFAULT_FILTER_WIDTH
     downscale: int = 1
 
     @property
@@ -58,10 +56,8 @@ class PixelFilter:
         return self.kind == "NONE"
 
     def to_json(self) -> dict:
-        """The dataset field (``parse`` reads it back); a downscaled filter adds ``downscale``."""
-        if self.is_point:
-            return {"type": self.kind}
-        return {"type": self.kind, "width": self.width, **({"downscale": self.downscale} if self.downscale > 1 else {})}
+        """The dataset field (``parse`` reads it back; ``contract.film``)."""
+        return film_filter_field(self.kind, self.width, self.downscale)
 
     def downscaled(self, factor: int) -> "PixelFilter":
         """The filter of images box-filtered by the integer ``factor`` (``data._downscale``), in the new
@@ -136,27 +132,10 @@ DEFAULT = PixelFilter()
 
 
 def parse(value, where: str) -> PixelFilter:
-    """The ``pixel_filter`` field of a dataset (None: Blender's default). Raises ValueError naming
-    ``where`` and the field when it is malformed."""
-    if value is None:
-        return DEFAULT
-    if not isinstance(value, dict):
-        raise ValueError(f"{where}: field 'pixel_filter' must be an object like "
-                         f'{{"type": "BLACKMAN_HARRIS", "width": 1.5}}, got {value!r}')
-    kind = value.get("type", DEFAULT_KIND)
-    if not isinstance(kind, str) or kind.upper() not in KINDS:
-        raise ValueError(f"{where}: field 'pixel_filter.type' must be one of {', '.join(KINDS)}, got {kind!r}")
-    kind = kind.upper()
-    if kind == "NONE":
-        return POINT
-    width = value.get("width", DEFAULT_WIDTH)
-    if isinstance(width, bool) or not isinstance(width, (int, float)) or not (0.01 <= float(width) <= MAX_WIDTH):
-        raise ValueError(f"{where}: field 'pixel_filter.width' must be a number of pixels from 0.01 to "
-                         f"{MAX_WIDTH:g}, got {width!r}")
-    down = value.get("downscale", 1)
-    if isinstance(down, bool) or not isinstance(down, int) or down < 1:
-        raise ValueError(f"{where}: field 'pixel_filter.downscale' must be a whole number >= 1, got {down!r}")
-    return PixelFilter(kind, float(width), down)
+    """The ``pixel_filter`` field of a dataset (``contract.film``; None: Blender's default). Raises
+    ValueError naming ``where`` and the field when it is malformed."""
+    kind, width, down = parse_film_filter(value, where)
+    return POINT if kind == "NONE" else PixelFilter(kind, width, down)
 
 
 def edge_pixels(image: Tensor, threshold: float = EDGE_THRESHOLD) -> Tensor:

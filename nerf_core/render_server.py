@@ -116,6 +116,9 @@ def parse_request(req: Any) -> Dict[str, Any]:
     if "\0" in path:
         raise RequestError(f"{where}: field 'out' holds a NUL character")
     out["depth_out"] = path[:-4] + "_depth.npy" if req.get("depth") else None
+    if not isinstance(req.get("pixel_filter", False), bool):
+        raise RequestError(f"{where}: field 'pixel_filter' must be true or false, got {req.get('pixel_filter')!r}")
+    out["pixel_filter"] = bool(req.get("pixel_filter", False))
     for p in filter(None, (out["out"], out["depth_out"])):
         if os.path.exists(p):
             raise RequestError(f"{where}: {p} already exists; the server never overwrites a file")
@@ -159,6 +162,9 @@ class RenderServer:
         self.device = pick_device(device)
         self.model, self.config, ckpt = load_run(run, self.device, checkpoint)
         self.opaque = getattr(self.model, "environment", None) is not None
+        from .pixel_filter import of_run
+
+        self.film_filter = of_run(self.config)  # for requests with "pixel_filter": true (final renders)
         self.info = {"run": os.path.abspath(run), "method": ckpt.get("method"), "step": ckpt.get("step"),
                      "device": str(self.device), "background": "environment" if self.opaque else "transparent",
                      "near": self.config.get("near"), "far": self.config.get("far")}
@@ -230,7 +236,8 @@ class RenderServer:
 
         with torch.no_grad():
             res = render_view(self.model, cams, 0, background=(0.0, 0.0, 0.0), near=near, far=far,
-                              chunk=self.chunk, on_chunk=on_chunk)
+                              chunk=self.chunk, on_chunk=on_chunk,
+                              pixel_filter=self.film_filter if req["pixel_filter"] else None)
         _save_npy(req["out"], straight_rgba(res, self.opaque))
         if req["depth_out"]:
             _save_npy(req["depth_out"], res["z_depth"].numpy())

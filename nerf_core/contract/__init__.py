@@ -12,7 +12,8 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
 - ``transforms``: reading transforms files (JSON, frames, poses, the dataset path rule, splits);
 - ``intrinsics``: the one focal-length rule, ``resolve_intrinsics``;
 - ``lens``: the lens models read (OPENCV, OPENCV_FISHEYE) and their fields, ``parse_lens``;
-- ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices.
+- ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices;
+- ``film``: the ``pixel_filter`` field (the film filter a dataset's images were rendered through).
 """
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ from typing import Any, Dict, Optional
 
 from .intrinsics import (ANGLE_ONLY_LOADERS, angle_only_caveats, focal_from_fov, fov_from_focal,  # noqa: F401
                          resolve_intrinsics)
+from .film import (DEFAULT_FILTER_KIND, DEFAULT_FILTER_WIDTH, FILTER_KINDS, film_filter_field,  # noqa: F401
+                   parse_film_filter)
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
 from .naming import (ERRORS_DIR, MAX_STEM_BYTES, MAX_STEM_CHARS, evenly_spaced, file_safe, frame_stem, output_stems,  # noqa: F401
                      path_stem, render_files, unique_stems)

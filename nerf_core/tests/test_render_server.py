@@ -188,3 +188,21 @@ def test_subprocess_serves_over_stdin_and_a_missing_run_is_one_fatal_line(traine
     ev = json.loads(line)
     assert ev["event"] == "error" and ev["fatal"] is True and str(missing) in ev["message"]
     assert "Traceback" not in proc.stderr and proc.stderr.strip() == f"nerf_core serve: error: {ev['message']}"
+
+
+def test_a_final_render_request_draws_edges_through_the_runs_film_filter(trained_run, tmp_path):
+    from nerf_core.pixel_filter import PixelFilter
+
+    events = _serve(trained_run["run"], [json.dumps(_req(1, tmp_path / "f.npy", pixel_filter=True)),
+                                         json.dumps(_req(2, tmp_path / "c.npy")),
+                                         json.dumps(_req(3, tmp_path / "x.npy", pixel_filter="yes"))])
+    assert [e["event"] for e in events] == ["ready", "result", "result", "error"]
+    assert events[3]["message"] == "request 3: field 'pixel_filter' must be true or false, got 'yes'"
+    model, config, _ = load_run(trained_run["run"], "cpu")
+    cams = Cameras.create(C2W[None], 22.0, 20.0, 11.0, 8.5, 24, 18)
+    kw = dict(background=(0.0, 0.0, 0.0), near=config["near"], far=config["far"])
+    filtered = render_view(model, cams, 0, pixel_filter=PixelFilter(), **kw)  # the run records Blender's default
+    centre = render_view(model, cams, 0, **kw)
+    assert np.allclose(np.load(tmp_path / "f.npy")[..., 3], filtered["acc"].numpy(), atol=1e-6)
+    assert np.allclose(np.load(tmp_path / "c.npy")[..., 3], centre["acc"].numpy(), atol=1e-6)
+    assert not np.allclose(filtered["acc"].numpy(), centre["acc"].numpy(), atol=1e-3)  # the outline differs
