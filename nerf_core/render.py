@@ -148,15 +148,41 @@ def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: to
                   samples: int, background, near, far, chunk, on_chunk) -> tuple[torch.Tensor, torch.Tensor, int]:
     """rgb (h, w, 3) and acc (h, w) with every pixel at an edge of the centre-ray image (colour or
     opacity, ``pixel_filter.edge_pixels``) replaced by the mean of ``samples`` rays drawn from the
-    filter, and the number of rays rendered in all. The draws are seeded by the view, so a render is
-    reproducible."""
-    jj, ii = edge_pixels(torch.cat([rgb, acc.unsqueeze(-1)], dim=-1)).nonzero(as_tuple=True)
+    filter, and the number of rays rendered in all.
+
+    A render of part of a frame (a Blender Render Region: the same camera, its principal point moved
+    into the crop) gives its pixels what the whole frame gives them: edges are found with the pixels
+    one beyond the image rendered too, and each pixel's draws are a hash of its place relative to the
+    principal point (``PixelFilter.offsets``), not of its place in the request."""
+    h, w = rgb.shape[:2]
+    total = h * w
+    # the one-pixel ring around the image, through offsets from the nearest pixel inside (a lens
+    # camera's per-pixel tables cover only the image)
+    ring_i = torch.cat([torch.arange(-1, w + 1), torch.arange(-1, w + 1), torch.full((h,), -1), torch.full((h,), w)])
+    ring_j = torch.cat([torch.full((w + 2,), -1), torch.full((w + 2,), h), torch.arange(h), torch.arange(h)])
+    inside_i, inside_j = ring_i.clamp(0, w - 1), ring_j.clamp(0, h - 1)
+    step = torch.stack([ring_i - inside_i, ring_j - inside_j], dim=-1).float()
+    views = torch.full((ring_i.shape[0],), int(view), dtype=torch.long)
+    o, d, _ = rays_for_pixels(cameras, views, inside_i, inside_j, step)
+    ring = _render_rays_of(model, o, d, background, near, far, chunk, None)
+    # Edges of the scene itself, premultiplied, whatever fixed colour lies behind it: render (on black)
+    # and eval (on white) refine the same pixels. A learned world is part of the picture.
+    behind = None if getattr(model, "environment", None) is not None else torch.as_tensor(background, dtype=torch.float32)
+
+    def scene_layer(c: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        c = c if behind is None else c - (1 - a).unsqueeze(-1) * behind
+        return torch.cat([c, a.unsqueeze(-1)], dim=-1)
+
+    padded = torch.zeros(h + 2, w + 2, 4)
+    padded[1:-1, 1:-1] = scene_layer(rgb, acc)
+    padded[ring_j + 1, ring_i + 1] = scene_layer(ring["rgb"].cpu().clamp(0, 1), ring["acc"].cpu().clamp(0, 1))
+    jj, ii = edge_pixels(padded)[1:-1, 1:-1].nonzero(as_tuple=True)
     q = int(jj.shape[0])
-    total = rgb.shape[0] * rgb.shape[1]
     if q == 0:
-        return rgb, acc, total
-    gen = torch.Generator().manual_seed(int(view))
-    off = pixel_filter.offsets(q, samples, gen).reshape(-1, 2)
+        return rgb, acc, total + ring_i.shape[0]
+    keys = torch.stack([torch.round(ii.double() + 0.5 - float(cameras.cx[view])),
+                        torch.round(jj.double() + 0.5 - float(cameras.cy[view]))], dim=-1).long()
+    off = pixel_filter.offsets(q, samples, keys=keys).reshape(-1, 2)
     views = torch.full((q * samples,), int(view), dtype=torch.long)
     rays_o, rays_d, _ = rays_for_pixels(cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples), off)
     # The centre pass has reported the whole view; these calls only let ``on_chunk`` stop the render.
@@ -165,7 +191,7 @@ def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: to
     rgb, acc = rgb.clone(), acc.clone()
     rgb[jj, ii] = res["rgb"].cpu().clamp(0, 1).reshape(q, samples, 3).mean(dim=1)
     acc[jj, ii] = res["acc"].cpu().clamp(0, 1).reshape(q, samples).mean(dim=1)
-    return rgb, acc, total + q * samples
+    return rgb, acc, total + ring_i.shape[0] + q * samples
 
 
 def render_rate(seconds: float, rays: int) -> dict:
@@ -431,7 +457,7 @@ def render_to_dir(
             "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
             "w": int(cameras.width[v]), "h": int(cameras.height[v]),
             "camera_angle_x": float(cameras.fov_x()[v]),
-            "render_seconds": seconds,
+            "render_seconds": seconds, "rays": res["n_rays"],
         }
         lens = cameras.lens(v)
         if lens is not None:  # the render is as distorted as the camera it was asked for

@@ -120,7 +120,8 @@ def test_edge_pixels_render_as_the_filters_average():
     np.testing.assert_allclose(boxed["acc"][:, 3].numpy(), [0.3] * 4, atol=0.05)
     np.testing.assert_allclose(boxed["acc"][:, [0, 1, 2, 4, 5, 6, 7]].numpy(), centre["acc"][:, [0, 1, 2, 4, 5, 6, 7]].numpy())
     torch.testing.assert_close(boxed["rgb"][..., 0], boxed["acc"])  # white on black: colour follows coverage
-    assert boxed["n_rays"] == 32 + 2 * 4 * 400  # columns 3 and 4 of every row were refined
+    # columns 3 and 4 of every row were refined, after the ring of 2 * 10 + 2 * 4 pixels around the image
+    assert boxed["n_rays"] == 32 + 28 + 2 * 4 * 400
     # depth stays the centre ray's
     torch.testing.assert_close(boxed["z_depth"], centre["z_depth"])
     # reproducible: the draws are seeded by the view
@@ -129,6 +130,20 @@ def test_edge_pixels_render_as_the_filters_average():
     torch.testing.assert_close(again["rgb"], boxed["rgb"])
     none = render_view(model, cams, 0, background=(0.0, 0.0, 0.0), pixel_filter=pf.POINT)
     torch.testing.assert_close(none["rgb"], centre["rgb"])
+
+
+def test_a_crop_of_a_frame_renders_the_frames_pixels():
+    # A Blender Render Region is the same camera with its principal point moved into the crop: its
+    # pixels must get the rays they get in the whole frame, also at the crop's border (the edge test
+    # sees the pixels beyond it) and with the filter's draws (keyed by place, not by index).
+    model = _HalfPlane(-0.3)
+    filt = pf.PixelFilter("GAUSSIAN", 2.0)  # wide enough to reach the edge from column 4's centre
+    full = render_view(model, Cameras.create(np.eye(4)[None], 1.0, 1.0, 4.0, 2.0, 8, 4), 0, pixel_filter=filt)
+    # columns 4..6, rows 1..2: the edge between columns 3 and 4 lies just left of the crop
+    crop = render_view(model, Cameras.create(np.eye(4)[None], 1.0, 1.0, 4.0 - 4, 2.0 - 1, 3, 2), 0, pixel_filter=filt)
+    torch.testing.assert_close(crop["rgb"], full["rgb"][1:3, 4:7])
+    torch.testing.assert_close(crop["acc"], full["acc"][1:3, 4:7])
+    assert 0.0 < float(full["acc"][1, 4]) < 1.0  # the crop's first column is an edge pixel, filtered
 
 
 def test_eval_and_render_use_the_datasets_filter_and_say_so(run_copy, tmp_path, capsys):

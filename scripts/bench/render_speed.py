@@ -99,7 +99,8 @@ def training_rate(events: Iterable[dict], rays_per_step: int) -> dict:
 
 
 def render_rate(renders: dict, skip_first: bool = True) -> dict:
-    """Rendering rays/s from a ``renders.json`` (its frames' ``render_seconds`` and ``w`` x ``h``).
+    """Rendering rays/s from a ``renders.json`` (its frames' ``render_seconds`` and ``rays``: one a pixel
+    plus the pixel filter's at edges; ``w`` x ``h`` for files written before frames counted them).
 
     ``skip_first``: leave out the first frame when there are more, since it also pays one-time costs
     (the allocator growing, lazy initialisation) that a long render does not. Returns ``rays_per_s``,
@@ -109,7 +110,7 @@ def render_rate(renders: dict, skip_first: bool = True) -> dict:
     if any("render_seconds" not in f for f in frames):
         raise SpeedInputError("renders.json has frames without 'render_seconds' (rendered by an older nerf_core?)")
     counted = frames[1:] if skip_first and len(frames) > 1 else frames
-    rays = sum(int(f["w"]) * int(f["h"]) for f in counted)
+    rays = sum(int(f.get("rays", int(f["w"]) * int(f["h"]))) for f in counted)
     seconds = sum(float(f["render_seconds"]) for f in counted)
     return {"rays_per_s": rays / seconds if seconds > 0 else None, "rays": rays, "seconds": seconds,
             "frames": len(counted)}

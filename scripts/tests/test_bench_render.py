@@ -60,6 +60,9 @@ def test_render_rate_counts_pixels_over_the_models_time_without_the_first_view()
     assert render_speed.render_rate(one)["rays_per_s"] == pytest.approx(64.0)
     with pytest.raises(render_speed.SpeedInputError, match="render_seconds"):
         render_speed.render_rate({"frames": [{"w": 8, "h": 4}]})
+    # frames that count their rays (the pixel filter adds rays at edges) are counted by them
+    filtered = {"frames": [{"w": 8, "h": 4, "rays": 50, "render_seconds": 0.5}]}
+    assert render_speed.render_rate(filtered)["rays_per_s"] == pytest.approx(100.0)
 
 
 def test_big_frame_camera_keeps_the_test_views_pose_and_field_of_view(tmp_path, tiny_dataset):

@@ -7,7 +7,9 @@ Reads, from this folder:
   curve of each scene's benchmark run (the defaults are unchanged since);
 - ``ceilings/<scene>.json``: ``scripts/noise_ceiling.py`` on the same captures;
 - ``tight_grid.json`` (if present, same layout as ``baseline.json``): the same benchmark after the
-  occupancy grid became tight by default (commit 5f20430), run after the evaluation fix 2c017ef.
+  occupancy grid became tight by default (commit 5f20430), run after the evaluation fix 2c017ef;
+- ``pixel_filter.json`` (if present, same layout): the same benchmark once evaluation rendered edge
+  pixels through the capture's pixel filter (``nerf_core/pixel_filter.py``).
 
 One row per scene: the 1- and 5-minute PSNR, issue 15's target (5-minute PSNR + 3 dB), the tight
 grid's 5-minute PSNR, and the ceiling band from two Cycles renders of a view (left edge) to a
@@ -35,15 +37,16 @@ def load(folder: str):
             with open(p, encoding="utf-8") as fh:
                 c = json.load(fh)
             ceil[s] = (c["psnr_two_renders"], c["model_ceiling"])
-    tight = {}
-    p = os.path.join(folder, "tight_grid.json")
-    if os.path.isfile(p):
-        with open(p, encoding="utf-8") as fh:
-            tight = {s: pts[-1][1] for s, pts in json.load(fh).items()}
-    return one, five, ceil, tight
+    tight, filtered = ({}, {})
+    for name, into in (("tight_grid.json", tight), ("pixel_filter.json", filtered)):
+        p = os.path.join(folder, name)
+        if os.path.isfile(p):
+            with open(p, encoding="utf-8") as fh:
+                into.update({s: pts[-1][1] for s, pts in json.load(fh).items()})
+    return one, five, ceil, tight, filtered
 
 
-def draw(one, five, ceil, tight, out: str) -> None:
+def draw(one, five, ceil, tight, out: str, filtered=None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -65,8 +68,11 @@ def draw(one, five, ceil, tight, out: str) -> None:
         if s in tight:
             ax.plot(tight[s], y, "D", color="#2ca02c", ms=7, zorder=6,
                     label="5 min, tight occupancy grid (5f20430)" if y == 0 else None)
+        if s in (filtered or {}):
+            ax.plot(filtered[s], y, "*", color="#ff7f0e", ms=12, zorder=7,
+                    label="5 min, rendered through the pixel filter" if y == 0 else None)
         if s in ceil:
-            best = max(five[s], tight.get(s, five[s]))
+            best = max(five[s], tight.get(s, five[s]), (filtered or {}).get(s, five[s]))
             ax.text(max(five[s] + 3, ceil[s][1]) + 0.4, y, f"{ceil[s][1] - best:.1f} dB to the ceiling",
                     va="center", fontsize=8.5)
     ax.set_yticks(range(len(scenes)), scenes)
@@ -88,7 +94,8 @@ def main() -> None:
     ap.add_argument("--folder", default=HERE, help="folder with baseline.json and ceilings/")
     ap.add_argument("--out", default=os.path.join(HERE, "ceiling.png"))
     args = ap.parse_args()
-    draw(*load(args.folder), args.out)
+    one, five, ceil, tight, filtered = load(args.folder)
+    draw(one, five, ceil, tight, args.out, filtered)
     print(args.out)
 
 
