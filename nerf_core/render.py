@@ -111,21 +111,19 @@ def render_view(
     rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
     res = _render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk)
     rgb, acc = res["rgb"].cpu().clamp(0, 1).reshape(h, w, 3), res["acc"].clamp(0, 1).cpu().reshape(h, w)
+    # Whether a model's depth is already divided by acc is method-specific; dividing again would be
+    # wrong, so only use acc to mark empty pixels.
+    dist = res["depth"].cpu().reshape(h, w)
+    z = dist * z_per_t.reshape(h, w)
     n_rays = h * w
     if pixel_filter is not None and not pixel_filter.is_point and filter_samples > 1:
-        rgb, acc, n_rays = _filter_edges(model, cameras, view, rgb, acc, pixel_filter, filter_samples, background, near, far,
-                                 chunk, on_chunk)
-    dist = res["depth"].cpu()
-    # Whether a model's depth is already divided by acc is method-specific; dividing again would be
-    # wrong, so only use acc to mark empty pixels. Depth stays the centre ray's: a filtered depth at a
-    # silhouette would be a surface that is not there.
-    acc_centre = res["acc"].clamp(0, 1).cpu()
-    z = torch.where(acc_centre >= 0.5, dist * z_per_t, torch.zeros_like(dist))
+        rgb, acc, dist, z, n_rays = _filter_edges(model, cameras, view, rgb, acc, dist, z, pixel_filter, filter_samples,
+                                                  background, near, far, chunk, on_chunk)
     return {
         "rgb": rgb,
         "acc": acc,
-        "depth": dist.reshape(h, w),
-        "z_depth": z.reshape(h, w),
+        "depth": dist,
+        "z_depth": torch.where(acc >= 0.5, z, torch.zeros_like(z)),
         "n_rays": n_rays,  # rays rendered: one a pixel, and the filter's at edges
     }
 
@@ -144,11 +142,14 @@ def _render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chun
     return render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk, on_chunk)
 
 
-def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: torch.Tensor, pixel_filter: PixelFilter,
-                  samples: int, background, near, far, chunk, on_chunk) -> tuple[torch.Tensor, torch.Tensor, int]:
+def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: torch.Tensor, dist: torch.Tensor,
+                  z: torch.Tensor, pixel_filter: PixelFilter, samples: int, background, near, far, chunk,
+                  on_chunk) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]:
     """rgb (h, w, 3) and acc (h, w) with every pixel at an edge of the centre-ray image (colour or
     opacity, ``pixel_filter.edge_pixels``) replaced by the mean of ``samples`` rays drawn from the
-    filter, and the number of rays rendered in all.
+    filter; its distance ``dist`` and z-depth ``z`` (h, w) by those rays' opacity-weighted mean (the
+    depth of what covers the pixel, so a pixel the filter makes opaque has one); and the number of
+    rays rendered in all.
 
     A render of part of a frame (a Blender Render Region: the same camera, its principal point moved
     into the crop) gives its pixels what the whole frame gives them: edges are found with the pixels
@@ -179,19 +180,26 @@ def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: to
     jj, ii = edge_pixels(padded)[1:-1, 1:-1].nonzero(as_tuple=True)
     q = int(jj.shape[0])
     if q == 0:
-        return rgb, acc, total + ring_i.shape[0]
+        return rgb, acc, dist, z, total + ring_i.shape[0]
     keys = torch.stack([torch.round(ii.double() + 0.5 - float(cameras.cx[view])),
                         torch.round(jj.double() + 0.5 - float(cameras.cy[view]))], dim=-1).long()
     off = pixel_filter.offsets(q, samples, keys=keys).reshape(-1, 2)
     views = torch.full((q * samples,), int(view), dtype=torch.long)
-    rays_o, rays_d, _ = rays_for_pixels(cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples), off)
+    rays_o, rays_d, z_per_t = rays_for_pixels(cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples),
+                                              off)
     # The centre pass has reported the whole view; these calls only let ``on_chunk`` stop the render.
     res = _render_rays_of(model, rays_o, rays_d, background, near, far, chunk,
                           None if on_chunk is None else (lambda done, m: on_chunk(total, total)))
-    rgb, acc = rgb.clone(), acc.clone()
+    rgb, acc, dist, z = rgb.clone(), acc.clone(), dist.clone(), z.clone()
     rgb[jj, ii] = res["rgb"].cpu().clamp(0, 1).reshape(q, samples, 3).mean(dim=1)
-    acc[jj, ii] = res["acc"].cpu().clamp(0, 1).reshape(q, samples).mean(dim=1)
-    return rgb, acc, total + ring_i.shape[0] + q * samples
+    a = res["acc"].cpu().clamp(0, 1).reshape(q, samples)
+    acc[jj, ii] = a.mean(dim=1)
+    d = res["depth"].cpu().reshape(q, samples)
+    hit = a.sum(dim=1) > 1e-6  # where no filter ray hits anything the centre ray's depth stays
+    wsum = a.sum(dim=1).clamp_min(1e-6)
+    dist[jj[hit], ii[hit]] = ((a * d).sum(dim=1) / wsum)[hit]
+    z[jj[hit], ii[hit]] = ((a * d * z_per_t.cpu().reshape(q, samples)).sum(dim=1) / wsum)[hit]
+    return rgb, acc, dist, z, total + ring_i.shape[0] + q * samples
 
 
 def render_rate(seconds: float, rays: int) -> dict:

@@ -122,8 +122,12 @@ def test_edge_pixels_render_as_the_filters_average():
     torch.testing.assert_close(boxed["rgb"][..., 0], boxed["acc"])  # white on black: colour follows coverage
     # columns 3 and 4 of every row were refined, after the ring of 2 * 10 + 2 * 4 pixels around the image
     assert boxed["n_rays"] == 32 + 28 + 2 * 4 * 400
-    # depth stays the centre ray's
-    torch.testing.assert_close(boxed["z_depth"], centre["z_depth"])
+    # a depth exactly where the filtered opacity is at least a half: the opacity-weighted mean of the
+    # filter rays' z-depth at refined pixels (here within the pixel's own range), the centre ray's elsewhere
+    assert torch.equal(boxed["z_depth"] > 0, boxed["acc"] >= 0.5)
+    others = [0, 1, 2, 5, 6, 7]
+    torch.testing.assert_close(boxed["z_depth"][:, others], centre["z_depth"][:, others])
+    torch.testing.assert_close(boxed["z_depth"][:, 4], centre["z_depth"][:, 4], atol=0.15, rtol=0)
     # reproducible: the draws are seeded by the view
     again = render_view(model, cams, 0, background=(0.0, 0.0, 0.0), pixel_filter=pf.PixelFilter("BOX", 1.0),
                         filter_samples=400)
@@ -165,3 +169,21 @@ def test_eval_and_render_use_the_datasets_filter_and_say_so(run_copy, tmp_path, 
     assert meta["pixel_filter"] == {"type": "NONE"} and meta["rays"] == 2 * 24 * 20
     # render's per-view scores are eval's, view for view (eval reports their mean)
     assert np.mean([f["psnr"] for f in meta["frames"]]) == pytest.approx(none["psnr"], abs=1e-3)
+
+
+def test_a_datasets_filter_is_loaded_downscaled_and_a_bad_one_is_named(tmp_path, dataset_factory):
+    from nerf_core.data import DatasetError, load_dataset
+
+    ds = dataset_factory(tmp_path / "ds", n_train=3, n_test=1, layouts=("synthetic",))
+    for name in ("transforms_train.json", "transforms_val.json", "transforms_test.json"):
+        meta = json.loads((ds / name).read_text())
+        meta["pixel_filter"] = {"type": "BOX", "width": 1.0}
+        (ds / name).write_text(json.dumps(meta))
+    assert load_dataset(ds).pixel_filter == pf.PixelFilter("BOX", 1.0)
+    half = load_dataset(ds, downscale=2).pixel_filter
+    assert half == pf.PixelFilter("BOX", 0.5, 2) and half.full_resolution() == pf.PixelFilter("BOX", 1.0)
+    meta = json.loads((ds / "transforms_train.json").read_text())
+    meta["pixel_filter"] = {"type": "MITCHELL", "width": 1.5}
+    (ds / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match=r"transforms_train\.json: field 'pixel_filter\.type' must be one of"):
+        load_dataset(ds)
