@@ -1,6 +1,7 @@
 """Where a trained run's remaining test error lies, against the capture's own Cycles noise.
 
     python docs/benchmarks/vmgrid200/error_breakdown.py RUN DATASET RENDERS [RUN DATASET RENDERS ...] [--chart PNG]
+        [--pixel-filter auto|none]
 
 RENDERS is the folder that ``scripts/noise_ceiling.py --keep-renders RENDERS`` wrote for the same
 DATASET (vVIEW.png: the test views rendered again with another seed). Each test view found there is
@@ -32,6 +33,7 @@ from nerf_core.checkpoints import load_run  # noqa: E402
 from nerf_core.data import load_cameras, load_split  # noqa: E402
 from nerf_core.imageio import read_png  # noqa: E402
 from nerf_core.methods import available_methods  # noqa: E402
+from nerf_core.pixel_filter import of_run  # noqa: E402
 from nerf_core.render import render_view  # noqa: E402
 
 KINDS = ("background", "silhouette", "texture edge", "flat")
@@ -54,8 +56,11 @@ def kinds(gt: torch.Tensor, alpha: torch.Tensor) -> dict:
     return {"background": bg, "silhouette": sil, "texture edge": tex, "flat": ~(sil | tex | bg)}
 
 
-def breakdown(run: str, dataset: str, renders: str) -> dict:
-    model, _, _ = load_run(run, torch.device("cpu"))
+def breakdown(run: str, dataset: str, renders: str, pixel_filter: str = "auto") -> dict:
+    """``pixel_filter``: "auto" renders through the run's film filter, as ``eval`` does since 2ec864c;
+    "none" one ray a pixel, as the published breakdown (summary.md) was rendered."""
+    model, config, _ = load_run(run, torch.device("cpu"))
+    film = of_run(config, pixel_filter)
     cams, frames = load_cameras(dataset, "test")
     split = load_split("test", frames, load_extras=False)
     white = torch.ones(3)
@@ -65,7 +70,7 @@ def breakdown(run: str, dataset: str, renders: str) -> dict:
         raise SystemExit(f"{renders}: no vVIEW.png files (write them with noise_ceiling.py --keep-renders)")
     for v in views:
         with torch.no_grad():
-            res = render_view(model, cams, v, background=(1.0, 1.0, 1.0))
+            res = render_view(model, cams, v, background=(1.0, 1.0, 1.0), pixel_filter=film)
         gt, alpha = split.image(v, white)
         if alpha is None:
             alpha = torch.ones(gt.shape[:2])
@@ -144,6 +149,14 @@ def chart(rows, out: str) -> None:
 
 def main(argv) -> int:
     chart_out = None
+    mode = "auto"
+    if "--pixel-filter" in argv:  # auto | none, as `eval --pixel-filter`
+        i = argv.index("--pixel-filter")
+        if i + 1 >= len(argv) or argv[i + 1] not in ("auto", "none"):
+            print("--pixel-filter needs auto or none", file=sys.stderr)
+            return 2
+        mode = argv[i + 1]
+        argv = argv[:i] + argv[i + 2:]
     if "--chart" in argv:
         i = argv.index("--chart")
         if i + 1 >= len(argv):
@@ -155,7 +168,7 @@ def main(argv) -> int:
         print(__doc__.strip().split("\n\n")[1], file=sys.stderr)
         return 2
     torch.set_num_threads(max(1, (os.cpu_count() or 1)))
-    rows = [(run_name(argv[i]), breakdown(argv[i], argv[i + 1], argv[i + 2])) for i in range(0, len(argv), 3)]
+    rows = [(run_name(argv[i]), breakdown(argv[i], argv[i + 1], argv[i + 2], mode)) for i in range(0, len(argv), 3)]
     print(table(rows))
     if chart_out:
         chart(rows, chart_out)
