@@ -78,7 +78,8 @@ class Context:
                              "pass --device cuda (or leave --device out)")
         if self.local_rank >= torch.cuda.device_count():
             raise ValueError(f"local rank {self.local_rank} has no GPU: only {torch.cuda.device_count()} "
-                             "CUDA device(s) on this machine; lower --nproc_per_node")
+                             "CUDA device(s) on this machine; lower --nproc_per_node, or train on the CPU "
+                             "with --device cpu")
         torch.cuda.set_device(self.local_rank)
         return torch.device("cuda", self.local_rank)
 

@@ -44,9 +44,10 @@ class TinyGrid(RadianceModel):
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         self.calls += 1
         n, s = rays_o.shape[0], self.options["n_samples"]
-        u = (torch.arange(s, dtype=rays_o.dtype) + 0.5) / s
+        dev = rays_o.device  # the trainer picks CUDA when there is one: make every tensor there
+        u = (torch.arange(s, dtype=rays_o.dtype, device=dev) + 0.5) / s
         if training:
-            u = u + (torch.rand(n, s) - 0.5) / s
+            u = u + (torch.rand(n, s, device=dev) - 0.5) / s
         t = near[:, None] + (far - near)[:, None] * u  # (n, s)
         pts = rays_o[:, None] + rays_d[:, None] * t[..., None]
         unit = (pts - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1
@@ -56,7 +57,7 @@ class TinyGrid(RadianceModel):
         rgb = torch.sigmoid(feat[..., 1:])
         delta = ((far - near) / s)[:, None].expand(n, s)
         alpha = 1 - torch.exp(-sigma * delta)
-        trans = torch.cumprod(torch.cat([torch.ones(n, 1), 1 - alpha + 1e-10], -1), -1)[:, :-1]
+        trans = torch.cumprod(torch.cat([torch.ones(n, 1, device=dev), 1 - alpha + 1e-10], -1), -1)[:, :-1]
         w = alpha * trans
         acc = w.sum(-1)
         out_rgb = (w[..., None] * rgb).sum(1) + (1 - acc)[:, None] * background

@@ -40,7 +40,7 @@ def _env() -> dict:
 
 def _torchrun(*args: str) -> list[str]:
     return [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-            "-m", "nerf_core", "train", *args]
+            "-m", "nerf_core", "train", "--device", "cpu", *args]
 
 
 def _checksums(stderr: str) -> dict[int, tuple[int, str]]:

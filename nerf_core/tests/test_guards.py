@@ -237,7 +237,7 @@ class _Poisoned(RadianceModel):
             self.calls += 1
             if self.poison_from <= self.calls <= self.poison_until:
                 rgb = rgb * float("nan")
-        return {"rgb": rgb, "depth": 0.5 * (near + far), "acc": torch.ones(n)}
+        return {"rgb": rgb, "depth": 0.5 * (near + far), "acc": torch.ones(n, device=rays_o.device)}
 
 
 @register("guard-nan-once")

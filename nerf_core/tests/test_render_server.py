@@ -25,12 +25,28 @@ def _req(rid, out, **kw):
     return base
 
 
-def _serve(run, lines):
-    """Run an in-process server over ``lines``; returns its events."""
+def _serve(run, lines, progress=False, chunk=8192):
+    """Run an in-process server over ``lines``; returns its events. ``progress`` events come from the
+    clock (a frame slower than PROGRESS_EVERY_S, as on a loaded machine), so they are left out unless
+    asked for."""
     out = io.StringIO()
-    server = RenderServer(str(run), device="cpu", out=out)
+    server = RenderServer(str(run), device="cpu", chunk=chunk, out=out)
     assert server.serve(io.StringIO("".join(line + "\n" for line in lines))) == 0
-    return [json.loads(x) for x in out.getvalue().splitlines()]
+    events = [json.loads(x) for x in out.getvalue().splitlines()]
+    return events if progress else [e for e in events if e["event"] != "progress"]
+
+
+def test_a_slow_frame_reports_progress_chunk_by_chunk(trained_run, tmp_path, monkeypatch):
+    monkeypatch.setattr("nerf_core.render_server.PROGRESS_EVERY_S", 0.0)  # every chunk is "slow"
+    # 24 x 18 = 432 rays in chunks of 64: several progress events
+    events = _serve(trained_run["run"], [json.dumps(_req(7, tmp_path / "p.npy"))], progress=True, chunk=64)
+    kinds = [e["event"] for e in events]
+    assert kinds[0] == "ready" and kinds[-1] == "result" and set(kinds[1:-1]) == {"progress"}
+    prog = events[1:-1]
+    assert all(e["id"] == 7 and e["total"] == 24 * 18 for e in prog)
+    done = [e["done"] for e in prog]
+    assert done == sorted(done) and done[-1] == 24 * 18 and len(done) >= 2
+    assert [e["fraction"] for e in prog] == [round(d / (24 * 18), 4) for d in done]
 
 
 def test_answers_match_render_view_pixel_for_pixel(trained_run, tmp_path):
