@@ -168,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--device", metavar="DEV", help="torch device (cpu, cuda, cuda:1); default: cuda if available else cpu")
     t.add_argument("--lr", type=_positive_float, help="base learning rate (default: the method's)")
     t.add_argument("--batch-rays", type=_positive_int, metavar="N",
-                   help="rays per step (default: the method's, else 4096 on CUDA and 1024 on CPU)")
+                   help="rays per step (default: the method's, 1024 for a method without one; 4x that on CUDA)")
     t.add_argument("--background", choices=list(BACKGROUNDS), default="auto",
                    help="what stands behind the scene while training: environment = a learned world (light from "
                         "infinity, for opaque captures); random = a random colour per ray behind the alpha (cut-outs "

@@ -216,7 +216,7 @@ class Trainer:
         self.model = model.to(self.device).train()
         self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
         if cfg.batch_rays is None:
-            cfg.batch_rays = int(getattr(model, "default_batch_rays", 0) or (4096 if self.device.type == "cuda" else 1024))
+            cfg.batch_rays = default_batch_rays(model, self.device)
         self.warmup = warmup_steps(model, cfg.max_steps)
         self.train = train
 
@@ -550,6 +550,20 @@ class Trainer:
         path = self.previews.write(self.model, self.step)
         if path is not None:
             self.log.emit("preview", step=self.step, path=str(path))
+
+
+# A CPU step costs in proportion to its rays; a GPU step at these sizes mostly costs kernel launches,
+# so 4x the rays cost few steps. 30 s on an H100 (multi, 200 px, 5 test views): vmgrid 2048 rays
+# 38.31 dB (2998 steps) against 8192 rays 38.78 dB (2504); nerf 1024 rays 31.90 dB (3101) against
+# 4096 rays 32.63 dB (2272).
+CUDA_BATCH_SCALE = 4
+
+
+def default_batch_rays(model, device: "torch.device") -> int:
+    """Rays per step when ``--batch-rays`` is not given: the method's ``default_batch_rays`` (1024 when
+    it has none), ``CUDA_BATCH_SCALE`` times that on a CUDA device."""
+    base = int(getattr(model, "default_batch_rays", 0) or 1024)
+    return base * CUDA_BATCH_SCALE if device.type == "cuda" else base
 
 
 def train(cfg: TrainConfig) -> dict:

@@ -34,7 +34,7 @@ class TrainConfig:
     progress: Optional[str] = None  # extra JSON-lines file
     device: Optional[str] = None
     lr: Optional[float] = None  # base learning rate; default: the method's default_lr
-    batch_rays: Optional[int] = None  # None: the method's default_batch_rays, else 4096 on CUDA / 1024 on CPU
+    batch_rays: Optional[int] = None  # None: train.default_batch_rays (the method's; 4x on CUDA)
     background: str = "auto"  # auto: nerf_core.backgrounds.choose (environment for opaque images, random for cut-outs)
     downscale: int = 1
     log_every: int = 50

@@ -377,3 +377,25 @@ def test_a_run_that_would_train_nothing_is_an_error(sphere_dataset, tmp_path, mo
     with pytest.raises(TrainError, match=r"nothing was trained: the budget \(--max-seconds 0.5\) ran out"):
         train(_cfg(sphere_dataset, tmp_path / "run2", max_steps=None, max_seconds=0.5, eval_views=0))
     assert not (tmp_path / "run2" / "checkpoints" / "latest.pt").exists()
+
+
+def test_the_default_batch_is_the_methods_and_four_times_that_on_cuda():
+    from nerf_core.train import CUDA_BATCH_SCALE, default_batch_rays
+
+    class WithDefault:
+        default_batch_rays = 2048
+
+    class WithoutDefault:
+        pass
+
+    cpu, cuda = torch.device("cpu"), torch.device("cuda", 0)  # a device name: no GPU is needed
+    assert CUDA_BATCH_SCALE == 4
+    assert default_batch_rays(WithDefault(), cpu) == 2048 and default_batch_rays(WithDefault(), cuda) == 8192
+    assert default_batch_rays(WithoutDefault(), cpu) == 1024 and default_batch_rays(WithoutDefault(), cuda) == 4096
+
+
+def test_a_run_records_the_batch_it_chose(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=2, batch_rays=None, eval_views=0, device="cpu"))
+    config = json.loads((run / "config.json").read_text())
+    assert config["batch_rays"] == 1024 and config["rays_per_step"] == 1024  # test-grid has no default
