@@ -151,7 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--max-steps", type=_positive_int, metavar="N", help="stop after N optimisation steps")
     t.add_argument("--max-seconds", type=_positive_float, metavar="S",
                    help="stop after S seconds of training (previews, checkpoints and evaluation not counted)")
-    t.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (same seed + step budget = the same losses on a CPU; on CUDA equal to about 1e-6, since its atomic adds sum gradients in no fixed order)")
+    t.add_argument("--seed", type=int, default=0, metavar="K", help="random seed (same seed + step budget = the same losses on a CPU; on CUDA equal to about "
+                        "1e-7, since its atomic adds sum gradients in no fixed order)")
     t.add_argument("--resume", action="store_true",
                    help="continue RUN from RUN/checkpoints/latest.pt (else its newest step_*.pt); DATASET must hold "
                         "the dataset the run was trained on (checked by the hash of its transforms files)")
