@@ -18,6 +18,18 @@ class ImageReadError(Exception):
     """A file that is missing, unreadable or not the kind of image expected."""
 
 
+def _openexr(path: Path | str, doing: str):
+    """The OpenEXR module, imported on first use (PNG-only work never needs it). A Python without it
+    (a broken install: it is a declared dependency) gets an ImageReadError naming the file, which the
+    CLI prints as one line, rather than a traceback."""
+    try:
+        import OpenEXR
+    except ImportError as exc:
+        raise ImageReadError(f"{path}: {doing} an EXR needs the OpenEXR package, which this Python lacks "
+                             f"({exc}); install it with: pip install 'openexr>=3.2,<4'") from exc
+    return OpenEXR
+
+
 def _tmp_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp{os.getpid()}")
 
@@ -86,7 +98,7 @@ def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
     """All channels of an EXR as float32 arrays (h, w), keyed by channel name (``R``, ``Z``,
     ``ViewLayer.Combined.R`` ...), from every part: Blender 5 writes a multilayer EXR as one part
     per pass, and reading the first part alone would see only one pass."""
-    import OpenEXR
+    OpenEXR = _openexr(path, "reading")
 
     path = Path(path)
     if not path.is_file():
@@ -293,7 +305,7 @@ def write_png(path: Path | str, image: np.ndarray) -> None:
 
 def write_exr(path: Path | str, channels: Dict[str, np.ndarray]) -> None:
     """Write float32 (h, w) channels, e.g. ``{"Z": depth}``, as a ZIP-compressed EXR, atomically."""
-    import OpenEXR
+    OpenEXR = _openexr(path, "writing")
 
     path = Path(path)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}

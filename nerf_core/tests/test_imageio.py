@@ -144,3 +144,32 @@ def test_an_exr_header_claiming_a_huge_image_is_refused_before_reading(tmp_path)
     path.write_bytes(bytes(data))
     with pytest.raises(ImageReadError, match="header claims 14400 million values"):
         read_exr_rgba(path)
+
+
+def test_without_openexr_an_exr_is_named_in_one_line_not_a_traceback(tmp_path, monkeypatch):
+    import sys
+
+    from nerf_core.imageio import read_exr, write_exr
+
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # as if the package were not installed
+    path = tmp_path / "d.exr"
+    with pytest.raises(ImageReadError, match=r"d\.exr: writing an EXR needs the OpenEXR package.*pip install"):
+        write_exr(path, {"Z": _full(1.0)})
+    path.write_bytes(b"not read")
+    with pytest.raises(ImageReadError, match=r"d\.exr: reading an EXR needs the OpenEXR package"):
+        read_exr(path)
+
+
+def test_check_without_openexr_names_the_depth_file(sphere_dataset):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys; sys.modules['OpenEXR'] = None; from nerf_core.cli import main; "
+            "sys.exit(main(['check', sys.argv[1], '--for-training']))")
+    repo = Path(__file__).resolve().parents[2]
+    proc = subprocess.run([sys.executable, "-c", code, str(sphere_dataset)], capture_output=True, text=True,
+                          timeout=120, cwd=repo)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0 and "Traceback" not in out
+    assert "needs the OpenEXR package" in out and ".exr" in out
