@@ -60,9 +60,12 @@ def final_eval(log, model, dataset, cfg, background, run: Path, step: int, elaps
     finally:
         model.train()
     if result["n_views"] < result["n_views_total"]:
-        result["note"] = (f"evaluated {result['n_views']} of {result['n_views_total']} {split_name} views at full "
-                          f"resolution to stay within {budget:.0f} s; `python -m nerf_core eval {run}` "
-                          "evaluates all")
+        # Say why fewer views were scored: the user's --eval-views, or the time budget (only when no
+        # count was given), so that nobody tunes --eval-seconds for a cut it did not make.
+        why = (f"as --eval-views {cfg.eval_views} asks" if cfg.eval_views is not None
+               else f"at full resolution to stay within {budget:.0f} s")
+        result["note"] = (f"evaluated {result['n_views']} of {result['n_views_total']} {split_name} views {why}; "
+                          f"`python -m nerf_core eval {run}` evaluates all")
         print(f"train: {result['note']}", file=sys.stderr)
     metrics = Path(contract.metrics_path(run))
     record_written(run, metrics)

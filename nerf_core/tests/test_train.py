@@ -399,3 +399,18 @@ def test_a_run_records_the_batch_it_chose(sphere_dataset, tmp_path):
     train(_cfg(sphere_dataset, run, max_steps=2, batch_rays=None, eval_views=0, device="cpu"))
     config = json.loads((run / "config.json").read_text())
     assert config["batch_rays"] == 1024 and config["rays_per_step"] == 1024  # test-grid has no default
+
+
+@pytest.mark.parametrize("eval_views, eval_seconds, why", [(1, None, "as --eval-views 1 asks"),
+                                                          (None, 0.0, "at full resolution to stay within 0 s")])
+def test_the_final_evaluation_says_why_it_scored_fewer_views(sphere_dataset, tmp_path, capsys, eval_views,
+                                                             eval_seconds, why):
+    """A run that scores 1 of the held-out views says whether --eval-views or the time budget cut it:
+    the time budget is not consulted when a count is given, and a note blaming it sent users to the
+    wrong flag."""
+    run = tmp_path / "run"
+    train(_cfg(sphere_dataset, run, max_steps=2, eval_views=eval_views, eval_seconds=eval_seconds))
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["n_views"] == 1 < metrics["n_views_total"]
+    assert f"evaluated 1 of {metrics['n_views_total']} test views {why};" in metrics["note"]
+    assert metrics["note"] in capsys.readouterr().err
