@@ -516,6 +516,26 @@ def _inside_dataset(path, dataset) -> bool:
     return path == dataset or dataset in path.parents
 
 
+def refuse_dataset_root_out(out) -> None:
+    """RunError when ``out`` is a dataset's root folder (it holds transforms_train.json or
+    transforms.json). The dataset's own images are safe anyway (``dataset_files``), but renders.json
+    and the renders would sit beside its transforms files, and instant-ngp reads every *.json at a
+    dataset's root as one: one render would break the dataset for other tools. A subfolder is fine."""
+    from .contract.transforms import detect_layout
+
+    out = Path(out)
+    if not out.is_dir():
+        return
+    try:
+        _, root = detect_layout(out)
+    except DatasetError:
+        return
+    found = "transforms_train.json" if (root / "transforms_train.json").is_file() else "transforms.json"
+    raise RunError(f"--out {out}: this is a dataset folder (it holds {found}); renders.json and the renders would "
+                   "sit beside its transforms files, and instant-ngp reads every *.json there as one. "
+                   f"Choose another --out, e.g. {out / 'renders'}")
+
+
 def render_run(run, cameras_path, out, split="test", overwrite=False, device=None, downscale: float = 1.0,
                chunk: int = 8192, checkpoint=None, show_progress=True, pixel_filter: str = "auto") -> Path:
     """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
@@ -524,6 +544,7 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     from . import pixel_filter as pf
     from .device import pick_device
 
+    refuse_dataset_root_out(out)
     dev = pick_device(device)
     model, config, ckpt = load_run(run, dev, checkpoint)
     if cameras_path is None:

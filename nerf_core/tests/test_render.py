@@ -94,6 +94,29 @@ def test_render_never_writes_over_the_datasets_own_images(trained_run, tmp_path,
     assert {p: p.read_bytes() for p in ds.rglob("*.png")} == before
 
 
+@pytest.mark.parametrize("layout", ["synthetic", "nerfstudio"])
+def test_render_into_a_dataset_root_is_refused_and_a_subfolder_is_not(trained_run, tmp_path, capsys, layout):
+    """renders.json at a dataset's root is read as a transforms file by instant-ngp: refused before
+    anything is written, naming the folder, the transforms file found there and a subfolder to use."""
+    import shutil
+
+    ds = Path(shutil.copytree(trained_run["dataset"], tmp_path / "ds"))
+    if layout == "nerfstudio":  # a nerfstudio-layout root: transforms.json only
+        for f in ds.glob("transforms_*.json"):
+            f.rename(tmp_path / f.name)
+        (ds / "transforms.json").write_text("{}")
+    before = sorted(p.relative_to(ds) for p in ds.rglob("*"))
+    assert main(["render", str(trained_run["run"]), "--out", str(ds), "--no-bar"]) == 2
+    err = capsys.readouterr().err
+    found = "transforms_train.json" if layout == "synthetic" else "transforms.json"
+    assert f"--out {ds}: this is a dataset folder (it holds {found})" in err and str(ds / "renders") in err
+    assert "Traceback" not in err
+    assert sorted(p.relative_to(ds) for p in ds.rglob("*")) == before
+    if layout == "synthetic":
+        assert main(["render", str(trained_run["run"]), "--out", str(ds / "renders"), "--no-bar"]) == 0
+        assert (ds / "renders" / "renders.json").is_file()
+
+
 def test_render_png_alpha_and_depth_agree_with_the_model(trained_run, tmp_path):
     from nerf_core.checkpoints import load_run
 
