@@ -76,7 +76,8 @@ class VMGrid(RadianceModel):
         budget_steps: steps assumed for the schedule when ``training_hook`` gets no budget fraction (None).
         dist_weight: weight of the distortion loss (``volrend.distortion_loss_packed``, distances in box
             diagonals), which pulls each ray's weight into one short stretch (mip-NeRF 360's remedy for
-            floaters). Off by default: on the interior demo scene 0.01 changed nothing and 0.5 hurt.
+            floaters). Off by default: on the interior demo scene 0.01 changed nothing, and 0.05 and 0.2
+            wrecked it (14.5 and 9.3 dB against 29.2-29.7 at 5 minutes; vmgrid200/summary.md).
         grad_reach: samples nearer the camera than this share of the box diagonal learn with their
             gradient scaled by (distance / reach)^2 (``nerf_core.grad_scaling``). Cameras inside a room
             otherwise grow fog screens in front of their lenses: on the interior demo scene, 400 steps
