@@ -5,11 +5,25 @@ Object scenes on a transparent film need nothing; scenes whose background is par
 
 This module is plain Python (no bpy, no relative imports) so the scripts that run outside Blender
 (``scripts/demo.py``, ``scripts/bench/datasets.py``) can load it by file path without importing the
-add-on package, whose ``__init__`` imports bpy. ``demo_scenes`` re-exports both names.
+add-on package, whose ``__init__`` imports bpy. ``demo_scenes`` re-exports these names.
 
 Keys are ``scripts/capture.py`` flag names without the dashes, ``_`` for ``-``; ``True`` is a bare flag.
 """
 from __future__ import annotations
+
+# The demo scenes ``demo_scenes.build`` makes, with a line each (here, not there, so that the
+# benchmark can check ``--scenes`` without bpy).
+SCENES = {
+    "cube": "a flat-coloured cube (tiny; for model-sizing tests)",
+    "diffuse": "a diffuse, procedurally textured sphere on a pedestal",
+    "highfreq": "a cube with a fine checker and stripes (high-frequency texture)",
+    "glossy": "a metallic sphere and a glossy torus",
+    "thin": "thin rods and a wire lattice (thin structures)",
+    "multi": "several objects of different shapes and colours",
+    "hdri": "a textured sphere on a pedestal and a checker cube in a visible HDRI world (forest photo; opaque film)",
+    "interior": "a closed 6 x 5 x 3 m room with textured walls and furniture, lit from inside",
+    "ground": "a figure and a box on a 100 m checkered floor that runs to the horizon (opaque film)",
+}
 
 CAPTURE_DEFAULTS: dict[str, dict] = {
     "hdri": {"opaque": True},

@@ -20,19 +20,8 @@ import os
 
 import bpy
 
-from .demo_capture import CAPTURE_DEFAULTS, capture_defaults, capture_flags  # noqa: F401  (re-exported)
+from .demo_capture import CAPTURE_DEFAULTS, SCENES, capture_defaults, capture_flags  # noqa: F401  (re-exported)
 
-SCENES = {
-    "cube": "a flat-coloured cube (tiny; for model-sizing tests)",
-    "diffuse": "a diffuse, procedurally textured sphere on a pedestal",
-    "highfreq": "a cube with a fine checker and stripes (high-frequency texture)",
-    "glossy": "a metallic sphere and a glossy torus",
-    "thin": "thin rods and a wire lattice (thin structures)",
-    "multi": "several objects of different shapes and colours",
-    "hdri": "a textured sphere on a pedestal and a checker cube in a visible HDRI world (forest photo; opaque film)",
-    "interior": "a closed 6 x 5 x 3 m room with textured walls and furniture, lit from inside",
-    "ground": "a figure and a box on a 100 m checkered floor that runs to the horizon (opaque film)",
-}
 # Blender's own studio-light worlds ship inside every Blender (and the bpy module): real photographs.
 HDRI_NAME = "forest.exr"
 ROOM_SIZE = (6.0, 5.0, 3.0)  # interior: x, y, z extent in metres; floor at z = 0, centred on x = y = 0

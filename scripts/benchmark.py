@@ -40,7 +40,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench import datasets, report, runner  # noqa: E402  (scripts/bench, found through the line above)
 from bench.analysis import (checkpoint_size, eval_at_points, pair_gap_table, psnr_at_table,  # noqa: E402
                             rows_from_results, size_analysis, summarize_training)
-from bench.plan import FULL_SCENES, Plan, Series, default_fast_method, make_plan, parse_checkpoints  # noqa: E402
+from bench.plan import (FULL_SCENES, Plan, Series, default_fast_method, make_plan, parse_checkpoints,  # noqa: E402
+                        unknown_names)
 from bench.profiler import profile_method  # noqa: E402
 
 from nerf_core.progressbar import ProgressBar  # noqa: E402
@@ -357,9 +358,6 @@ def main(argv=None) -> int:
     out = os.path.abspath(args.out)
     if args.report_only:
         return report_only(out)
-    os.makedirs(out, exist_ok=True)
-    logs = os.path.join(out, "logs")
-    os.makedirs(logs, exist_ok=True)
     machine = runner.machine_info()
     machine["jobs"] = args.jobs
     machine["threads_per_run"] = runner.thread_env(args.jobs).get("OMP_NUM_THREADS", os.cpu_count())
@@ -369,6 +367,13 @@ def main(argv=None) -> int:
               + train_help[-800:], file=sys.stderr)
         return 2
     plan = make_plan(args, train_help)
+    unknown = unknown_names(plan, datasets.demo_scene_names(), runner.method_names())
+    if unknown:
+        print(f"benchmark: {unknown}", file=sys.stderr)
+        return 2
+    os.makedirs(out, exist_ok=True)
+    logs = os.path.join(out, "logs")
+    os.makedirs(logs, exist_ok=True)
     fast = default_fast_method()
     runs = plan.runs()
     budget = plan.checkpoints[-1]

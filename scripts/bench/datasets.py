@@ -18,20 +18,30 @@ from typing import Callable, Optional, Sequence
 from .runner import REPO_ROOT, BenchError, run_cli, script_cmd
 
 
-def demo_capture_defaults(scene: str) -> dict:
-    """Capture settings demo scene ``scene`` needs (``addon/demo_capture.py``: e.g. opaque, layout inside).
-
-    That file is loaded by path: importing the ``addon`` package would import bpy.
-    """
+def _demo_capture():
+    """``addon/demo_capture.py`` as a module (None when the file is missing), loaded by path:
+    importing the ``addon`` package would import bpy."""
     import importlib.util
 
     path = os.path.join(REPO_ROOT, "addon", "demo_capture.py")
     if not os.path.isfile(path):
-        return {}
+        return None
     spec = importlib.util.spec_from_file_location("_nerf_bridge_demo_capture", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.capture_defaults(scene)
+    return module
+
+
+def demo_capture_defaults(scene: str) -> dict:
+    """Capture settings demo scene ``scene`` needs (``addon/demo_capture.py``: e.g. opaque, layout inside)."""
+    module = _demo_capture()
+    return module.capture_defaults(scene) if module else {}
+
+
+def demo_scene_names() -> list[str]:
+    """The demo scenes ``make_demo_scene.py`` builds (``addon/demo_capture.SCENES``; [] when unknown)."""
+    module = _demo_capture()
+    return list(getattr(module, "SCENES", {})) if module else []
 
 
 def settings_key(settings: dict) -> str:

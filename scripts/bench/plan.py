@@ -126,6 +126,19 @@ def parse_checkpoints(text: str | None, budget: float, quick: bool = False) -> l
     return sorted(set(m * 60.0 for m in minutes))
 
 
+def unknown_names(plan: Plan, scenes: list[str], methods: list[str]) -> str:
+    """The message for the first flag that names a scene or method outside ``scenes`` / ``methods``
+    ("" when all are known, or when a list is empty because it could not be read). Checked before
+    anything is captured: an unknown method used to fail only after its scene's capture, run by run."""
+    for flag, asked, known in (("--scenes", plan.scenes + plan.size_scenes, scenes),
+                               ("--methods", [s.method for s in plan.series], methods)):
+        bad = [n for n in dict.fromkeys(asked) if known and n not in known]
+        if bad:
+            what = flag[2:-1]
+            return (f"{flag}: unknown {what} {', '.join(repr(n) for n in bad)}; choose from {', '.join(known)}")
+    return ""
+
+
 def make_plan(args, train_help: str) -> Plan:
     fast = default_fast_method()
     if args.methods:

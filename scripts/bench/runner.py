@@ -223,6 +223,18 @@ def final_test_metrics(train: CliResult, run_dir: str, log_path: Optional[str] =
     return metrics, None
 
 
+def method_names() -> list[str]:
+    """The methods ``python -m nerf_core methods`` lists, plugins included ([] when it cannot run)."""
+    try:
+        out = subprocess.run([*nerf_core_cmd("methods")], capture_output=True, text=True, cwd=REPO_ROOT, timeout=120,
+                             env={**os.environ, "PYTHONPATH": REPO_ROOT})
+    except (OSError, subprocess.TimeoutExpired):
+        return []
+    if out.returncode != 0:
+        return []
+    return [line.split()[0] for line in out.stdout.splitlines() if line.strip()]
+
+
 def cli_help(*args: str) -> str:
     """``--help`` text of a CLI (empty when it cannot run), used to detect optional trainer flags."""
     try:

@@ -101,3 +101,33 @@ def test_checkpoints_flag_log_minutes_and_default(capsys):
             benchmark.parse_args(["--out", "x", "--checkpoints", bad])
         err = capsys.readouterr().err
         assert "--checkpoints" in err and "Traceback" not in err
+
+
+def test_unknown_scenes_and_methods_are_named_before_anything_runs():
+    args = benchmark.parse_args(["--out", "x", "--methods", "nerf,gaussians", "--scenes", "multi,nosuch,multi",
+                                 "--no-sizes"])
+    plan = bench_plan.make_plan(args, "--max-seconds")
+    scenes, methods = ["multi", "thin"], ["nerf", "vmgrid"]
+    assert bench_plan.unknown_names(plan, scenes, methods) == (
+        "--scenes: unknown scene 'nosuch'; choose from multi, thin")
+    plan.scenes = plan.size_scenes = ["multi"]
+    assert bench_plan.unknown_names(plan, scenes, methods) == (
+        "--methods: unknown method 'gaussians'; choose from nerf, vmgrid")
+    plan.size_scenes = ["glossy"]  # --size-scenes is checked too
+    assert "unknown scene 'glossy'" in bench_plan.unknown_names(plan, scenes, methods)
+    plan.size_scenes, plan.series = ["multi"], [bench_plan.Series("nerf", "nerf")]
+    assert bench_plan.unknown_names(plan, scenes, methods) == ""
+    assert bench_plan.unknown_names(plan, [], []) == ""  # lists that could not be read check nothing
+
+
+def test_benchmark_refuses_an_unknown_scene_before_making_its_folder(tmp_path, capsys):
+    """The real lists: the demo scenes of addon/demo_capture.py and `python -m nerf_core methods`."""
+    from bench import datasets, runner
+
+    assert {"diffuse", "interior", "ground"} <= set(datasets.demo_scene_names())
+    assert {"nerf", "nerf-nope", "vmgrid"} <= set(runner.method_names())
+    out = tmp_path / "bench"
+    assert benchmark.main(["--out", str(out), "--scenes", "multi,nosuch", "--methods", "vmgrid", "--no-sizes"]) == 2
+    err = capsys.readouterr().err
+    assert "benchmark: --scenes: unknown scene 'nosuch'; choose from cube, diffuse" in err
+    assert not out.exists()
