@@ -33,6 +33,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402,F401  (puts the checkout on sys.path)
 from bench import report, runner  # noqa: E402  (scripts/bench)
+from bench.plan import name_problem  # noqa: E402
 
 
 def parse_args(argv):
@@ -85,6 +86,10 @@ def measure(events: list[dict], steps: int) -> dict:
 
 def main(argv=None) -> int:
     args = parse_args(argv if argv is not None else _bootstrap.script_args())
+    unknown = name_problem("--method", [args.method], runner.method_names())
+    if unknown:
+        print(f"bench_ddp: {unknown}", file=sys.stderr)
+        return 2
     os.makedirs(args.out, exist_ok=True)
     dataset = ensure_dataset(args)
     procs_list = [int(p) for p in args.procs.split(",") if p.strip()]

@@ -29,6 +29,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402  (puts the checkout on sys.path)
 from bench import render_speed, report, runner  # noqa: E402  (scripts/bench)
+from bench.plan import name_problem  # noqa: E402
 from nerf_core.runfolder import dataset_overlap  # noqa: E402
 
 PROG = "bench_render.py"
@@ -126,6 +127,9 @@ def main(argv=None) -> int:
     args = parse_args(argv if argv is not None else _bootstrap.script_args())
     try:
         methods = render_speed.parse_methods(args.methods)
+        unknown = name_problem("--methods", methods, runner.method_names())
+        if unknown:
+            raise render_speed.SpeedInputError(unknown)
         runs = render_speed.parse_runs(args.runs, methods)
         width, height = frame_size(args.frame_size)
         if args.seconds <= 0:

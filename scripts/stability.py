@@ -35,7 +35,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench import analysis, datasets, report, runner  # noqa: E402  (scripts/bench, found through the line above)
-from bench.plan import BASE_METHODS, default_fast_method  # noqa: E402
+from bench.plan import BASE_METHODS, default_fast_method, name_problem  # noqa: E402
 
 from nerf_core.progressbar import ProgressBar  # noqa: E402
 
@@ -336,8 +336,6 @@ def main(argv=None) -> int:
     machine["jobs"] = args.jobs
 
     out = os.path.abspath(args.out)
-    logs = os.path.join(out, "logs")
-    os.makedirs(logs, exist_ok=True)
     train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
         print("stability: `python -m nerf_core train --help` failed; is nerf_core/train.py built?\n" + train_help[-800:],
@@ -346,6 +344,13 @@ def main(argv=None) -> int:
     fast = default_fast_method()
     methods = ([m.strip() for m in args.methods.split(",") if m.strip()] if args.methods
                else BASE_METHODS + ([fast] if fast and fast not in BASE_METHODS else []))
+    unknown = (name_problem("--scene", [args.scene], datasets.demo_scene_names())
+               or name_problem("--methods", methods, runner.method_names()))
+    if unknown:
+        print(f"stability: {unknown}", file=sys.stderr)
+        return 2
+    logs = os.path.join(out, "logs")
+    os.makedirs(logs, exist_ok=True)
     lr = lr_flag(train_help)
     notes = []
     if not lr:

@@ -126,17 +126,22 @@ def parse_checkpoints(text: str | None, budget: float, quick: bool = False) -> l
     return sorted(set(m * 60.0 for m in minutes))
 
 
+def name_problem(flag: str, asked, known) -> str:
+    """"FLAG: unknown THING 'x'; choose from ..." for the names in ``asked`` that are not in ``known``
+    ("" when all are, or when ``known`` is empty because it could not be read). The studies check their
+    scene and method flags with it before anything is captured or trained: an unknown method used to
+    fail only after its scene's capture, run by run."""
+    bad = [n for n in dict.fromkeys(asked) if known and n not in known]
+    if not bad:
+        return ""
+    what = flag.lstrip("-").rstrip("s")
+    return f"{flag}: unknown {what} {', '.join(repr(n) for n in bad)}; choose from {', '.join(known)}"
+
+
 def unknown_names(plan: Plan, scenes: list[str], methods: list[str]) -> str:
-    """The message for the first flag that names a scene or method outside ``scenes`` / ``methods``
-    ("" when all are known, or when a list is empty because it could not be read). Checked before
-    anything is captured: an unknown method used to fail only after its scene's capture, run by run."""
-    for flag, asked, known in (("--scenes", plan.scenes + plan.size_scenes, scenes),
-                               ("--methods", [s.method for s in plan.series], methods)):
-        bad = [n for n in dict.fromkeys(asked) if known and n not in known]
-        if bad:
-            what = flag[2:-1]
-            return (f"{flag}: unknown {what} {', '.join(repr(n) for n in bad)}; choose from {', '.join(known)}")
-    return ""
+    """``name_problem`` of a benchmark plan's scenes (with --size-scenes) and its series' methods."""
+    return (name_problem("--scenes", plan.scenes + plan.size_scenes, scenes)
+            or name_problem("--methods", [s.method for s in plan.series], methods))
 
 
 def make_plan(args, train_help: str) -> Plan:

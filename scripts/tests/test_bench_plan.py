@@ -131,3 +131,24 @@ def test_benchmark_refuses_an_unknown_scene_before_making_its_folder(tmp_path, c
     err = capsys.readouterr().err
     assert "benchmark: --scenes: unknown scene 'nosuch'; choose from cube, diffuse" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("script, args, message", [
+    ("stability", ["--quick", "--scene", "nosuch"], "stability: --scene: unknown scene 'nosuch'; choose from cube,"),
+    ("stability", ["--quick", "--methods", "vmgrid,nosuch"], "stability: --methods: unknown method 'nosuch'; choose from nerf,"),
+    ("bench_render", ["--dataset", "DS", "--methods", "nosuch"], "--methods: unknown method 'nosuch'; choose from nerf,"),
+    ("bench_ddp", ["--method", "nosuch"], "bench_ddp: --method: unknown method 'nosuch'; choose from nerf,"),
+])
+def test_the_other_studies_refuse_unknown_names_before_making_their_folder(tmp_path, capsys, script, args, message):
+    import importlib
+
+    module = importlib.import_module(script)
+    out = tmp_path / "study"
+    args = [str(tmp_path) if a == "DS" else a for a in args]
+    try:
+        code = module.main(["--out", str(out), *args])
+    except SystemExit as exc:  # bench_render stops through _bootstrap.fail, as on its other flags
+        code = exc.code
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
