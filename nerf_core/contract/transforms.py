@@ -300,8 +300,11 @@ def why_not_a_file(path: Path | str, written: Optional[str] = None) -> str:
         return f"not found; {same_case[0]} exists there (file names are case-sensitive)"
     stem = path.name[: -len(path.suffix)] if path.suffix.lower() in IMAGE_EXTS else path.name
     other_ext = sorted(n for n in names if Path(n).stem.lower() == stem.lower() and n != path.name)
-    if other_ext:
-        return f"not found; {', '.join(other_ext[:3])} exists there: write the file name with its extension"
+    files = [n for n in other_ext if not (folder / n).is_dir()]
+    if files:
+        return f"not found; {', '.join(files[:3])} exists there: write the file name with its extension"
+    if other_ext:  # "./train" names the split's folder, not one of its images
+        return f"not found; {other_ext[0]} there is a folder: file_path must name an image in it"
     return "not found"
 
 

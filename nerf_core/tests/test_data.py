@@ -210,6 +210,7 @@ def test_missing_image_names_file_and_frame(sphere_dataset):
     ("backslash", "written with '\\'"),
     ("folder", "is a folder, not a file"),
     ("dangling_link", "is a link to"),
+    ("names_its_folder", "train.png not found; train there is a folder: file_path must name an image in it"),
 ])
 def test_a_missing_image_says_what_is_there_instead(sphere_dataset, change, hint):
     meta = _meta(sphere_dataset)
@@ -224,6 +225,9 @@ def test_a_missing_image_says_what_is_there_instead(sphere_dataset, change, hint
     elif change == "folder":
         image.unlink()
         image.mkdir()
+    elif change == "names_its_folder":  # "./train": the split's folder, which the extension hint misread
+        meta["frames"][1]["file_path"] = "./train"
+        _write_meta(sphere_dataset, meta)
     else:
         image.unlink()
         image.symlink_to(sphere_dataset / "gone.png")
