@@ -527,10 +527,10 @@ def refuse_dataset_root_out(out) -> None:
     if not out.is_dir():
         return
     try:
-        _, root = detect_layout(out)
+        layout, _ = detect_layout(out)
     except DatasetError:
         return
-    found = "transforms_train.json" if (root / "transforms_train.json").is_file() else "transforms.json"
+    found = "transforms_train.json" if layout == "synthetic" else "transforms.json"
     raise RunError(f"--out {out}: this is a dataset folder (it holds {found}); renders.json and the renders would "
                    "sit beside its transforms files, and instant-ngp reads every *.json there as one. "
                    f"Choose another --out, e.g. {out / 'renders'}")

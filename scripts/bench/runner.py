@@ -223,28 +223,27 @@ def final_test_metrics(train: CliResult, run_dir: str, log_path: Optional[str] =
     return metrics, None
 
 
+def _run_cli(args) -> Optional[subprocess.CompletedProcess]:
+    """Run a short CLI command from the checkout (None when it cannot start or hangs)."""
+    try:
+        return subprocess.run(list(args), capture_output=True, text=True, cwd=REPO_ROOT, timeout=120,
+                              env={**os.environ, "PYTHONPATH": REPO_ROOT})
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+
+
 def method_names() -> list[str]:
     """The methods ``python -m nerf_core methods`` lists, plugins included ([] when it cannot run)."""
-    try:
-        out = subprocess.run([*nerf_core_cmd("methods")], capture_output=True, text=True, cwd=REPO_ROOT, timeout=120,
-                             env={**os.environ, "PYTHONPATH": REPO_ROOT})
-    except (OSError, subprocess.TimeoutExpired):
-        return []
-    if out.returncode != 0:
+    out = _run_cli(nerf_core_cmd("methods"))
+    if out is None or out.returncode != 0:
         return []
     return [line.split()[0] for line in out.stdout.splitlines() if line.strip()]
 
 
 def cli_help(*args: str) -> str:
     """``--help`` text of a CLI (empty when it cannot run), used to detect optional trainer flags."""
-    try:
-        out = subprocess.run(
-            [*args, "--help"], capture_output=True, text=True, cwd=REPO_ROOT, timeout=120,
-            env={**os.environ, "PYTHONPATH": REPO_ROOT},
-        )
-    except (OSError, subprocess.TimeoutExpired):
-        return ""
-    return out.stdout + out.stderr
+    out = _run_cli([*args, "--help"])
+    return "" if out is None else out.stdout + out.stderr
 
 
 # --------------------------------------------------------------------------------------------
