@@ -203,7 +203,7 @@ def test_normals_masks_and_point_cloud(cycles_dataset):
 
 
 def test_nerfstudio_gets_millimetre_depth_pngs_and_no_object_masks_on_a_transparent_film(cycles_dataset):
-    from nerf_core.data import load_dataset
+    from nerf_core.data.loading import load_dataset
 
     out, _ = cycles_dataset
     with open(os.path.join(out, "nerfstudio", "transforms.json")) as fh:
@@ -405,7 +405,7 @@ def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
     # A lone plane (a painting, an image imported as a plane) spans no z: its box was 0 thick, and every
     # loader refused the dataset (min < max).
     from addon import scene_bounds
-    from nerf_core.dataset_checks import dataset_problems
+    from nerf_core.data.validation import dataset_problems
 
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))
     scene = bpy.context.scene
@@ -684,7 +684,7 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
     scene.display.render_aa = "OFF"
     assert capture.film_filter(scene, "BLENDER_WORKBENCH") == {"type": "NONE"}
     # and nerf_core reads it back
-    proc = subprocess.run([PY, "-c", "import sys; from nerf_core.data import load_dataset; "
+    proc = subprocess.run([PY, "-c", "import sys; from nerf_core.data.loading import load_dataset; "
                            "print(load_dataset(sys.argv[1]).pixel_filter)", str(gauss)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and "PixelFilter(kind='GAUSSIAN', width=2.25, downscale=1)" in proc.stdout, proc.stderr

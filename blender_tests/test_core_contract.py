@@ -40,7 +40,7 @@ def test_checkout_addon_loads_the_contract_with_torch_blocked(repo_root):
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["file"] == os.path.join(repo_root, "nerf_core", "contract", "__init__.py")
     assert got["torch"] is False
-    assert got["nerf_core"] is False  # loaded by path: nerf_core.train stays out of Blender's reach
+    assert got["nerf_core"] is False  # loaded by path: nerf_core.engine.trainer stays out of Blender's reach
     assert got["latest"] == os.path.join("R", "checkpoints", "latest.pt")
 
 

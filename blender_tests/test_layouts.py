@@ -83,11 +83,11 @@ def test_the_lowest_cameras_always_train():
 
 def _unseen_world_shares(n_train, n_val, n_test, seed, heights_rule: bool):
     """Per held-out view of a default 200 px hemisphere capture: the share of its pixels that see
-    world no train view shows (``nerf_core.world_coverage``, as ``check`` warns)."""
+    world no train view shows (``nerf_core.fields.world_coverage``, as ``check`` warns)."""
     import torch
 
-    from nerf_core.cameras import Cameras
-    from nerf_core.world_coverage import covered_directions, unseen_world_share
+    from nerf_core.cameras.rays import Cameras
+    from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 
     lo, hi = np.array([-1.4, -1.4, -1.3]), np.array([1.4, 1.4, 0.75])  # the hdri demo scene's bounds
     centre, sphere_r = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2

@@ -1,5 +1,5 @@
 """nerf_core's OPENCV_FISHEYE model against Cycles' own equidistant fisheye: an independent check of
-the lens maths (nerf_core/lens.py), since Cycles traces its fisheye rays with code of its own."""
+the lens maths (nerf_core/cameras/distortion.py), since Cycles traces its fisheye rays with code of its own."""
 import math
 
 import bpy
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.cameras import Cameras, project_points, rays_for_pixels
+from nerf_core.cameras.rays import Cameras, project_points, rays_for_pixels
 from nerf_core.contract.lens import Lens
-from nerf_core.imageio import read_exr_rgba
+from nerf_core.image.io import read_exr_rgba
 
 W, H, FOV = 160, 120, 3.0  # a 172-degree fisheye
 # 12, 30, 80 and 63 degrees off the camera's axis (a pinhole of this width could not see the last two).

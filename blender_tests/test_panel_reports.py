@@ -175,7 +175,7 @@ def nerf_engine_scene():
 
 
 def test_f12_above_the_size_limit_names_the_resolution_setting(nerf_engine_scene, tmp_path):
-    from nerf_core import render_server
+    from nerf_core.render import server as render_server
 
     scene = nerf_engine_scene
     r = scene.render

@@ -12,7 +12,7 @@ from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Euler, Matrix, Vector
 
 from addon import export, image_metrics, planes
-from nerf_core import metrics
+from nerf_core.image import metrics
 
 W, H = 40, 30
 

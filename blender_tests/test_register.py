@@ -60,7 +60,7 @@ def test_built_zip_carries_nerf_core_for_the_trainer(tmp_path, use_bundled):
     assert os.path.basename(path) == "nerf_bridge-0.1.0.zip"
     names = zipfile.ZipFile(path).namelist()
     assert {"blender_manifest.toml", "__init__.py", "train_ui.py", "vendor/nerf_core/__init__.py",
-            "vendor/nerf_core/cli.py"} <= set(names)
+            "vendor/nerf_core/cli/main.py"} <= set(names)
     assert not [n for n in names if "/tests/" in n or "__pycache__" in n or n.endswith(".pyc")]
     installed = tmp_path / "installed" / "nerf_bridge"
     zipfile.ZipFile(path).extractall(installed)

@@ -20,7 +20,7 @@ import pytest
 
 import addon
 from addon import capture, demo_scenes, layouts, render_client, render_engine
-from nerf_core import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
+from nerf_core.image import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
 
 RES = 48
 TRAIN_STEPS = 150

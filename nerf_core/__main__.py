@@ -1,7 +1,7 @@
-"""``python -m nerf_core COMMAND ...``; see ``nerf_core.cli``."""
+"""``python -m nerf_core COMMAND ...``; see ``nerf_core.cli.main``."""
 import sys
 
-from .cli import main
+from nerf_core.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main())

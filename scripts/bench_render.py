@@ -30,7 +30,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402  (puts the checkout on sys.path)
 from bench import render_speed, report, runner  # noqa: E402  (scripts/bench)
 from bench.plan import name_problem  # noqa: E402
-from nerf_core.runfolder import dataset_overlap  # noqa: E402
+from nerf_core.runs.folder import dataset_overlap  # noqa: E402
 
 PROG = "bench_render.py"
 

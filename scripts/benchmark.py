@@ -44,7 +44,7 @@ from bench.plan import (FULL_SCENES, Plan, Series, default_fast_method, make_pla
                         unknown_names)
 from bench.profiler import profile_method  # noqa: E402
 
-from nerf_core.progressbar import ProgressBar  # noqa: E402
+from nerf_core.utils.progressbar import ProgressBar  # noqa: E402
 
 
 # --------------------------------------------------------------------------------------------
@@ -127,8 +127,8 @@ def model_size(checkpoint: str) -> tuple[Optional[int], Optional[int]]:
 
     import torch
 
-    from nerf_core.methods import build_model
-    from nerf_core.render import model_from_checkpoint, read_checkpoint
+    from nerf_core.methods.base import build_model
+    from nerf_core.runs.checkpoints import model_from_checkpoint, read_checkpoint
 
     try:
         ckpt = read_checkpoint(Path(checkpoint))
@@ -363,7 +363,7 @@ def main(argv=None) -> int:
     machine["threads_per_run"] = runner.thread_env(args.jobs).get("OMP_NUM_THREADS", os.cpu_count())
     train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
-        print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is nerf_core/train.py built?\n"
+        print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is nerf_core/engine/trainer.py built?\n"
               + train_help[-800:], file=sys.stderr)
         return 2
     plan = make_plan(args, train_help)

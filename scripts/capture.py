@@ -174,7 +174,7 @@ def main(argv: list[str]) -> int:
     import bpy
 
     from addon import capture, capture_plan, export, layouts
-    from nerf_core.progressbar import ProgressBar
+    from nerf_core.utils.progressbar import ProgressBar
 
     res_x, res_y = args.resolution
     res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)

@@ -88,7 +88,7 @@ def scene_capture_flags(scene: str) -> list[str]:
 
 def missing_pieces() -> list[str]:
     needed = ["scripts/make_demo_scene.py", "scripts/capture.py", "scripts/import_views.py",
-              "nerf_core/train.py", "nerf_core/render.py", "nerf_core/evaluate.py", "nerf_core/check.py"]
+              "nerf_core/engine/trainer.py", "nerf_core/render/views.py", "nerf_core/evaluation/evaluate.py", "nerf_core/check/dataset.py"]
     return [p for p in needed if not os.path.exists(os.path.join(REPO_ROOT, p))]
 
 

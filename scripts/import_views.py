@@ -83,7 +83,7 @@ def fail(message: str) -> None:
 def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> None:
     """Run ``nerf_core render`` with a progress bar counting the PNGs as they appear."""
     from addon import compare, trainer_process
-    from nerf_core.progressbar import ProgressBar
+    from nerf_core.utils.progressbar import ProgressBar
 
     proc = trainer_process.BackgroundProcess(trainer_process.render_command(python, run, cameras, out_dir)).start()
     bar = ProgressBar(total=n_views, label="render views")

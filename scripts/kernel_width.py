@@ -7,7 +7,7 @@
 
 Fits a crop of one of Blender's studio-light HDRIs (a photograph) with a small MLP on pixel
 coordinates, training on the even-row, even-column pixels and scoring PSNR on the other three
-quarters (nerf_core/fit2d.py). Writes DIR/kernel_width.png (held-out and train PSNR against sigma),
+quarters (scripts/fourier2d/fit2d.py). Writes DIR/kernel_width.png (held-out and train PSNR against sigma),
 DIR/kernel_width_crops.png (ground truth and reconstructions), DIR/kernel_width.json and
 DIR/README.md (the table and the command).
 
@@ -85,7 +85,7 @@ def rerun_outside_blender(args, argv) -> int:
 
 
 def load_target(args):
-    from nerf_core.photo2d import DEFAULT_CROP, DEFAULT_HDRI, PhotoError, find_hdri, load_photo
+    from fourier2d.photo2d import DEFAULT_CROP, DEFAULT_HDRI, PhotoError, find_hdri, load_photo
 
     crop = tuple(number_list(args.crop, "--crop", int, minimum=0)) if args.crop else DEFAULT_CROP
     if len(crop) != 3:
@@ -117,7 +117,7 @@ def main(argv=None) -> int:
             return rerun_outside_blender(args, argv)
         fail("this Python cannot import torch; run it with the project's .venv/bin/python")
 
-    from nerf_core import fit2d
+    from fourier2d import fit2d
     import kernel_width_report as report
 
     if args.steps < 1:  # nothing fitted would chart untrained models

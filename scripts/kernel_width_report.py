@@ -1,6 +1,6 @@
 """Writing the kernel-width study: the PSNR-against-sigma chart, the crops picture, JSON and README.md.
 
-Takes the results of ``nerf_core.fit2d.sweep``; imports matplotlib (Agg) only when drawing.
+Takes the results of ``fourier2d.fit2d.sweep``; imports matplotlib (Agg) only when drawing.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Dict, List, Sequence
 
 import numpy as np
 
-from nerf_core.fit2d import FitResult, even_grid_mask, summarize
+from fourier2d.fit2d import FitResult, even_grid_mask, summarize
 
 
 def _plt():

@@ -37,7 +37,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench import analysis, datasets, report, runner  # noqa: E402  (scripts/bench, found through the line above)
 from bench.plan import BASE_METHODS, default_fast_method, name_problem  # noqa: E402
 
-from nerf_core.progressbar import ProgressBar  # noqa: E402
+from nerf_core.utils.progressbar import ProgressBar  # noqa: E402
 
 FLOATER_LIMIT = 0.05  # share of ground-truth background pixels rendered opaque
 ROLLBACK_LIMIT = 3
@@ -338,7 +338,7 @@ def main(argv=None) -> int:
     out = os.path.abspath(args.out)
     train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
-        print("stability: `python -m nerf_core train --help` failed; is nerf_core/train.py built?\n" + train_help[-800:],
+        print("stability: `python -m nerf_core train --help` failed; is nerf_core/engine/trainer.py built?\n" + train_help[-800:],
               file=sys.stderr)
         return 2
     fast = default_fast_method()

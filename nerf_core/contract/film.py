@@ -4,7 +4,7 @@
 pixel); ``"downscale": f`` when the images were box-filtered by the integer f after rendering. The
 capture writes it (``film_filter_field``, from Cycles' Film > Pixel Filter, or EEVEE's and Workbench's
 Filter Size, which are Blackman-Harris); a dataset without it is read as Blender's default, which is
-also what the original NeRF synthetic scenes were rendered with. ``nerf_core.pixel_filter`` samples it.
+also what the original NeRF synthetic scenes were rendered with. ``nerf_core.image.pixel_filter`` samples it.
 Standard library only: the add-on reads these rules without torch.
 """
 from __future__ import annotations

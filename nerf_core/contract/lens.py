@@ -15,7 +15,7 @@ in OpenCV's normalised image coordinates (x right, y down, z = 1 in front of the
   tangential terms, so ``p1``/``p2`` must be zero.
 
 Pixels are ``u = cx + fl_x x_d``, ``v = cy + fl_y y_d``. The maths (distorting points, undistorting
-pixels into rays) lives in ``nerf_core.lens``; this module only reads and validates the fields.
+pixels into rays) lives in ``nerf_core.cameras.distortion``; this module only reads and validates the fields.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Reading transforms files: the JSON, its frames, camera poses and the file paths they name.
 
-The one reader behind ``nerf_core.data`` (training, eval), ``nerf_core.render`` (camera files) and the
+The one reader behind ``nerf_core.data.loading`` (training, eval), ``nerf_core.render.views`` (camera files) and the
 add-on. Standard library and numpy only (see ``nerf_core.contract``).
 
 Layouts (docs/CONTRACTS.md):

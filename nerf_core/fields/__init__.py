@@ -3,7 +3,7 @@
 - :mod:`.mlp`: coordinate MLPs (the classic NeRF network).
 - :mod:`.tensorf`: a TensoRF-style vector-matrix (VM) factorised grid with a tiny colour MLP.
 """
-from .mlp import NeRFMLP
-from .tensorf import TensorVMField
+from nerf_core.fields.mlp import NeRFMLP
+from nerf_core.fields.tensorf import TensorVMField
 
 __all__ = ["NeRFMLP", "TensorVMField"]

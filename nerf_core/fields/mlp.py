@@ -5,7 +5,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..encodings import IdentityEncoding, PositionalEncoding
+from nerf_core.fields.encodings import IdentityEncoding, PositionalEncoding
 
 Tensor = torch.Tensor
 

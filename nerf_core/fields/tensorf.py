@@ -19,10 +19,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..derived_cache import DerivedCache
-from ..encodings import PositionalEncoding
-from ..losses import l1_sparsity, total_variation_2d
-from .vm_lookup import VMLookup, dense_density
+from nerf_core.utils.derived_cache import DerivedCache
+from nerf_core.fields.encodings import PositionalEncoding
+from nerf_core.image.losses import l1_sparsity, total_variation_2d
+from nerf_core.fields.vm_lookup import VMLookup, dense_density
 
 Tensor = torch.Tensor
 

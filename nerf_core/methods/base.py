@@ -1,7 +1,7 @@
 """The interface every NeRF method implements, and the registry that builds one by name.
 
 A method is a ``RadianceModel``: an ``nn.Module`` that turns a batch of rays into colours. The
-trainer (``nerf_core/train.py``) knows nothing else about it, so a new method only has to
+trainer (``nerf_core/engine/trainer.py``) knows nothing else about it, so a new method only has to
 implement ``render_rays`` and register itself with ``@register("name")``.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Callable, Dict, Optional
 import torch
 from torch import nn
 
-from ..scene_box import box_length_unit
+from nerf_core.data.scene_box import box_length_unit
 
 _REGISTRY: Dict[str, Callable[..., "RadianceModel"]] = {}
 
@@ -48,7 +48,7 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> "RadianceModel":
     env_options = options.pop("environment", None)
     model = _REGISTRY[name](aabb=aabb, **options)
     if env_options is not None:
-        from ..environment import EnvironmentMap
+        from nerf_core.fields.environment import EnvironmentMap
 
         if not isinstance(env_options, dict):
             raise ValueError(f"option 'environment' must be a dict of EnvironmentMap options, got {env_options!r}")
@@ -78,7 +78,7 @@ def has_option(name: str, key: str) -> bool:
 
 def _load_builtin_methods() -> None:
     # Imported lazily so that importing the registry never pulls in every method's dependencies.
-    from . import catalog  # noqa: F401  (registers the built-in methods)
+    from nerf_core.methods import catalog
 
 
 MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
@@ -166,7 +166,7 @@ class RadianceModel(nn.Module):
         self.environment = None  # an EnvironmentMap when the run models a visible world
 
     def attach_environment(self, env: nn.Module) -> None:
-        """Model the background as light from infinity (``nerf_core.environment``); recorded in options."""
+        """Model the background as light from infinity (``nerf_core.fields.environment``); recorded in options."""
         self.environment = env
         self.options["environment"] = dict(env.options)
 
@@ -207,7 +207,7 @@ class RadianceModel(nn.Module):
         """The (n_rays,), (n_rays,) interval each ray is rendered over, handed back to ``render_rays``:
         the scene box clipped to the dataset's ``near``/``far``. Methods that model the world beyond the
         box (scene contraction) override it."""
-        from ..cameras import ray_bounds
+        from nerf_core.cameras.rays import ray_bounds
 
         return ray_bounds(rays_o, rays_d, self.aabb, near, far)
 
@@ -251,7 +251,7 @@ class RadianceModel(nn.Module):
 
     @classmethod
     def size_options(cls, fine_res: float, texture: float, fine_share: float) -> tuple[dict, list[str]]:
-        """``--size auto`` for this method (``nerf_core.sizing.auto_size`` answers the questions,
+        """``--size auto`` for this method (``nerf_core.methods.sizing.auto_size`` answers the questions,
         the method turns the answers into its build options).
 
         Args:

@@ -6,7 +6,7 @@ costs (the MLP runs near the matmul FLOP limit), so the only way to train faster
 samples. Two samplers, chosen by the ``sampler`` option:
 
 ``"occupancy"`` (default; nerfacc's recipe for an MLP):
-    1. an occupancy grid over the box (``nerf_core.occupancy``) holds a running maximum of the MLP's own
+    1. an occupancy grid over the box (``nerf_core.volume.occupancy``) holds a running maximum of the MLP's own
        density, refreshed every ``occ_every`` steps while training;
     2. each ray marches at a fixed step (``march_steps`` per box diagonal, ``warmup_step_scale`` times
        coarser until the grid first prunes) and keeps only samples in occupied cells
@@ -41,10 +41,11 @@ import math
 
 import torch
 
-from .. import grad_scaling, profiling, ray_termination, sampling, volrend
-from ..fields.mlp import NeRFMLP
-from ..occupancy import OccupancyGrid
-from .base import RadianceModel, check_density_unit, check_options, density_length, register
+from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
+from nerf_core.utils import profiling
+from nerf_core.fields.mlp import NeRFMLP
+from nerf_core.volume.occupancy import OccupancyGrid
+from nerf_core.methods.base import RadianceModel, check_density_unit, check_options, density_length, register
 
 Tensor = torch.Tensor
 
@@ -79,7 +80,7 @@ class NeRF(RadianceModel):
         ert_probe_every: while "auto" has it off, steps between two measurements of what it would keep.
         n_coarse, n_fine: samples per ray of the hierarchical sampler's two networks.
         grad_reach: share of the box diagonal within which a camera's samples learn with
-            distance-scaled gradients (``nerf_core.grad_scaling``); 0 disables it.
+            distance-scaled gradients (``nerf_core.volume.grad_scaling``); 0 disables it.
         density_unit: "box" (default): the network's density is per ``scene_box.box_length_unit``, so
             its initial fog and the raw values a surface needs are the same at every scene scale;
             "scene": per scene unit, as checkpoints before this option were trained (``options_before``).
@@ -296,7 +297,7 @@ class NeRF(RadianceModel):
         flat_pts, flat_dirs = pts.reshape(-1, 3), dirs.reshape(-1, 3)  # a copy: ``dirs`` is expanded
         with profiling.stage("field"):
             sigma, rgb = net(flat_pts, flat_dirs)
-        # Cameras inside the box: even out the gradient near each lens (see nerf_core.grad_scaling).
+        # Cameras inside the box: even out the gradient near each lens (see nerf_core.volume.grad_scaling).
         # Rays that miss the box have empty intervals at t = 0 and carry no weight: leave them out.
         dist = torch.where(t_ends > t_starts, mids, torch.full_like(mids, float("inf")))
         scale = grad_scaling.near_camera_scales(dist.reshape(-1), grad_scaling.reach_for_box(

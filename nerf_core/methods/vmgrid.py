@@ -24,11 +24,12 @@ import math
 
 import torch
 
-from .. import grad_scaling, profiling, ray_termination, sampling, volrend
-from ..contraction import contract, outer_box
-from ..fields.tensorf import TensorVMField
-from ..occupancy import OccupancyGrid
-from .base import RadianceModel, check_density_unit, check_options, density_length, register
+from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
+from nerf_core.utils import profiling
+from nerf_core.volume.contraction import contract, outer_box
+from nerf_core.fields.tensorf import TensorVMField
+from nerf_core.volume.occupancy import OccupancyGrid
+from nerf_core.methods.base import RadianceModel, check_density_unit, check_options, density_length, register
 
 Tensor = torch.Tensor
 
@@ -79,14 +80,14 @@ class VMGrid(RadianceModel):
             floaters). Off by default: on the interior demo scene 0.01 changed nothing, and 0.05 and 0.2
             wrecked it (14.5 and 9.3 dB against 29.2-29.7 at 5 minutes; vmgrid200/summary.md).
         grad_reach: samples nearer the camera than this share of the box diagonal learn with their
-            gradient scaled by (distance / reach)^2 (``nerf_core.grad_scaling``). Cameras inside a room
+            gradient scaled by (distance / reach)^2 (``nerf_core.volume.grad_scaling``). Cameras inside a room
             otherwise grow fog screens in front of their lenses: on the interior demo scene, 400 steps
             gave 20.5 dB with the fog and 31.3 dB with the default 0.24 (2 m there; 5 test views).
             Cameras outside the box rarely have samples that near; then no scaling op is added at all.
         density_unit: "box" (default): the field's density is per ``scene_box.box_length_unit`` (the box
             rescaled to [-1, 1]^3), so a scene modelled in millimetres trains as one in metres; "scene":
             per scene unit, as every checkpoint before this option was trained (``options_before``).
-        contract: model the world beyond the box too (``nerf_core.contraction``): the grid spans the
+        contract: model the world beyond the box too (``nerf_core.volume.contraction``): the grid spans the
             contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
 
@@ -261,7 +262,7 @@ class VMGrid(RadianceModel):
     # ------------------------------------------------------------------ sizing
 
     # Density rank of every auto-sized grid. Geometry did not call for more in the calibration
-    # (``nerf_core.sizing``): on the thin-rods scene, rank 16 scored 33.94 dB against 33.96 dB for rank 8
+    # (``nerf_core.methods.sizing``): on the thin-rods scene, rank 16 scored 33.94 dB against 33.96 dB for rank 8
     # (5 min of one core).
     AUTO_DENSITY_RANK = 8
 

@@ -17,8 +17,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from nerf_core.cameras import Cameras, rays_for_view
-from nerf_core.imageio import write_exr, write_png
+from nerf_core.cameras.rays import Cameras, rays_for_view
+from nerf_core.image.io import write_exr, write_png
 from nerf_core.methods.base import RadianceModel, register
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -217,7 +217,8 @@ def sphere_dataset(tmp_path) -> Path:
 @pytest.fixture(scope="session")
 def trained_run(tmp_path_factory):
     """One short training run shared by the eval/render/CLI tests (read-only for them)."""
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     base = tmp_path_factory.mktemp("shared")
     ds = make_dataset(base / "ds", n_train=8, n_test=2)

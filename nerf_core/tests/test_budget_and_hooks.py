@@ -7,13 +7,16 @@ import pytest
 import torch
 
 from nerf_core import contract
-from nerf_core.evaluate import psnr, spread_views
-from nerf_core.losses import masked_mse, psnr_from_mse
-from nerf_core.methods import build_model
+from nerf_core.image.metrics import psnr
+from nerf_core.evaluation.evaluate import spread_views
+from nerf_core.image.losses import masked_mse
+from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
+from nerf_core.methods.base import build_model
 from nerf_core.methods.base import RadianceModel, register
-from nerf_core.progress import read_events
-from nerf_core.sizing import auto_size
-from nerf_core.train import TrainConfig, train
+from nerf_core.runs.events import read_events
+from nerf_core.methods.sizing import auto_size
+from nerf_core.engine.config import TrainConfig
+from nerf_core.engine.trainer import train
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 SMALL_GRID = dict(res_init=16, res_final=32, upsample_at=[0.25], density_rank=8, app_rank=8, mlp_width=32,

@@ -5,10 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.cameras import (Cameras, camera_directions, project_points, ray_bounds, rays_for_pixels,
-                               rays_for_view)
-from nerf_core.contract import PoseError, check_pose
-from nerf_core.sampling import ray_aabb_intersect as intersect_aabb
+from nerf_core.cameras.rays import Cameras, camera_directions, project_points, ray_bounds, rays_for_pixels, rays_for_view
+from nerf_core.contract.transforms import PoseError, check_pose
+from nerf_core.volume.sampling import ray_aabb_intersect as intersect_aabb
 
 # Camera rotated 90 degrees about world Z, sitting at (1, 2, 3):
 # its +X (right) is world +Y, its +Y (up) is world -X, it looks along world -Z.

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from nerf_core.check import check_dataset
-from nerf_core.cli import main
+from nerf_core.check.dataset import check_dataset
+from nerf_core.cli.main import main
 
 
 def _edit(path, fn):

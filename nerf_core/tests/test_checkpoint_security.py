@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.checkpoints import RunError, read_checkpoint
-from nerf_core.seeding import rng_state, set_rng_state
-from nerf_core.train import TrainConfig, train
+from nerf_core.runs.checkpoints import RunError, read_checkpoint
+from nerf_core.utils.seeding import rng_state, set_rng_state
+from nerf_core.engine.config import TrainConfig
+from nerf_core.engine.trainer import train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

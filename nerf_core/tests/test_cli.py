@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from nerf_core.cli import build_parser, main
+from nerf_core.cli.main import build_parser, main
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -20,7 +20,7 @@ def test_help_and_no_bpy_import():
     proc = _run("-c", "import sys, runpy; sys.argv = ['nerf_core', '--help']\n"
                       "try:\n    runpy.run_module('nerf_core', run_name='__main__')\n"
                       "except SystemExit as e:\n    assert e.code == 0\n"
-                      "import nerf_core.train, nerf_core.render, nerf_core.check\n"
+                      "import nerf_core.engine.trainer, nerf_core.render.views, nerf_core.check.dataset\n"
                       "assert 'bpy' not in sys.modules, 'nerf_core imported bpy'")
     assert proc.returncode == 0, proc.stderr
     for word in ("train", "render", "eval", "check", "examples"):

@@ -137,7 +137,7 @@ def test_read_transforms_names_file_frame_and_field(tmp_path):
 
 
 def test_angle_only_caveats_name_shift_pixel_aspect_and_mixed_lenses():
-    from nerf_core.contract import angle_only_caveats as caveats
+    from nerf_core.contract.intrinsics import angle_only_caveats as caveats
 
     def angle_only_caveats(cams):  # (fx, fy, cx, cy, w, h) per view, as the intrinsics dicts hold them
         return caveats([dict(zip(("fl_x", "fl_y", "cx", "cy", "w", "h"), c), camera_angle_x=1.0) for c in cams])

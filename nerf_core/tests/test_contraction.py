@@ -6,9 +6,9 @@ import math
 import pytest
 import torch
 
-from nerf_core.contraction import contract, outer_box
-from nerf_core.methods import build_model
-from nerf_core.sampling import contracted_samples
+from nerf_core.volume.contraction import contract, outer_box
+from nerf_core.methods.base import build_model
+from nerf_core.volume.sampling import contracted_samples
 
 BOX = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 2.0]])  # centre (0, 0, 1), half-size (1, 2, 1)
 
@@ -73,7 +73,9 @@ def test_a_contracted_vmgrid_renders_the_world_beyond_the_box_and_trains():
 
 
 def test_a_method_without_contraction_says_so(tmp_path, dataset_factory):
-    from nerf_core.train import TrainConfig, TrainError, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.runs.folder import TrainError
+    from nerf_core.engine.trainer import train
 
     ds = dataset_factory(tmp_path / "ds", depth=False)
     with pytest.raises(TrainError, match="contract"):

@@ -7,8 +7,9 @@ import pytest
 import torch
 from PIL import Image
 
-from nerf_core.data import DatasetError, load_cameras, load_dataset
-from nerf_core.imageio import read_exr
+from nerf_core.contract.transforms import DatasetError
+from nerf_core.data.loading import load_cameras, load_dataset
+from nerf_core.image.io import read_exr
 
 
 def _meta(ds, split="train"):
@@ -285,7 +286,9 @@ def test_image_without_alpha_among_rgba_is_named(sphere_dataset):
 
 
 def test_random_background_needs_alpha(tmp_path, dataset_factory):
-    from nerf_core.train import TrainConfig, TrainError, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.runs.folder import TrainError
+    from nerf_core.engine.trainer import train
 
     ds = dataset_factory(tmp_path / "rgb")
     for p in (ds / "train").glob("r_*.png"):

@@ -5,7 +5,7 @@ import io
 import pytest
 import torch
 
-from nerf_core.derived_cache import DerivedCache
+from nerf_core.utils.derived_cache import DerivedCache
 
 
 def _cache(follow):

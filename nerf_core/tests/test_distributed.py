@@ -1,4 +1,4 @@
-"""Data-parallel training under torchrun (``nerf_core.distributed``, ``nerf_core.replicas``).
+"""Data-parallel training under torchrun (``nerf_core.engine.distributed``, ``nerf_core.engine.replicas``).
 
 The end-to-end test runs the real command line, ``python -m torch.distributed.run --nproc_per_node 2
 -m nerf_core train ...``, with 2 CPU ranks on gloo; the ranks print a sha256 of their model's
@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from nerf_core import distributed
-from nerf_core.interrupts import DeferredInterrupts
+from nerf_core.engine import distributed
+from nerf_core.utils.interrupts import DeferredInterrupts
 from nerf_core.tests.conftest import REPO_ROOT
 
 # vmgrid small enough for a few steps a second on one thread, with an occupancy update every 2 steps

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core import backgrounds
-from nerf_core.cameras import Cameras, ray_bounds, rays_for_view
-from nerf_core.data import load_dataset
-from nerf_core.scene_box import pad_box_for_interior
-from nerf_core.environment import EnvironmentMap, directions_to_uv, prefit, sample_latlong, size_for_focal
-from nerf_core.imageio import read_png, write_png
-from nerf_core.methods import build_model
-from nerf_core.render import render_view
+from nerf_core.data import backgrounds
+from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_view
+from nerf_core.data.loading import load_dataset
+from nerf_core.data.scene_box import pad_box_for_interior
+from nerf_core.fields.environment import EnvironmentMap, directions_to_uv, prefit, sample_latlong, size_for_focal
+from nerf_core.image.io import read_png, write_png
+from nerf_core.methods.base import build_model
+from nerf_core.render.views import render_view
 
 
 
@@ -182,7 +182,8 @@ def _start_event(run: Path) -> dict:
 
 
 def test_train_picks_the_environment_for_opaque_images_and_says_why(tmp_path, dataset_factory):
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = _make_opaque(dataset_factory(tmp_path / "ds", depth=False))
     run = tmp_path / "run"
@@ -195,7 +196,7 @@ def test_train_picks_the_environment_for_opaque_images_and_says_why(tmp_path, da
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["background_used"] == "environment"
     # The run renders opaque images with the learned world behind the scene.
-    from nerf_core.render import render_run
+    from nerf_core.render.views import render_run
 
     out = render_run(run, ds, tmp_path / "renders", show_progress=False).parent
     img = read_png(next(out.glob("*.png")))
@@ -203,7 +204,8 @@ def test_train_picks_the_environment_for_opaque_images_and_says_why(tmp_path, da
 
 
 def test_train_keeps_random_backgrounds_for_cut_outs(tmp_path, dataset_factory):
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = dataset_factory(tmp_path / "ds", depth=False)
     run = tmp_path / "run"
@@ -215,7 +217,8 @@ def test_train_keeps_random_backgrounds_for_cut_outs(tmp_path, dataset_factory):
 
 
 def test_a_declared_opaque_film_wins_over_the_alpha(tmp_path, dataset_factory):
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = dataset_factory(tmp_path / "ds", depth=False)
     for js in ds.glob("transforms*.json"):
@@ -230,7 +233,7 @@ def test_a_declared_opaque_film_wins_over_the_alpha(tmp_path, dataset_factory):
 
 
 def test_a_wrong_type_of_film_transparent_names_the_file_and_field(tmp_path, dataset_factory):
-    from nerf_core.data import DatasetError
+    from nerf_core.contract.transforms import DatasetError
 
     ds = dataset_factory(tmp_path / "ds", depth=False, layouts=("synthetic",))
     meta = json.loads((ds / "transforms_train.json").read_text())
@@ -271,7 +274,7 @@ def test_an_object_box_is_not_padded():
 
 
 def test_check_warns_when_opaque_images_meet_a_fixed_background(tmp_path, dataset_factory):
-    from nerf_core.check import check_dataset
+    from nerf_core.check.dataset import check_dataset
 
     ds = _make_opaque(dataset_factory(tmp_path / "ds", depth=False))
     auto = check_dataset(ds)
@@ -282,7 +285,7 @@ def test_check_warns_when_opaque_images_meet_a_fixed_background(tmp_path, datase
 
 
 def test_check_warns_when_the_declared_film_contradicts_the_images(tmp_path, dataset_factory):
-    from nerf_core.check import check_dataset
+    from nerf_core.check.dataset import check_dataset
 
     ds = _make_opaque(dataset_factory(tmp_path / "ds", depth=False), film=True)
     msgs = [str(w) for w in check_dataset(ds).warnings]
@@ -300,7 +303,8 @@ def test_check_warns_when_the_declared_film_contradicts_the_images(tmp_path, dat
 
 def test_a_resumed_run_keeps_the_background_it_started_with(tmp_path, dataset_factory):
     """Runs from before the environment (white on opaque images) must resume as they were trained."""
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = _make_opaque(dataset_factory(tmp_path / "ds", depth=False))
     run = tmp_path / "run"
@@ -326,8 +330,8 @@ def test_an_opaque_interior_gets_random_colours_not_a_world():
 def test_outward_cameras_without_a_box_get_one_holding_them_and_what_their_depth_shows(tmp_path):
     """Cameras at the origin looking outward at a wall ring of radius 3 (depth maps say so): the
     estimated box holds every camera and the walls, not just a stretch in front of the cameras."""
-    from nerf_core.cameras import Cameras as Cams
-    from nerf_core.imageio import write_exr
+    from nerf_core.cameras.rays import Cameras as Cams
+    from nerf_core.image.io import write_exr
 
     w = h = 16
     fx = 8.0

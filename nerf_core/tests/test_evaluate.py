@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.cli import main
-from nerf_core.evaluate import depth_mae, gaussian_window, psnr, ssim
+from nerf_core.cli.main import main
+from nerf_core.image.metrics import depth_mae, gaussian_window, psnr, ssim
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -90,7 +90,8 @@ def test_eval_prints_per_view_lines_and_json_last(trained_run, capsys):
 def test_eval_scores_at_the_runs_downscale_unless_told_and_says_when_told(tmp_path, dataset_factory, capsys):
     # eval took max(--downscale, the run's): an explicit --downscale 1 on a run trained at 2 scored
     # at half resolution without a word.
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = dataset_factory(tmp_path / "ds", w=48, h=40, n_train=4, n_test=1)
     run = tmp_path / "run"
@@ -110,7 +111,8 @@ def test_eval_scores_at_the_runs_downscale_unless_told_and_says_when_told(tmp_pa
 def test_a_split_of_cameras_only_is_not_evaluated_but_renders(tmp_path, dataset_factory, capsys):
     # BlenderNeRF writes test poses without images; with no 'aabb' either, eval estimated the box from
     # the cameras of the loaded split alone, found none, and stopped on torch.cat of an empty list.
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = dataset_factory(tmp_path / "ds", n_train=4, n_test=2, aabb=False, layouts=("synthetic",))
     for png in (ds / "test").glob("*.png"):

@@ -1,7 +1,7 @@
-"""Gradient scaling by distance (nerf_core.grad_scaling): forward is the identity, backward scales."""
+"""Gradient scaling by distance (nerf_core.volume.grad_scaling): forward is the identity, backward scales."""
 import torch
 
-from nerf_core import grad_scaling
+from nerf_core.volume import grad_scaling
 
 
 def test_distance_scale_hand_computed():
@@ -27,7 +27,7 @@ def test_one_dimensional_input():
 
 def _recorded_scales(monkeypatch, origin, method="vmgrid", **options):
     """The per-sample gradient scales vmgrid's render_rays asks for, with their sample distances."""
-    from nerf_core import methods  # noqa: F401  (registers the methods)
+    from nerf_core import methods
     from nerf_core.methods.base import build_model
 
     seen = []

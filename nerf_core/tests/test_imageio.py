@@ -1,4 +1,4 @@
-"""Which pass of a multilayer EXR is the colour, the depth and the normals (``nerf_core.imageio``).
+"""Which pass of a multilayer EXR is the colour, the depth and the normals (``nerf_core.image.io``).
 
 Blender writes a multilayer EXR as ``ViewLayer.<Pass>.<channel>``: Blender 4 in one part with the
 channels sorted by name (``ViewLayer.AO.R`` before ``ViewLayer.Combined.R``), Blender 5 in one part
@@ -9,7 +9,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from nerf_core.imageio import ImageReadError, read_depth, read_exr_rgba, read_normals
+from nerf_core.image.io import ImageReadError, read_depth, read_exr_rgba, read_normals
 
 H, W = 3, 4
 
@@ -87,7 +87,7 @@ def test_several_passes_and_no_combined_are_named(tmp_path):
 def test_a_trns_colour_in_an_rgb_or_grey_png_is_alpha(tmp_path, mode):
     from PIL import Image
 
-    from nerf_core.imageio import read_png
+    from nerf_core.image.io import read_png
 
     px = np.zeros((H, W, 3) if mode == "RGB" else (H, W), np.uint8)
     px[0, 0] = 200  # one opaque pixel; the black rest is the transparent colour
@@ -149,7 +149,7 @@ def test_an_exr_header_claiming_a_huge_image_is_refused_before_reading(tmp_path)
 def test_without_openexr_an_exr_is_named_in_one_line_not_a_traceback(tmp_path, monkeypatch):
     import sys
 
-    from nerf_core.imageio import read_exr, write_exr
+    from nerf_core.image.io import read_exr, write_exr
 
     monkeypatch.setitem(sys.modules, "OpenEXR", None)  # as if the package were not installed
     path = tmp_path / "d.exr"
@@ -165,7 +165,7 @@ def test_check_without_openexr_names_the_depth_file(sphere_dataset):
     import sys
     from pathlib import Path
 
-    code = ("import sys; sys.modules['OpenEXR'] = None; from nerf_core.cli import main; "
+    code = ("import sys; sys.modules['OpenEXR'] = None; from nerf_core.cli.main import main; "
             "sys.exit(main(['check', sys.argv[1], '--for-training']))")
     repo = Path(__file__).resolve().parents[2]
     proc = subprocess.run([sys.executable, "-c", code, str(sphere_dataset)], capture_output=True, text=True,

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.cameras import Cameras, project_points, rays_for_pixels, rays_for_view
+from nerf_core.cameras.rays import Cameras, project_points, rays_for_pixels, rays_for_view
 from nerf_core.contract.lens import Lens, parse_lens
-from nerf_core.lens import fold_pixel
+from nerf_core.cameras.distortion import fold_pixel
 
 
 def _one_camera(lens, fx=100.0, fy=100.0, cx=50.0, cy=40.0, w=120, h=80):
@@ -95,7 +95,7 @@ def test_every_pixel_ray_projects_back_onto_its_pixel(model, coeffs, monkeypatch
     assert np.abs(pin - centres).max() > 3.0
     # Rays come from a per-lens table of every pixel; without it (cameras of several sizes, or too
     # many distinct lenses) each ray is undistorted on its own, to the same result.
-    import nerf_core.cameras as cameras_module
+    import nerf_core.cameras.rays as cameras_module
 
     monkeypatch.setattr(cameras_module, "LENS_TABLE_PIXELS", 0)
     _, d_direct, _ = rays_for_view(_one_camera(Lens(model, coeffs), fx, fy, cx, cy, w, h), 0)
@@ -111,7 +111,7 @@ def test_downscaling_keeps_the_rays():
     _, d_half, _ = rays_for_view(half, 0)
     # Pixel (i, j) of the half image has its centre at full-image (2i + 1, 2j + 1): the full image's
     # pixel corner, so compare with the direction computed at that point from the full camera directly.
-    from nerf_core.lens import pixel_directions
+    from nerf_core.cameras.distortion import pixel_directions
 
     jj, ii = torch.meshgrid(torch.arange(40), torch.arange(50), indexing="ij")
     xd = ((2 * ii + 1).double().reshape(-1) - 50.0) / 80.0
@@ -162,13 +162,14 @@ def test_instant_ngp_is_fisheye_means_the_fisheye_model():
 
 
 def test_a_distorted_capture_loads_trains_and_renders_with_its_lens(dataset_factory, tmp_path):
-    from nerf_core.data import load_dataset
-    from nerf_core.render import render_run
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.render.views import render_run
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     lens = {"camera_model": "OPENCV", "k1": -0.25, "k2": 0.05, "p1": 0.002, "p2": -0.001}
     ds = dataset_factory(tmp_path / "ds", n_train=8, n_test=2, w=32, h=24, lens=lens)
-    from nerf_core.check import check_dataset
+    from nerf_core.check.dataset import check_dataset
 
     report = check_dataset(ds)
     assert report.ok, report.format()

@@ -10,8 +10,8 @@ import math
 import pytest
 import torch
 
-from nerf_core import sampling, volrend
-from nerf_core.methods import available_methods, build_model
+from nerf_core.volume import sampling, volrend
+from nerf_core.methods.base import available_methods, build_model
 from nerf_core.methods.base import saved_options
 from nerf_core.methods.catalog import DEFAULT_METHOD
 
@@ -324,7 +324,7 @@ def test_vmgrid_trains_a_millimetre_scene_as_a_metre_one():
 def test_checkpoints_from_before_the_density_unit_load_per_scene_unit(name, tmp_path):
     """A checkpoint written before ``density_unit`` existed holds no such option and was trained per
     scene unit: every loader rebuilds it that way (``saved_options``), not with today's "box"."""
-    from nerf_core.checkpoints import model_from_checkpoint
+    from nerf_core.runs.checkpoints import model_from_checkpoint
 
     box = BOX * 3.0  # a box whose unit is not 1, so the two rules differ
     opts = SMALL_GRID if name == "vmgrid" else SMALL_NERF

@@ -1,8 +1,8 @@
 """Occupancy grid: updates mark occupied cells, marching skips the rest, an emptied grid recovers."""
 import torch
 
-from nerf_core import sampling
-from nerf_core.occupancy import OccupancyGrid
+from nerf_core.volume import sampling
+from nerf_core.volume.occupancy import OccupancyGrid
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 

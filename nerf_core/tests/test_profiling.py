@@ -1,11 +1,11 @@
-"""Stage marks (``nerf_core.profiling``): exclusive time per stage, and nothing recorded when inactive."""
+"""Stage marks (``nerf_core.utils.profiling``): exclusive time per stage, and nothing recorded when inactive."""
 from __future__ import annotations
 
 import threading
 
 import pytest
 
-from nerf_core import profiling
+from nerf_core.utils import profiling
 
 
 def test_stage_recorder_charges_nested_time_to_the_inner_stage():

@@ -3,8 +3,8 @@ import io
 
 import pytest
 
-from nerf_core import progressbar
-from nerf_core.progressbar import ProgressBar, format_seconds
+from nerf_core.utils import progressbar
+from nerf_core.utils.progressbar import ProgressBar, format_seconds
 
 
 def test_format_seconds():

@@ -1,13 +1,13 @@
-"""Front-to-back early ray termination (``nerf_core.ray_termination``) keeps exactly the samples and
+"""Front-to-back early ray termination (``nerf_core.volume.ray_termination``) keeps exactly the samples and
 weights of the full pass, and ``vmgrid`` renders the same images with it as with its training path."""
 import math
 
 import pytest
 import torch
 
-from nerf_core import sampling, volrend
-from nerf_core.methods import build_model
-from nerf_core.ray_termination import visible_samples
+from nerf_core.volume import sampling, volrend
+from nerf_core.methods.base import build_model
+from nerf_core.volume.ray_termination import visible_samples
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -148,7 +148,7 @@ def test_vmgrid_renders_the_same_image_without_grad_with_less_density_work():
     assert sum(evaluated) < 0.8 * full, (sum(evaluated), full)
     # Per-ray results do not depend on how many rays a call holds (render.render_rays_chunked reads
     # the method's cpu_call_rays): one call of all 1024 rays against calls of 100.
-    from nerf_core.render import render_rays_chunked
+    from nerf_core.render.views import render_rays_chunked
     with torch.no_grad():
         whole = render_rays_chunked(model, o, d, near, far, bg)
         model.cpu_call_rays = 100

@@ -11,9 +11,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from nerf_core.cli import main
-from nerf_core.progress import read_events
-from nerf_core.train import TrainConfig, TrainError, train
+from nerf_core.cli.main import main
+from nerf_core.runs.events import read_events
+from nerf_core.engine.config import TrainConfig
+from nerf_core.runs.folder import TrainError
+from nerf_core.engine.trainer import train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -151,7 +153,7 @@ def test_disk_full_at_checkpoint_is_a_clear_error_and_resume_uses_the_newest_com
 
 
 def test_disk_full_on_rename_is_reported_too(sphere_dataset, tmp_path, monkeypatch):
-    import nerf_core.checkpoints as tr
+    import nerf_core.runs.checkpoints as tr
 
     real_replace = os.replace
 
@@ -268,7 +270,7 @@ def _camera_list(names, w=8, h=6):
 
 @pytest.mark.parametrize("names", [["a", "a", "a_1"], ["a_1", "a", "a"], ["x", "X", "x_1", "x"], ["", "view_000", ""]])
 def test_render_names_are_unique_for_any_collision(trained_run, tmp_path, names):
-    from nerf_core.render import unique_stems
+    from nerf_core.contract.naming import unique_stems
 
     stems = unique_stems(names)
     assert len({s.lower() for s in stems}) == len(names)
@@ -318,7 +320,7 @@ def _corrupt_depth(ds):
 
 def _small_depth(ds):
     import numpy as np
-    from nerf_core.imageio import write_exr
+    from nerf_core.image.io import write_exr
 
     write_exr(ds / "train" / "r_2_depth.exr", {"Z": np.ones((5, 7), np.float32)})
     return "depth_file_path"
@@ -474,8 +476,8 @@ BROKEN = [_truncate_png, _corrupt_depth, _small_depth, _far_before_near, _one_tr
 def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, capsys):
     ds = dataset_factory(tmp_path / "ds")
     word = breaker(ds)
-    from nerf_core.check import check_dataset
-    from nerf_core.data import dataset_problems
+    from nerf_core.check.dataset import check_dataset
+    from nerf_core.data.validation import dataset_problems
 
     report = check_dataset(ds)
     assert not report.ok
@@ -491,8 +493,10 @@ def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, ca
 
 
 def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_factory, tmp_path):
-    from nerf_core.check import check_dataset
-    from nerf_core.data import DatasetError, dataset_problems, load_dataset
+    from nerf_core.check.dataset import check_dataset
+    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.data.validation import dataset_problems
+    from nerf_core.data.loading import load_dataset
 
     ds = dataset_factory(tmp_path / "ds")
     _truncate_png(ds)
@@ -509,7 +513,7 @@ def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_f
 def test_train_images_that_all_fail_to_load_are_not_also_called_transparent(dataset_factory, tmp_path):
     # Every train frame failing (images deleted, masks unreadable) left "shows something" unknown, and
     # check added "all 8 train images are fully transparent" to the real errors.
-    from nerf_core.data import dataset_problems
+    from nerf_core.data.validation import dataset_problems
 
     ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
     for png in (ds / "train").glob("r_*.png"):
@@ -520,8 +524,8 @@ def test_train_images_that_all_fail_to_load_are_not_also_called_transparent(data
 
 
 def test_a_valid_dataset_passes_both(sphere_dataset):
-    from nerf_core.check import check_dataset
-    from nerf_core.data import dataset_problems
+    from nerf_core.check.dataset import check_dataset
+    from nerf_core.data.validation import dataset_problems
 
     assert check_dataset(sphere_dataset).ok and dataset_problems(sphere_dataset) == []
 
@@ -531,8 +535,9 @@ def test_paths_outside_the_dataset_are_read_with_a_note_and_bad_path_types_are_r
     but reported, in train's notes and as check warnings; a path that is not a string is refused."""
     import shutil
 
-    from nerf_core.check import check_dataset
-    from nerf_core.data import DatasetError, load_dataset
+    from nerf_core.check.dataset import check_dataset
+    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.data.loading import load_dataset
 
     ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
     elsewhere = tmp_path / "elsewhere"
@@ -696,7 +701,7 @@ def test_one_image_named_by_two_frames_with_different_poses_is_refused(sphere_da
 
 
 def test_running_out_of_memory_names_the_settings_to_lower(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.runfolder import TrainError
+    from nerf_core.runs.folder import TrainError
     from nerf_core.tests.conftest import TinyGrid
 
     def no_memory(self, *a, **k):
@@ -775,8 +780,9 @@ def test_nerfstudio_split_lists_of_the_wrong_kind_are_named(sphere_dataset, caps
 
 
 def test_exr_images_with_nan_or_alpha_out_of_range_are_named(tmp_path):
-    from nerf_core.data import DatasetError, load_dataset
-    from nerf_core.imageio import read_exr_rgba
+    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.image.io import read_exr_rgba
     from nerf_core.tests.conftest import make_dataset, write_exr
 
     ds = make_dataset(tmp_path / "ds", exr_images=True, layouts=("synthetic",))

@@ -8,11 +8,11 @@ import pytest
 import torch
 from PIL import Image
 
-from nerf_core.cameras import Cameras
-from nerf_core.cli import main
-from nerf_core.imageio import read_exr
-from nerf_core.pixel_filter import PixelFilter
-from nerf_core.render import cameras_from_file, render_view
+from nerf_core.cameras.rays import Cameras
+from nerf_core.cli.main import main
+from nerf_core.image.io import read_exr
+from nerf_core.image.pixel_filter import PixelFilter
+from nerf_core.render.views import cameras_from_file, render_view
 
 
 def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, capsys):
@@ -43,7 +43,7 @@ def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, caps
 def test_an_interrupted_overwrite_leaves_no_renders_json_of_the_old_images(trained_run, tmp_path, monkeypatch):
     # Ctrl-C during render --overwrite left the previous renders.json (its run, step and PSNRs)
     # describing a folder of new images.
-    import nerf_core.render as render_mod
+    import nerf_core.render.views as render_mod
 
     ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "renders"
     args = ["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]
@@ -63,7 +63,8 @@ def test_an_interrupted_overwrite_leaves_no_renders_json_of_the_old_images(train
 
 
 def _run_and_cameras(run, ds):
-    from nerf_core.render import camera_views, load_run
+    from nerf_core.render.views import camera_views
+    from nerf_core.runs.checkpoints import load_run
 
     model, _config, _ckpt = load_run(run, "cpu")
     cams, stems, _frames = camera_views(ds / "transforms_test.json", "test")
@@ -118,7 +119,7 @@ def test_render_into_a_dataset_root_is_refused_and_a_subfolder_is_not(trained_ru
 
 
 def test_render_png_alpha_and_depth_agree_with_the_model(trained_run, tmp_path):
-    from nerf_core.checkpoints import load_run
+    from nerf_core.runs.checkpoints import load_run
 
     run, ds = trained_run["run"], trained_run["dataset"]
     model, cfg, _ = load_run(run, torch.device("cpu"))
@@ -158,7 +159,7 @@ def test_bad_camera_files_are_named(trained_run, tmp_path, capsys):
 
 
 def test_render_view_chunks_give_the_same_image(trained_run):
-    from nerf_core.checkpoints import load_run
+    from nerf_core.runs.checkpoints import load_run
 
     model, cfg, _ = load_run(trained_run["run"], torch.device("cpu"))
     cams = Cameras.create(np.eye(4)[None] @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 3], [0, 0, 0, 1.0]]),
@@ -184,7 +185,7 @@ class _Wall(torch.nn.Module):
 
 
 def test_depth_is_planar_and_empty_pixels_are_zero(tmp_path):
-    from nerf_core.render import render_to_dir
+    from nerf_core.render.views import render_to_dir
 
     # 3x1 image, fx = 1, cx = 1.5: pixel centres at x = -1, 0, +1 -> angles 45 deg left, 0, 45 deg right.
     cams = Cameras.create(np.eye(4)[None], 1.0, 1.0, 1.5, 0.5, 3, 1)
@@ -199,10 +200,10 @@ def test_depth_is_planar_and_empty_pixels_are_zero(tmp_path):
 def test_render_metrics_equal_eval_for_the_same_view_and_checkpoint(trained_run, tmp_path):
     """renders.json's PSNR / SSIM are eval's numbers (same functions, same background compositing),
     although render draws onto black and eval onto the run's eval background."""
-    from nerf_core.data import load_dataset
-    from nerf_core.evaluate import evaluate_split
-    from nerf_core.metrics import error_heatmap
-    from nerf_core.render import load_run
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.evaluation.evaluate import evaluate_split
+    from nerf_core.image.metrics import error_heatmap
+    from nerf_core.runs.checkpoints import load_run
 
     run, ds = trained_run["run"], trained_run["dataset"]
     out = tmp_path / "r"
@@ -282,7 +283,7 @@ class _Counting(torch.nn.Module):
 
 
 def test_cpu_calls_are_sized_by_the_samples_the_method_reports():
-    from nerf_core import render as r
+    from nerf_core.render import views as r
 
     m = 3000
     rays_d = torch.nn.functional.normalize(torch.randn(m, 3, generator=torch.Generator().manual_seed(0)), dim=-1)

@@ -10,9 +10,10 @@ import sys
 import numpy as np
 import pytest
 
-from nerf_core.cameras import Cameras
-from nerf_core.render import load_run, render_view
-from nerf_core.render_server import RenderServer, parse_request
+from nerf_core.cameras.rays import Cameras
+from nerf_core.runs.checkpoints import load_run
+from nerf_core.render.views import render_view
+from nerf_core.render.server import RenderServer, parse_request
 from nerf_core.tests.conftest import REPO_ROOT, look_at
 
 C2W = look_at((0.5, -2.8, 1.2))
@@ -37,7 +38,7 @@ def _serve(run, lines, progress=False, chunk=8192):
 
 
 def test_a_slow_frame_reports_progress_chunk_by_chunk(trained_run, tmp_path, monkeypatch):
-    monkeypatch.setattr("nerf_core.render_server.PROGRESS_EVERY_S", 0.0)  # every chunk is "slow"
+    monkeypatch.setattr("nerf_core.render.server.PROGRESS_EVERY_S", 0.0)  # every chunk is "slow"
     # 24 x 18 = 432 rays in chunks of 64: several progress events
     events = _serve(trained_run["run"], [json.dumps(_req(7, tmp_path / "p.npy"))], progress=True, chunk=64)
     kinds = [e["event"] for e in events]
@@ -175,7 +176,7 @@ def test_a_file_that_appears_while_the_view_renders_is_never_replaced(trained_ru
         target.write_bytes(b"the user's data")
         return res
 
-    monkeypatch.setattr("nerf_core.render.render_view", render_then_someone_writes)
+    monkeypatch.setattr("nerf_core.render.views.render_view", render_then_someone_writes)
     events = _serve(trained_run["run"], [json.dumps(_req(1, target, depth=False))])
     assert events[1]["event"] == "error" and "appeared while the view rendered" in events[1]["message"]
     assert target.read_bytes() == b"the user's data"
@@ -207,7 +208,7 @@ def test_subprocess_serves_over_stdin_and_a_missing_run_is_one_fatal_line(traine
 
 
 def test_a_final_render_request_draws_edges_through_the_runs_film_filter(trained_run, tmp_path):
-    from nerf_core.pixel_filter import PixelFilter
+    from nerf_core.image.pixel_filter import PixelFilter
 
     events = _serve(trained_run["run"], [json.dumps(_req(1, tmp_path / "f.npy", pixel_filter=True)),
                                          json.dumps(_req(2, tmp_path / "c.npy")),

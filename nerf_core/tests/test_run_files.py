@@ -10,9 +10,10 @@ import sys
 import pytest
 import torch
 
-from nerf_core.checkpoints import RunError, load_run, read_checkpoint
-from nerf_core.evaluate import evaluate_run
-from nerf_core.train import TrainConfig, train
+from nerf_core.runs.checkpoints import RunError, load_run, read_checkpoint
+from nerf_core.evaluation.evaluate import evaluate_run
+from nerf_core.engine.config import TrainConfig
+from nerf_core.engine.trainer import train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -10,9 +10,11 @@ import time
 
 import pytest
 
-from nerf_core.progress import read_events
-from nerf_core.runfolder import RUN_LOCK, check_run_folder, lock_run_folder
-from nerf_core.train import TrainConfig, TrainError, train
+from nerf_core.runs.events import read_events
+from nerf_core.runs.folder import RUN_LOCK, check_run_folder, lock_run_folder
+from nerf_core.engine.config import TrainConfig
+from nerf_core.runs.folder import TrainError
+from nerf_core.engine.trainer import train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -65,7 +67,7 @@ def test_overwrite_and_resume_of_a_held_run_are_refused_and_change_nothing(spher
 def test_a_new_run_is_checked_again_once_locked(sphere_dataset, tmp_path, monkeypatch):
     """Two trainers into a folder that does not exist yet both pass the first check; the one that
     gets the lock second must find the folder filled by the first and stop."""
-    import nerf_core.train as train_mod
+    import nerf_core.engine.trainer as train_mod
 
     run = tmp_path / "run"
     real_load = train_mod.load_dataset

@@ -2,7 +2,7 @@
 import pytest
 import torch
 
-from nerf_core import sampling
+from nerf_core.volume import sampling
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 

@@ -5,8 +5,10 @@ import math
 import pytest
 import torch
 
-from nerf_core.progress import read_events
-from nerf_core.train import TrainConfig, TrainError, train
+from nerf_core.runs.events import read_events
+from nerf_core.engine.config import TrainConfig
+from nerf_core.runs.folder import TrainError
+from nerf_core.engine.trainer import train
 
 
 def _cfg(ds, run, **kw):
@@ -164,7 +166,7 @@ def test_default_method_trains_end_to_end(tmp_path, dataset_factory):
 
 
 def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
-    """``--size auto`` asks nerf_core.sizing (real default method) and records why in config and start event."""
+    """``--size auto`` asks nerf_core.methods.sizing (real default method) and records why in config and start event."""
     run = tmp_path / "run"
     train(_cfg(sphere_dataset, run, method=None, size="auto", max_steps=1, batch_rays=64, eval_views=0))
     cfg = json.loads((run / "config.json").read_text())
@@ -179,9 +181,9 @@ def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
     (0.3, {"contract": False}, False),  # --set contract=false wins
 ])
 def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_dataset, tmp_path, half_box, given, expect):
-    from nerf_core.check import check_dataset
-    from nerf_core.data import load_dataset
-    from nerf_core.scene_box import BEYOND_BOX_SHARE, beyond_box_share
+    from nerf_core.check.dataset import check_dataset
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.data.scene_box import BEYOND_BOX_SHARE, beyond_box_share
 
     for split in ("train", "val", "test"):
         path = sphere_dataset / f"transforms_{split}.json"
@@ -208,8 +210,9 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
 
 def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_dataset, tmp_path):
     # An opaque capture cannot show by its alpha that a floor runs past the box; the capture says so.
-    from nerf_core.check import check_dataset
-    from nerf_core.data import DatasetError, load_dataset
+    from nerf_core.check.dataset import check_dataset
+    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.data.loading import load_dataset
 
     path = sphere_dataset / "transforms_train.json"
     meta = json.loads(path.read_text())
@@ -267,7 +270,7 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
     import signal
 
     from nerf_core.methods.base import method_class
-    from nerf_core.train import Trainer
+    from nerf_core.engine.trainer import Trainer
 
     def hook(self, step, frac):
         if step == 7:
@@ -291,9 +294,9 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
 
 
 def test_white_then_random_background(sphere_dataset):
-    from nerf_core.data import load_dataset
-    from nerf_core.backgrounds import AUTO_WHITE_FRACTION
-    from nerf_core.data import RayBatcher as _Batcher
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
+    from nerf_core.data.loading import RayBatcher as _Batcher
 
     split = load_dataset(sphere_dataset).splits["train"]
     b = _Batcher(split, "white-then-random", torch.Generator().manual_seed(0), torch.device("cpu"))
@@ -349,7 +352,7 @@ def test_vmgrid_evaluation_during_training_sees_the_current_weights(sphere_datas
     trainer's fused Adam does not move, so every preview and evaluation after the first rendered the
     grids as they were then (about 1 dB low after 5 minutes). The final evaluation in the training
     process must equal ``eval`` of the checkpoint it wrote."""
-    from nerf_core.evaluate import evaluate_run
+    from nerf_core.evaluation.evaluate import evaluate_run
 
     run = tmp_path / "run"
     # A preview every 10 steps builds the tables early; 30 more steps of training follow.
@@ -371,7 +374,7 @@ def test_a_run_that_would_train_nothing_is_an_error(sphere_dataset, tmp_path, mo
     assert (run / "checkpoints" / "latest.pt").read_bytes() == before
     # A time budget spent before the first step (on an opaque capture, by fitting the world) is not a
     # finished run either: a loop that finds its budget gone at once stands in for that prefit.
-    from nerf_core.train import Trainer
+    from nerf_core.engine.trainer import Trainer
 
     monkeypatch.setattr(Trainer, "_train_loop", lambda self, batcher, stop: None)
     with pytest.raises(TrainError, match=r"nothing was trained: the budget \(--max-seconds 0.5\) ran out"):
@@ -380,7 +383,7 @@ def test_a_run_that_would_train_nothing_is_an_error(sphere_dataset, tmp_path, mo
 
 
 def test_the_default_batch_is_the_methods_and_four_times_that_on_cuda():
-    from nerf_core.train import CUDA_BATCH_SCALE, default_batch_rays
+    from nerf_core.engine.trainer import CUDA_BATCH_SCALE, default_batch_rays
 
     class WithDefault:
         default_batch_rays = 2048

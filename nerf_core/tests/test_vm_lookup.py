@@ -81,7 +81,7 @@ def test_lookup_is_cached_until_a_grid_changes():
 
 @pytest.mark.parametrize("fused", [True, False])
 def test_an_optimiser_step_makes_the_tables_stale_even_without_a_version_bump(fused):
-    # The trainer's Adam is fused (nerf_core.optim), and a fused step writes the weights without moving
+    # The trainer's Adam is fused (nerf_core.engine.optim), and a fused step writes the weights without moving
     # their version counters: the tables must still follow, or previews and evaluations during
     # training render old grids.
     f = _field()
@@ -129,7 +129,7 @@ def test_density_cell_max_bounds_every_point_of_each_cell_and_is_reached():
 
 
 def test_vmgrid_occupancy_from_cell_maxima():
-    from nerf_core.methods import build_model
+    from nerf_core.methods.base import build_model
 
     with pytest.raises(ValueError, match="occ_probe"):
         build_model("vmgrid", BOX, occ_probe="corners")

@@ -4,7 +4,7 @@ import math
 import pytest
 import torch
 
-from nerf_core import volrend
+from nerf_core.volume import volrend
 
 
 def _slab(n_rays, n_samples, length, sigma):
@@ -98,7 +98,7 @@ def test_packed_gradients_flow_to_densities():
 
 
 def test_distortion_loss_matches_the_double_sum_by_hand():
-    from nerf_core.volrend import distortion_loss_packed
+    from nerf_core.volume.volrend import distortion_loss_packed
 
     # Ray 0: weights 0.5 and 0.25 at midpoints 1 and 3 (intervals of length 1); ray 1: no samples;
     # ray 2: one sample of weight 0.8 on an interval of length 0.5.

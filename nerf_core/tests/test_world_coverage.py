@@ -5,8 +5,8 @@ import math
 import numpy as np
 import torch
 
-from nerf_core.cameras import Cameras
-from nerf_core.world_coverage import _dilate, covered_directions, unseen_world_share
+from nerf_core.cameras.rays import Cameras
+from nerf_core.fields.world_coverage import _dilate, covered_directions, unseen_world_share
 
 
 def _camera(yaw_deg: float, pitch_deg: float = 0.0, w: int = 40, h: int = 40, fov_deg: float = 40.0,
@@ -106,7 +106,7 @@ def _look_up_and_away(ds, frame: int) -> dict:
 
 
 def test_check_names_the_held_out_views_that_look_at_unseen_world(tmp_path, dataset_factory):
-    from nerf_core.check import check_dataset
+    from nerf_core.check.dataset import check_dataset
     from nerf_core.tests.test_environment import _make_opaque
 
     def world_warnings(root):
@@ -130,9 +130,10 @@ def test_check_names_the_held_out_views_that_look_at_unseen_world(tmp_path, data
 
 
 def test_eval_says_which_views_look_at_unseen_world(tmp_path, dataset_factory):
-    from nerf_core.evaluate import evaluate_run
+    from nerf_core.evaluation.evaluate import evaluate_run
     from nerf_core.tests.test_environment import _make_opaque
-    from nerf_core.train import TrainConfig, train
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
 
     ds = _make_opaque(dataset_factory(tmp_path / "ds", n_train=12, n_test=3, depth=False))
     _look_up_and_away(ds, 1)
@@ -147,7 +148,7 @@ def test_eval_says_which_views_look_at_unseen_world(tmp_path, dataset_factory):
 
 
 def test_large_views_are_traced_sparsely_without_leaving_gaps():
-    from nerf_core.world_coverage import TRAIN_RAYS_PER_VIEW, auto_stride
+    from nerf_core.fields.world_coverage import TRAIN_RAYS_PER_VIEW, auto_stride
 
     big = _camera(0.0, w=1000, h=1000)
     assert auto_stride(big, TRAIN_RAYS_PER_VIEW) == 5  # 40 000 of the million pixels

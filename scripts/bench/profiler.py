@@ -1,6 +1,6 @@
 """Where a training step's time goes: an in-process profile split into named stages.
 
-The methods mark their own stages (``nerf_core.profiling.stage``: ``sampling``, ``field``,
+The methods mark their own stages (``nerf_core.utils.profiling.stage``: ``sampling``, ``field``,
 ``rendering``); this module's driver loop runs a few training steps with a ``StageRecorder`` active
 and marks the rest of each step itself: the training hook and the forward pass outside the methods'
 stages (``other_forward``), the backward pass and the optimiser step. Time is exclusive: a stage
@@ -62,8 +62,8 @@ def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 102
     step; CUDA is synchronised at every stage boundary when it is the device."""
     import torch
 
-    from nerf_core.methods import build_model
-    from nerf_core.profiling import StageRecorder
+    from nerf_core.methods.base import build_model
+    from nerf_core.utils.profiling import StageRecorder
 
     o, d, near, far, rgba, aabb = training_rays(dataset, n_rays)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")

@@ -61,7 +61,7 @@ def test_run_parallel_overlaps_tasks_and_keeps_their_order():
 
 
 def test_shared_progress_adds_live_runs_to_finished_work():
-    from nerf_core.progressbar import ProgressBar
+    from nerf_core.utils.progressbar import ProgressBar
 
     bar = ProgressBar(total=100, enabled=False)
     p = runner.SharedProgress(bar)

@@ -9,7 +9,7 @@ Reads, from this folder:
 - ``tight_grid.json`` (if present, same layout as ``baseline.json``): the same benchmark after the
   occupancy grid became tight by default (commit 5f20430), run after the evaluation fix 2c017ef;
 - ``pixel_filter.json`` (if present, same layout): the same benchmark once evaluation rendered edge
-  pixels through the capture's pixel filter (``nerf_core/pixel_filter.py``).
+  pixels through the capture's pixel filter (``nerf_core/image/pixel_filter.py``).
 
 One row per scene: the 1- and 5-minute PSNR, issue 15's target (5-minute PSNR + 3 dB), the tight
 grid's 5-minute PSNR, and the ceiling band from two Cycles renders of a view (left edge) to a

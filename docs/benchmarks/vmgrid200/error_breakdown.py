@@ -29,12 +29,12 @@ import torch
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", ".."))
 
-from nerf_core.checkpoints import load_run  # noqa: E402
-from nerf_core.data import load_cameras, load_split  # noqa: E402
-from nerf_core.imageio import read_png  # noqa: E402
-from nerf_core.methods import available_methods  # noqa: E402
-from nerf_core.pixel_filter import of_run  # noqa: E402
-from nerf_core.render import render_view  # noqa: E402
+from nerf_core.runs.checkpoints import load_run  # noqa: E402
+from nerf_core.data.loading import load_cameras, load_split  # noqa: E402
+from nerf_core.image.io import read_png  # noqa: E402
+from nerf_core.methods.base import available_methods  # noqa: E402
+from nerf_core.image.pixel_filter import of_run  # noqa: E402
+from nerf_core.render.views import render_view  # noqa: E402
 
 KINDS = ("background", "silhouette", "texture edge", "flat")
 

@@ -1,0 +1,178 @@
+"""``TrainConfig``: everything that decides a training run, and what ``--resume`` may change in it.
+
+A run's config is saved in ``RUN/config.json`` and in every checkpoint; ``merge_resumed_config``
+rebuilds it on ``--resume`` from the saved one and the few settings a user may change then.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Dict, List, Optional
+
+from nerf_core import contract
+from nerf_core.data.backgrounds import BACKGROUNDS
+from nerf_core.runs.folder import TrainError, resume_dataset
+
+MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
+
+
+@dataclass
+class TrainConfig:
+    """Everything that decides a run (saved in RUN/config.json and in checkpoints)."""
+
+    dataset: str
+    out: str
+    method: Optional[str] = None
+    max_steps: Optional[int] = None
+    max_seconds: Optional[float] = None
+    seed: int = 0
+    resume: bool = False
+    overwrite: bool = False
+    dataset_moved: bool = False  # --resume with a DATASET path other than the recorded one (hash checked when recorded)
+    size: Optional[str] = None  # "auto": nerf_core.methods.sizing picks the model size for the dataset
+    options: Dict[str, object] = field(default_factory=dict)  # explicit method options (--set key=value)
+    progress: Optional[str] = None  # extra JSON-lines file
+    device: Optional[str] = None
+    lr: Optional[float] = None  # base learning rate; default: the method's default_lr
+    batch_rays: Optional[int] = None  # None: train.default_batch_rays (the method's; 4x on CUDA)
+    background: str = "auto"  # auto: nerf_core.data.backgrounds.choose (environment for opaque images, random for cut-outs)
+    downscale: int = 1
+    log_every: int = 50
+    preview_every: Optional[int] = None  # steps; None: every preview_seconds of training time
+    preview_seconds: float = 30.0
+    preview_size: int = 256  # longest side of preview images
+    checkpoint_every: Optional[int] = None  # steps; None: every checkpoint_seconds of wall time
+    checkpoint_seconds: float = 300.0
+    keep_checkpoints: int = 3  # step_XXXXXXX.pt files kept besides latest.pt
+    max_rollbacks: int = 8
+    eval_views: Optional[int] = None  # None: as many as fit in eval_seconds; 0: skip evaluation
+    eval_seconds: Optional[float] = None  # None: max(30 s, 25 % of the training time)
+    eval_at: List[float] = field(default_factory=list)  # training seconds at which to evaluate held-out views
+    chunk: int = 8192
+    stdout_events: bool = True
+    show_bar: bool = True
+
+    def budget_fraction(self, step: int, elapsed: float) -> float:
+        """Share of the budget spent, in [0, 1] (``contract.budget_fraction``; 0 without a budget)."""
+        frac = contract.budget_fraction(step, elapsed, self.max_steps, self.max_seconds)
+        return 0.0 if frac is None else frac
+
+    def finished(self, step: int, elapsed: float) -> bool:
+        return (self.max_steps is not None and step >= self.max_steps) or (
+            self.max_seconds is not None and elapsed >= self.max_seconds
+        )
+
+    def eta(self, step: int, elapsed: float) -> Optional[float]:
+        """Training seconds left: to the step budget at the mean step time so far, or to the time budget."""
+        etas = []
+        if self.max_steps and step > 0:
+            etas.append(elapsed / step * max(0, self.max_steps - step))
+        if self.max_seconds:
+            etas.append(max(0.0, self.max_seconds - elapsed))
+        return min(etas) if etas else None
+
+    def bar_total(self) -> tuple[float, str]:
+        """(total, unit) of the progress bar: steps or seconds for one budget, percent for both."""
+        if self.max_steps and not self.max_seconds:
+            return self.max_steps, "steps"
+        if self.max_seconds and not self.max_steps:
+            return round(self.max_seconds), "seconds"
+        return 100, "percent"
+
+    def bar_done(self, unit: str, step: int, elapsed: float) -> float:
+        """Progress in the bar's ``unit`` (see ``bar_total``)."""
+        if unit == "steps":
+            return step
+        if unit == "seconds":
+            return round(elapsed, 1)
+        return round(100 * self.budget_fraction(step, elapsed), 1)
+
+    def check(self) -> None:
+        """Refuse settings no run can use (TrainError naming the flag)."""
+        if self.background not in BACKGROUNDS:
+            raise TrainError(f"--background {self.background!r}: choose one of {', '.join(BACKGROUNDS)}")
+        for name in ("max_steps", "max_seconds", "lr"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0):  # NaN and inf are refused too
+                raise TrainError(f"--{name.replace('_', '-')} must be a finite number > 0, got {v}")
+        if self.batch_rays is not None and not 1 <= self.batch_rays <= MAX_BATCH_RAYS:
+            raise TrainError(f"--batch-rays must lie in 1..{MAX_BATCH_RAYS}, got {self.batch_rays}")
+        if not 0 <= self.seed < 2 ** 63:
+            raise TrainError(f"--seed must lie in 0..2^63-1, got {self.seed}")
+        bad = [t for t in self.eval_at if not (math.isfinite(t) and t > 0)]
+        if bad:
+            raise TrainError(f"--eval-at: training times must be finite numbers of seconds > 0, got {bad[0]}")
+        if self.method is not None and not self.method.strip():
+            raise TrainError("--method is empty; leave it out for the default method, or name one")
+        from nerf_core.methods.base import method_class
+
+        cls = method_class(self.method or default_method())
+        if cls is None:
+            from nerf_core.methods.base import available_methods
+
+            raise TrainError(f"unknown method {self.method!r}; choose one of {', '.join(available_methods())}")
+        if hasattr(cls, "validate_options"):
+            try:
+                cls.validate_options(self.options)
+            except ValueError as exc:
+                raise TrainError(f"--set: {exc}") from None
+
+
+# What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.
+RESUME_MAY_CHANGE = {"max_steps", "max_seconds", "device", "progress", "stdout_events", "show_bar", "resume", "out",
+                     "eval_views", "eval_seconds", "log_every", "checkpoint_every", "checkpoint_seconds", "chunk",
+                     "preview_every", "preview_seconds", "preview_size", "keep_checkpoints", "max_rollbacks", "eval_at"}
+# Not settings of the run, or checked on their own (method, dataset) by ``merge_resumed_config``.
+_RESUME_BOOKKEEPING = {"dataset", "dataset_moved", "overwrite", "method"}
+
+
+def _resume_conflicts(cli: TrainConfig, saved: dict) -> list:
+    """'--flag VALUE (the run's: SAVED)' for each setting the command line gives (other than its
+    default) that differs from the run's: ``--resume`` would silently train with the run's own."""
+    defaults = TrainConfig(dataset="", out="")
+    out = []
+    for key, value in asdict(cli).items():
+        if key in RESUME_MAY_CHANGE or key in _RESUME_BOOKKEEPING or key not in saved:
+            continue
+        if value != getattr(defaults, key) and value != saved[key]:
+            flag = "--set" if key == "options" else "--" + key.replace("_", "-")
+            shown = " ".join(f"{k}={v}" for k, v in value.items()) if key == "options" else value
+            out.append(f"{flag} {shown} (the run's: {saved[key] if saved[key] is not None else 'the default'})")
+    return out
+
+
+def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
+    """The config to continue a run with: the checkpoint's, with the settings in ``RESUME_MAY_CHANGE``
+    taken from ``cli`` (the command line), and the dataset checked by ``runfolder.resume_dataset``.
+    Raises TrainError when the command line names another method or another dataset."""
+    saved = dict(ckpt.get("config") or {})
+    if cli.method and saved.get("method") and cli.method != saved["method"]:
+        raise TrainError(f"--resume: the run was trained with method {saved['method']!r}, not {cli.method!r}")
+    conflicts = _resume_conflicts(cli, saved)
+    if conflicts:
+        raise TrainError("--resume continues a run with the settings it started with; " + "; ".join(conflicts)
+                         + ". Leave them out to resume, or train a new run (another --out) with them")
+    dataset = resume_dataset(saved, cli.dataset, cli.dataset_moved)
+    merged = asdict(cli)
+    for k, v in saved.items():
+        if k in merged and k not in RESUME_MAY_CHANGE:
+            merged[k] = v
+    if cli.max_steps is None and cli.max_seconds is None:
+        merged["max_steps"], merged["max_seconds"] = saved.get("max_steps"), saved.get("max_seconds")
+    merged["resume"], merged["overwrite"] = True, False
+    merged["dataset"], merged["dataset_moved"] = dataset, cli.dataset_moved
+    return TrainConfig(**merged)
+
+
+def default_method() -> str:
+    """The catalog's DEFAULT_METHOD, else the first registered method (TrainError when none is)."""
+    from nerf_core.methods.base import available_methods
+    from nerf_core.methods import catalog
+
+    names = available_methods()
+    name = getattr(catalog, "DEFAULT_METHOD", None)
+    if name in names:
+        return name
+    if not names:
+        raise TrainError("no NeRF methods are registered (nerf_core/methods/catalog.py registers none)")
+    return names[0]

@@ -1,0 +1,90 @@
+"""What the trainer reports besides its loop: ``step`` events, and held-out evaluation while and
+after training (``eval`` events, ``RUN/metrics.json``). Only rank 0 of a ``torchrun`` job calls these.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+from nerf_core import contract
+from nerf_core.evaluation.evaluate import evaluate_held_out, read_metrics_file, update_metrics_file
+from nerf_core.runs.folder import record_written
+
+
+def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float, interval: dict) -> None:
+    """One ``step`` event: the last step's loss and PSNR, the interval's mean loss and samples/s.
+    ``interval``: {"t": seconds, "samples": int, "loss": summed loss, "n": steps} since the last event."""
+    lr = [g for g in opt.param_groups if g.get("name") != "environment"][-1]["lr"]
+    sps = interval["samples"] / interval["t"] if interval["t"] > 0 else 0.0
+    log.emit("step", step=step, loss=loss, psnr=psnr, lr=lr, elapsed=elapsed, eta=cfg.eta(step, elapsed),
+             frac=cfg.budget_fraction(step, elapsed), samples_per_s=sps,
+             loss_avg=interval["loss"] / max(1, interval["n"]),
+             lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(opt.param_groups)})
+
+
+def held_out_eval(log, model, dataset, cfg, background, step: int, at_seconds: float,
+                  marks: Optional[Sequence[float]] = None) -> None:
+    """Evaluate ``cfg.eval_views`` evenly spaced held-out views (all when unset); an ``eval`` event.
+
+    ``marks``: the ``--eval-at`` times (seconds) this evaluation stands for, recorded in the event as
+    ``eval_at`` (several when one slow step crossed more than one)."""
+    model.eval()
+    try:
+        started = time.perf_counter()
+        found = evaluate_held_out(model, dataset, cfg.eval_views, background=background, chunk=cfg.chunk)
+    finally:
+        model.train()
+    if found is None:
+        return
+    split_name, result = found
+    log.emit("eval", step=step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
+             n_views=result["n_views"], depth_mae=result.get("depth_mae"), elapsed=at_seconds,
+             eval_wall=time.perf_counter() - started, n_params=model.num_parameters(), n_bytes=model.num_bytes(),
+             **({"eval_at": [float(t) for t in marks]} if marks else {}))
+
+
+def final_eval(log, model, dataset, cfg, background, run: Path, step: int, elapsed: float) -> dict:
+    """The end-of-training evaluation within ``cfg.eval_seconds`` (default max(30 s, 25 % of the
+    training time)), merged into RUN/metrics.json; returns the metrics ({} when there is nothing to
+    evaluate)."""
+    if cfg.eval_views == 0 or dataset.held_out_split(("test", "val")) is None:
+        return {}
+    budget = cfg.eval_seconds if cfg.eval_seconds is not None else max(30.0, 0.25 * elapsed)
+    model.eval()
+    try:
+        split_name, result = evaluate_held_out(model, dataset, cfg.eval_views, seconds=budget,
+                                               background=background, chunk=cfg.chunk)
+    finally:
+        model.train()
+    if result["n_views"] < result["n_views_total"]:
+        # Say why fewer views were scored: the user's --eval-views, or the time budget (only when no
+        # count was given), so that nobody tunes --eval-seconds for a cut it did not make.
+        why = (f"as --eval-views {cfg.eval_views} asks" if cfg.eval_views is not None
+               else f"at full resolution to stay within {budget:.0f} s")
+        result["note"] = (f"evaluated {result['n_views']} of {result['n_views_total']} {split_name} views {why}; "
+                          f"`python -m nerf_core eval {run}` evaluates all")
+        print(f"train: {result['note']}", file=sys.stderr)
+    metrics = Path(contract.metrics_path(run))
+    record_written(run, metrics)
+    _set_aside_if_damaged(metrics)
+    update_metrics_file(metrics, split_name, result, step)
+    log.emit("eval", step=step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
+             n_views=result["n_views"], depth_mae=result.get("depth_mae"))
+    return {k: v for k, v in result.items() if k != "per_view"} | {"split": split_name}
+
+
+def _set_aside_if_damaged(metrics: Path) -> None:
+    """Rename a metrics.json that is not the JSON object train writes (edited by hand since the run
+    started) to ``metrics.json.damaged`` so that the end of a long training neither fails on it nor
+    silently drops what it held."""
+    from nerf_core.runs.checkpoints import RunError
+
+    try:
+        read_metrics_file(metrics)
+    except RunError as exc:
+        aside = metrics.with_name(metrics.name + ".damaged")
+        os.replace(metrics, aside)
+        print(f"train: {exc.args[0].split(';')[0]}; kept it as {aside} and wrote a new one", file=sys.stderr)

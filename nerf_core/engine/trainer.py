@@ -1,0 +1,574 @@
+"""Training a method on a dataset: ``python -m nerf_core train DATASET --out RUN``; this module owns
+the loop and the rollback, everything else it uses has its own module.
+
+* Seeded and deterministic for a step budget; the batch generator's state is checkpointed
+  (``nerf_core.utils.seeding``), so ``--resume`` continues the same random stream.
+* Budgets: ``--max-steps`` and/or ``--max-seconds`` (training time only: previews, checkpoints and
+  evaluation are not counted). The learning-rate schedule (``nerf_core.engine.optim``) and the methods'
+  own schedules follow whichever budget is nearer (``contract.budget_fraction``).
+* Robust: a NaN/inf loss or gradient, or a loss far above its running average, rolls the model
+  and optimiser back to the last good in-memory snapshot and halves the learning rate
+  (``rollback`` event); after too many rollbacks training stops with an ``error`` event.
+* Never destroys data, one writer per run folder (``nerf_core.runs.folder``); weights-only
+  checkpoints (``nerf_core.runs.checkpoints``). docs/CONTRACTS.md has the files and the events.
+* Data-parallel under ``torchrun`` (``nerf_core.engine.distributed``, ``nerf_core.engine.replicas``): every rank
+  trains the same model on its own rays; only rank 0 touches the run folder. Without torchrun's
+  environment ``self.replicas`` is None and none of that code runs.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable, List, Optional
+
+import torch
+
+from nerf_core.data import backgrounds
+from nerf_core import contract
+from nerf_core.engine import distributed
+from nerf_core.runs.checkpoints import RunError, load_state_resizing, read_resume_checkpoint, save_checkpoint, versions
+from nerf_core.data.loading import Dataset, RayBatcher, load_dataset
+from nerf_core.contract.transforms import DatasetError
+from nerf_core.utils.interrupts import DeferredInterrupts, terminate_as_interrupt
+from nerf_core.image.losses import backward, masked_mse
+from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
+from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
+from nerf_core.engine.optim import clone_state, make_optimizer, rebuild_optimizer, rescale_base_lrs, schedule_factor, warmup_steps
+from nerf_core.engine.previews import Previews
+from nerf_core.runs.events import EventLog
+from nerf_core.utils.progressbar import ProgressBar
+from nerf_core.engine.replicas import Replicas
+from nerf_core.runs.folder import TrainError, atomic_json, check_progress_file, check_run_folder, check_run_vs_dataset, clear_run_folder, dataset_hash, lock_run_folder, os_reason, record_written
+from nerf_core.utils.seeding import rng_state, seed_everything, set_rng_state
+from nerf_core.engine.report import emit_step, final_eval, held_out_eval
+from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
+
+__all__ = ["TrainConfig", "TrainError", "Trainer", "train", "default_method"]
+
+
+DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
+STEP_EVENT_SECONDS = 5.0  # slow steps still produce a step event this often
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.run = Path(cfg.out).resolve()
+
+    # The public entry point: never raises for expected problems without first emitting an error event.
+    def fit(self) -> dict:
+        self._unlock: Optional[Callable[[], None]] = None
+        self.dist = distributed.init_from_env()  # inactive (no process group) without torchrun
+        self.replicas = Replicas(self.dist, self.cfg.seed) if self.dist.active else None
+        try:
+            return self._fit_run_folder()
+        finally:
+            if self._unlock is not None:
+                self._unlock()
+            self.dist.close()
+
+    def _fit_run_folder(self) -> dict:
+        cfg = self.cfg
+        main = self.dist.is_main  # only rank 0 writes: events, lock, checkpoints, previews, metrics
+        extra_logs = [cfg.progress] if cfg.progress and main else []
+        if cfg.progress:
+            try:  # before the file is opened for appending; every rank decides alike
+                check_progress_file(Path(cfg.progress), cfg.dataset)
+            except TrainError as exc:
+                if main:
+                    EventLog([], stdout=cfg.stdout_events).emit("error", message=str(exc))
+                self.dist.agree(False)
+                raise
+        early_log = EventLog(extra_logs, stdout=cfg.stdout_events and main)
+        self.log = early_log
+        try:
+            # Before the lock file is made: a run folder that is (or holds, or sits in) the dataset would
+            # mix the trainer's files with the user's data, and --overwrite would delete from the dataset.
+            check_run_vs_dataset(self.run, cfg.dataset)
+            if main and self.run.is_dir():
+                # Before anything else, so that a second trainer into a busy run learns who holds it
+                # (rather than that the folder is not empty) and never reads a half-written checkpoint.
+                self._unlock = lock_run_folder(self.run)
+            if main:
+                check_run_folder(self.run, cfg.resume, cfg.overwrite)
+            cfg.check()
+            from nerf_core.utils.device import pick_device
+
+            self.device = self.dist.place(pick_device(cfg.device))
+            ckpt = None
+            if cfg.resume:
+                self.resumed_checkpoint, ckpt = read_resume_checkpoint(self.run)
+                self.cfg = merge_resumed_config(self.cfg, ckpt)
+                distributed.note_resume(ckpt, self.dist)
+                check_run_vs_dataset(self.run, self.cfg.dataset)
+            self.dataset_hash = dataset_hash(self.cfg.dataset)
+            dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
+            if main and self._unlock is None:
+                # A new folder is made only now, so that a run that never starts leaves nothing behind.
+                self.run.mkdir(parents=True, exist_ok=True)
+                self._unlock = lock_run_folder(self.run)
+                # Another trainer may have made and filled the folder since the first check.
+                check_run_folder(self.run, cfg.resume, cfg.overwrite)
+        except (TrainError, DatasetError, RunError, ValueError) as exc:
+            early_log.emit("error", message=str(exc))
+            early_log.close()
+            self.dist.agree(False)
+            raise
+        progress = Path(contract.progress_path(self.run))
+        try:
+            removed = clear_run_folder(self.run) if cfg.overwrite and main else []
+            self.log = EventLog([progress] + extra_logs if main else [], stdout=cfg.stdout_events and main)
+            if main:
+                record_written(self.run, progress)
+        except OSError as exc:
+            msg = f"{exc.filename or self.run}: {os_reason(exc)}"
+            early_log.emit("error", message=msg)
+            early_log.close()
+            self.dist.agree(False)
+            raise TrainError(msg) from None
+        early_log.close()
+        if not self.dist.agree(True):  # a rank could not start: every rank stops here, none waits
+            msg = f"rank {self.dist.rank}: another rank could not start the run (its error is above)"
+            self.log.emit("error", message=msg)
+            self.log.close()
+            raise TrainError(msg)
+        if removed:
+            print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
+                  + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
+        restore = terminate_as_interrupt()
+        try:
+            return self._fit(dataset, ckpt)
+        except KeyboardInterrupt as exc:  # also distributed.PeerLost: another rank left the job
+            try:
+                # Shielded: a second Ctrl-C (people press it twice) or torchrun's SIGTERM after a lost
+                # rank must not cut the save short and lose every step since the last checkpoint.
+                with DeferredInterrupts(True, reraise=False):
+                    distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
+                    path = self._save_checkpoint() if hasattr(self, "opt") else None
+            except TrainError as err:
+                self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {err}")
+                raise
+            self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}"
+                          + (f" ({exc})" if str(exc) else "")
+                          + (f"; checkpoint saved, continue with --resume" if path else ""))
+            raise
+        except (TrainError, DatasetError, RunError, ValueError) as exc:
+            self.log.emit("error", message=str(exc))
+            raise
+        except OSError as exc:  # a full disk while writing config, previews or metrics: name the file
+            msg = f"{exc.filename or self.run}: {os_reason(exc)} (at step {getattr(self, 'step', 0)})"
+            try:
+                self.log.emit("error", message=msg)
+            except OSError:
+                pass  # the failing file may be the --progress log itself; the message still reaches stderr
+            raise TrainError(msg) from None
+        except (RuntimeError, MemoryError) as exc:  # e.g. out of memory inside a model: one clear line, no traceback
+            msg = (str(exc).splitlines() or [type(exc).__name__])[0]
+            if isinstance(exc, MemoryError) or "alloc" in msg.lower() or "out of memory" in msg.lower():
+                # Name what to turn down: the allocator's byte count alone does not say which setting asked.
+                msg = (f"not enough memory ({msg[:200]}); lower --batch-rays (now {self.cfg.batch_rays}) or the "
+                       "method's size options (--set res_final=..., density_rank=..., width=..., occ_res=...)")
+            self.log.emit("error", message=f"training failed at step {getattr(self, 'step', 0)}: {msg}")
+            raise TrainError(f"training failed at step {getattr(self, 'step', 0)}: {msg}") from exc
+        finally:
+            restore()
+            self.log.close()
+
+    # ------------------------------------------------------------------ setup
+
+    def _build(self, dataset: Dataset, ckpt: Optional[dict]):
+        from nerf_core.methods.base import build_model
+        from nerf_core.methods.base import saved_options
+
+        cfg = self.cfg
+        train = dataset.split("train")
+        self.method = cfg.method or default_method()
+        self.size_reasons: List[str] = []
+        if ckpt is not None:
+            options = saved_options(self.method, ckpt["options"])
+            self.size_reasons = list(ckpt.get("size_reasons", []))
+            aabb = torch.as_tensor(ckpt["aabb"])
+        else:
+            options = {}
+            if cfg.size == "auto":
+                from nerf_core.methods.sizing import auto_size_dataset
+
+                black = [0.0, 0.0, 0.0] if cfg.background == "black" else [1.0, 1.0, 1.0]
+                options, self.size_reasons = auto_size_dataset(self.method, dataset, black)
+            elif cfg.size not in (None, "", "default"):
+                raise TrainError(f"--size {cfg.size!r}: only 'auto' is supported")
+            options.update(cfg.options)
+            aabb = dataset.aabb
+            self._contract_if_beyond_box(dataset, options)
+        if ckpt is None and self.bg_mode == "environment" and "environment" not in options:
+            from nerf_core.fields.environment import size_for_focal
+
+            options["environment"] = {"width": size_for_focal(float(train.cameras.fx.median()))}
+        seed_everything(cfg.seed)
+        try:
+            model = build_model(self.method, aabb, **options)
+        except TypeError as exc:
+            raise TrainError(f"method {self.method!r} does not accept these options {sorted(options)}: {exc}") from exc
+        except ValueError as exc:  # unknown method or option values the method rejects
+            raise TrainError(str(exc)) from exc
+        if ckpt is not None:
+            load_state_resizing(model, ckpt["model"])
+        self.model = model.to(self.device).train()
+        self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
+        if cfg.batch_rays is None:
+            cfg.batch_rays = default_batch_rays(model, self.device)
+        self.warmup = warmup_steps(model, cfg.max_steps)
+        self.train = train
+
+    def _contract_if_beyond_box(self, dataset: Dataset, options: dict) -> None:
+        """Turn on ``contract`` for a method that has it (and was not told) when the scene reaches past
+        its box (``scene_box.beyond_box_reason``: the dataset says so, or a cut-out's opaque pixels look
+        past the box). On the capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB
+        with on a transparent film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot
+        hold a floor)."""
+        from nerf_core.methods.base import has_option
+        from nerf_core.data.scene_box import beyond_box_reason
+
+        if "contract" in options or not has_option(self.method, "contract"):
+            return
+        why = beyond_box_reason(dataset, self.bg_mode)
+        if why:
+            options["contract"] = True
+            self.size_reasons.append(f"contract=true: {why}, so the world beyond the box is modelled too "
+                                     "(--set contract=false turns it off)")
+
+    def _restore(self, ckpt: dict) -> None:
+        """Continue from a checkpoint: counters, optimiser (fresh Adam if it does not fit) and RNGs."""
+        self.step, self.elapsed = int(ckpt["step"]), float(ckpt["elapsed"])
+        self.lr_scale, self.rollbacks = float(ckpt.get("lr_scale", 1.0)), int(ckpt.get("rollbacks", 0))
+        self.loss_ema = ckpt.get("loss_ema")
+        self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
+        try:
+            self.opt.load_state_dict(ckpt["optimizer"])
+        except (ValueError, KeyError) as exc:
+            print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh", file=sys.stderr)
+        rescale_base_lrs(self.opt, self.model, self.base_lr * self.lr_scale)
+        set_rng_state(ckpt["rng"], self.gen)
+
+    # ------------------------------------------------------------------ checkpoints and rollback
+
+    def _save_checkpoint(self) -> Optional[Path]:
+        if not self.dist.is_main:  # the other ranks only keep the schedule (checkpoint_every)
+            self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
+            return None
+        state = {
+            "format": 1, "method": self.method, "options": self.model.options,
+            "aabb": self.model.aabb.detach().cpu(),
+            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
+            "optimizer": self.opt.state_dict(), "step": self.step, "elapsed": self.elapsed,
+            "lr_scale": self.lr_scale, "rollbacks": self.rollbacks, "loss_ema": self.loss_ema,
+            "rng": rng_state(self.gen), "config": self.config_record(), "size_reasons": self.size_reasons,
+            "versions": versions(),
+        }
+        latest = save_checkpoint(self.run, state, self.step, self.cfg.keep_checkpoints)
+        self.log.emit("checkpoint", step=self.step, path=str(latest))
+        self._last_ckpt_wall = time.monotonic()
+        self._last_ckpt_step = self.step
+        return latest
+
+    def _snapshot(self) -> None:
+        self.snap = {
+            "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
+            "opt": clone_state(self.opt.state_dict()),
+            "step": self.step,
+            "elapsed_at": self.elapsed,
+            "loss_ema": self.loss_ema,
+        }
+
+    def _rollback(self, reason: str) -> None:
+        self.rollbacks += 1
+        self.lr_scale *= 0.5
+        if self.rollbacks > self.cfg.max_rollbacks:
+            raise TrainError(
+                f"training diverged: {self.rollbacks - 1} rollbacks did not help (last: {reason} at step {self.step}); "
+                f"try a lower --lr than {self.base_lr * self.lr_scale * 2:.3g} or another --method"
+            )
+        snap = self.snap
+        load_state_resizing(self.model, snap["model"])
+        self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
+        try:
+            self.opt.load_state_dict(clone_state(snap["opt"]))
+        except (ValueError, KeyError):
+            pass  # parameter set changed since the snapshot: fresh Adam moments
+        rescale_base_lrs(self.opt, self.model, self.base_lr * self.lr_scale)  # the state brought the old rates
+        at = self.step
+        self.step = snap["step"]
+        self.loss_ema = snap["loss_ema"]
+        self.steps_since_rollback = 0
+        self.log.emit("rollback", step=at, reason=f"{reason}; restored step {self.step}",
+                      lr=self.base_lr * self.lr_scale, restored_step=self.step, rollbacks=self.rollbacks)
+
+    # ------------------------------------------------------------------ records
+
+    def config_record(self) -> dict:
+        """What RUN/config.json holds: the config plus what the trainer decided (docs/CONTRACTS.md)."""
+        ds, tr = self.dataset, self.train
+        rec = asdict(self.cfg)
+        rec.update({
+            "dataset": str(Path(self.cfg.dataset).resolve()), "dataset_hash": getattr(self, "dataset_hash", None),
+            "out": str(self.run), "method": self.method, "model": self.model.describe(), "lr": self.base_lr,
+            "warmup_steps": self.warmup, "background_used": self.bg_mode, "background_reason": self.bg_reason,
+            "eval_background": self.eval_bg, "aabb": self.model.aabb.detach().cpu().tolist(),
+            "aabb_source": ds.aabb_source, "near": ds.near, "far": ds.far, "size_reasons": self.size_reasons,
+            "dataset_notes": ds.notes, "n_train_views": len(tr), "image_size": [tr.width, tr.height],
+            "device_used": str(self.device), "versions": versions(), "world_size": self.dist.world_size,
+            "rays_per_step": self.cfg.batch_rays * self.dist.world_size,
+            # the dataset's film filter at its full resolution: render and eval draw edge pixels from it
+            "pixel_filter": (ds.pixel_filter.full_resolution() if ds.pixel_filter else DEFAULT_FILTER).to_json(),
+        })
+        return rec
+
+    # ------------------------------------------------------------------ loop
+
+    def _fit(self, dataset: Dataset, ckpt: Optional[dict]) -> dict:
+        cfg = self.cfg
+        self.dataset = dataset
+        train = dataset.split("train")
+        self.bg_mode, self.bg_reason, self.eval_bg = backgrounds.for_training(cfg.background, ckpt, dataset)
+        self._build(dataset, ckpt)
+        if cfg.max_steps is None and cfg.max_seconds is None:
+            cfg.max_steps = int(getattr(self.model, "default_max_steps", DEFAULT_MAX_STEPS))
+
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step, self.elapsed, self.lr_scale, self.rollbacks = 0, 0.0, 1.0, 0
+        self.loss_ema: Optional[float] = None
+        self.opt = make_optimizer(self.model, self.base_lr)
+        resumed_from = None
+        if ckpt is not None:
+            self._restore(ckpt)
+            resumed_from = self.step
+            spent = ([f"--max-steps {cfg.max_steps}"] if cfg.max_steps is not None and self.step >= cfg.max_steps else []) \
+                + ([f"--max-seconds {cfg.max_seconds:g}"] if cfg.max_seconds is not None and self.elapsed >= cfg.max_seconds else [])
+            if spent:  # refused before anything is rewritten: the checkpoints stay as they are
+                raise TrainError(f"--resume: the run is already at step {self.step} ({self.elapsed:.0f} s trained), "
+                                 f"which meets {' and '.join(spent)}; nothing is left to train. Give a larger budget to "
+                                 "continue it")
+        if self.dist.is_main:
+            config = Path(contract.config_path(self.run))
+            record_written(self.run, config)
+            atomic_json(config, self.config_record())
+        self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
+                      device=str(self.device), n_params=self.model.num_parameters(), model=self.model.describe(),
+                      size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
+                      dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train),
+                      image_size=[train.width, train.height], background=self.bg_mode,
+                      background_reason=self.bg_reason, notes=dataset.notes, world_size=self.dist.world_size)
+        for line in ([f"size: {r}" for r in self.size_reasons] + [f"background: {self.bg_mode} ({self.bg_reason})"]
+                     + [f"note: {note}" for note in dataset.notes] if self.dist.is_main else []):
+            print(f"train: {line}", file=sys.stderr)
+
+        if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):
+            # (A contracted scene has no ray that misses it: the world beyond the box is geometry too.)
+            self._prefit_environment()
+        if self.replicas is not None:  # every rank starts from rank 0's model and the largest elapsed time
+            self.elapsed = self.replicas.start(self.model, self.elapsed)
+        self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
+                                 self.eval_bg, cfg.chunk)
+        self._eval_marks = sorted(t for t in cfg.eval_at if t > self.elapsed)
+        with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
+            last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
+        if self.step == (resumed_from or 0):
+            # A budget spent before the first step (fitting the world counts as training time): a
+            # checkpoint and metrics of an untrained model must not look like a finished run.
+            budget = f"--max-seconds {cfg.max_seconds:g}" if cfg.max_seconds is not None else f"--max-steps {cfg.max_steps}"
+            raise TrainError(f"nothing was trained: the budget ({budget}) ran out before the "
+                             f"first step, after {self.elapsed:.1f} s" + (" of fitting the world (the background)"
+                                                                           if self.model.environment is not None else "")
+                             + f"; give a larger {budget.split()[0]}")
+        distributed.report_checksum(self.model, self.dist, self.step)
+        summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
+        if not self.dist.is_main:
+            return summary
+        self._preview()
+        latest = self._save_checkpoint()
+        metrics = final_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.run, self.step, self.elapsed)
+        self.log.emit("done", step=self.step, elapsed=self.elapsed, checkpoint=str(latest), metrics=metrics)
+        return summary | {"checkpoint": str(latest), "metrics": metrics}
+
+    def _train_loop(self, batcher: RayBatcher, stop: DeferredInterrupts) -> Optional[float]:
+        """Train until the budget is spent; returns the last step's loss. Under torchrun, ``stop``
+        holds a SIGINT/SIGTERM until the step's reduce tells every rank to stop."""
+        cfg, dataset, rep = self.cfg, self.dataset, self.replicas
+        self._snapshot()
+        self.steps_since_rollback = 0
+        self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
+        last_preview_elapsed, last_preview_step = self.elapsed, self.step
+        interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
+        bar_total, bar_unit = cfg.bar_total()
+        bar = ProgressBar(total=bar_total, label="train", enabled=cfg.show_bar and self.dist.is_main)
+        params_changed = self._ckpt_wall_due = False
+        last_loss = last_psnr = None
+        first_step = self.step + 1  # always report the first step (also after --resume)
+        last_event_wall = time.monotonic()
+
+        while not cfg.finished(self.step, self.elapsed):
+            t0 = time.perf_counter()
+            frac = cfg.budget_fraction(self.step, self.elapsed)
+            hook_frac = contract.budget_fraction(self.step, self.elapsed, cfg.max_steps, cfg.max_seconds)
+            if rep is not None:  # the hook's random draws (occupancy jitter) must be equal on every rank
+                rep.seed_shared(self.step, self.rollbacks)
+            if self.model.training_hook(self.step, hook_frac):
+                self.opt = rebuild_optimizer(self.model, self.opt, self.base_lr * self.lr_scale)
+                params_changed = True
+            if rep is not None:
+                rep.seed_rank(self.gen, self.step, self.rollbacks)
+            factor = schedule_factor(self.step, frac, self.warmup)
+            for g in self.opt.param_groups:
+                g["lr"] = g["base_lr"] * factor
+            rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
+            if self.model.environment is not None:
+                bg = self.model.background(rays_d, bg)
+            near, far = self.model.ray_interval(rays_o, rays_d, dataset.near, dataset.far)
+            out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
+            mse = masked_mse(out["rgb"], gt, weight)
+            loss = mse
+            if "rgb_coarse" in out:
+                loss = loss + masked_mse(out["rgb_coarse"], gt, weight)
+            if out.get("aux_loss") is not None:
+                loss = loss + out["aux_loss"]
+            n_samples = int(out.get("n_samples", cfg.batch_rays))
+            if rep is None:
+                loss_value = float(loss.detach())
+                bad = self._bad_loss(loss_value)
+                if bad is None:
+                    self.opt.zero_grad(set_to_none=True)
+                    backward(loss)
+                    bad = self._bad_gradient()
+                self.elapsed += time.perf_counter() - t0
+            else:  # every rank takes the same decisions from the same (reduced) numbers
+                self.opt.zero_grad(set_to_none=True)
+                backward(loss)
+                params = [p for g in self.opt.param_groups for p in g["params"]]
+                shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
+                                    self.dist.is_main and self._checkpoint_due(wall_clock=True))
+                self.elapsed += shared.seconds
+                if shared.stop:
+                    raise KeyboardInterrupt
+                loss_value, mse, n_samples, self._ckpt_wall_due = shared.loss, shared.mse, shared.n_samples, shared.checkpoint_due
+                bad = self._bad_loss(loss_value) or self._bad_gradient()
+            if bad is not None:
+                if rep is not None:
+                    rep.end_step()
+                self.opt.zero_grad(set_to_none=True)
+                self._rollback(bad)
+                continue
+            t1 = time.perf_counter()
+            self.opt.step()
+            self.step += 1
+            self.steps_since_rollback += 1
+            self.loss_ema = loss_value if self.loss_ema is None else 0.98 * self.loss_ema + 0.02 * loss_value
+            if rep is not None:
+                rep.end_step()
+            else:
+                self.elapsed += time.perf_counter() - t1
+            interval["t"] += time.perf_counter() - t0
+            interval["samples"] += n_samples
+            interval["loss"] += loss_value
+            interval["n"] += 1
+            last_loss, last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
+            bar.set(cfg.bar_done(bar_unit, self.step, self.elapsed), info=f"step {self.step} loss {loss_value:.4f} psnr {last_psnr:.2f}")
+
+            if params_changed or self.step % 100 == 0:
+                self._snapshot()
+                params_changed = False
+            done = cfg.finished(self.step, self.elapsed)
+            side_work = False  # previews, checkpoints and evaluations: rank 0 writes, the others wait
+            crossed = [t for t in self._eval_marks if self.elapsed >= t]
+            if crossed:
+                # Speed-against-accuracy curves: evaluate at fixed training times inside one run, so the
+                # learning-rate and growth schedules are the real ones. Evaluation time is not training time.
+                # A slow step can cross several marks; the model is the same for all of them, so it is
+                # evaluated once and the event names every mark it stands for.
+                del self._eval_marks[:len(crossed)]
+                if self.dist.is_main:
+                    held_out_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.step, self.elapsed,
+                                  marks=crossed)
+                side_work = True
+            # Slow steps (big models on a CPU) still report at least every few seconds.
+            if (self.step == first_step or self.step % cfg.log_every == 0 or done
+                    or time.monotonic() - last_event_wall >= STEP_EVENT_SECONDS):
+                last_event_wall = time.monotonic()
+                emit_step(self.log, cfg, self.opt, self.step, self.elapsed, last_loss, last_psnr, interval)
+                interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
+            if not done and self.previews.due(self.step, last_preview_step, self.elapsed, last_preview_elapsed):
+                self._preview()
+                last_preview_step, last_preview_elapsed = self.step, self.elapsed
+                side_work = True
+            if not done and self._checkpoint_due():
+                self._save_checkpoint()
+                side_work = True
+            if side_work and rep is not None:
+                self.previews.cost = rep.after_side_work(self.previews.cost)
+        bar.close(info=f"step {self.step} loss {last_loss if last_loss is not None else float('nan'):.4f}")
+        return last_loss
+
+    def _bad_loss(self, loss_value: float) -> Optional[str]:
+        """Why a step's loss must not be applied (NaN/inf, or a jump far above its running average), or None."""
+        if not math.isfinite(loss_value):
+            return f"loss is {loss_value}"
+        if (self.loss_ema is not None and self.steps_since_rollback > 200
+                and loss_value > 10.0 * self.loss_ema and loss_value - self.loss_ema > 0.01):
+            return f"loss {loss_value:.4g} jumped above 10x its running average {self.loss_ema:.4g}"
+        return None
+
+    def _bad_gradient(self) -> Optional[str]:
+        params = [p for g in self.opt.param_groups for p in g["params"] if p.grad is not None]
+        gnorm = torch.nn.utils.clip_grad_norm_(params, float("inf")) if params else torch.tensor(0.0)
+        return None if torch.isfinite(gnorm) else "gradient is NaN or inf"
+
+    def _prefit_environment(self) -> None:
+        """Fit the learned world to the train rays that miss the scene box; counted as training time."""
+        from nerf_core.fields.environment import prefit_from_split
+
+        started = time.perf_counter()
+        msg, share = prefit_from_split(self.model, self.train, self.dataset.near, self.dataset.far, self.gen,
+                                       self.device)
+        self.elapsed += time.perf_counter() - started
+        if self.dist.is_main:
+            print(f"train: {msg}", file=sys.stderr)
+        self.log.emit("note", message=msg, miss_share=share)
+
+    # ------------------------------------------------------------------ reporting
+
+    def _checkpoint_due(self, wall_clock: bool = False) -> bool:
+        """Step-based (``checkpoint_every``) or by rank 0's wall clock, which under torchrun every rank
+        learns from the step's reduce (``wall_clock=True``: rank 0 asks its own clock)."""
+        if self.cfg.checkpoint_every:
+            return not wall_clock and self.step - self._last_ckpt_step >= self.cfg.checkpoint_every
+        if self.replicas is not None and not wall_clock:
+            return self._ckpt_wall_due
+        return time.monotonic() - self._last_ckpt_wall >= self.cfg.checkpoint_seconds
+
+    def _preview(self) -> None:
+        if not self.dist.is_main:
+            return
+        path = self.previews.write(self.model, self.step)
+        if path is not None:
+            self.log.emit("preview", step=self.step, path=str(path))
+
+
+# A CPU step costs in proportion to its rays; a GPU step at these sizes mostly costs kernel launches,
+# so 4x the rays cost few steps. 30 s on an H100 (multi, 200 px, 5 test views): vmgrid 2048 rays
+# 38.31 dB (2998 steps) against 8192 rays 38.78 dB (2504); nerf 1024 rays 31.90 dB (3101) against
+# 4096 rays 32.63 dB (2272).
+CUDA_BATCH_SCALE = 4
+
+
+def default_batch_rays(model, device: "torch.device") -> int:
+    """Rays per step when ``--batch-rays`` is not given: the method's ``default_batch_rays`` (1024 when
+    it has none), ``CUDA_BATCH_SCALE`` times that on a CUDA device."""
+    base = int(getattr(model, "default_batch_rays", 0) or 1024)
+    return base * CUDA_BATCH_SCALE if device.type == "cuda" else base
+
+
+def train(cfg: TrainConfig) -> dict:
+    """Train according to ``cfg``; returns a summary (step, elapsed, checkpoint, metrics)."""
+    return Trainer(cfg).fit()

@@ -1,0 +1,278 @@
+"""Evaluation of a run on a held-out split (the metrics themselves live in ``nerf_core.image.metrics``)."""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence
+
+import torch
+
+from nerf_core import contract
+# Re-exported: callers and tests have always found the metrics here.
+from nerf_core.image.metrics import SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, depth_mae, gaussian_window, mse_to_psnr, psnr, ssim, ssim_map
+from nerf_core.contract.naming import evenly_spaced
+
+
+def mean_finite(values: Sequence[Optional[float]]) -> Optional[float]:
+    """Mean of the finite values (None and inf/NaN skipped); None when there are none."""
+    vals = [v for v in values if v is not None and math.isfinite(v)]
+    return sum(vals) / len(vals) if vals else None
+
+
+def score_view(rgb: torch.Tensor, split, view: int, background, z_depth: Optional[torch.Tensor] = None):
+    """Metrics of one rendered view against view ``view`` of a ``data.Split``: the one comparison
+    behind ``eval``, training's held-out evaluation and ``render`` (renders.json).
+
+    ``rgb`` (h, w, 3) is the render composited onto ``background`` (3,); the ground truth is
+    composited onto the same colour (``Split.image``). PSNR counts only the split's mask pixels.
+    Returns ({"psnr", "ssim"[, "depth_mae"]}, ground truth (h, w, 3)); ``depth_mae`` when ``z_depth``
+    (h, w) is given and the split has depth.
+    """
+    gt, alpha = split.image(view, background)
+    mask = split.masks[view] if split.masks is not None else None
+    scores = {"psnr": psnr(rgb, gt, mask), "ssim": ssim(rgb, gt)}
+    if z_depth is not None and split.depth is not None:
+        scores["depth_mae"] = depth_mae(z_depth, split.depth[view], alpha if split.has_alpha else None, mask)
+    return scores, gt
+
+
+def evaluate_split(
+    model,
+    split,
+    views: Optional[Sequence[int]] = None,
+    background=(1.0, 1.0, 1.0),
+    near: Optional[float] = None,
+    far: Optional[float] = None,
+    chunk: int = 8192,
+    on_view: Optional[Callable[[dict], None]] = None,
+    pixel_filter=None,
+) -> dict:
+    """Render ``views`` of a ``data.Split`` and compare with its images.
+
+    Ground truth is composited onto ``background`` (white, like the original NeRF evaluation) and
+    the model renders onto the same colour, through the images' ``pixel_filter`` (``render_view``;
+    None: one ray through each pixel centre). Returns ``psnr``, ``ssim``, ``n_views``, ``per_view``,
+    the rendering time (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and
+    ``depth_mae`` when the split has depth.
+    """
+    from nerf_core.render.views import render_rate, render_view
+
+    views = list(range(len(split))) if views is None else list(views)
+    per_view: List[dict] = []
+    render_seconds, rays = 0.0, 0
+    for v in views:
+        started = time.perf_counter()
+        res = render_view(model, split.cameras, v, background=background, near=near, far=far, chunk=chunk,
+                          pixel_filter=pixel_filter)
+        render_seconds += time.perf_counter() - started
+        rays += res["n_rays"]
+        scores, _ = score_view(res["rgb"], split, v, background, res["z_depth"])
+        entry = {"view": v, "name": split.frames[v].stem, **scores}
+        per_view.append(entry)
+        if on_view:
+            on_view(entry)
+    out = {
+        "psnr": mean_finite([e["psnr"] for e in per_view]),
+        "ssim": mean_finite([e["ssim"] for e in per_view]),
+        "n_views": len(per_view),
+        "n_views_total": len(split),
+        "width": split.width,
+        "height": split.height,
+        "per_view": per_view,
+        **render_rate(render_seconds, rays),
+    }
+    if split.depth is not None:
+        out["depth_mae"] = mean_finite([e.get("depth_mae") for e in per_view])
+    return out
+
+
+def spread_views(n: int, k: int) -> List[int]:
+    """``k`` view indices evenly spread over ``0 .. n-1``, first and last included (``[0]`` for k <= 1):
+    the contract's ``evenly_spaced`` rule."""
+    return evenly_spaced(n, max(1, k)) if n > 0 else [0]
+
+
+def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = None, background=(1.0, 1.0, 1.0),
+                       near: Optional[float] = None, far: Optional[float] = None, chunk: int = 8192,
+                       pixel_filter=None) -> dict:
+    """``evaluate_split`` on evenly spread views of ``split``: ``max_views`` of them when given, else
+    as many as fit in ``seconds`` at the time view 0 took (at least one). The end-of-training
+    evaluation, which must not take longer than a share of the training itself.
+    """
+    from nerf_core.render.views import render_rate
+
+    n = len(split)
+    t0 = time.perf_counter()
+    kw = dict(background=background, near=near, far=far, chunk=chunk, pixel_filter=pixel_filter)
+    first = evaluate_split(model, split, [0], **kw)
+    per_view_s = time.perf_counter() - t0
+    if max_views is not None:
+        k = min(n, max_views)
+    else:
+        k = int(min(n, max(1, seconds // max(per_view_s, 1e-3))))
+    rest = [v for v in spread_views(n, k) if v != 0]
+    if not rest:
+        return first
+    more = evaluate_split(model, split, rest, **kw)
+    per_view = first["per_view"] + more["per_view"]
+    result = dict(first, per_view=per_view, n_views=len(per_view),
+                  **render_rate(first["render_seconds"] + more["render_seconds"], first["rays"] + more["rays"]))
+    for key in ("psnr", "ssim", "depth_mae"):
+        if key in first:
+            result[key] = mean_finite([e.get(key) for e in per_view])
+    return result
+
+
+def evaluate_held_out(model, dataset, max_views: Optional[int] = None, seconds: Optional[float] = None,
+                      background=(1.0, 1.0, 1.0), chunk: int = 8192) -> Optional[tuple[str, dict]]:
+    """(split name, ``evaluate_split`` result) on the held-out split of a ``data.Dataset`` (test, else
+    val), None when it has neither. Views are evenly spread: ``max_views`` of them (all when None or
+    0) or, when ``seconds`` is given and ``max_views`` is None, as many as fit in that time
+    (``evaluate_in_budget``). Views render through the dataset's pixel filter."""
+    split_name = dataset.held_out_split(("test", "val"))
+    if split_name is None:
+        return None
+    split = dataset.splits[split_name]
+    kw = dict(background=background, near=dataset.near, far=dataset.far, chunk=chunk, pixel_filter=dataset.pixel_filter)
+    if seconds is not None:
+        return split_name, evaluate_in_budget(model, split, seconds, max_views, **kw)
+    n = len(split)
+    return split_name, evaluate_split(model, split, spread_views(n, min(n, max_views or n)), **kw)
+
+
+def read_metrics_file(path: Path) -> dict:
+    """RUN/metrics.json as a dict ({} when there is none yet). A file that is not the JSON object
+    ``train`` and ``eval`` write (hand-edited, or another tool's) raises RunError naming it: merging
+    into it would throw away the scores it holds for other splits."""
+    from nerf_core.runs.checkpoints import RunError
+
+    path = Path(path)
+    if not path.exists():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise RunError(f"{path}: not readable as JSON ({type(exc).__name__}); eval merges its scores into this "
+                       "file, so move it aside (or delete it) and run eval again") from None
+    except OSError as exc:
+        raise RunError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not isinstance(data, dict):
+        raise RunError(f"{path}: expected the JSON object that train and eval write, got a {type(data).__name__}; "
+                       "move it aside (or delete it) and run eval again")
+    return data
+
+
+def update_metrics_file(path: Path, split: str, result: dict, step: Optional[int]) -> dict:
+    """Merge ``result`` into RUN/metrics.json: top-level keys describe the latest evaluation,
+    ``splits`` keeps the latest result per split. Written atomically."""
+    path = Path(path)
+    data = read_metrics_file(path)
+    summary = {k: v for k, v in result.items() if k != "per_view"}
+    summary.update({"split": split, "step": step, "time": time.time()})
+    data.update(summary)
+    data.setdefault("splits", {})[split] = dict(summary, per_view=result.get("per_view", []))
+    tmp = path.with_name("." + path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=lambda o: None), encoding="utf-8")
+    tmp.replace(path)
+    return data
+
+
+UNSEEN_WORLD_NOTE = 0.02  # share of a view on unseen world that the per-view line mentions
+
+
+def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dict:
+    """{view: share of its pixels that look at world directions no train view shows}
+    (``nerf_core.fields.world_coverage``), for a model with a learned world; {} otherwise or when the
+    train cameras cannot be read."""
+    if getattr(model, "environment", None) is None:
+        return {}
+    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.data.loading import load_cameras
+    from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
+
+    try:
+        train, _ = load_cameras(dataset_path, "train")
+    except (DatasetError, OSError, ValueError):
+        return {}
+    covered = covered_directions(train)
+    aabb = getattr(model, "aabb", None)
+    return {v: unseen_world_share(split.cameras, v, covered, None if aabb is None else aabb.detach().cpu().float())
+            for v in views}
+
+
+def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: Optional[int] = None,
+                 chunk: int = 8192, checkpoint=None, print_fn=print, show_progress: bool = True,
+                 pixel_filter: str = "auto") -> dict:
+    """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
+    view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).
+    ``pixel_filter``: "auto" renders through the dataset's film filter (``nerf_core.image.pixel_filter``),
+    "none" one ray through each pixel centre."""
+    from nerf_core.image.pixel_filter import POINT
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.utils.device import pick_device
+    from nerf_core.runs.events import EventLog
+    from nerf_core.utils.progressbar import ProgressBar
+    from nerf_core.runs.checkpoints import RunError, load_run
+    from nerf_core.runs.folder import dataset_changed_note
+
+    dev = pick_device(device)
+    run = Path(run)
+    model, config, ckpt = load_run(run, dev, checkpoint)
+    dataset_path = config.get("dataset")
+    if not dataset_path:
+        raise RunError(f"{contract.config_path(run)}: no 'dataset' recorded")
+    metrics_path = Path(contract.metrics_path(run))
+    read_metrics_file(metrics_path)  # a damaged file is refused before the evaluation, not after it
+    if Path(contract.progress_path(run)).is_dir():
+        raise RunError(f"{contract.progress_path(run)}: is a folder; eval appends its event to this file")
+    changed = dataset_changed_note(config)
+    if changed:
+        print(f"eval: note: {changed}", file=sys.stderr)
+    trained_at = int(config.get("downscale", 1))
+    if downscale is None:
+        downscale = trained_at  # score at the resolution the model learnt, as papers report downscaled scenes
+    elif int(downscale) != trained_at:
+        # said, since a score at another resolution is not comparable with the run's own evaluations
+        finer = "finer than" if int(downscale) < trained_at else "coarser than"
+        print(f"eval: note: evaluating at --downscale {int(downscale)}, {finer} the --downscale {trained_at} the run "
+              "trained at; its logged PSNR is not comparable with this one", file=sys.stderr)
+    ds = load_dataset(dataset_path, splits=(split,), downscale=int(downscale))
+    sp = ds.split(split)
+    n = len(sp) if not max_views else min(len(sp), int(max_views))
+    views = evenly_spaced(len(sp), n)
+    bg = config.get("eval_background", [1.0, 1.0, 1.0])
+    unseen = unseen_world_shares(model, dataset_path, sp, views)
+    bar = ProgressBar(total=len(views), label=f"eval {split}", enabled=show_progress)
+
+    def show(entry):
+        line = f"view {entry['view']:3d} {entry['name']}: psnr {entry['psnr']:.2f} ssim {entry['ssim']:.4f}"
+        if entry.get("depth_mae") is not None:
+            line += f" depth_mae {entry['depth_mae']:.4f}"
+        share = unseen.get(entry["view"], 0.0)
+        if share >= UNSEEN_WORLD_NOTE:
+            # Say why a view scores low when the reason is the capture, not the model.
+            line += f" ({100 * share:.0f} % looks at world no train view shows)"
+        print_fn(line)
+        bar.update(1, info=entry["name"])
+
+    film_filter = POINT if pixel_filter == "none" else ds.pixel_filter
+    result = evaluate_split(model, sp, views, background=bg, near=config.get("near"), far=config.get("far"), chunk=chunk,
+                            on_view=show, pixel_filter=film_filter)
+    bar.close()
+    step = ckpt.get("step")
+    update_metrics_file(metrics_path, split, result, step)
+    with EventLog([contract.progress_path(run)], stdout=False) as log:
+        log.emit("eval", step=step, split=split, psnr=result["psnr"], ssim=result["ssim"])
+    summary = {"psnr": result["psnr"], "ssim": result["ssim"], "split": split, "n_views": result["n_views"],
+               "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method"),
+               "pixel_filter": film_filter.to_json()}
+    if "depth_mae" in result:
+        summary["depth_mae"] = result["depth_mae"]
+    low = {sp.stems[v]: round(share, 4) for v, share in unseen.items() if share >= UNSEEN_WORLD_NOTE}
+    if low:
+        summary["unseen_world"] = low  # view name -> share of its pixels on world no train view shows
+    summary.update({k: result[k] for k in ("render_seconds", "rays", "rays_per_s")})
+    return summary

@@ -1,0 +1,46 @@
+"""Losses and regularisers: the photometric terms the trainer optimises. (The PSNR formula lives in
+``metrics``; ``psnr_from_mse`` is the trainer's name for it.)"""
+from __future__ import annotations
+
+from typing import Optional
+
+import torch
+
+from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
+
+Tensor = torch.Tensor
+
+
+def mse(pred: Tensor, target: Tensor) -> Tensor:
+    """Mean squared error over all elements of (n, 3) colours."""
+    return (pred - target).square().mean()
+
+
+def masked_mse(pred: Tensor, gt: Tensor, weight: Optional[Tensor]) -> Tensor:
+    """Mean over rays of the per-ray squared error of (n, 3) colours, each ray weighted by ``weight``
+    (n,) (a mask: 0 = ignore); plain mean when ``weight`` is None."""
+    err = ((pred - gt) ** 2).mean(-1)
+    if weight is None:
+        return err.mean()
+    return (err * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def total_variation_2d(planes: Tensor) -> Tensor:
+    """Mean squared difference between neighbouring texels of (..., H, W) planes (smoothness prior)."""
+    return (planes[..., 1:, :] - planes[..., :-1, :]).square().mean() + (planes[..., :, 1:] - planes[..., :, :-1]).square().mean()
+
+
+def l1_sparsity(*tensors: Tensor) -> Tensor:
+    """Sum of mean absolute values: pushes factorised density towards zero where nothing needs it."""
+    return sum(t.abs().mean() for t in tensors)
+
+
+def backward(loss: Tensor) -> None:
+    """``loss.backward()``, or nothing when no parameter took part in the loss.
+
+    A batch whose rays all miss the scene box (or every occupied cell) is rendered as pure background:
+    its loss is a constant, and autograd would raise "element 0 of tensors does not require grad".
+    Such a batch teaches nothing; the optimiser step that follows skips parameters without a gradient.
+    """
+    if loss.requires_grad:
+        loss.backward()

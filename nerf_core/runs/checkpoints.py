@@ -1,0 +1,345 @@
+"""Checkpoints of a run: writing them (atomic, keep-N), reading them safely, and loading a model.
+
+* ``save_checkpoint`` writes ``RUN/checkpoints/step_XXXXXXX.pt`` then ``latest.pt``, each through a
+  ``.tmp`` file and a rename, lists both in ``RUN/.written.json`` first, and keeps the newest
+  ``keep`` step files.
+* ``read_checkpoint`` loads with ``torch.load(weights_only=True)``: a checkpoint holds only tensors
+  and plain Python data, and anything else is refused (``CheckpointRefused``) rather than run.
+* ``model_from_checkpoint`` / ``load_run`` rebuild the trained model for ``render`` and ``eval``;
+  ``read_resume_checkpoint`` picks what ``train --resume`` continues from.
+
+File names come from ``nerf_core.contract``; the run folder's rules live in ``nerf_core.runs.folder``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import pickle
+import platform
+import re
+import sys
+from pathlib import Path
+from typing import Dict, Optional
+
+import numpy as np
+import torch
+
+from nerf_core import __version__, contract
+from nerf_core.runs.folder import WRITTEN_LIST, TrainError, os_reason, record_written, resume_candidates
+
+
+class RunError(Exception):
+    """A run folder or checkpoint that cannot be used; the message names the file."""
+
+
+class CheckpointRefused(RunError):
+    """A checkpoint that would need code to load (a crafted pickle): never skipped over silently."""
+
+
+# ----------------------------------------------------------------------------------------------
+# reading
+
+
+def load_state_resizing(model: torch.nn.Module, state: Dict[str, torch.Tensor]) -> None:
+    """``load_state_dict`` that copes with parameters whose saved shape differs from a fresh build.
+
+    Methods that grow during training (coarse-to-fine grids) are rebuilt at their initial size by
+    ``build_model``. A method may handle that in its own ``load_state_dict``; otherwise the
+    mismatched tensors are resized to the saved shapes before loading.
+    """
+    try:
+        model.load_state_dict(state)
+        return
+    except RuntimeError as exc:
+        if "size mismatch" not in str(exc):
+            raise
+    own = dict(model.named_parameters())
+    own.update(dict(model.named_buffers()))
+    for key, value in state.items():
+        cur = own.get(key)
+        if cur is not None and cur.shape != value.shape:
+            cur.data = torch.empty(value.shape, dtype=cur.dtype, device=cur.device)
+    model.load_state_dict(state)
+
+
+def _legacy_checkpoint_globals() -> list:
+    """The only non-tensor globals a checkpoint written before checkpoints became weights-only may hold.
+
+    Older trainers saved ``np.random.get_state()`` (a numpy array) and ``torch.__version__`` (a
+    ``TorchVersion``, a ``str`` subclass). Unpickling those needs numpy's array and dtype
+    reconstruction and that string class: data-only constructors that run no user code, so
+    allowing them keeps old runs resumable without opening the door to arbitrary pickles.
+    """
+    from torch.torch_version import TorchVersion
+
+    try:
+        from numpy._core.multiarray import _reconstruct as reconstruct  # numpy 2 (and the alias in 1.26)
+    except ImportError:
+        from numpy.core.multiarray import _reconstruct as reconstruct
+    allowed = [np.ndarray, np.dtype, TorchVersion,
+               # numpy 1.x writes numpy.core..., numpy 2.x numpy._core...: one function under either name
+               (reconstruct, "numpy.core.multiarray._reconstruct"),
+               (reconstruct, "numpy._core.multiarray._reconstruct")]
+    dtypes = getattr(np, "dtypes", None)  # numpy >= 1.25 pickles a dtype through its class (UInt32DType...)
+    if dtypes is not None:
+        allowed += [c for c in vars(dtypes).values() if isinstance(c, type) and issubclass(c, np.dtype)]
+    return allowed
+
+
+# What torch's weights-only unpickler says when a file needs something it will not build; any other
+# unpickling error is a damaged file rather than a refused one.
+_REFUSED = re.compile(r"GLOBAL (\S+) was not an allowed global|unsupported GLOBAL (\S+) whose module|"
+                      r"reduce for unrecognized function (.+)|Can only create new object.* but got (.+)")
+
+
+def read_checkpoint(path: Path) -> dict:
+    """The checkpoint at ``path``, loaded so that it cannot run code (raises RunError naming the file).
+
+    A ``.pt`` file is a pickle, and an unrestricted unpickle executes whatever the file asks for, so
+    a crafted ``latest.pt`` would run code on ``eval``, ``render`` or ``train --resume``. The trainer
+    writes only tensors and plain Python data, which ``torch.load(weights_only=True)`` accepts; the
+    numpy state of older checkpoints is admitted through ``_legacy_checkpoint_globals`` and nothing else.
+    """
+    if path.is_dir():
+        raise RunError(f"{path}: is a folder; give a checkpoint file such as "
+                       f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}")
+    if not path.is_file():
+        raise RunError(f"{path}: checkpoint not found")
+    kind = _file_kind(path)
+    if kind is not None:
+        raise RunError(f"{path}: not a checkpoint ({kind}); `python -m nerf_core train` writes "
+                       f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}")
+    try:
+        with torch.serialization.safe_globals(_legacy_checkpoint_globals()):
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = _REFUSED.search(str(exc))
+        if found is None:
+            raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
+        what = next((g.strip() for g in found.groups() if g), "")
+        raise CheckpointRefused(
+            f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"
+            + (f" ({what})" if what else "")
+            + "; it will not be loaded, because loading it could run that code. "
+            "Use a checkpoint written by `python -m nerf_core train`."
+        ) from None  # the unpickler's long advice to reload with weights_only=False must not reach the user
+    except Exception as exc:  # truncated or foreign file
+        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {_first_line(exc)})") from exc
+    if not isinstance(ckpt, dict):
+        raise RunError(f"{path}: not a nerf_core checkpoint (holds a {type(ckpt).__name__}, not a dict)")
+    return ckpt
+
+
+def _unpickler_detail(exc: BaseException) -> str:
+    """The unpickler's own complaint, without torch's advice around it (which suggests weights_only=False)."""
+    text = str(exc).split("\n\nCheck the documentation")[0]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1] if lines else type(exc).__name__
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's message, without torch's advice paragraph after it."""
+    lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+    line = lines[0] if lines else type(exc).__name__
+    return line.split(". This is an internal miniz error")[0]  # torch's paragraph on corrupted zips
+
+
+# The first bytes of what ``torch.save`` writes: a zip archive (the default since torch 1.6), or the
+# legacy format, which starts with a pickle protocol opcode.
+_TORCH_MAGIC = (b"PK\x03\x04", b"\x80")
+
+
+def _file_kind(path: Path) -> Optional[str]:
+    """None when ``path`` starts like a file ``torch.save`` writes, else what it looks like instead
+    (an empty file, text, another kind of file): a plainer message than torch's ``KeyError: 101``."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return None  # torch.load reports it, with the reason
+    if not head:
+        return "the file is empty"
+    if head.startswith(_TORCH_MAGIC):
+        return None
+    try:
+        head.decode("utf-8")
+        return "it holds text"
+    except UnicodeDecodeError:
+        return "it is not a file written by torch.save"
+
+
+def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
+    """The checkpoint's model, rebuilt with ``build_model`` and its weights, in eval mode on ``device``
+    (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
+    from nerf_core.methods.base import build_model
+    from nerf_core.methods.base import saved_options
+
+    for key in ("method", "options", "aabb", "model"):
+        if key not in ckpt:
+            raise RunError(f"{where}: missing entry {key!r} (not a nerf_core checkpoint?)")
+    method, options, aabb, weights = ckpt["method"], ckpt["options"], ckpt["aabb"], ckpt["model"]
+    # A foreign or edited checkpoint must fail here, by name, not deep inside torch with a TypeError.
+    if not isinstance(method, str):
+        raise RunError(f"{where}: entry 'method' must be a method name, got a {type(method).__name__}")
+    if not (isinstance(options, dict) and all(isinstance(k, str) for k in options)):
+        raise RunError(f"{where}: entry 'options' must be a dict of the method's options, got a {type(options).__name__}")
+    try:
+        box = torch.as_tensor(aabb, dtype=torch.float32)
+    except (TypeError, ValueError, RuntimeError, OverflowError):
+        box = None
+    if box is None or box.shape != (2, 3) or not bool(torch.isfinite(box).all()):
+        raise RunError(f"{where}: entry 'aabb' must be the scene box, 2 x 3 finite numbers (min, max)")
+    if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
+        raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
+                       f"got a {type(weights).__name__}")
+    try:
+        model = build_model(method, box, **saved_options(method, options))
+        load_state_resizing(model, weights)
+    except ValueError as exc:  # unknown method name
+        raise RunError(f"{where}: {exc}") from exc
+    except TypeError as exc:  # an option the method does not take
+        raise RunError(f"{where}: entry 'options' does not fit method {method!r}: {_first_line(exc)}") from exc
+    except (RuntimeError, KeyError) as exc:
+        raise RunError(f"{where}: the saved weights do not fit method {method!r}: {_first_line(exc)}") from exc
+    return model.to(device).eval()
+
+
+def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
+    """(model in eval mode, config dict, checkpoint dict) of a run folder."""
+    run = Path(run)
+    cfg_path = Path(contract.config_path(run))
+    if not run.is_dir():
+        raise RunError(f"{run}: run folder not found")
+    if not cfg_path.is_file():
+        raise RunError(f"{cfg_path}: not found; is {run} a folder written by `python -m nerf_core train`?")
+    try:
+        config = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
+    except (OSError, UnicodeDecodeError, RecursionError) as exc:
+        raise RunError(f"{cfg_path}: cannot read ({exc.__class__.__name__}: {exc})") from exc
+    if not isinstance(config, dict):
+        raise RunError(f"{cfg_path}: expected the JSON object that `train` writes, got a {type(config).__name__}; "
+                       f"is {run} a run folder?")
+    _check_run_config(config, cfg_path)
+    ck = Path(checkpoint) if checkpoint else Path(contract.latest_checkpoint(run))
+    ckpt = read_checkpoint(ck)
+    _check_checkpoint_of_run(ckpt, config, ck, run)
+    return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+
+
+def _check_checkpoint_of_run(ckpt: dict, config: dict, ck: Path, run: Path) -> None:
+    """Refuse (RunError) a checkpoint that another run wrote: another method, or another dataset.
+
+    ``eval RUN --checkpoint C`` and ``render RUN --checkpoint C`` apply RUN's config.json to C (near
+    and far, the evaluation background, the dataset) and ``eval`` writes C's scores into RUN's
+    metrics.json, so a checkpoint of another run would be scored against the wrong data and filed
+    under the wrong run. An older checkpoint of the same run, or one of a moved run folder, passes.
+    """
+    record = ckpt.get("config") if isinstance(ckpt.get("config"), dict) else {}
+    mine, theirs = config.get("method"), ckpt.get("method")
+    problems = []
+    if isinstance(mine, str) and isinstance(theirs, str) and mine != theirs:
+        problems.append(f"method {theirs!r}, where {run} trained {mine!r}")
+    want, have = config.get("dataset_hash"), record.get("dataset_hash")
+    if isinstance(want, str) and isinstance(have, str) and want != have:
+        problems.append(f"another dataset ({record.get('dataset', 'unknown')})")
+    if problems:
+        origin = record.get("out")
+        raise RunError(f"{ck}: this checkpoint belongs to another run" + (f" ({origin})" if origin else "")
+                       + ": " + "; ".join(problems) + f". {run}'s settings and metrics would be applied to it; "
+                       "evaluate or render it through its own run folder")
+
+
+def _check_run_config(config: dict, cfg_path: Path) -> None:
+    """Refuse (RunError naming the field) the values of a run's config.json that ``eval``, ``render``
+    and ``serve`` read, when they are not what ``train`` writes (an edited or damaged file)."""
+    def bad(key, want):
+        raise RunError(f"{cfg_path}: field {key!r} must be {want}, got {config[key]!r}")
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if "dataset" in config and config["dataset"] is not None and not isinstance(config["dataset"], str):
+        bad("dataset", "the dataset's path (a string)")
+    if "downscale" in config and not (isinstance(config["downscale"], int) and not isinstance(config["downscale"], bool)
+                                      and config["downscale"] >= 1):
+        bad("downscale", "a whole number >= 1")
+    if "eval_background" in config:
+        bg = config["eval_background"]
+        if not (isinstance(bg, list) and len(bg) == 3 and all(number(c) and 0 <= c <= 1 for c in bg)):
+            bad("eval_background", "an RGB colour: 3 numbers in [0, 1]")
+    for key in ("near", "far"):
+        if config.get(key) is not None and not (number(config[key]) and config[key] >= 0):
+            bad(key, "a number >= 0 (or null)")
+
+
+def read_resume_checkpoint(run: Path) -> tuple[Path, dict]:
+    """(path, checkpoint) that ``--resume`` continues from: latest.pt, else the newest step_*.pt that
+    loads (a full disk may have cost latest.pt). A refused checkpoint stops the search (RunError)."""
+    failures = []
+    for path in resume_candidates(run):
+        try:
+            ckpt = read_checkpoint(path)
+        except CheckpointRefused:
+            raise  # a crafted checkpoint is an alarm, not damage to route around
+        except RunError as exc:
+            failures.append(str(exc))
+            continue
+        if failures or path.name != contract.LATEST_CHECKPOINT:
+            latest = f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}"
+            print(f"train: resuming from {path}" + (f" ({failures[0]})" if failures else f" ({latest} is missing)"),
+                  file=sys.stderr)
+        return path, ckpt
+    raise RunError(failures[0] if len(failures) == 1 else
+                   f"{contract.checkpoints_dir(run)}: no checkpoint loads: " + "; ".join(failures))
+
+
+# ----------------------------------------------------------------------------------------------
+# writing
+
+
+def versions() -> dict:
+    """Library versions recorded in config.json and in every checkpoint, as plain ``str``."""
+    # str(): torch.__version__ is a TorchVersion, a class the weights-only checkpoint loader refuses.
+    return {"nerf_core": str(__version__), "torch": str(torch.__version__), "numpy": str(np.__version__),
+            "python": platform.python_version()}
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    """Write ``path`` through ``path.tmp`` and a rename. On failure (a full disk) the temporary file is
+    removed, ``path`` keeps its previous content, and TrainError names the file and the cause."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # torch.save reports a failed write as RuntimeError too
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise TrainError(f"{path}: cannot write checkpoint: {os_reason(exc)}") from None
+
+
+def save_checkpoint(run: Path, state: dict, step: int, keep: int) -> Path:
+    """Write ``state`` as ``RUN/checkpoints/step_XXXXXXX.pt`` and ``latest.pt``; returns latest's path.
+
+    Both names are recorded in ``RUN/.written.json`` before either is written. The step file goes
+    first: when ``latest.pt`` cannot be written, a complete step file still is (``--resume`` uses it).
+    Only the newest ``keep`` step files are kept. Raises TrainError naming the file that failed.
+    """
+    ck = Path(contract.checkpoints_dir(run))
+    ck.mkdir(parents=True, exist_ok=True)
+    step_path = Path(contract.step_checkpoint(run, step))
+    latest = Path(contract.latest_checkpoint(run))
+    try:
+        record_written(run, step_path, latest)
+    except OSError as exc:
+        raise TrainError(f"{run / WRITTEN_LIST}: cannot write: {os_reason(exc)}") from None
+    atomic_torch_save(state, step_path)
+    atomic_torch_save(state, latest)
+    olds = sorted(ck.glob(contract.step_glob(".pt")))
+    for p in olds[: max(0, len(olds) - keep)]:
+        p.unlink()
+    return latest

@@ -1,0 +1,84 @@
+"""Progress events: one JSON object per line, on stdout and in ``RUN/progress.jsonl``.
+
+The event vocabulary is fixed by docs/CONTRACTS.md (``start``, ``step``, ``preview``, ``rollback``,
+``checkpoint``, ``eval``, ``done``, ``error``). The Blender add-on reads these lines from the
+training subprocess, so every line must be a complete JSON object flushed at once.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import IO, Iterable, Iterator, List, Optional
+
+from nerf_core import contract
+
+
+class EventLog:
+    """Writes events to stdout (optional) and to any number of append-only files."""
+
+    def __init__(self, paths: Iterable[Path | str] = (), stdout: bool = True, stream: Optional[IO[str]] = None):
+        self.stream = stream if stream is not None else (sys.stdout if stdout else None)
+        self._files: List[IO[str]] = []
+        seen = set()
+        for p in paths:
+            p = Path(p).absolute()
+            key = p.resolve()
+            if key in seen:
+                continue
+            seen.add(key)
+            p.parent.mkdir(parents=True, exist_ok=True)
+            # Open the path as given, not as resolved: /dev/stdout resolves to /proc/PID/fd/pipe:[N]
+            # when stdout is a pipe, a name that cannot be opened.
+            self._files.append(open(p, "a", encoding="utf-8"))
+        self.events: List[dict] = []  # kept for callers (tests, the trainer's summary)
+
+    def emit(self, event: str, **fields) -> dict:
+        record = {"event": event, "time": time.time(), **contract.json_safe(fields)}
+        line = json.dumps(record, allow_nan=False)
+        for f in ([self.stream] if self.stream is not None else []) + self._files:
+            try:
+                f.write(line + "\n")
+                f.flush()
+            except OSError as exc:
+                if f is not self.stream:
+                    self._drop(f)  # its buffer still holds the line: closing it later would fail again
+                if exc.filename is None and getattr(f, "name", None):
+                    # A failed write does not say which file: the trainer names this one, not RUN.
+                    raise OSError(exc.errno, exc.strerror, str(f.name)) from None
+                raise
+        self.events.append(record)
+        return record
+
+    def _drop(self, f: IO[str]) -> None:
+        self._files.remove(f)
+        try:
+            f.close()
+        except OSError:
+            pass  # the write that failed has been reported
+
+    def close(self) -> None:
+        for f in self._files:
+            f.close()
+        self._files = []
+
+    def __enter__(self) -> "EventLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def parse_events(lines: Iterable[str]) -> Iterator[dict]:
+    """Yield the event objects among ``lines`` (``contract.parse_event_line``), skipping anything else."""
+    for line in lines:
+        event = contract.parse_event_line(line)
+        if event is not None:
+            yield event
+
+
+def read_events(path: Path | str) -> List[dict]:
+    """All events in a ``progress.jsonl`` file (tolerates partial or foreign lines)."""
+    with open(path, encoding="utf-8") as f:
+        return list(parse_events(f))

@@ -1,0 +1,451 @@
+"""The run folder a trainer writes (``--out RUN``): its checks, its lock, and what ``--overwrite`` may remove.
+
+Rules (docs/CONTRACTS.md, "Run folder"; every file name comes from ``nerf_core.contract``):
+
+* an existing non-empty run folder is refused unless ``--resume`` or ``--overwrite``
+  (``check_run_folder``); a run folder must not be, hold or sit inside the dataset
+  (``check_run_vs_dataset``);
+* one trainer at a time writes a run: it holds an exclusive ``flock`` on ``RUN/.lock``
+  (``lock_run_folder``);
+* every file a trainer writes is listed in ``RUN/.written.json`` before it is written
+  (``record_written``), and ``--overwrite`` removes only those (``clear_run_folder``);
+* ``--resume`` continues on the dataset the run was trained on, recognised by ``dataset_hash``
+  (``resume_dataset``).
+
+Checkpoint files themselves (writing, reading, loading a model) live in ``nerf_core.runs.checkpoints``.
+"""
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import re
+import sys
+import time
+from pathlib import Path
+from typing import Callable, List, Optional
+
+try:
+    import fcntl
+except ImportError:  # Windows
+    fcntl = None
+
+from nerf_core import contract
+from nerf_core.contract.transforms import DatasetError, detect_layout
+
+
+class TrainError(Exception):
+    """Training cannot start or cannot continue; the message says why and what to do."""
+
+
+RUN_LOCK = contract.LOCK  # RUN/.lock: held (flock) by the one trainer writing RUN; holds its PID
+WRITTEN_LIST = contract.WRITTEN_LIST  # RUN/.written.json: every file (relative path) this run's trainers wrote
+
+_STEP_PT = contract.step_name_pattern(".pt")
+_STEP_PNG = contract.step_name_pattern(".png")
+_CK = re.escape(contract.CHECKPOINTS_DIR)
+_PV = re.escape(contract.PREVIEWS_DIR)
+# What a trainer writes, by exact name: the only files --overwrite removes in a run that has no WRITTEN_LIST.
+LEGACY_WRITTEN = re.compile(
+    "|".join(re.escape(n) for n in (contract.CONFIG, contract.PROGRESS, contract.METRICS))
+    + f"|{_CK}/{re.escape(contract.LATEST_CHECKPOINT)}|{_CK}/{_STEP_PT}|{_PV}/{_STEP_PNG}")
+# Files a trainer writes before its first checkpoint: a folder holding only these can be started again.
+PRE_CHECKPOINT = re.compile(
+    f"{re.escape(contract.CONFIG)}|{re.escape(contract.PROGRESS)}|{_PV}/{_STEP_PNG}|{re.escape(WRITTEN_LIST)}"
+    f"|{_CK}/({re.escape(contract.LATEST_CHECKPOINT)}|{_STEP_PT})\\.tmp")
+
+
+def read_written(run: Path) -> Optional[List[str]]:
+    """The relative paths listed in RUN/.written.json; None when the run has no (readable) list."""
+    try:
+        names = json.loads((run / WRITTEN_LIST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(names, list):
+        return None
+    return [n for n in names if isinstance(n, str)]
+
+
+def record_written(run: Path, *paths: Path) -> None:
+    """Add ``paths`` (files inside ``run``) to RUN/.written.json, atomically (tmp file + rename)."""
+    names = read_written(run) or []
+    added = False
+    for p in paths:
+        rel = Path(p).resolve().relative_to(run.resolve()).as_posix()
+        if rel not in names:
+            names.append(rel)
+            added = True
+    if added or not (run / WRITTEN_LIST).is_file():
+        atomic_json(run / WRITTEN_LIST, names)
+
+
+def atomic_json(path: Path, data) -> None:
+    """Write ``data`` as JSON through a hidden ``.NAME.tmp`` and a rename: never a half-written file."""
+    tmp = path.with_name("." + path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _inside(run: Path, rel: str) -> Optional[Path]:
+    """``run/rel`` when ``rel`` is a plain relative path that stays inside ``run`` (no .., not absolute)."""
+    parts = Path(rel).parts
+    if not parts or Path(rel).is_absolute() or ".." in parts or rel == RUN_LOCK:
+        return None
+    return run / rel
+
+
+def _written_by_a_trainer(run: Path) -> bool:
+    """Whether a folder without RUN/.written.json is a run from before that list: its config.json is
+    a trainer's (a JSON object naming the method and the dataset). A user's own folder that happens
+    to hold a config.json or metrics.json is not."""
+    try:
+        cfg = json.loads((run / contract.CONFIG).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(cfg, dict) and isinstance(cfg.get("method"), str) and "dataset" in cfg
+
+
+def trainer_written(run: Path) -> List[Path]:
+    """Files in ``run`` that a previous training wrote (the only ones --overwrite may delete).
+
+    Those listed in RUN/.written.json (and their leftover ``.tmp``), else, for runs from before that
+    list, only the exact names a trainer writes. Never RUN/.lock, never a file a user put there.
+    """
+    listed = read_written(run)
+    found: List[Path] = []
+    if listed is not None:
+        for rel in listed:
+            p = _inside(run, rel)
+            if p is None:
+                continue
+            for cand in (p, p.with_name(p.name + ".tmp")):
+                if cand.is_file() and not cand.is_symlink() and cand not in found:
+                    found.append(cand)
+        if (run / WRITTEN_LIST).is_file():
+            found.append(run / WRITTEN_LIST)
+        return found
+    if not _written_by_a_trainer(run):
+        return found  # not a run at all: nothing in it is ours to delete
+    for p in sorted(run.rglob("*")) if run.is_dir() else []:
+        rel = p.relative_to(run).as_posix()
+        if p.is_file() and not p.is_symlink() and LEGACY_WRITTEN.fullmatch(rel):
+            found.append(p)
+    return found
+
+
+def run_contents(run: Path) -> List[str]:
+    """Relative paths of the files in ``run`` (the lock excluded)."""
+    if not run.is_dir():
+        return []
+    return sorted(p.relative_to(run).as_posix() for p in run.rglob("*") if p.is_file() and p.name != RUN_LOCK)
+
+
+def resume_candidates(run: Path) -> List[Path]:
+    """Checkpoints to resume from, best first: latest.pt, then step_*.pt from the newest."""
+    ck = Path(contract.checkpoints_dir(run))
+    latest = Path(contract.latest_checkpoint(run))
+    out = [latest] if latest.is_file() else []
+    if ck.is_dir():
+        out += sorted((p for p in ck.glob(contract.step_glob(".pt")) if p.is_file()), reverse=True)
+    return out
+
+
+def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
+    """Refuse to touch an existing run unless asked (raises TrainError); changes nothing."""
+    if resume and overwrite:
+        raise TrainError("--resume and --overwrite contradict each other; pick one")
+    if run.exists() and not run.is_dir():
+        raise TrainError(f"--out {run}: {run.name} is a file, and a folder is needed there")
+    if resume:
+        if not resume_candidates(run):
+            latest = Path(contract.latest_checkpoint(run))
+            files = run_contents(run)
+            if not files:
+                raise TrainError(f"{latest}: not found; nothing to resume (drop --resume to start a new run)")
+            listed = f"{', '.join(files[:6])}{', ...' if len(files) > 6 else ''}"
+            if all(PRE_CHECKPOINT.fullmatch(f) for f in files):
+                raise TrainError(
+                    f"{latest}: not found; nothing to resume: the trainer stopped before its first checkpoint. "
+                    f"Start the run again with --overwrite instead of --resume (it removes only what that trainer "
+                    f"wrote: {listed})"
+                )
+            raise TrainError(
+                f"{latest}: not found and no {contract.CHECKPOINTS_DIR}/{contract.step_glob('.pt')} either; nothing to resume. {run} "
+                f"holds other files ({listed}): choose another --out, or --overwrite "
+                "(removes only files a trainer wrote there)"
+            )
+        return
+    # The writer lock (RUN_LOCK) is not content: a trainer starting a new run creates it before it
+    # re-checks the folder, and a trainer killed with SIGKILL may leave it behind, unlocked.
+    names = sorted(p.name for p in run.iterdir() if p.name != RUN_LOCK) if run.is_dir() else []
+    if names and overwrite and read_written(run) is None and not _written_by_a_trainer(run):
+        # Not a run (no .written.json, no trainer's config.json): --overwrite may delete nothing here,
+        # and the new run would write over the user's files of the same names.
+        clash = [f for f in run_contents(run) if LEGACY_WRITTEN.fullmatch(f) or PRE_CHECKPOINT.fullmatch(f)]
+        if clash:
+            shown = ", ".join(clash[:6]) + (", ..." if len(clash) > 6 else "")
+            raise TrainError(
+                f"{run}: is not a run folder written by train (no {WRITTEN_LIST}, and its {contract.CONFIG} is not a "
+                f"trainer's), but holds files a run would write over ({shown}); --overwrite only replaces a run. "
+                "Choose another --out"
+            )
+    if names and not overwrite:
+        shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+        raise TrainError(
+            f"{run}: run folder exists and is not empty ({shown}); pass --resume to continue it, "
+            "--overwrite to start again (removes only files the trainer wrote), or choose another --out"
+        )
+
+
+def dataset_overlap(folder, dataset) -> Optional[str]:
+    """How an output ``folder`` overlaps the ``dataset`` folder (a sentence fragment), else None."""
+    ds = Path(dataset).resolve()
+    if ds.is_file():
+        ds = ds.parent
+    folder = Path(folder).resolve()
+    if folder == ds:
+        return "is the dataset folder itself"
+    if ds in folder.parents:
+        return f"lies inside the dataset folder {ds}"
+    if folder in ds.parents:
+        return f"contains the dataset {ds}"
+    return None
+
+
+def check_run_vs_dataset(run: Path, dataset) -> None:
+    """Refuse a run folder that is the dataset folder, lies inside it, or contains it (TrainError)."""
+    overlap = dataset_overlap(run, dataset)
+    if overlap is None:
+        return
+    run = Path(run).resolve()
+    why = {"is": "the run's files would mix with the dataset's. Choose a run folder outside the dataset",
+           "lies": "tools that scan the dataset would find the run's files; choose a run folder outside the dataset",
+           "contains": "--overwrite and the run's files would live beside your data. Choose a run folder that does "
+                       "not hold the dataset"}[overlap.split()[0]]
+    raise TrainError(f"--out {run}: {overlap}; {why}")
+
+
+def check_progress_file(path: Path, dataset) -> None:
+    """Refuse a ``--progress`` file that appending events would damage (TrainError): one inside the
+    dataset folder (a transforms file, an image), or an existing file that is not a progress log (its
+    first line is no JSON event). A log of an earlier run is appended to, as ``--resume`` expects."""
+    from nerf_core import contract
+
+    path = Path(path)
+    target = path.resolve()
+    ds = Path(dataset).resolve()
+    if ds.is_file():
+        ds = ds.parent
+    if target == ds or ds in target.parents:
+        raise TrainError(f"--progress {path}: lies inside the dataset folder {ds}; the events would be appended "
+                         "to your data. Choose a file outside the dataset")
+    if target.is_dir():
+        raise TrainError(f"--progress {path}: is a folder; name a file")
+    if path.exists():
+        try:  # /proc files, devices and read-only files fail here, named, rather than at the first event
+            with open(path, "a", encoding="utf-8"):
+                pass
+        except OSError as exc:
+            raise TrainError(f"--progress {path}: cannot append to it ({os_reason(exc)}); name a file") from None
+    if target.is_file() and target.stat().st_size > 0:
+        with open(target, "rb") as fh:
+            first = fh.readline(1 << 16).decode("utf-8", errors="replace")
+        if contract.parse_event_line(first) is None:
+            raise TrainError(f"--progress {path}: exists and is not a progress log (its first line is no JSON "
+                             "event); appending would damage it. Choose a new file")
+
+
+def lock_run_folder(run: Path) -> Callable[[], None]:
+    """Make this process the only trainer writing ``run``; returns the function that lets go.
+
+    Two trainers started into one folder would both pass ``check_run_folder`` and then interleave
+    their events and checkpoints. An exclusive, non-blocking ``flock`` on ``RUN/.lock`` settles it:
+    the kernel drops the lock when the process dies however it dies, so a crash never leaves the
+    run locked. The holder writes its PID into the file so that the refusal can say who holds it.
+    Raises TrainError naming the folder and that PID when another process holds the lock.
+
+    Releasing unlinks the file while still holding the lock, so a finished run leaves no lock file;
+    that is why a winner checks that the file it locked is still the one at ``RUN/.lock``: it may
+    have opened the file just before the previous holder unlinked it.
+    """
+    if fcntl is None:
+        # Windows has no flock. msvcrt.locking (mandatory byte-range locks) could stand in, but it
+        # behaves differently enough (reads of the locked range fail, unlinking an open file fails)
+        # to need its own tests on Windows; until then nothing is locked there.
+        return lambda: None
+    path = run / RUN_LOCK
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:  # a folder we may not write to: training could not write there either
+            raise TrainError(f"{path}: cannot create the run folder's lock file ({exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _lock_holder_pid(fd)
+            os.close(fd)
+            raise TrainError(
+                f"{run}: another trainer (PID {holder or 'unknown'}) is writing to this run folder (it holds "
+                f"{path}); wait for it to end or stop it, or choose another --out"
+            ) from None
+        except OSError as exc:  # a filesystem without locks (some network mounts): train unprotected
+            os.close(fd)
+            print(f"train: cannot lock {path} ({exc.strerror}); nothing stops a second trainer from writing "
+                  "to this run folder at the same time", file=sys.stderr)
+            return lambda: None
+        try:
+            current = os.stat(path)
+        except FileNotFoundError:
+            current = None
+        if current is not None and os.path.samestat(os.fstat(fd), current):
+            break
+        os.close(fd)  # we locked a file the previous holder had just unlinked: lock the new one
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+
+    def release() -> None:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        os.close(fd)
+
+    return release
+
+
+def _lock_holder_pid(fd: int) -> Optional[int]:
+    """The PID in a lock file held by someone else; waits briefly, as the holder writes it just after locking."""
+    for _ in range(20):
+        try:
+            return int(os.pread(fd, 32, 0).decode("ascii").strip())
+        except (OSError, ValueError, UnicodeDecodeError):
+            time.sleep(0.05)
+    return None
+
+
+def clear_run_folder(run: Path) -> List[str]:
+    """Delete what a previous training wrote in ``run``; return the removed paths (relative)."""
+    removed = []
+    for p in trainer_written(run):
+        p.unlink()
+        removed.append(str(p.relative_to(run)))
+    for sub in (contract.CHECKPOINTS_DIR, contract.PREVIEWS_DIR):
+        d = run / sub
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
+    return removed
+
+
+def os_reason(exc: BaseException) -> str:
+    """'no space left on device' and the like, from an OSError (or torch's RuntimeError around one)."""
+    err = getattr(exc, "errno", None)
+    if err is None:
+        cause = exc.__cause__ or exc.__context__
+        err = getattr(cause, "errno", None)
+        if err is None and "No space left on device" in str(exc):
+            err = errno.ENOSPC
+    if err == errno.ENOSPC:
+        return "no space left on device"
+    if err is not None:
+        return os.strerror(err).lower()
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def os_error_text(exc: OSError) -> str:
+    """One line for an OSError that reached the command line: the path first, the reason in words,
+    and for a path through a file, which part is the file (instead of Python's ``[Errno 20] ...``)."""
+    name = exc.filename if exc.filename is not None else ""
+    where = f"{name} -> {exc.filename2}" if exc.filename2 is not None else str(name)
+    text = f"{where}: {os_reason(exc)}" if where else os_reason(exc)
+    path = Path(str(name)) if name else None
+    if path is not None and exc.errno in (errno.ENOTDIR, errno.EEXIST):
+        blocker = next((p for p in [path, *path.parents] if p.exists() and not p.is_dir()), None)
+        if blocker is not None:
+            text += f" ({blocker} is a file, and a folder is needed there)"
+    return text
+
+
+# ----------------------------------------------------------------------------------------------
+# the dataset a run belongs to
+
+
+def dataset_hash(path) -> str:
+    """sha256 over the transforms files of a dataset (names and contents): what ``--resume`` compares
+    to tell the dataset a run was trained on from another one at the same or a different path."""
+    layout, root = detect_layout(Path(path))
+    if layout == "synthetic":
+        files = [root / f"transforms_{s}.json" for s in ("train", "val", "test")]
+    else:
+        files = [Path(path) if Path(path).is_file() else root / "transforms.json"]
+    h = hashlib.sha256()
+    for f in files:
+        if f.is_file():
+            h.update(f.name.encode() + b"\0")
+            try:
+                h.update(f.read_bytes())
+            except OSError as exc:
+                raise DatasetError(f"{f}: cannot read ({exc.strerror})") from None
+            h.update(b"\0")
+    return h.hexdigest()
+
+
+def dataset_changed_note(config: dict) -> Optional[str]:
+    """A note when the dataset a run's config.json names no longer holds the data it trained on
+    (its transforms files' hash differs), else None: ``eval`` and ``render`` still work on it, but
+    their scores then compare the model with other data (``--resume`` refuses it outright)."""
+    path, want = config.get("dataset"), config.get("dataset_hash")
+    if not (isinstance(path, str) and isinstance(want, str) and Path(path).exists()):
+        return None
+    try:
+        have = dataset_hash(path)
+    except (DatasetError, OSError):
+        return None  # loading the dataset reports it, naming the file
+    if have == want:
+        return None
+    return (f"{path} changed since the run trained on it (transforms hash {have[:12]}, trained on {want[:12]}); "
+            "the scores compare the model with the data there now")
+
+
+def resume_dataset(saved: dict, dataset: str, dataset_moved: bool) -> str:
+    """The dataset to resume on: the recorded one (``saved``: the run's config), or ``dataset`` (the
+    DATASET argument) when it holds the same dataset.
+
+    A run continued on other data would silently mix two scenes, so a DATASET other than the one the
+    run was trained on is refused unless the content hash of its transforms files (recorded in
+    config.json when the run started) matches: then the dataset was moved or copied, and the new
+    path is used. Runs from before the hash was recorded need ``dataset_moved`` to accept another path.
+    """
+    recorded = saved.get("dataset")
+    if not recorded:
+        return dataset
+    new = str(Path(dataset).resolve())
+    want = saved.get("dataset_hash")
+    if new == str(Path(recorded).resolve()):
+        if want and Path(new).exists():
+            have = dataset_hash(new)
+            if have != want:
+                raise TrainError(
+                    f"{new}: the dataset changed since the run started (transforms hash {have[:12]} "
+                    f"instead of {want[:12]}); resuming would train on other data. Start a new run "
+                    "(another --out, or --overwrite)")
+        return new
+    if want:
+        try:
+            have = dataset_hash(new)
+        except DatasetError as exc:
+            raise TrainError(f"--resume: the run was trained on {recorded}, and {exc}") from None
+        if have == want:
+            print(f"train: {new} holds the dataset the run was trained on (moved from {recorded}); using it",
+                  file=sys.stderr)
+            return new
+        raise TrainError(
+            f"--resume: the run was trained on {recorded} (transforms hash {want[:12]}), but {new} holds "
+            f"another dataset (hash {have[:12]}); resume with the original DATASET, or start a new run")
+    if dataset_moved:
+        print(f"train: --dataset-moved: resuming on {new} instead of {recorded} (this run recorded no dataset "
+              "hash to check it against)", file=sys.stderr)
+        return new
+    raise TrainError(
+        f"--resume: the run was trained on {recorded}, not {new}, and recorded no dataset hash to check that "
+        f"they hold the same data; resume with the original DATASET, or pass --dataset-moved if you moved it")

@@ -1,0 +1,70 @@
+"""Stopping a long job cleanly: SIGTERM handled like Ctrl-C.
+
+The add-on's Cancel and most job schedulers send SIGTERM; a trainer that treats it as
+``KeyboardInterrupt`` saves a checkpoint on its way out, so the run can be resumed.
+Under ``torchrun`` the ranks record the signal instead (``DeferredInterrupts``) and stop together.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+
+
+def terminate_as_interrupt():
+    """Treat SIGTERM (what the add-on's Cancel and most job schedulers send) like Ctrl-C, so the run
+    stops with a checkpoint it can resume from. Returns a function restoring the previous handler."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "SIGTERM"):
+        return lambda: None
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    return lambda: signal.signal(signal.SIGTERM, previous)
+
+
+class DeferredInterrupts:
+    """SIGINT and SIGTERM recorded rather than raised, while the ranks of a ``torchrun`` job train.
+
+    A rank that raised ``KeyboardInterrupt`` the moment the signal came would leave the others
+    waiting in a collective, at another step. Recorded, the request travels in the next step's
+    reduce (``nerf_core.engine.replicas``), and every rank stops after the same step, with rank 0 saving
+    the checkpoint. ``torchrun`` forwards a Ctrl-C (SIGINT) and SIGTERM to every rank.
+
+        with DeferredInterrupts(enabled) as stop:
+            ... stop.requested() ...
+    Leaving the block restores the previous handlers, then (``reraise``) raises ``KeyboardInterrupt``
+    if a signal came after the last check and the block is not already leaving with an exception.
+    With ``reraise=False`` the block simply shields what it runs (an interrupted run's checkpoint).
+    """
+
+    SIGNALS = ("SIGINT", "SIGTERM")
+
+    def __init__(self, enabled: bool = True, reraise: bool = True):
+        self.enabled = enabled and threading.current_thread() is threading.main_thread()
+        self.reraise = reraise
+        self.signal = None  # name of the first signal received
+        self._checked = False
+        self._previous = {}
+
+    def requested(self) -> bool:
+        """True once a signal came (checked by the step's reduce)."""
+        self._checked = self.signal is not None
+        return self._checked
+
+    def __enter__(self) -> "DeferredInterrupts":
+        if self.enabled:
+            def handler(signum, frame):
+                self.signal = self.signal or signal.Signals(signum).name
+
+            for name in self.SIGNALS:
+                if hasattr(signal, name):
+                    self._previous[name] = signal.signal(getattr(signal, name), handler)
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        for name, previous in self._previous.items():
+            signal.signal(getattr(signal, name), previous)
+        self._previous = {}
+        if self.reraise and exc_type is None and self.signal is not None and not self._checked:
+            raise KeyboardInterrupt

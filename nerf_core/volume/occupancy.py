@@ -1,0 +1,142 @@
+"""An occupancy grid over the scene box, used to skip empty space while marching rays.
+
+The grid keeps, per cell, an exponential moving average (EMA) of the density seen there and a binary
+"occupied" mask derived from it. ``update`` re-evaluates the density at a jittered point in every cell
+(``density_fn`` is the model's own density), decays the EMA and re-thresholds. Cells next to occupied
+cells are kept too (one-cell dilation): a cell that is never sampled gets no gradient, so being too
+eager to prune would freeze geometry that is still forming.
+
+If the threshold would empty the grid (density collapsed, or training just started with tiny
+densities) the grid does not go blank: the threshold drops to the mean EMA, and if that still keeps
+nothing every cell is marked occupied again, so rendering never gets stuck returning background.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from nerf_core.utils import profiling
+from nerf_core.utils.derived_cache import DerivedCache
+
+Tensor = torch.Tensor
+
+
+class OccupancyGrid(nn.Module):
+    """Binary occupancy + density EMA on a ``resolution``^3 grid spanning ``aabb`` (2, 3)."""
+
+    def __init__(self, aabb: Tensor, resolution: int = 64):
+        super().__init__()
+        self.resolution = int(resolution)
+        self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
+        r = self.resolution
+        self.register_buffer("density_ema", torch.zeros(r, r, r))
+        # Everything starts occupied: before the first update nothing is known about the scene.
+        self.register_buffer("binary", torch.ones(r, r, r, dtype=torch.bool))
+        self.n_resets = 0
+        # The dilated mask ``query_near`` reads; the mask is never written by an optimiser.
+        self._near: DerivedCache[Tensor] = DerivedCache(follow_optimizers=False)
+
+    @property
+    def occupied_fraction(self) -> float:
+        return float(self.binary.float().mean())
+
+    def cell_size(self) -> Tensor:
+        """(3,) size of one cell in scene units."""
+        return (self.aabb[1] - self.aabb[0]) / self.resolution
+
+    def _cell_index(self, pts: Tensor) -> tuple[Tensor, Tensor]:
+        """Flat cell index (m,) of points (m, 3) and whether each point is inside the box (m,).
+
+        Every sample of every ray passes through here (twice in a contracted scene), so it is written
+        for few passes over (m, 3): the flat index is one matrix-vector product of the floored cell
+        coordinates, exact in float32 up to 256^3 cells (float64 beyond). ``query`` on 470k points at
+        one thread: 8 ms, against 24 ms with per-column arithmetic."""
+        r = self.resolution
+        lo, hi = self.aabb[0], self.aabb[1]
+        u = (pts - lo) * (r / (hi - lo))  # in cells
+        inside = (u.amin(dim=-1) >= 0) & (u.amax(dim=-1) <= r)
+        dt = pts.dtype if r ** 3 <= 2 ** 24 else torch.float64
+        strides = torch.tensor([float(r * r), float(r), 1.0], dtype=dt, device=pts.device)
+        flat = (u.clamp(0, r - 1).floor().to(dt) @ strides).long()
+        # A NaN point (a ray run out to infinity along an axis it does not move on) has no cell: the
+        # clamp after the conversion sends it to cell 0, and ``inside`` is False for it.
+        return flat.clamp_(0, r ** 3 - 1), inside
+
+    @torch.no_grad()
+    def query(self, pts: Tensor) -> Tensor:
+        """(m, 3) points -> (m,) bool: inside the box and in an occupied cell."""
+        idx, inside = self._cell_index(pts)
+        return self.binary.reshape(-1)[idx] & inside
+
+    def near_reach(self) -> float:
+        """How far from a point ``query_near`` looks: one cell along each axis covers every point
+        within the smallest cell edge (a hair less, for rounding)."""
+        return 0.999 * float(self.cell_size().min())
+
+    @torch.no_grad()
+    def query_near(self, pts: Tensor) -> Tensor:
+        """(m, 3) points -> (m,) bool: an occupied cell lies within ``near_reach()`` of the point (its
+        cell or one of the 26 around it; points outside the box count from the nearest cell). False
+        means no point that near can be occupied (``sampling.occupied_samples`` skips on it)."""
+        near = self._near.get([self.binary], lambda: F.max_pool3d(
+            self.binary[None, None].float(), kernel_size=3, stride=1, padding=1)[0, 0] > 0)
+        idx, _ = self._cell_index(pts)
+        return near.reshape(-1)[idx]
+
+    def cell_centers(self, jitter: bool) -> Tensor:
+        """(resolution^3, 3) points, one per cell (uniformly random inside the cell if ``jitter``)."""
+        r = self.resolution
+        g = torch.arange(r, device=self.aabb.device, dtype=torch.float32)
+        ijk = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), dim=-1).reshape(-1, 3)
+        off = torch.rand_like(ijk) if jitter else torch.full_like(ijk, 0.5)
+        return self.aabb[0] + (ijk + off) / r * (self.aabb[1] - self.aabb[0])
+
+    @torch.no_grad()
+    def update(self, density_fn: Callable[[Tensor], Tensor] | None, step_size: float, alpha_threshold: float = 1e-3,
+               decay: float = 0.95, chunk: int = 1 << 18, dilate: bool = True,
+               cell_density: Tensor | None = None) -> None:
+        """Re-evaluate density in every cell and refresh the binary mask.
+
+        Args:
+            density_fn: points (m, 3) -> densities (m,) (called without grad, in chunks) at one random
+                point per cell; or None when ``cell_density`` gives each cell's density (r, r, r) instead
+                (e.g. the field's largest value in the cell, ``TensorVMField.density_cell_max``).
+            step_size: the marching step of the renderer; a cell is occupied when a sample there would
+                have alpha = 1 - exp(-sigma * step_size) above ``alpha_threshold``.
+            decay: EMA factor; the EMA takes max(decayed old value, new value) so that thin surfaces
+                seen once are not forgotten at the next update.
+        """
+        # Charged to the profile's ``sampling`` stage (what the grid serves), ``density_fn``'s own
+        # marks (``field``) excepted.
+        with profiling.stage("sampling"):
+            self._update(density_fn, step_size, alpha_threshold, decay, chunk, dilate, cell_density)
+
+    def _update(self, density_fn, step_size: float, alpha_threshold: float, decay: float, chunk: int,
+                dilate: bool, cell_density: Tensor | None) -> None:
+        if cell_density is not None:
+            sig = cell_density.reshape(-1).float()
+        else:
+            pts = self.cell_centers(jitter=True)
+            sig = torch.cat([density_fn(pts[i:i + chunk]).reshape(-1).float() for i in range(0, pts.shape[0], chunk)])
+        ema = torch.maximum(self.density_ema.reshape(-1) * decay, sig)
+        self.density_ema.copy_(ema.reshape(self.density_ema.shape))
+        sigma_thr = -torch.log1p(torch.tensor(-alpha_threshold)).item() / step_size
+        thr = min(sigma_thr, float(ema.mean()))  # never demand more than the average cell
+        occ = (self.density_ema > thr).float()
+        if occ.sum() == 0:
+            # Collapsed (all-zero density): reopen everything rather than render nothing forever.
+            self.n_resets += 1
+            self.binary.fill_(True)
+            return
+        if dilate:
+            occ = F.max_pool3d(occ[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
+        self.binary.copy_(occ > 0)
+
+    @torch.no_grad()
+    def reset(self) -> None:
+        """Mark every cell occupied again and forget the density history."""
+        self.density_ema.zero_()
+        self.binary.fill_(True)
