@@ -405,7 +405,7 @@ def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
     # A lone plane (a painting, an image imported as a plane) spans no z: its box was 0 thick, and every
     # loader refused the dataset (min < max).
     from addon import scene_bounds
-    from nerf_core.data.validation import dataset_problems
+    from nerf_core.data.problems import dataset_problems
 
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))
     scene = bpy.context.scene

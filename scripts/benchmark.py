@@ -127,7 +127,7 @@ def model_size(checkpoint: str) -> tuple[Optional[int], Optional[int]]:
 
     import torch
 
-    from nerf_core.methods.base import build_model
+    from nerf_core.methods.registry import build_model
     from nerf_core.runs.checkpoints import model_from_checkpoint, read_checkpoint
 
     try:

@@ -123,7 +123,7 @@ class Cameras:
 
     def downscaled(self, factor: int) -> "Cameras":
         """Intrinsics for images downscaled by the integer ``factor`` as the loader does it (cropped to a
-        multiple of ``factor``, then box-filtered; ``data._downscale``): sizes floor, and every intrinsic
+        multiple of ``factor``, then box-filtered; ``data.pixels.downscale_image``): sizes floor, and every intrinsic
         divides by ``factor``, so a render matches the ground truth that ``eval`` compares it with."""
         f = int(factor)
         w = torch.clamp(self.width // f, min=1)

@@ -7,9 +7,8 @@ surprise (an off-centre principal point that camera_angle_x-only loaders ignore)
 """
 from __future__ import annotations
 
-import json
-import re
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Iterator, List, Optional
@@ -19,8 +18,18 @@ import numpy as np
 from nerf_core.contract.intrinsics import angle_only_caveats, focal_from_fov
 from nerf_core.contract.lens import lens_problem, parse_lens
 from nerf_core.contract.naming import evenly_spaced
-from nerf_core.contract.transforms import IMAGE_EXTS, DatasetError, PoseError, check_pose, frame_infos, parse_json_file, resolve_image, why_not_a_file
-from nerf_core.image.io import ImageReadError, png_info, read_png
+from nerf_core.contract.transforms import (
+    IMAGE_EXTS,
+    DatasetError,
+    PoseError,
+    check_pose,
+    frame_infos,
+    parse_json_file,
+    resolve_image,
+    why_not_a_file,
+)
+from nerf_core.errors import ImageReadError
+from nerf_core.image.io import png_info, read_png
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
 # nerfstudio's file lives in a subfolder: instant-ngp loads every *.json of the folder it is given, and
@@ -422,9 +431,9 @@ def _training_plan(report: CheckReport, root: Path, background: str) -> None:
     the trainer's own rules: the scene box, the background and scene contraction. Nothing is trained."""
     from nerf_core.data.backgrounds import for_run
     from nerf_core.data.loading import load_dataset
-    from nerf_core.methods.base import has_option
-    from nerf_core.methods.catalog import DEFAULT_METHOD
     from nerf_core.data.scene_box import beyond_box_reason
+    from nerf_core.methods.catalog import DEFAULT_METHOD
+    from nerf_core.methods.registry import has_option
 
     try:
         ds = load_dataset(root)
@@ -462,12 +471,12 @@ _FILE_RE = re.compile(r"^(?P<file>.+?\.json): (?P<rest>.*)$", re.S)
 
 
 def _check_loadable(report: CheckReport, root: Path) -> None:
-    """Add every problem that makes ``train`` refuse the dataset (``nerf_core.data.validation.dataset_problems``,
+    """Add every problem that makes ``train`` refuse the dataset (``nerf_core.data.problems.dataset_problems``,
     the loader's own rules), so that `check` never calls valid what `train` refuses. A problem the
     convention checks above already reported for the same file and frame (or file and field) is not
     repeated. Also warns about views that show nothing (transparent everywhere, or opaque and black
     everywhere)."""
-    from nerf_core.data.validation import dataset_problems
+    from nerf_core.data.problems import dataset_problems
 
     reported = {(Path(p.file).name, p.frame) for p in report.errors}
     fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
@@ -544,7 +553,14 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
     images could not be read."""
     import torch
 
-    from nerf_core.data.backgrounds import BACKGROUNDS, FIXED_BACKGROUNDS, TRANSPARENT_SHARE, choose, percent_text, transparent_share
+    from nerf_core.data.backgrounds import (
+        BACKGROUNDS,
+        FIXED_BACKGROUNDS,
+        TRANSPARENT_SHARE,
+        choose,
+        percent_text,
+        transparent_share,
+    )
 
     fname = "transforms_train.json"
     meta = None
@@ -620,8 +636,8 @@ def _check_world_coverage(report: CheckReport, root: Path) -> None:
     """Warn about held-out views that look at parts of the world no train view shows
     (``nerf_core.fields.world_coverage``): those pixels cannot be learnt, so the view will score low."""
     from nerf_core.data.loading import cameras_of_frames
-    from nerf_core.data.validation import parse_aabb, scene_fields
     from nerf_core.data.scene_box import estimate_aabb
+    from nerf_core.data.validation import parse_aabb, scene_fields
     from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 
     try:

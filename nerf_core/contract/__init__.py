@@ -23,17 +23,52 @@ import os
 import re
 from typing import Any, Dict, Optional
 
-from .intrinsics import (ANGLE_ONLY_LOADERS, angle_only_caveats, focal_from_fov, fov_from_focal,  # noqa: F401
-                         resolve_intrinsics)
-from .film import (DEFAULT_FILTER_KIND, DEFAULT_FILTER_WIDTH, FILTER_KINDS, film_filter_field,  # noqa: F401
-                   parse_film_filter)
+from .film import (  # noqa: F401
+    DEFAULT_FILTER_KIND,
+    DEFAULT_FILTER_WIDTH,
+    FILTER_KINDS,
+    film_filter_field,
+    parse_film_filter,
+)
+from .intrinsics import (  # noqa: F401
+    ANGLE_ONLY_LOADERS,
+    angle_only_caveats,
+    focal_from_fov,
+    fov_from_focal,
+    resolve_intrinsics,
+)
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
-from .naming import (ERRORS_DIR, MAX_STEM_BYTES, MAX_STEM_CHARS, evenly_spaced, file_safe, frame_stem, output_stems,  # noqa: F401
-                     path_stem, render_files, unique_stems)
-from .transforms import (EXTRA_FIELDS, HOLDOUT_EVERY, IMAGE_EXTS, INTRINSIC_KEYS, SPLITS,  # noqa: F401
-                         DatasetError, FrameInfo, PoseError, check_pose, detect_layout, frame_infos,
-                         parse_intrinsics, read_frames, read_json, read_transforms, resolve_dataset_path,
-                         resolve_image)
+from .naming import (  # noqa: F401
+    ERRORS_DIR,
+    MAX_STEM_BYTES,
+    MAX_STEM_CHARS,
+    evenly_spaced,
+    file_safe,
+    frame_stem,
+    output_stems,
+    path_stem,
+    render_files,
+    unique_stems,
+)
+from .transforms import (  # noqa: F401
+    EXTRA_FIELDS,
+    HOLDOUT_EVERY,
+    IMAGE_EXTS,
+    INTRINSIC_KEYS,
+    SPLITS,
+    DatasetError,
+    FrameInfo,
+    PoseError,
+    check_pose,
+    detect_layout,
+    frame_infos,
+    parse_intrinsics,
+    read_frames,
+    read_json,
+    read_transforms,
+    resolve_dataset_path,
+    resolve_image,
+)
 
 # -- run folder -----------------------------------------------------------------------------------
 CONFIG = "config.json"

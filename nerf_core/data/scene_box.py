@@ -15,7 +15,7 @@ import torch
 from nerf_core.cameras.rays import Cameras, rays_for_pixels
 
 if TYPE_CHECKING:  # data imports this module; the type is only named in a signature
-    from nerf_core.data.loading import Split
+    from nerf_core.data.split import Split
 
 
 def estimate_aabb(cameras: Cameras, far: Optional[float] = None,

@@ -26,25 +26,50 @@ from typing import Callable, List, Optional
 
 import torch
 
-from nerf_core.data import backgrounds
 from nerf_core import contract
-from nerf_core.engine import distributed
-from nerf_core.runs.checkpoints import RunError, load_state_resizing, read_resume_checkpoint, save_checkpoint, versions
-from nerf_core.data.loading import Dataset, RayBatcher, load_dataset
 from nerf_core.contract.transforms import DatasetError
-from nerf_core.utils.interrupts import DeferredInterrupts, terminate_as_interrupt
+from nerf_core.data import backgrounds
+from nerf_core.data.batcher import RayBatcher
+from nerf_core.data.loading import load_dataset
+from nerf_core.data.split import Dataset
+from nerf_core.engine import distributed
+from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
+from nerf_core.engine.optim import (
+    clone_state,
+    make_optimizer,
+    rebuild_optimizer,
+    rescale_base_lrs,
+    schedule_factor,
+    warmup_steps,
+)
+from nerf_core.engine.previews import Previews
+from nerf_core.engine.replicas import Replicas
+from nerf_core.engine.report import emit_step, final_eval, held_out_eval
+from nerf_core.errors import RunError, TrainError
 from nerf_core.image.losses import backward, masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
-from nerf_core.engine.optim import clone_state, make_optimizer, rebuild_optimizer, rescale_base_lrs, schedule_factor, warmup_steps
-from nerf_core.engine.previews import Previews
+from nerf_core.runs.checkpoints import (
+    load_state_resizing,
+    read_resume_checkpoint,
+    save_checkpoint,
+    versions,
+)
 from nerf_core.runs.events import EventLog
+from nerf_core.runs.folder import (
+    check_progress_file,
+    check_run_folder,
+    check_run_vs_dataset,
+    clear_run_folder,
+    dataset_hash,
+    lock_run_folder,
+    os_reason,
+    record_written,
+)
+from nerf_core.utils.atomic import write_json_atomic
+from nerf_core.utils.interrupts import DeferredInterrupts, terminate_as_interrupt
 from nerf_core.utils.progressbar import ProgressBar
-from nerf_core.engine.replicas import Replicas
-from nerf_core.runs.folder import TrainError, atomic_json, check_progress_file, check_run_folder, check_run_vs_dataset, clear_run_folder, dataset_hash, lock_run_folder, os_reason, record_written
 from nerf_core.utils.seeding import rng_state, seed_everything, set_rng_state
-from nerf_core.engine.report import emit_step, final_eval, held_out_eval
-from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
 
 __all__ = ["TrainConfig", "TrainError", "Trainer", "train", "default_method"]
 
@@ -180,8 +205,7 @@ class Trainer:
     # ------------------------------------------------------------------ setup
 
     def _build(self, dataset: Dataset, ckpt: Optional[dict]):
-        from nerf_core.methods.base import build_model
-        from nerf_core.methods.base import saved_options
+        from nerf_core.methods.registry import build_model, saved_options
 
         cfg = self.cfg
         train = dataset.split("train")
@@ -229,8 +253,8 @@ class Trainer:
         past the box). On the capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB
         with on a transparent film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot
         hold a floor)."""
-        from nerf_core.methods.base import has_option
         from nerf_core.data.scene_box import beyond_box_reason
+        from nerf_core.methods.registry import has_option
 
         if "contract" in options or not has_option(self.method, "contract"):
             return
@@ -354,7 +378,7 @@ class Trainer:
         if self.dist.is_main:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
-            atomic_json(config, self.config_record())
+            write_json_atomic(config, self.config_record(), default=str)
         self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
                       device=str(self.device), n_params=self.model.num_parameters(), model=self.model.describe(),
                       size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,

@@ -6,37 +6,20 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence
-
-import torch
+from typing import Callable, List, Optional, Sequence
 
 from nerf_core import contract
-# Re-exported: callers and tests have always found the metrics here.
-from nerf_core.image.metrics import SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_WINDOW, depth_mae, gaussian_window, mse_to_psnr, psnr, ssim, ssim_map
 from nerf_core.contract.naming import evenly_spaced
+
+# Re-exported: callers and tests have always found the metrics here.
+from nerf_core.render.scoring import score_view
+from nerf_core.utils.atomic import write_json_atomic
 
 
 def mean_finite(values: Sequence[Optional[float]]) -> Optional[float]:
     """Mean of the finite values (None and inf/NaN skipped); None when there are none."""
     vals = [v for v in values if v is not None and math.isfinite(v)]
     return sum(vals) / len(vals) if vals else None
-
-
-def score_view(rgb: torch.Tensor, split, view: int, background, z_depth: Optional[torch.Tensor] = None):
-    """Metrics of one rendered view against view ``view`` of a ``data.Split``: the one comparison
-    behind ``eval``, training's held-out evaluation and ``render`` (renders.json).
-
-    ``rgb`` (h, w, 3) is the render composited onto ``background`` (3,); the ground truth is
-    composited onto the same colour (``Split.image``). PSNR counts only the split's mask pixels.
-    Returns ({"psnr", "ssim"[, "depth_mae"]}, ground truth (h, w, 3)); ``depth_mae`` when ``z_depth``
-    (h, w) is given and the split has depth.
-    """
-    gt, alpha = split.image(view, background)
-    mask = split.masks[view] if split.masks is not None else None
-    scores = {"psnr": psnr(rgb, gt, mask), "ssim": ssim(rgb, gt)}
-    if z_depth is not None and split.depth is not None:
-        scores["depth_mae"] = depth_mae(z_depth, split.depth[view], alpha if split.has_alpha else None, mask)
-    return scores, gt
 
 
 def evaluate_split(
@@ -147,7 +130,7 @@ def read_metrics_file(path: Path) -> dict:
     """RUN/metrics.json as a dict ({} when there is none yet). A file that is not the JSON object
     ``train`` and ``eval`` write (hand-edited, or another tool's) raises RunError naming it: merging
     into it would throw away the scores it holds for other splits."""
-    from nerf_core.runs.checkpoints import RunError
+    from nerf_core.errors import RunError
 
     path = Path(path)
     if not path.exists():
@@ -174,9 +157,7 @@ def update_metrics_file(path: Path, split: str, result: dict, step: Optional[int
     summary.update({"split": split, "step": step, "time": time.time()})
     data.update(summary)
     data.setdefault("splits", {})[split] = dict(summary, per_view=result.get("per_view", []))
-    tmp = path.with_name("." + path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=lambda o: None), encoding="utf-8")
-    tmp.replace(path)
+    write_json_atomic(path, data, allow_nan=False, default=lambda o: None)
     return data
 
 
@@ -210,13 +191,14 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).
     ``pixel_filter``: "auto" renders through the dataset's film filter (``nerf_core.image.pixel_filter``),
     "none" one ray through each pixel centre."""
-    from nerf_core.image.pixel_filter import POINT
     from nerf_core.data.loading import load_dataset
-    from nerf_core.utils.device import pick_device
+    from nerf_core.errors import RunError
+    from nerf_core.image.pixel_filter import POINT
+    from nerf_core.runs.checkpoints import load_run
     from nerf_core.runs.events import EventLog
-    from nerf_core.utils.progressbar import ProgressBar
-    from nerf_core.runs.checkpoints import RunError, load_run
     from nerf_core.runs.folder import dataset_changed_note
+    from nerf_core.utils.device import pick_device
+    from nerf_core.utils.progressbar import ProgressBar
 
     dev = pick_device(device)
     run = Path(run)

@@ -19,10 +19,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from nerf_core.utils.derived_cache import DerivedCache
 from nerf_core.fields.encodings import PositionalEncoding
-from nerf_core.image.losses import l1_sparsity, total_variation_2d
 from nerf_core.fields.vm_lookup import VMLookup, dense_density
+from nerf_core.image.losses import l1_sparsity, total_variation_2d
+from nerf_core.utils.derived_cache import DerivedCache
 
 Tensor = torch.Tensor
 

@@ -13,9 +13,8 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 
-
-class ImageReadError(Exception):
-    """A file that is missing, unreadable or not the kind of image expected."""
+from nerf_core.errors import ImageReadError
+from nerf_core.utils.atomic import atomic_path
 
 
 def _openexr(path: Path | str, doing: str):
@@ -28,10 +27,6 @@ def _openexr(path: Path | str, doing: str):
         raise ImageReadError(f"{path}: {doing} an EXR needs the OpenEXR package, which this Python lacks "
                              f"({exc}); install it with: pip install 'openexr>=3.2,<4'") from exc
     return OpenEXR
-
-
-def _tmp_path(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
 
 
 def read_png(path: Path | str) -> np.ndarray:
@@ -298,9 +293,8 @@ def write_png(path: Path | str, image: np.ndarray) -> None:
     arr = np.asarray(image)
     if arr.dtype != np.uint8:
         arr = (np.clip(np.nan_to_num(arr.astype(np.float32)), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    tmp = _tmp_path(path)
-    Image.fromarray(arr).save(tmp, format="PNG")
-    os.replace(tmp, path)
+    with atomic_path(path, _pid_temp(path)) as tmp:
+        Image.fromarray(arr).save(tmp, format="PNG")
 
 
 def write_exr(path: Path | str, channels: Dict[str, np.ndarray]) -> None:
@@ -310,7 +304,10 @@ def write_exr(path: Path | str, channels: Dict[str, np.ndarray]) -> None:
     path = Path(path)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
-    tmp = _tmp_path(path)
-    with OpenEXR.File(header, data) as f:
+    with atomic_path(path, _pid_temp(path)) as tmp, OpenEXR.File(header, data) as f:
         f.write(str(tmp))
-    os.replace(tmp, path)
+
+
+def _pid_temp(path: Path) -> Path:
+    """``.NAME.tmpPID``: image writers of several processes (render shards) may share a folder."""
+    return path.with_name(f".{path.name}.tmp{os.getpid()}")

@@ -6,8 +6,6 @@ from typing import Optional
 
 import torch
 
-from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
-
 Tensor = torch.Tensor
 
 

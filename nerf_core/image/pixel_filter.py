@@ -31,7 +31,12 @@ from typing import Optional
 
 import torch
 
-from nerf_core.contract.film import DEFAULT_FILTER_KIND, DEFAULT_FILTER_WIDTH, film_filter_field, parse_film_filter
+from nerf_core.contract.film import (
+    DEFAULT_FILTER_KIND,
+    DEFAULT_FILTER_WIDTH,
+    film_filter_field,
+    parse_film_filter,
+)
 
 Tensor = torch.Tensor
 # Rays per edge pixel. On the multi demo scene (200 px, vmgrid, 5 test views) the mean of 9 filter
@@ -67,7 +72,7 @@ class PixelFilter:
         return film_filter_field(self.kind, self.width, self.downscale)
 
     def downscaled(self, factor: int) -> "PixelFilter":
-        """The filter of images box-filtered by the integer ``factor`` (``data._downscale``), in the new
+        """The filter of images box-filtered by the integer ``factor`` (``data.pixels.downscale_image``), in the new
         pixels: each new pixel is the mean of f x f original pixels, each of those the filter's average
         around its own centre, so an offset is one of the f original centres plus the filter narrowed
         ``factor`` times (``offsets`` draws both)."""

@@ -1,4 +1,8 @@
-"""NeRF methods, selected by name: see ``base.build_model`` and ``catalog``."""
-from nerf_core.methods.base import RadianceModel, available_methods, build_model, register
+"""NeRF methods, selected by name: ``registry.build_model(name, aabb, **options)``.
 
-__all__ = ["RadianceModel", "available_methods", "build_model", "register"]
+Importing this package registers the built-in methods (``catalog``: vmgrid, nerf, nerf-nope).
+- ``base``: ``RadianceModel``, the interface every method implements, and option checks;
+- ``registry``: ``register``, ``build_model``, ``available_methods``, ``method_class``;
+- ``vmgrid``, ``nerf``: the methods; ``sizing``: ``--size auto``.
+"""
+from nerf_core.methods import catalog

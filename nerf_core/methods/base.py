@@ -1,4 +1,4 @@
-"""The interface every NeRF method implements, and the registry that builds one by name.
+"""The interface every NeRF method implements (the registry that builds one by name is ``registry``).
 
 A method is a ``RadianceModel``: an ``nn.Module`` that turns a batch of rays into colours. The
 trainer (``nerf_core/engine/trainer.py``) knows nothing else about it, so a new method only has to
@@ -7,79 +7,12 @@ implement ``render_rays`` and register itself with ``@register("name")``.
 from __future__ import annotations
 
 import math
-
 from typing import Callable, Dict, Optional
 
 import torch
 from torch import nn
 
 from nerf_core.data.scene_box import box_length_unit
-
-_REGISTRY: Dict[str, Callable[..., "RadianceModel"]] = {}
-
-
-def register(name: str):
-    """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``."""
-
-    def deco(cls):
-        _REGISTRY[name] = cls
-        cls.method_name = name
-        return cls
-
-    return deco
-
-
-def available_methods() -> list[str]:
-    _load_builtin_methods()
-    return sorted(_REGISTRY)
-
-
-def build_model(name: str, aabb: torch.Tensor, **options) -> "RadianceModel":
-    """Build method ``name`` for a scene inside ``aabb`` (2, 3) = [[xmin, ymin, zmin], [xmax, ymax, zmax]].
-
-    ``options["environment"]`` (a dict of ``EnvironmentMap`` options, or None) is handled here for
-    every method: the method is built without it and the environment is attached afterwards, so a
-    method never needs to know about the world behind the scene.
-    """
-    _load_builtin_methods()
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
-    options = dict(options)
-    env_options = options.pop("environment", None)
-    model = _REGISTRY[name](aabb=aabb, **options)
-    if env_options is not None:
-        from nerf_core.fields.environment import EnvironmentMap
-
-        if not isinstance(env_options, dict):
-            raise ValueError(f"option 'environment' must be a dict of EnvironmentMap options, got {env_options!r}")
-        model.attach_environment(EnvironmentMap(**env_options))
-    return model
-
-
-def saved_options(name: str, options: dict) -> dict:
-    """The options a checkpoint of method ``name`` was trained with: ``options`` as saved, plus, for
-    each option added after the checkpoint was written, the value that behaviour had before the
-    option existed (the method's ``options_before``). A checkpoint's model must be rebuilt as it
-    was trained, not with today's defaults; ``train --resume`` and every loader go through here."""
-    before = getattr(method_class(name), "options_before", {})
-    return {**before, **options}
-
-
-def method_class(name: str) -> Optional[type]:
-    """The ``RadianceModel`` subclass registered as ``name`` (built-in or plugin), or None."""
-    _load_builtin_methods()
-    return _REGISTRY.get(name)
-
-
-def has_option(name: str, key: str) -> bool:
-    """Whether the method registered as ``name`` takes option ``key`` (a key of its ``defaults``)."""
-    return key in getattr(method_class(name), "defaults", {})
-
-
-def _load_builtin_methods() -> None:
-    # Imported lazily so that importing the registry never pulls in every method's dependencies.
-    from nerf_core.methods import catalog
-
 
 MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
 

@@ -41,11 +41,17 @@ import math
 
 import torch
 
-from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
-from nerf_core.utils import profiling
 from nerf_core.fields.mlp import NeRFMLP
+from nerf_core.methods.base import (
+    RadianceModel,
+    check_density_unit,
+    check_options,
+    density_length,
+)
+from nerf_core.methods.registry import register
+from nerf_core.utils import profiling
+from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
 from nerf_core.volume.occupancy import OccupancyGrid
-from nerf_core.methods.base import RadianceModel, check_density_unit, check_options, density_length, register
 
 Tensor = torch.Tensor
 

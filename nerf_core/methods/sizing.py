@@ -158,7 +158,7 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
     # Cells per axis: the footprint's resolution for pixel-fine texture, half of it for coarse or none.
     fine_res = nyquist * (0.5 + 0.5 * f)
 
-    from nerf_core.methods.base import method_class
+    from nerf_core.methods.registry import method_class
 
     cls = method_class(method)
     if cls is None:

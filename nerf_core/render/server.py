@@ -64,7 +64,14 @@ def parse_request(req: Any) -> Dict[str, Any]:
 
     Raises RequestError naming the request id and field.
     """
-    from nerf_core.contract.transforms import MAX_COORDINATE, MAX_FOCAL_PX, MIN_FOCAL_PX, PoseError, check_pose, coordinate_problem
+    from nerf_core.contract.transforms import (
+        MAX_COORDINATE,
+        MAX_FOCAL_PX,
+        MIN_FOCAL_PX,
+        PoseError,
+        check_pose,
+        coordinate_problem,
+    )
 
     if not isinstance(req, dict):
         raise RequestError(f"request must be a JSON object, got {type(req).__name__}")
@@ -153,8 +160,8 @@ class RenderServer:
 
     def __init__(self, run: str, checkpoint: Optional[str] = None, device: Optional[str] = None,
                  chunk: int = 8192, out: TextIO = sys.stdout):
-        from nerf_core.utils.device import pick_device
         from nerf_core.runs.checkpoints import load_run
+        from nerf_core.utils.device import pick_device
 
         self.out = out
         self.chunk = chunk
@@ -245,7 +252,7 @@ class RenderServer:
 
     def handle(self, line: str) -> bool:
         """Answer one input line; False when the server should stop."""
-        from nerf_core.runs.checkpoints import RunError
+        from nerf_core.errors import RunError
 
         if not line.strip():
             return True
@@ -295,31 +302,3 @@ class RenderServer:
             line = self._pending.pop(0)
             if line is None or not self.handle(line):
                 return 0
-
-
-def serve_main(run: str, checkpoint: Optional[str] = None, device: Optional[str] = None, chunk: int = 8192) -> int:
-    """The ``serve`` subcommand. A run that cannot be loaded: one fatal ``error`` event, exit code 2."""
-    from nerf_core.runs.checkpoints import RunError
-
-    try:
-        server = RenderServer(run, checkpoint, device, chunk)
-    except (RunError, ValueError, OSError) as exc:
-        print(json.dumps({"event": "error", "time": time.time(), "message": str(exc), "fatal": True}), flush=True)
-        print(f"nerf_core serve: error: {exc}", file=sys.stderr)
-        return 2
-    return server.serve()
-
-
-def add_serve_parser(sub, formatter_class) -> None:
-    """The ``serve`` subcommand's flags (called by ``nerf_core.cli.main.build_parser``)."""
-    s = sub.add_parser("serve", help="load a run once and render cameras given as JSON lines on stdin",
-                       formatter_class=formatter_class,
-                       description="Render server for the Blender render engine: one JSON request per line on "
-                                   "stdin, one JSON event per line on stdout (docs/CONTRACTS.md, 'Render server').")
-    s.add_argument("run", metavar="RUN", help="run folder written by `train`")
-    s.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
-    s.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    from nerf_core.cli.main import _positive_int  # the flag rule render and eval use (cli calls this function)
-
-    s.add_argument("--chunk", type=_positive_int, default=8192, help="rays per model call (lower it to save memory)")
-    s.set_defaults(handler=lambda a: serve_main(a.run, a.checkpoint, a.device, a.chunk))

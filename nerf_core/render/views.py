@@ -9,7 +9,6 @@ and that view's ``psnr``/``ssim`` in renders.json (docs/CONTRACTS.md). File name
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import sys
@@ -21,18 +20,32 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_pixels, rays_for_view
-# Checkpoint reading moved to nerf_core.runs.checkpoints; the names stay importable from here for callers
-# written against render (scripts/benchmark.py reads model sizes through them).
-from nerf_core.runs.checkpoints import CheckpointRefused, RunError, load_run, model_from_checkpoint, read_checkpoint
 from nerf_core.contract import config_path
 from nerf_core.contract.intrinsics import resolve_intrinsics
 from nerf_core.contract.lens import parse_lens
 from nerf_core.contract.naming import frame_stem, render_files, unique_stems
-from nerf_core.contract.transforms import DatasetError, FrameInfo, PoseError, check_pose, parse_json_file, read_transforms
-from nerf_core.image.pixel_filter import DEFAULT_SAMPLES, POINT, PixelFilter, edge_pixels
-from nerf_core.utils.progressbar import ProgressBar
-from nerf_core.runs.folder import dataset_changed_note
+from nerf_core.contract.transforms import (
+    DatasetError,
+    FrameInfo,
+    PoseError,
+    check_pose,
+    parse_json_file,
+    read_transforms,
+)
 
+# Checkpoint reading moved to nerf_core.runs.checkpoints; the names stay importable from here for callers
+# written against render (scripts/benchmark.py reads model sizes through them).
+from nerf_core.errors import RunError
+from nerf_core.image.pixel_filter import (
+    DEFAULT_SAMPLES,
+    POINT,
+    PixelFilter,
+    edge_pixels,
+)
+from nerf_core.runs.checkpoints import load_run
+from nerf_core.runs.folder import dataset_changed_note
+from nerf_core.utils.atomic import write_json_atomic
+from nerf_core.utils.progressbar import ProgressBar
 
 # ----------------------------------------------------------------------------------------------
 # rendering
@@ -295,7 +308,10 @@ def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[s
         if not path.is_file():
             raise DatasetError(f"{path}: cameras file not found")
         data = parse_json_file(path)
-        from nerf_core.cameras.camera_path import cameras_from_camera_path, is_camera_path
+        from nerf_core.cameras.camera_path import (
+            cameras_from_camera_path,
+            is_camera_path,
+        )
 
         if is_camera_path(data):  # nerfstudio's camera_path.json (viewer, Blender add-on)
             cams, stems = cameras_from_camera_path(data, path)
@@ -431,9 +447,9 @@ def render_to_dir(
     if existing and not overwrite:
         names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
         raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
-    from nerf_core.evaluation.evaluate import score_view
     from nerf_core.image.io import write_exr, write_png
     from nerf_core.image.metrics import HEATMAP_VMAX, error_heatmap
+    from nerf_core.render.scoring import score_view
     from nerf_core.volume.volrend import composite_background
 
     out.mkdir(parents=True, exist_ok=True)
@@ -499,9 +515,7 @@ def render_to_dir(
         meta["metrics_background"] = [float(c) for c in bg.tolist()]
         meta["error_map_vmax"] = HEATMAP_VMAX
     meta.update(extra or {})
-    tmp = out / ".renders.json.tmp"
-    tmp.write_text(json.dumps(meta, indent=2), encoding="utf-8")
-    tmp.replace(out / "renders.json")
+    write_json_atomic(out / "renders.json", meta)
     return out / "renders.json"
 
 

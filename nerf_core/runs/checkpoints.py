@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import pickle
 import platform
 import re
@@ -26,16 +25,14 @@ import numpy as np
 import torch
 
 from nerf_core import __version__, contract
-from nerf_core.runs.folder import WRITTEN_LIST, TrainError, os_reason, record_written, resume_candidates
-
-
-class RunError(Exception):
-    """A run folder or checkpoint that cannot be used; the message names the file."""
-
-
-class CheckpointRefused(RunError):
-    """A checkpoint that would need code to load (a crafted pickle): never skipped over silently."""
-
+from nerf_core.errors import CheckpointRefused, RunError, TrainError
+from nerf_core.runs.folder import (
+    WRITTEN_LIST,
+    os_reason,
+    record_written,
+    resume_candidates,
+)
+from nerf_core.utils.atomic import atomic_path
 
 # ----------------------------------------------------------------------------------------------
 # reading
@@ -74,7 +71,9 @@ def _legacy_checkpoint_globals() -> list:
     from torch.torch_version import TorchVersion
 
     try:
-        from numpy._core.multiarray import _reconstruct as reconstruct  # numpy 2 (and the alias in 1.26)
+        from numpy._core.multiarray import (
+            _reconstruct as reconstruct,  # numpy 2 (and the alias in 1.26)
+        )
     except ImportError:
         from numpy.core.multiarray import _reconstruct as reconstruct
     allowed = [np.ndarray, np.dtype, TorchVersion,
@@ -172,8 +171,7 @@ def _file_kind(path: Path) -> Optional[str]:
 def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
     """The checkpoint's model, rebuilt with ``build_model`` and its weights, in eval mode on ``device``
     (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
-    from nerf_core.methods.base import build_model
-    from nerf_core.methods.base import saved_options
+    from nerf_core.methods.registry import build_model, saved_options
 
     for key in ("method", "options", "aabb", "model"):
         if key not in ckpt:
@@ -310,15 +308,11 @@ def versions() -> dict:
 def atomic_torch_save(obj, path: Path) -> None:
     """Write ``path`` through ``path.tmp`` and a rename. On failure (a full disk) the temporary file is
     removed, ``path`` keeps its previous content, and TrainError names the file and the cause."""
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
+        # NAME.tmp (not hidden): RUN/.written.json and --overwrite know checkpoints' leftovers by it
+        with atomic_path(path, path.with_name(path.name + ".tmp")) as tmp:
+            torch.save(obj, tmp)
     except (OSError, RuntimeError) as exc:  # torch.save reports a failed write as RuntimeError too
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
         raise TrainError(f"{path}: cannot write checkpoint: {os_reason(exc)}") from None
 
 

@@ -33,11 +33,8 @@ except ImportError:  # Windows
 
 from nerf_core import contract
 from nerf_core.contract.transforms import DatasetError, detect_layout
-
-
-class TrainError(Exception):
-    """Training cannot start or cannot continue; the message says why and what to do."""
-
+from nerf_core.errors import TrainError
+from nerf_core.utils.atomic import write_json_atomic
 
 RUN_LOCK = contract.LOCK  # RUN/.lock: held (flock) by the one trainer writing RUN; holds its PID
 WRITTEN_LIST = contract.WRITTEN_LIST  # RUN/.written.json: every file (relative path) this run's trainers wrote
@@ -77,14 +74,7 @@ def record_written(run: Path, *paths: Path) -> None:
             names.append(rel)
             added = True
     if added or not (run / WRITTEN_LIST).is_file():
-        atomic_json(run / WRITTEN_LIST, names)
-
-
-def atomic_json(path: Path, data) -> None:
-    """Write ``data`` as JSON through a hidden ``.NAME.tmp`` and a rename: never a half-written file."""
-    tmp = path.with_name("." + path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str), encoding="utf-8")
-    os.replace(tmp, path)
+        write_json_atomic(run / WRITTEN_LIST, names, default=str)
 
 
 def _inside(run: Path, rel: str) -> Optional[Path]:

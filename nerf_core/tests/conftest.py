@@ -19,7 +19,8 @@ import torch.nn.functional as F
 
 from nerf_core.cameras.rays import Cameras, rays_for_view
 from nerf_core.image.io import write_exr, write_png
-from nerf_core.methods.base import RadianceModel, register
+from nerf_core.methods.base import RadianceModel
+from nerf_core.methods.registry import register
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 

@@ -7,16 +7,16 @@ import pytest
 import torch
 
 from nerf_core import contract
-from nerf_core.image.metrics import psnr
+from nerf_core.engine.config import TrainConfig
+from nerf_core.engine.trainer import train
 from nerf_core.evaluation.evaluate import spread_views
 from nerf_core.image.losses import masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
-from nerf_core.methods.base import build_model
-from nerf_core.methods.base import RadianceModel, register
-from nerf_core.runs.events import read_events
+from nerf_core.image.metrics import psnr
+from nerf_core.methods.base import RadianceModel
+from nerf_core.methods.registry import build_model, register
 from nerf_core.methods.sizing import auto_size
-from nerf_core.engine.config import TrainConfig
-from nerf_core.engine.trainer import train
+from nerf_core.runs.events import read_events
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 SMALL_GRID = dict(res_init=16, res_final=32, upsample_at=[0.25], density_rank=8, app_rank=8, mlp_width=32,
@@ -24,7 +24,7 @@ SMALL_GRID = dict(res_init=16, res_final=32, upsample_at=[0.25], density_rank=8,
 
 
 def test_step_events_and_the_method_hook_get_the_same_budget_fraction(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.methods.base import method_class
+    from nerf_core.methods.registry import method_class
 
     seen = []
     monkeypatch.setattr(method_class("test-grid"), "training_hook", lambda self, step, frac: seen.append((step, frac)))

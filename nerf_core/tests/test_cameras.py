@@ -1,11 +1,17 @@
 """Rays and projection against hand-computed values for an off-centre, non-square camera."""
-import math
 
 import numpy as np
 import pytest
 import torch
 
-from nerf_core.cameras.rays import Cameras, camera_directions, project_points, ray_bounds, rays_for_pixels, rays_for_view
+from nerf_core.cameras.rays import (
+    Cameras,
+    camera_directions,
+    project_points,
+    ray_bounds,
+    rays_for_pixels,
+    rays_for_view,
+)
 from nerf_core.contract.transforms import PoseError, check_pose
 from nerf_core.volume.sampling import ray_aabb_intersect as intersect_aabb
 

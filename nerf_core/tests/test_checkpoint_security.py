@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.runs.checkpoints import RunError, read_checkpoint
-from nerf_core.utils.seeding import rng_state, set_rng_state
 from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.trainer import train
+from nerf_core.errors import RunError
+from nerf_core.runs.checkpoints import read_checkpoint
+from nerf_core.utils.seeding import rng_state, set_rng_state
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -1,7 +1,7 @@
 """nerf_core.contract: stdlib + numpy only, and its rules."""
+import os
 import subprocess
 import sys
-import os
 
 from nerf_core import contract
 

@@ -1,13 +1,11 @@
 """Scene contraction: the warp, the sampler that runs past the box, and a contracted vmgrid."""
 from __future__ import annotations
 
-import math
-
 import pytest
 import torch
 
+from nerf_core.methods.registry import build_model
 from nerf_core.volume.contraction import contract, outer_box
-from nerf_core.methods.base import build_model
 from nerf_core.volume.sampling import contracted_samples
 
 BOX = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 2.0]])  # centre (0, 0, 1), half-size (1, 2, 1)
@@ -74,8 +72,8 @@ def test_a_contracted_vmgrid_renders_the_world_beyond_the_box_and_trains():
 
 def test_a_method_without_contraction_says_so(tmp_path, dataset_factory):
     from nerf_core.engine.config import TrainConfig
-    from nerf_core.runs.folder import TrainError
     from nerf_core.engine.trainer import train
+    from nerf_core.errors import TrainError
 
     ds = dataset_factory(tmp_path / "ds", depth=False)
     with pytest.raises(TrainError, match="contract"):

@@ -1,6 +1,5 @@
 """Dataset loading round trips (both layouts, PNG/EXR, depth, masks) and every bad-input error."""
 import json
-import math
 
 import numpy as np
 import pytest
@@ -287,8 +286,8 @@ def test_image_without_alpha_among_rgba_is_named(sphere_dataset):
 
 def test_random_background_needs_alpha(tmp_path, dataset_factory):
     from nerf_core.engine.config import TrainConfig
-    from nerf_core.runs.folder import TrainError
     from nerf_core.engine.trainer import train
+    from nerf_core.errors import TrainError
 
     ds = dataset_factory(tmp_path / "rgb")
     for p in (ds / "train").glob("r_*.png"):

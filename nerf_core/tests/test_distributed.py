@@ -21,8 +21,8 @@ import pytest
 import torch
 
 from nerf_core.engine import distributed
-from nerf_core.utils.interrupts import DeferredInterrupts
 from nerf_core.tests.conftest import REPO_ROOT
+from nerf_core.utils.interrupts import DeferredInterrupts
 
 # vmgrid small enough for a few steps a second on one thread, with an occupancy update every 2 steps
 # and one growth (16 -> 24 cells) half-way through a 12-step budget: the parts that must stay equal.

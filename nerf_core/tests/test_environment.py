@@ -9,16 +9,20 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.data import backgrounds
 from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_view
+from nerf_core.data import backgrounds
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.scene_box import pad_box_for_interior
-from nerf_core.fields.environment import EnvironmentMap, directions_to_uv, prefit, sample_latlong, size_for_focal
+from nerf_core.fields.environment import (
+    EnvironmentMap,
+    directions_to_uv,
+    prefit,
+    sample_latlong,
+    size_for_focal,
+)
 from nerf_core.image.io import read_png, write_png
-from nerf_core.methods.base import build_model
+from nerf_core.methods.registry import build_model
 from nerf_core.render.views import render_view
-
-
 
 # ----------------------------------------------------------------------------------------------- texture
 

@@ -27,8 +27,7 @@ def test_one_dimensional_input():
 
 def _recorded_scales(monkeypatch, origin, method="vmgrid", **options):
     """The per-sample gradient scales vmgrid's render_rays asks for, with their sample distances."""
-    from nerf_core import methods
-    from nerf_core.methods.base import build_model
+    from nerf_core.methods.registry import build_model
 
     seen = []
     real = grad_scaling.scale_gradient

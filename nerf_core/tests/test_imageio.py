@@ -9,7 +9,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from nerf_core.image.io import ImageReadError, read_depth, read_exr_rgba, read_normals
+from nerf_core.errors import ImageReadError
+from nerf_core.image.io import read_depth, read_exr_rgba, read_normals
 
 H, W = 3, 4
 

@@ -7,9 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.cameras.rays import Cameras, project_points, rays_for_pixels, rays_for_view
-from nerf_core.contract.lens import Lens, parse_lens
 from nerf_core.cameras.distortion import fold_pixel
+from nerf_core.cameras.rays import (
+    Cameras,
+    project_points,
+    rays_for_pixels,
+    rays_for_view,
+)
+from nerf_core.contract.lens import Lens, parse_lens
 
 
 def _one_camera(lens, fx=100.0, fy=100.0, cx=50.0, cy=40.0, w=120, h=80):
@@ -163,9 +168,9 @@ def test_instant_ngp_is_fisheye_means_the_fisheye_model():
 
 def test_a_distorted_capture_loads_trains_and_renders_with_its_lens(dataset_factory, tmp_path):
     from nerf_core.data.loading import load_dataset
-    from nerf_core.render.views import render_run
     from nerf_core.engine.config import TrainConfig
     from nerf_core.engine.trainer import train
+    from nerf_core.render.views import render_run
 
     lens = {"camera_model": "OPENCV", "k1": -0.25, "k2": 0.05, "p1": 0.002, "p2": -0.001}
     ds = dataset_factory(tmp_path / "ds", n_train=8, n_test=2, w=32, h=24, lens=lens)

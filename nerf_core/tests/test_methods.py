@@ -10,10 +10,9 @@ import math
 import pytest
 import torch
 
-from nerf_core.volume import sampling, volrend
-from nerf_core.methods.base import available_methods, build_model
-from nerf_core.methods.base import saved_options
 from nerf_core.methods.catalog import DEFAULT_METHOD
+from nerf_core.methods.registry import available_methods, build_model, saved_options
+from nerf_core.volume import sampling, volrend
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 R = 0.6

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.image import pixel_filter as pf
 from nerf_core.cameras.rays import Cameras, rays_for_pixels
 from nerf_core.cli.main import main
+from nerf_core.image import pixel_filter as pf
 from nerf_core.render.views import render_view
 
 

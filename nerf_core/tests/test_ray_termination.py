@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
+from nerf_core.methods.registry import build_model
 from nerf_core.volume import sampling, volrend
-from nerf_core.methods.base import build_model
 from nerf_core.volume.ray_termination import visible_samples
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])

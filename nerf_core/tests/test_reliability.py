@@ -12,10 +12,10 @@ import pytest
 import torch
 
 from nerf_core.cli.main import main
-from nerf_core.runs.events import read_events
 from nerf_core.engine.config import TrainConfig
-from nerf_core.runs.folder import TrainError
 from nerf_core.engine.trainer import train
+from nerf_core.errors import TrainError
+from nerf_core.runs.events import read_events
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -97,7 +97,7 @@ class _Killed(BaseException):
 
 
 def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_says(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.methods.base import method_class
+    from nerf_core.methods.registry import method_class
 
     def hook(self, step, frac):
         if step == 2:
@@ -320,6 +320,7 @@ def _corrupt_depth(ds):
 
 def _small_depth(ds):
     import numpy as np
+
     from nerf_core.image.io import write_exr
 
     write_exr(ds / "train" / "r_2_depth.exr", {"Z": np.ones((5, 7), np.float32)})
@@ -477,7 +478,7 @@ def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, ca
     ds = dataset_factory(tmp_path / "ds")
     word = breaker(ds)
     from nerf_core.check.dataset import check_dataset
-    from nerf_core.data.validation import dataset_problems
+    from nerf_core.data.problems import dataset_problems
 
     report = check_dataset(ds)
     assert not report.ok
@@ -495,8 +496,8 @@ def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, ca
 def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_factory, tmp_path):
     from nerf_core.check.dataset import check_dataset
     from nerf_core.contract.transforms import DatasetError
-    from nerf_core.data.validation import dataset_problems
     from nerf_core.data.loading import load_dataset
+    from nerf_core.data.problems import dataset_problems
 
     ds = dataset_factory(tmp_path / "ds")
     _truncate_png(ds)
@@ -513,7 +514,7 @@ def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_f
 def test_train_images_that_all_fail_to_load_are_not_also_called_transparent(dataset_factory, tmp_path):
     # Every train frame failing (images deleted, masks unreadable) left "shows something" unknown, and
     # check added "all 8 train images are fully transparent" to the real errors.
-    from nerf_core.data.validation import dataset_problems
+    from nerf_core.data.problems import dataset_problems
 
     ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
     for png in (ds / "train").glob("r_*.png"):
@@ -525,7 +526,7 @@ def test_train_images_that_all_fail_to_load_are_not_also_called_transparent(data
 
 def test_a_valid_dataset_passes_both(sphere_dataset):
     from nerf_core.check.dataset import check_dataset
-    from nerf_core.data.validation import dataset_problems
+    from nerf_core.data.problems import dataset_problems
 
     assert check_dataset(sphere_dataset).ok and dataset_problems(sphere_dataset) == []
 
@@ -701,7 +702,7 @@ def test_one_image_named_by_two_frames_with_different_poses_is_refused(sphere_da
 
 
 def test_running_out_of_memory_names_the_settings_to_lower(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.runs.folder import TrainError
+    from nerf_core.errors import TrainError
     from nerf_core.tests.conftest import TinyGrid
 
     def no_memory(self, *a, **k):

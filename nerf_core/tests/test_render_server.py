@@ -8,12 +8,11 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from nerf_core.cameras.rays import Cameras
-from nerf_core.runs.checkpoints import load_run
-from nerf_core.render.views import render_view
 from nerf_core.render.server import RenderServer, parse_request
+from nerf_core.render.views import render_view
+from nerf_core.runs.checkpoints import load_run
 from nerf_core.tests.conftest import REPO_ROOT, look_at
 
 C2W = look_at((0.5, -2.8, 1.2))

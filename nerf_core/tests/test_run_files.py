@@ -10,10 +10,11 @@ import sys
 import pytest
 import torch
 
-from nerf_core.runs.checkpoints import RunError, load_run, read_checkpoint
-from nerf_core.evaluation.evaluate import evaluate_run
 from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.trainer import train
+from nerf_core.errors import RunError
+from nerf_core.evaluation.evaluate import evaluate_run
+from nerf_core.runs.checkpoints import load_run, read_checkpoint
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -10,11 +10,11 @@ import time
 
 import pytest
 
+from nerf_core.engine.config import TrainConfig
+from nerf_core.engine.trainer import train
+from nerf_core.errors import TrainError
 from nerf_core.runs.events import read_events
 from nerf_core.runs.folder import RUN_LOCK, check_run_folder, lock_run_folder
-from nerf_core.engine.config import TrainConfig
-from nerf_core.runs.folder import TrainError
-from nerf_core.engine.trainer import train
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

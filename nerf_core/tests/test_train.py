@@ -5,10 +5,10 @@ import math
 import pytest
 import torch
 
-from nerf_core.runs.events import read_events
 from nerf_core.engine.config import TrainConfig
-from nerf_core.runs.folder import TrainError
 from nerf_core.engine.trainer import train
+from nerf_core.errors import TrainError
+from nerf_core.runs.events import read_events
 
 
 def _cfg(ds, run, **kw):
@@ -244,7 +244,7 @@ def test_nan_gradient_with_finite_loss_also_rolls_back(sphere_dataset, tmp_path)
 
 
 def test_ctrl_c_saves_a_checkpoint_that_resumes(sphere_dataset, tmp_path, monkeypatch):
-    from nerf_core.methods.base import method_class
+    from nerf_core.methods.registry import method_class
 
     cls = method_class("test-grid")
 
@@ -269,8 +269,8 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
     import os
     import signal
 
-    from nerf_core.methods.base import method_class
     from nerf_core.engine.trainer import Trainer
+    from nerf_core.methods.registry import method_class
 
     def hook(self, step, frac):
         if step == 7:
@@ -294,9 +294,9 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
 
 
 def test_white_then_random_background(sphere_dataset):
-    from nerf_core.data.loading import load_dataset
     from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
-    from nerf_core.data.loading import RayBatcher as _Batcher
+    from nerf_core.data.batcher import RayBatcher as _Batcher
+    from nerf_core.data.loading import load_dataset
 
     split = load_dataset(sphere_dataset).splits["train"]
     b = _Batcher(split, "white-then-random", torch.Generator().manual_seed(0), torch.device("cpu"))

@@ -129,7 +129,7 @@ def test_density_cell_max_bounds_every_point_of_each_cell_and_is_reached():
 
 
 def test_vmgrid_occupancy_from_cell_maxima():
-    from nerf_core.methods.base import build_model
+    from nerf_core.methods.registry import build_model
 
     with pytest.raises(ValueError, match="occ_probe"):
         build_model("vmgrid", BOX, occ_probe="corners")

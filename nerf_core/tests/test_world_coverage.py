@@ -6,7 +6,11 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras
-from nerf_core.fields.world_coverage import _dilate, covered_directions, unseen_world_share
+from nerf_core.fields.world_coverage import (
+    _dilate,
+    covered_directions,
+    unseen_world_share,
+)
 
 
 def _camera(yaw_deg: float, pitch_deg: float = 0.0, w: int = 40, h: int = 40, fov_deg: float = 40.0,
@@ -130,10 +134,10 @@ def test_check_names_the_held_out_views_that_look_at_unseen_world(tmp_path, data
 
 
 def test_eval_says_which_views_look_at_unseen_world(tmp_path, dataset_factory):
-    from nerf_core.evaluation.evaluate import evaluate_run
-    from nerf_core.tests.test_environment import _make_opaque
     from nerf_core.engine.config import TrainConfig
     from nerf_core.engine.trainer import train
+    from nerf_core.evaluation.evaluate import evaluate_run
+    from nerf_core.tests.test_environment import _make_opaque
 
     ds = _make_opaque(dataset_factory(tmp_path / "ds", n_train=12, n_test=3, depth=False))
     _look_up_and_away(ds, 1)

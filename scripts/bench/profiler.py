@@ -62,7 +62,7 @@ def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 102
     step; CUDA is synchronised at every stage boundary when it is the device."""
     import torch
 
-    from nerf_core.methods.base import build_model
+    from nerf_core.methods.registry import build_model
     from nerf_core.utils.profiling import StageRecorder
 
     o, d, near, far, rgba, aabb = training_rays(dataset, n_rays)

@@ -108,7 +108,8 @@ def load_photo(path: str, crop: Sequence[int] = DEFAULT_CROP, downscale: int = 1
 
     Returns a Photo whose image is (side // downscale, side // downscale, 3) float32 in [0, 1].
     """
-    from nerf_core.image.io import ImageReadError, read_exr_rgba
+    from nerf_core.errors import ImageReadError
+    from nerf_core.image.io import read_exr_rgba
 
     try:
         rgb = read_exr_rgba(path)[..., :3]

@@ -36,7 +36,7 @@ def looking_dataset(root, n_views=4, size=8):
 
 
 def builtin_methods() -> list[str]:
-    from nerf_core.methods.base import available_methods
+    from nerf_core.methods.registry import available_methods
 
     return [m for m in available_methods() if not m.startswith("test-")]  # not nerf_core/tests' stand-ins
 

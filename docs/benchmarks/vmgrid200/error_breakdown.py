@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from nerf_core.runs.checkpoints import load_run  # noqa: E402
 from nerf_core.data.loading import load_cameras, load_split  # noqa: E402
 from nerf_core.image.io import read_png  # noqa: E402
-from nerf_core.methods.base import available_methods  # noqa: E402
+from nerf_core.methods.registry import available_methods  # noqa: E402
 from nerf_core.image.pixel_filter import of_run  # noqa: E402
 from nerf_core.render.views import render_view  # noqa: E402
 

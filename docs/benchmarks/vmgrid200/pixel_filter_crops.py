@@ -21,7 +21,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from nerf_core.runs.checkpoints import load_run  # noqa: E402
 from nerf_core.data.loading import load_dataset  # noqa: E402
-from nerf_core.evaluation.evaluate import score_view  # noqa: E402
+from nerf_core.render.scoring import score_view  # noqa: E402
 from nerf_core.image.pixel_filter import edge_pixels  # noqa: E402
 from nerf_core.render.views import render_view  # noqa: E402
 

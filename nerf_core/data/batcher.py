@@ -1,0 +1,50 @@
+"""Training batches: ``RayBatcher`` draws random rays (and their target colours) from a ``Split``.
+"""
+from __future__ import annotations
+
+import torch
+
+from nerf_core.data.split import Split
+
+
+class RayBatcher:
+    """Random ray batches over every pixel of a (train) split; images stay uint8 on the CPU.
+
+    ``background`` is a ``train --background`` mode other than ``auto`` (see ``nerf_core.data.backgrounds``);
+    ``gen`` draws every random number (pixels, random colours), so a saved generator state replays
+    the same batches.
+    """
+
+    def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device):
+        self.split, self.gen, self.device = split, gen, device
+        self.background = background
+        self.hw = split.height * split.width
+        self.total = len(split) * self.hw
+        # Ground truth is composited onto white in environment mode too (the loaders' convention for the
+        # few transparent pixels an opaque capture may have); the model's environment replaces ``bg``.
+        self.fixed_bg = torch.tensor([0.0, 0.0, 0.0] if background == "black" else [1.0, 1.0, 1.0])
+
+    def sample(self, n: int, frac: float = 1.0):
+        """``n`` random rays at ``frac`` (in [0, 1]) of the training budget.
+
+        Returns rays_o (n, 3), rays_d (n, 3), background (n, 3), ground-truth colour (n, 3) composited
+        onto that background, and the mask weight (n,) or None, all on ``device``.
+        """
+        from nerf_core.cameras.rays import rays_for_pixels
+        from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
+
+        flat = torch.randint(0, self.total, (n,), generator=self.gen)
+        view = flat // self.hw
+        pix = flat % self.hw
+        j, i = pix // self.split.width, pix % self.split.width
+        random_bg = self.background == "random" or (self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION)
+        if random_bg:
+            bg = torch.rand(n, 3, generator=self.gen)
+        else:
+            bg = self.fixed_bg.expand(n, 3)
+        rgb, _ = self.split.pixels(view, j, i, bg)
+        rays_o, rays_d, _ = rays_for_pixels(self.split.cameras, view, i, j)
+        weight = self.split.masks[view, j, i].float() if self.split.masks is not None else None
+        d = self.device
+        return (rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
+                None if weight is None else weight.to(d))

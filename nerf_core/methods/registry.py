@@ -1,0 +1,67 @@
+"""The registry of methods: build one by name, and what a name offers.
+
+The built-in methods (``catalog``) register when ``nerf_core.methods`` is imported, which any import
+of this module does first; a plugin registers its own with ``@register("name")``.
+"""
+from __future__ import annotations
+
+from typing import Callable, Dict, Optional
+
+import torch
+
+from nerf_core.fields.environment import EnvironmentMap
+
+_REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
+
+
+def register(name: str):
+    """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``."""
+
+    def deco(cls):
+        _REGISTRY[name] = cls
+        cls.method_name = name
+        return cls
+
+    return deco
+
+
+def available_methods() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
+    """Build method ``name`` for a scene inside ``aabb`` (2, 3) = [[xmin, ymin, zmin], [xmax, ymax, zmax]].
+
+    ``options["environment"]`` (a dict of ``EnvironmentMap`` options, or None) is handled here for
+    every method: the method is built without it and the environment is attached afterwards, so a
+    method never needs to know about the world behind the scene.
+    """
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
+    options = dict(options)
+    env_options = options.pop("environment", None)
+    model = _REGISTRY[name](aabb=aabb, **options)
+    if env_options is not None:
+        if not isinstance(env_options, dict):
+            raise ValueError(f"option 'environment' must be a dict of EnvironmentMap options, got {env_options!r}")
+        model.attach_environment(EnvironmentMap(**env_options))
+    return model
+
+
+def saved_options(name: str, options: dict) -> dict:
+    """The options a checkpoint of method ``name`` was trained with: ``options`` as saved, plus, for
+    each option added after the checkpoint was written, the value that behaviour had before the
+    option existed (the method's ``options_before``). A checkpoint's model must be rebuilt as it
+    was trained, not with today's defaults; ``train --resume`` and every loader go through here."""
+    before = getattr(method_class(name), "options_before", {})
+    return {**before, **options}
+
+
+def method_class(name: str) -> Optional[type]:
+    """The ``RadianceModel`` subclass registered as ``name`` (built-in or plugin), or None."""
+    return _REGISTRY.get(name)
+
+
+def has_option(name: str, key: str) -> bool:
+    """Whether the method registered as ``name`` takes option ``key`` (a key of its ``defaults``)."""
+    return key in getattr(method_class(name), "defaults", {})
