@@ -17,6 +17,7 @@ import torch
 # Pose validation (contract.check_pose) and the focal-length rule (contract.resolve_intrinsics) live
 # in nerf_core.contract: the add-on needs them without torch.
 from nerf_core.cameras.distortion import distort_direction, pixel_directions
+from nerf_core.contract.lens import Lens
 from nerf_core.volume.sampling import ray_aabb_intersect
 
 _FIELDS = ("c2w", "fx", "fy", "cx", "cy", "width", "height")
@@ -88,7 +89,6 @@ class Cameras:
 
     def lens(self, view: int):
         """The ``contract.Lens`` of camera ``view``, or None for a pinhole."""
-        from nerf_core.contract.lens import Lens
 
         if self.dist is None:
             return None

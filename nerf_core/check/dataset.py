@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Dict, Iterator, List, Optional
 
 import numpy as np
+import torch
 
 from nerf_core.contract.intrinsics import angle_only_caveats, focal_from_fov
 from nerf_core.contract.lens import lens_problem, parse_lens
@@ -28,8 +29,24 @@ from nerf_core.contract.transforms import (
     resolve_image,
     why_not_a_file,
 )
+from nerf_core.data.backgrounds import (
+    BACKGROUNDS,
+    FIXED_BACKGROUNDS,
+    TRANSPARENT_SHARE,
+    choose,
+    for_run,
+    percent_text,
+    transparent_share,
+)
+from nerf_core.data.loading import cameras_of_frames, load_dataset
+from nerf_core.data.problems import dataset_problems
+from nerf_core.data.scene_box import beyond_box_reason, estimate_aabb
+from nerf_core.data.validation import parse_aabb, scene_fields
 from nerf_core.errors import ImageReadError
+from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 from nerf_core.image.io import png_info, read_png
+from nerf_core.methods.catalog import DEFAULT_METHOD
+from nerf_core.methods.registry import has_option
 
 SPLIT_FILES = ("transforms_train.json", "transforms_val.json", "transforms_test.json")
 # nerfstudio's file lives in a subfolder: instant-ngp loads every *.json of the folder it is given, and
@@ -429,11 +446,6 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
 def _training_plan(report: CheckReport, root: Path, background: str) -> None:
     """What `train` (with ``--background background``) will decide for this valid dataset on its own, by
     the trainer's own rules: the scene box, the background and scene contraction. Nothing is trained."""
-    from nerf_core.data.backgrounds import for_run
-    from nerf_core.data.loading import load_dataset
-    from nerf_core.data.scene_box import beyond_box_reason
-    from nerf_core.methods.catalog import DEFAULT_METHOD
-    from nerf_core.methods.registry import has_option
 
     try:
         ds = load_dataset(root)
@@ -476,7 +488,6 @@ def _check_loadable(report: CheckReport, root: Path) -> None:
     convention checks above already reported for the same file and frame (or file and field) is not
     repeated. Also warns about views that show nothing (transparent everywhere, or opaque and black
     everywhere)."""
-    from nerf_core.data.problems import dataset_problems
 
     reported = {(Path(p.file).name, p.frame) for p in report.errors}
     fields = {(Path(p.file).name, p.field) for p in report.errors if p.field}
@@ -551,16 +562,6 @@ def _check_background(report: CheckReport, root: Path, background: str) -> Optio
 
     Returns whether the train images are opaque (their background is the world), or None when the
     images could not be read."""
-    import torch
-
-    from nerf_core.data.backgrounds import (
-        BACKGROUNDS,
-        FIXED_BACKGROUNDS,
-        TRANSPARENT_SHARE,
-        choose,
-        percent_text,
-        transparent_share,
-    )
 
     fname = "transforms_train.json"
     meta = None
@@ -635,10 +636,6 @@ UNSEEN_WORLD_WARN = 0.02  # share of a held-out view's pixels on unseen world th
 def _check_world_coverage(report: CheckReport, root: Path) -> None:
     """Warn about held-out views that look at parts of the world no train view shows
     (``nerf_core.fields.world_coverage``): those pixels cannot be learnt, so the view will score low."""
-    from nerf_core.data.loading import cameras_of_frames
-    from nerf_core.data.scene_box import estimate_aabb
-    from nerf_core.data.validation import parse_aabb, scene_fields
-    from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 
     try:
         _, _, infos, scene = frame_infos(root)

@@ -24,7 +24,8 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .lens import Lens, lens_problem, parse_lens
+from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
+from .naming import frame_stem
 
 SPLITS = ("train", "val", "test")
 # Top-level fields that describe the scene rather than one camera; the first split file that has one
@@ -332,7 +333,6 @@ class FrameInfo:
     @property
     def stem(self) -> str:
         """The frame's name before de-duplication (``naming.frame_stem``)."""
-        from .naming import frame_stem
 
         return frame_stem({"name": self.name, "file_path": self.file_path}, self.index)
 
@@ -489,7 +489,6 @@ def _overridden_intrinsics(meta: dict) -> Optional[str]:
     model, distortion) that differs from the top level's, else None. The tools disagree on which wins:
     instant-ngp (and this loader) take the frame's, nerfstudio's parser the top level's for every
     frame, so the one file means two cameras."""
-    from .lens import DISTORTION_KEYS
 
     frames = meta.get("frames") if isinstance(meta.get("frames"), list) else []
     for key in (*INTRINSIC_KEYS, "camera_model", *DISTORTION_KEYS):

@@ -19,6 +19,8 @@ from typing import Optional, Tuple
 
 import torch
 
+from nerf_core.errors import TrainError
+
 BACKGROUNDS = ("auto", "environment", "random", "white", "black", "white-then-random")
 # Modes that cannot show an opaque image's background (a photograph, a world): they would have to
 # explain it with geometry inside the box.
@@ -133,7 +135,6 @@ def for_run(requested: str, recorded: Optional[str], dataset) -> Tuple[str, str]
 def for_training(requested: str, ckpt: Optional[dict], dataset) -> Tuple[str, str, list]:
     """``for_run`` for the trainer: (mode, reason, evaluation background RGB) for a new run
     (``ckpt`` None) or a resumed one, refusing (TrainError) a mode the dataset or run cannot train."""
-    from nerf_core.errors import TrainError
 
     train = dataset.split("train")
     recorded = (ckpt.get("config") or {}).get("background_used") if ckpt is not None else None

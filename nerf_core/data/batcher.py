@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from nerf_core.cameras.rays import rays_for_pixels
+from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
 from nerf_core.data.split import Split
 
 
@@ -30,8 +32,6 @@ class RayBatcher:
         Returns rays_o (n, 3), rays_d (n, 3), background (n, 3), ground-truth colour (n, 3) composited
         onto that background, and the mask weight (n,) or None, all on ``device``.
         """
-        from nerf_core.cameras.rays import rays_for_pixels
-        from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
 
         flat = torch.randint(0, self.total, (n,), generator=self.gen)
         view = flat // self.hw

@@ -45,6 +45,7 @@ from nerf_core.data.validation import (
     transparent_train_problem,
 )
 from nerf_core.errors import ImageReadError
+from nerf_core.image.io import png_info
 
 # ----------------------------------------------------------------------------------------------
 # pixels
@@ -199,7 +200,6 @@ def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[F
 
 def cameras_of_frames(frames: List[FrameInfo]) -> Cameras:
     """Cameras of parsed frames without reading pixels: sizes from ``w``/``h``, else the image headers."""
-    from nerf_core.image.io import png_info
 
     params, sizes = [], []
     for fr in frames:

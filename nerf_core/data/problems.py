@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Callable, List, Optional
 
 from nerf_core.contract.transforms import SPLITS, DatasetError, FrameInfo, frame_infos
+from nerf_core.data.loading import load_split
 from nerf_core.data.validation import (
     black_train_problem,
     check_duplicate_images,
@@ -32,7 +33,6 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
     frame, one-frame Split)`` sees each frame that loads first (``check`` looks at its pixels there
     rather than decode every image twice).
     """
-    from nerf_core.data.loading import load_split
 
     try:
         layout, root, infos, scene = frame_infos(path, SPLITS)

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras, rays_for_pixels
+from nerf_core.volume.sampling import ray_aabb_intersect
 
 if TYPE_CHECKING:  # data imports this module; the type is only named in a signature
     from nerf_core.data.split import Split
@@ -133,7 +134,6 @@ def beyond_box_share(split: "Split", aabb: torch.Tensor, max_pixels: int = 200_0
     """Share of ``split``'s pixels that are opaque (alpha >= 0.5) while their ray misses ``aabb``
     (2, 3); 0 for images without alpha, where the world and far geometry cannot be told apart.
     At most ``max_pixels`` pixels are drawn, evenly at random over the views."""
-    from nerf_core.volume.sampling import ray_aabb_intersect
 
     if not len(split) or not split.has_alpha:
         return 0.0

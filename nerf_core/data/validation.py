@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from nerf_core.contract.transforms import DatasetError, FrameInfo, coordinate_problem
+from nerf_core.image.pixel_filter import parse
 
 # A box thinner than this along an axis holds no scene: its grid cells would be below float32's reach.
 MIN_BOX_EXTENT = 1e-6
@@ -123,7 +124,6 @@ def scene_fields(scene: dict) -> tuple:
 def scene_pixel_filter(scene: dict):
     """The dataset's ``pixel_filter`` (``nerf_core.image.pixel_filter``; Blender's default when the field is
     absent), validated: DatasetError names the file and the field."""
-    from nerf_core.image.pixel_filter import parse
 
     try:
         return parse(scene.get("pixel_filter"), str(scene.get("pixel_filter_file", "dataset")))

@@ -12,6 +12,8 @@ from typing import Dict, List, Optional
 from nerf_core import contract
 from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.errors import TrainError
+from nerf_core.methods import catalog
+from nerf_core.methods.registry import available_methods, method_class
 from nerf_core.runs.folder import resume_dataset
 
 MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
@@ -105,11 +107,9 @@ class TrainConfig:
             raise TrainError(f"--eval-at: training times must be finite numbers of seconds > 0, got {bad[0]}")
         if self.method is not None and not self.method.strip():
             raise TrainError("--method is empty; leave it out for the default method, or name one")
-        from nerf_core.methods.registry import method_class
 
         cls = method_class(self.method or default_method())
         if cls is None:
-            from nerf_core.methods.registry import available_methods
 
             raise TrainError(f"unknown method {self.method!r}; choose one of {', '.join(available_methods())}")
         if hasattr(cls, "validate_options"):
@@ -167,8 +167,6 @@ def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
 
 def default_method() -> str:
     """The catalog's DEFAULT_METHOD, else the first registered method (TrainError when none is)."""
-    from nerf_core.methods import catalog
-    from nerf_core.methods.registry import available_methods
 
     names = available_methods()
     name = getattr(catalog, "DEFAULT_METHOD", None)

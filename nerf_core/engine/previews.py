@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Optional
 
 from nerf_core import contract
+from nerf_core.image.io import write_png
+from nerf_core.render.views import render_view
 from nerf_core.runs.folder import record_written
 
 
@@ -45,8 +47,6 @@ class Previews:
         """Render the preview camera with ``model`` (back in train mode afterwards); the PNG's path."""
         if self.camera is None:
             return None
-        from nerf_core.image.io import write_png
-        from nerf_core.render.views import render_view
 
         started = time.monotonic()
         model.eval()

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from nerf_core import contract
+from nerf_core.errors import RunError
 from nerf_core.evaluation.evaluate import (
     evaluate_held_out,
     read_metrics_file,
@@ -84,7 +85,6 @@ def _set_aside_if_damaged(metrics: Path) -> None:
     """Rename a metrics.json that is not the JSON object train writes (edited by hand since the run
     started) to ``metrics.json.damaged`` so that the end of a long training neither fails on it nor
     silently drops what it held."""
-    from nerf_core.errors import RunError
 
     try:
         read_metrics_file(metrics)

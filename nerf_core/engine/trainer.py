@@ -31,6 +31,7 @@ from nerf_core.contract.transforms import DatasetError
 from nerf_core.data import backgrounds
 from nerf_core.data.batcher import RayBatcher
 from nerf_core.data.loading import load_dataset
+from nerf_core.data.scene_box import beyond_box_reason
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
 from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
@@ -46,9 +47,12 @@ from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
 from nerf_core.engine.report import emit_step, final_eval, held_out_eval
 from nerf_core.errors import RunError, TrainError
+from nerf_core.fields.environment import prefit_from_split, size_for_focal
 from nerf_core.image.losses import backward, masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
+from nerf_core.methods.registry import build_model, has_option, saved_options
+from nerf_core.methods.sizing import auto_size_dataset
 from nerf_core.runs.checkpoints import (
     load_state_resizing,
     read_resume_checkpoint,
@@ -67,6 +71,7 @@ from nerf_core.runs.folder import (
     record_written,
 )
 from nerf_core.utils.atomic import write_json_atomic
+from nerf_core.utils.device import pick_device
 from nerf_core.utils.interrupts import DeferredInterrupts, terminate_as_interrupt
 from nerf_core.utils.progressbar import ProgressBar
 from nerf_core.utils.seeding import rng_state, seed_everything, set_rng_state
@@ -120,7 +125,6 @@ class Trainer:
             if main:
                 check_run_folder(self.run, cfg.resume, cfg.overwrite)
             cfg.check()
-            from nerf_core.utils.device import pick_device
 
             self.device = self.dist.place(pick_device(cfg.device))
             ckpt = None
@@ -205,7 +209,6 @@ class Trainer:
     # ------------------------------------------------------------------ setup
 
     def _build(self, dataset: Dataset, ckpt: Optional[dict]):
-        from nerf_core.methods.registry import build_model, saved_options
 
         cfg = self.cfg
         train = dataset.split("train")
@@ -218,7 +221,6 @@ class Trainer:
         else:
             options = {}
             if cfg.size == "auto":
-                from nerf_core.methods.sizing import auto_size_dataset
 
                 black = [0.0, 0.0, 0.0] if cfg.background == "black" else [1.0, 1.0, 1.0]
                 options, self.size_reasons = auto_size_dataset(self.method, dataset, black)
@@ -228,7 +230,6 @@ class Trainer:
             aabb = dataset.aabb
             self._contract_if_beyond_box(dataset, options)
         if ckpt is None and self.bg_mode == "environment" and "environment" not in options:
-            from nerf_core.fields.environment import size_for_focal
 
             options["environment"] = {"width": size_for_focal(float(train.cameras.fx.median()))}
         seed_everything(cfg.seed)
@@ -253,8 +254,6 @@ class Trainer:
         past the box). On the capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB
         with on a transparent film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot
         hold a floor)."""
-        from nerf_core.data.scene_box import beyond_box_reason
-        from nerf_core.methods.registry import has_option
 
         if "contract" in options or not has_option(self.method, "contract"):
             return
@@ -550,7 +549,6 @@ class Trainer:
 
     def _prefit_environment(self) -> None:
         """Fit the learned world to the train rays that miss the scene box; counted as training time."""
-        from nerf_core.fields.environment import prefit_from_split
 
         started = time.perf_counter()
         msg, share = prefit_from_split(self.model, self.train, self.dataset.near, self.dataset.far, self.gen,

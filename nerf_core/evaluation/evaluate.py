@@ -10,10 +10,21 @@ from typing import Callable, List, Optional, Sequence
 
 from nerf_core import contract
 from nerf_core.contract.naming import evenly_spaced
+from nerf_core.contract.transforms import DatasetError
+from nerf_core.data.loading import load_cameras, load_dataset
+from nerf_core.errors import RunError
+from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
+from nerf_core.image.pixel_filter import POINT
 
 # Re-exported: callers and tests have always found the metrics here.
 from nerf_core.render.scoring import score_view
+from nerf_core.render.views import render_rate, render_view
+from nerf_core.runs.checkpoints import load_run
+from nerf_core.runs.events import EventLog
+from nerf_core.runs.folder import dataset_changed_note
 from nerf_core.utils.atomic import write_json_atomic
+from nerf_core.utils.device import pick_device
+from nerf_core.utils.progressbar import ProgressBar
 
 
 def mean_finite(values: Sequence[Optional[float]]) -> Optional[float]:
@@ -41,7 +52,6 @@ def evaluate_split(
     the rendering time (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and
     ``depth_mae`` when the split has depth.
     """
-    from nerf_core.render.views import render_rate, render_view
 
     views = list(range(len(split))) if views is None else list(views)
     per_view: List[dict] = []
@@ -85,7 +95,6 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
     as many as fit in ``seconds`` at the time view 0 took (at least one). The end-of-training
     evaluation, which must not take longer than a share of the training itself.
     """
-    from nerf_core.render.views import render_rate
 
     n = len(split)
     t0 = time.perf_counter()
@@ -130,7 +139,6 @@ def read_metrics_file(path: Path) -> dict:
     """RUN/metrics.json as a dict ({} when there is none yet). A file that is not the JSON object
     ``train`` and ``eval`` write (hand-edited, or another tool's) raises RunError naming it: merging
     into it would throw away the scores it holds for other splits."""
-    from nerf_core.errors import RunError
 
     path = Path(path)
     if not path.exists():
@@ -170,9 +178,6 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
     train cameras cannot be read."""
     if getattr(model, "environment", None) is None:
         return {}
-    from nerf_core.contract.transforms import DatasetError
-    from nerf_core.data.loading import load_cameras
-    from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 
     try:
         train, _ = load_cameras(dataset_path, "train")
@@ -191,14 +196,6 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).
     ``pixel_filter``: "auto" renders through the dataset's film filter (``nerf_core.image.pixel_filter``),
     "none" one ray through each pixel centre."""
-    from nerf_core.data.loading import load_dataset
-    from nerf_core.errors import RunError
-    from nerf_core.image.pixel_filter import POINT
-    from nerf_core.runs.checkpoints import load_run
-    from nerf_core.runs.events import EventLog
-    from nerf_core.runs.folder import dataset_changed_note
-    from nerf_core.utils.device import pick_device
-    from nerf_core.utils.progressbar import ProgressBar
 
     dev = pick_device(device)
     run = Path(run)

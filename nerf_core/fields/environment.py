@@ -27,10 +27,14 @@ texture (it wraps around), ``v = acos(z) / pi`` down it (row 0 looks straight up
 from __future__ import annotations
 
 import math
+import time
 
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from nerf_core.cameras.rays import rays_for_pixels
+from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 
 Tensor = torch.Tensor
 
@@ -155,10 +159,6 @@ def prefit_from_split(model, split, near: float | None, far: float | None, gener
     Up to ``max_rays`` random pixels are tested, drawn from ``generator``. Returns (a one-line note
     for the user: share of rays that miss, time, PSNR of the fit; that share in [0, 1]).
     """
-    import time
-
-    from nerf_core.cameras.rays import rays_for_pixels
-    from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 
     started = time.perf_counter()
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Dict, Optional, Sequence
 
 import numpy as np
+from PIL import Image
 
 from nerf_core.errors import ImageReadError
 from nerf_core.utils.atomic import atomic_path
@@ -31,7 +32,6 @@ def _openexr(path: Path | str, doing: str):
 
 def read_png(path: Path | str) -> np.ndarray:
     """An 8- or 16-bit PNG/JPEG as an array (h, w) or (h, w, c), keeping its dtype (uint8 or uint16)."""
-    from PIL import Image
 
     path = Path(path)
     if not path.is_file():
@@ -67,7 +67,6 @@ def png_info(path: Path | str) -> tuple[int, int, str, int]:
     PNG as 8-bit "RGBA", so the depth is read from the PNG header (IHDR) itself; loaders that divide
     by 255 (the original NeRF's imageio) read such a file as values up to 257.
     """
-    from PIL import Image
 
     path = Path(path)
     try:
@@ -287,7 +286,6 @@ def read_mask(path: Path | str) -> np.ndarray:
 
 def write_png(path: Path | str, image: np.ndarray) -> None:
     """Write float [0, 1] or uint8 (h, w, 3|4) / (h, w) as an 8-bit PNG, atomically."""
-    from PIL import Image
 
     path = Path(path)
     arr = np.asarray(image)

@@ -5,4 +5,4 @@ Importing this package registers the built-in methods (``catalog``: vmgrid, nerf
 - ``registry``: ``register``, ``build_model``, ``available_methods``, ``method_class``;
 - ``vmgrid``, ``nerf``: the methods; ``sizing``: ``--size auto``.
 """
-from nerf_core.methods import catalog
+from nerf_core.methods import catalog  # noqa: F401  (registers the built-in methods)

@@ -7,11 +7,12 @@ implement ``render_rays`` and register itself with ``@register("name")``.
 from __future__ import annotations
 
 import math
-from typing import Callable, Dict, Optional
+from typing import Dict
 
 import torch
 from torch import nn
 
+from nerf_core.cameras.rays import ray_bounds
 from nerf_core.data.scene_box import box_length_unit
 
 MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
@@ -140,7 +141,6 @@ class RadianceModel(nn.Module):
         """The (n_rays,), (n_rays,) interval each ray is rendered over, handed back to ``render_rays``:
         the scene box clipped to the dataset's ``near``/``far``. Methods that model the world beyond the
         box (scene contraction) override it."""
-        from nerf_core.cameras.rays import ray_bounds
 
         return ray_bounds(rays_o, rays_d, self.aabb, near, far)
 

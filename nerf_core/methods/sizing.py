@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 
 from nerf_core.contract.naming import evenly_spaced
+from nerf_core.methods.registry import method_class
 
 Tensor = torch.Tensor
 
@@ -157,8 +158,6 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
         reasons.append("no images given for the content probes: assuming full, pixel-fine texture")
     # Cells per axis: the footprint's resolution for pixel-fine texture, half of it for coarse or none.
     fine_res = nyquist * (0.5 + 0.5 * f)
-
-    from nerf_core.methods.registry import method_class
 
     cls = method_class(method)
     if cls is None:

@@ -35,6 +35,22 @@ import time
 from typing import Any, Dict, Optional, TextIO
 
 import numpy as np
+import torch
+
+from nerf_core.cameras.rays import Cameras
+from nerf_core.contract.transforms import (
+    MAX_COORDINATE,
+    MAX_FOCAL_PX,
+    MIN_FOCAL_PX,
+    PoseError,
+    check_pose,
+    coordinate_problem,
+)
+from nerf_core.errors import RunError
+from nerf_core.image.pixel_filter import of_run
+from nerf_core.render.views import check_view_memory, render_view, straight_rgba
+from nerf_core.runs.checkpoints import load_run
+from nerf_core.utils.device import pick_device
 
 PROGRESS_EVERY_S = 0.5
 MAX_SIDE = 16384  # a larger request is a mistake (wrong units), not a render
@@ -64,14 +80,6 @@ def parse_request(req: Any) -> Dict[str, Any]:
 
     Raises RequestError naming the request id and field.
     """
-    from nerf_core.contract.transforms import (
-        MAX_COORDINATE,
-        MAX_FOCAL_PX,
-        MIN_FOCAL_PX,
-        PoseError,
-        check_pose,
-        coordinate_problem,
-    )
 
     if not isinstance(req, dict):
         raise RequestError(f"request must be a JSON object, got {type(req).__name__}")
@@ -160,15 +168,12 @@ class RenderServer:
 
     def __init__(self, run: str, checkpoint: Optional[str] = None, device: Optional[str] = None,
                  chunk: int = 8192, out: TextIO = sys.stdout):
-        from nerf_core.runs.checkpoints import load_run
-        from nerf_core.utils.device import pick_device
 
         self.out = out
         self.chunk = chunk
         self.device = pick_device(device)
         self.model, self.config, ckpt = load_run(run, self.device, checkpoint)
         self.opaque = getattr(self.model, "environment", None) is not None
-        from nerf_core.image.pixel_filter import of_run
 
         self.film_filter = of_run(self.config)  # for requests with "pixel_filter": true (final renders)
         self.info = {"run": os.path.abspath(run), "method": ckpt.get("method"), "step": ckpt.get("step"),
@@ -217,10 +222,6 @@ class RenderServer:
     # -- rendering ------------------------------------------------------------------------------
     def render(self, req: Dict[str, Any]) -> Dict[str, Any]:
         """Render one parsed request and write its files; returns the ``result`` fields."""
-        import torch
-
-        from nerf_core.cameras.rays import Cameras
-        from nerf_core.render.views import check_view_memory, render_view, straight_rgba
 
         w, h = req["w"], req["h"]
         check_view_memory(w, h, f"request {req['id']!r}")
@@ -252,7 +253,6 @@ class RenderServer:
 
     def handle(self, line: str) -> bool:
         """Answer one input line; False when the server should stop."""
-        from nerf_core.errors import RunError
 
         if not line.strip():
             return True

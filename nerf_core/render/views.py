@@ -19,33 +19,44 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 import torch
 
+from nerf_core.cameras.camera_path import cameras_from_camera_path, is_camera_path
 from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_pixels, rays_for_view
 from nerf_core.contract import config_path
 from nerf_core.contract.intrinsics import resolve_intrinsics
 from nerf_core.contract.lens import parse_lens
 from nerf_core.contract.naming import frame_stem, render_files, unique_stems
 from nerf_core.contract.transforms import (
+    SPLITS,
     DatasetError,
     FrameInfo,
     PoseError,
     check_pose,
+    detect_layout,
+    frame_infos,
     parse_json_file,
     read_transforms,
 )
+from nerf_core.data.loading import cameras_of_frames, load_cameras, load_split
 
 # Checkpoint reading moved to nerf_core.runs.checkpoints; the names stay importable from here for callers
 # written against render (scripts/benchmark.py reads model sizes through them).
 from nerf_core.errors import RunError
+from nerf_core.image import pixel_filter as pf
+from nerf_core.image.io import write_exr, write_png
+from nerf_core.image.metrics import HEATMAP_VMAX, error_heatmap
 from nerf_core.image.pixel_filter import (
     DEFAULT_SAMPLES,
     POINT,
     PixelFilter,
     edge_pixels,
 )
+from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.runs.folder import dataset_changed_note
 from nerf_core.utils.atomic import write_json_atomic
+from nerf_core.utils.device import pick_device
 from nerf_core.utils.progressbar import ProgressBar
+from nerf_core.volume.volrend import composite_background
 
 # ----------------------------------------------------------------------------------------------
 # rendering
@@ -297,7 +308,6 @@ def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[s
     (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), a
     nerfstudio ``camera_path.json`` (``nerf_core.cameras.camera_path``), or a JSON list of cameras (see ``_camera_list``).
     """
-    from nerf_core.data.loading import cameras_of_frames, load_cameras
 
     path = Path(path)
     frames: List[Optional[FrameInfo]]
@@ -308,10 +318,6 @@ def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[s
         if not path.is_file():
             raise DatasetError(f"{path}: cameras file not found")
         data = parse_json_file(path)
-        from nerf_core.cameras.camera_path import (
-            cameras_from_camera_path,
-            is_camera_path,
-        )
 
         if is_camera_path(data):  # nerfstudio's camera_path.json (viewer, Blender add-on)
             cams, stems = cameras_from_camera_path(data, path)
@@ -339,7 +345,6 @@ def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, L
 def _ground_truth(frame: Optional[FrameInfo], cameras: Cameras, view: int, downscale: int):
     """(one-view ``data.Split`` holding the ground truth of ``view``, None) or (None, why not). No
     frame or no image file: (None, None), a camera without ground truth is not a problem."""
-    from nerf_core.data.loading import load_split
 
     if frame is None or not frame.image.is_file():
         return None, None
@@ -371,7 +376,6 @@ def dataset_files(*paths) -> Dict[Path, str]:
     """{resolved file: 'FILE: frame K (PATH)'} of every image, depth, normal and mask file of the datasets
     (folders or transforms files) at ``paths``, all splits; a path that is not a dataset adds nothing.
     ``render`` never writes over these, even with --overwrite."""
-    from nerf_core.contract.transforms import SPLITS, frame_infos
 
     out: Dict[Path, str] = {}
     for path in paths:
@@ -447,10 +451,6 @@ def render_to_dir(
     if existing and not overwrite:
         names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
         raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
-    from nerf_core.image.io import write_exr, write_png
-    from nerf_core.image.metrics import HEATMAP_VMAX, error_heatmap
-    from nerf_core.render.scoring import score_view
-    from nerf_core.volume.volrend import composite_background
 
     out.mkdir(parents=True, exist_ok=True)
     # The old renders.json describes the images about to be replaced: an interrupted --overwrite left
@@ -535,7 +535,6 @@ def refuse_dataset_root_out(out) -> None:
     transforms.json). The dataset's own images are safe anyway (``dataset_files``), but renders.json
     and the renders would sit beside its transforms files, and instant-ngp reads every *.json at a
     dataset's root as one: one render would break the dataset for other tools. A subfolder is fine."""
-    from nerf_core.contract.transforms import detect_layout
 
     out = Path(out)
     if not out.is_dir():
@@ -555,8 +554,6 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
     per-view PSNR / SSIM and error heat-maps where the cameras' frames have ground-truth images.
     ``pixel_filter``: "auto", the run's dataset's film filter (``pixel_filter.of_run``), or "none"."""
-    from nerf_core.image import pixel_filter as pf
-    from nerf_core.utils.device import pick_device
 
     refuse_dataset_root_out(out)
     dev = pick_device(device)

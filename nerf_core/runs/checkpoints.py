@@ -26,6 +26,7 @@ import torch
 
 from nerf_core import __version__, contract
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
+from nerf_core.methods.registry import build_model, saved_options
 from nerf_core.runs.folder import (
     WRITTEN_LIST,
     os_reason,
@@ -171,7 +172,6 @@ def _file_kind(path: Path) -> Optional[str]:
 def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
     """The checkpoint's model, rebuilt with ``build_model`` and its weights, in eval mode on ``device``
     (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
-    from nerf_core.methods.registry import build_model, saved_options
 
     for key in ("method", "options", "aabb", "model"):
         if key not in ckpt:

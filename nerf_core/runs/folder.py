@@ -220,7 +220,6 @@ def check_progress_file(path: Path, dataset) -> None:
     """Refuse a ``--progress`` file that appending events would damage (TrainError): one inside the
     dataset folder (a transforms file, an image), or an existing file that is not a progress log (its
     first line is no JSON event). A log of an earlier run is appended to, as ``--resume`` expects."""
-    from nerf_core import contract
 
     path = Path(path)
     target = path.resolve()
