@@ -7,5 +7,6 @@
 Registering a method registers its hooks with it: ``training_hook`` (schedules driven by the
 trainer's budget fraction) and ``size_options`` (``--size auto``), both looked up through the class.
 """
+from nerf_core.methods import nerf, vmgrid  # noqa: F401  (their @register decorators run on import)
 
 DEFAULT_METHOD = "vmgrid"
