@@ -1,20 +1,80 @@
-"""nerf_core: a standalone, CPU-first PyTorch NeRF library.
+"""nerf_core: a standalone, CPU-first PyTorch NeRF library (CUDA when there is one).
 
-Imports no ``bpy``, and no torch at import time (the add-on imports ``nerf_core.contract``, the
-shared rules in standard library + numpy, inside Blender without torch). Modules:
+The public surface is ``__all__`` below (``docs/API.md`` lists the same names, and a test keeps the two
+equal). Names load lazily, so ``import nerf_core`` imports no torch; the first use of a name imports
+its module. Everything else is internal and may change; its layers are in ``docs/ARCHITECTURE.md``.
 
-- ``contract`` (the shared rules in code: run-folder names, budget fraction, event lines, transforms
-  files, the intrinsics rule, output names; no torch);
-- ``cameras`` (rays), ``data`` (dataset loading, ``RayBatcher`` for training batches), ``scene_box`` (the box of a
-  dataset without ``aabb``, an interior's margin), ``dataset_checks``;
-- ``encodings``, ``fields``, ``sampling``, ``occupancy``, ``volrend`` (volume rendering),
-  ``contraction``, ``backgrounds``, ``environment``, ``grad_scaling``, ``methods`` (named models), ``sizing``;
-- ``losses`` (photometric loss, regularisers), ``metrics`` (PSNR, SSIM, depth error, error maps);
-- ``train`` (the loop and its rollback), ``train_config`` (``TrainConfig``, ``--resume`` merging),
-  ``optim`` (optimiser, schedule), ``seeding`` (seeds, RNG state), ``previews``, ``interrupts``;
-- ``runfolder`` (checks, lock, written list, ``--overwrite``, dataset hash), ``checkpoints``
-  (writing, weights-only reading, loading a run's model);
-- ``evaluate`` (held-out evaluation), ``render``, ``render_server``, ``camera_path``, ``check`` and
-  ``cli`` (``python -m nerf_core``); ``photo2d``/``fit2d`` (the 2D kernel-width study).
+    import nerf_core
+    ds = nerf_core.load_dataset("scene_dataset")
+    nerf_core.train(nerf_core.TrainConfig(dataset="scene_dataset", out="runs/scene", max_seconds=60))
+    model, config, ckpt = nerf_core.load_run("runs/scene", device=torch.device("cpu"))
+
+``nerf_core.volume`` holds the volume-rendering functions, nerfacc-style (flat functions with
+shapes in their docstrings).
 """
+from __future__ import annotations
+
+import importlib
+
 __version__ = "0.1.0"
+
+# public name -> the module that defines it (one home each)
+_HOMES = {
+    # datasets
+    "load_dataset": "nerf_core.data.loading",
+    "load_cameras": "nerf_core.data.loading",
+    "Dataset": "nerf_core.data.split",
+    "Split": "nerf_core.data.split",
+    "RayBatcher": "nerf_core.data.batcher",
+    # cameras and rays
+    "Cameras": "nerf_core.cameras.rays",
+    "rays_for_view": "nerf_core.cameras.rays",
+    # methods and their registry
+    "RadianceModel": "nerf_core.methods.base",
+    "register": "nerf_core.methods.registry",
+    "build_model": "nerf_core.methods.registry",
+    "available_methods": "nerf_core.methods.registry",
+    # training
+    "TrainConfig": "nerf_core.engine.config",
+    "train": "nerf_core.engine.trainer",
+    # a trained run
+    "load_run": "nerf_core.runs.checkpoints",
+    # rendering
+    "render_view": "nerf_core.render.frame",
+    "render_run": "nerf_core.render.views",
+    # evaluation
+    "evaluate_split": "nerf_core.evaluation.evaluate",
+    "evaluate_run": "nerf_core.evaluation.evaluate",
+    # checking a dataset
+    "check_dataset": "nerf_core.check.dataset",
+    # metrics
+    "psnr": "nerf_core.image.metrics",
+    "ssim": "nerf_core.image.metrics",
+    "depth_mae": "nerf_core.image.metrics",
+    # errors
+    "DatasetError": "nerf_core.errors",
+    "PoseError": "nerf_core.errors",
+    "TrainError": "nerf_core.errors",
+    "RunError": "nerf_core.errors",
+    "CheckpointRefused": "nerf_core.errors",
+    "ImageReadError": "nerf_core.errors",
+}
+_SUBMODULES = ("volume",)
+
+__all__ = sorted(_HOMES) + list(_SUBMODULES) + ["__version__"]
+
+
+def __getattr__(name: str):
+    """Load a public name on first use (PEP 562), so that ``import nerf_core`` stays light."""
+    if name in _HOMES:
+        value = getattr(importlib.import_module(_HOMES[name]), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f"nerf_core.{name}")
+    else:
+        raise AttributeError(f"module 'nerf_core' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

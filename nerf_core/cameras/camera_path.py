@@ -23,7 +23,8 @@ from typing import List, Tuple
 import numpy as np
 
 from nerf_core.cameras.rays import Cameras
-from nerf_core.contract.transforms import PoseError, check_pose
+from nerf_core.contract.errors import PoseError
+from nerf_core.contract.poses import parse_pose
 
 
 class CameraPathError(ValueError):
@@ -69,16 +70,8 @@ def cameras_from_camera_path(data: dict, src: Path | str) -> Tuple[Cameras, List
         where = f"{src}: camera_path[{k}]"
         if not isinstance(cam, dict):
             raise CameraPathError(f"{where}: expected an object with 'camera_to_world' and 'fov'")
-        flat = cam.get("camera_to_world")
         try:
-            m = np.asarray(flat, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise CameraPathError(f"{where}: field 'camera_to_world' is not numeric") from None
-        if m.size != 16:
-            raise CameraPathError(f"{where}: field 'camera_to_world' must hold 16 numbers (a row-major 4x4), "
-                                  f"got {m.size}")
-        try:
-            mats.append(check_pose(m.reshape(4, 4), f"{where}: field 'camera_to_world'"))
+            mats.append(parse_pose(cam.get("camera_to_world"), f"{where}: field 'camera_to_world'", flat_only=True))
         except PoseError as exc:
             raise CameraPathError(str(exc)) from None
         fov = cam.get("fov")

@@ -25,14 +25,18 @@ _FIELDS = ("c2w", "fx", "fy", "cx", "cy", "width", "height")
 
 @dataclass
 class Cameras:
-    """A set of cameras: pinholes, or with a distorting lens.
+    """A set of n cameras: pinholes, or with a distorting lens (OpenGL convention: +X right, +Y up,
+    looking along -Z; pixel (i, j) has its centre at (i + 0.5, j + 0.5)).
+
+    Build one with ``Cameras.create`` (from arrays, one ``contract.Lens`` or None per camera); index
+    it (``cams[3]``, ``cams[1:4]``) for a subset, ``to(device)`` to move it.
 
     Attributes:
-        c2w: (n, 4, 4) float32 camera-to-world.
+        c2w: (n, 4, 4) float32 camera-to-world (rotation without scale, and the camera centre).
         fx, fy, cx, cy: (n,) float32 intrinsics in pixels.
         width, height: (n,) int64 image size in pixels.
         dist: (n, 6) float64 k1, k2, k3, k4, p1, p2 (``contract.lens``), or None when every camera is a pinhole.
-        fisheye: (n,) bool, OPENCV_FISHEYE rather than OPENCV; None with ``dist``.
+        fisheye: (n,) bool, OPENCV_FISHEYE rather than OPENCV; None when ``dist`` is None.
     """
 
     c2w: torch.Tensor
@@ -214,7 +218,19 @@ def _lens_tables(cameras: Cameras) -> Optional[Tuple[torch.Tensor, torch.Tensor]
 
 
 def rays_for_view(cameras: Cameras, view: int) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """All rays of one view in row-major pixel order: rays_o, rays_d (h*w, 3) and z_per_t (h*w,)."""
+    """All rays of one view in row-major pixel order (pixel (i, j) is ray j * w + i), through the
+    pixel centres; a lens camera's rays are undistorted per pixel.
+
+    Args:
+        cameras: the ``Cameras``.
+        view: index of the camera, in 0..n-1.
+
+    Returns:
+        rays_o: (h*w, 3) float32 origins (the camera centre, repeated).
+        rays_d: (h*w, 3) float32 unit directions in world space.
+        z_per_t: (h*w,) float32 planar depth per unit of ray distance (multiply a ray distance by it
+            to get z-depth along the camera's -Z).
+    """
     w, h = int(cameras.width[view]), int(cameras.height[view])
     jj, ii = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
     v = torch.full((h * w,), view, dtype=torch.long)

@@ -15,7 +15,7 @@ from typing import List, Optional
 
 from nerf_core.cli import check, evaluate, render, serve, train
 from nerf_core.cli.options import HelpFormatter
-from nerf_core.contract.transforms import DatasetError
+from nerf_core.contract.errors import DatasetError
 from nerf_core.errors import ImageReadError, RunError, TrainError
 from nerf_core.methods import catalog
 from nerf_core.methods.registry import available_methods

@@ -9,7 +9,9 @@ Sections:
 - the training budget fraction;
 - progress events (one JSON object per line) and strict JSON (``json_safe``: no NaN/inf).
 Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``contract.latest_checkpoint``):
-- ``transforms``: reading transforms files (JSON, frames, poses, the dataset path rule, splits);
+- ``transforms``: reading transforms files (frames, the dataset path rule, splits);
+- ``jsonfile``: the JSON of a transforms file; ``poses``: the one camera-matrix parser and its rules;
+- ``errors``: ``DatasetError`` and ``PoseError``;
 - ``intrinsics``: the one focal-length rule, ``resolve_intrinsics``;
 - ``lens``: the lens models read (OPENCV, OPENCV_FISHEYE) and their fields, ``parse_lens``;
 - ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices;
@@ -37,6 +39,9 @@ from .intrinsics import (  # noqa: F401
     fov_from_focal,
     resolve_intrinsics,
 )
+from .errors import DatasetError, PoseError  # noqa: F401
+from .jsonfile import read_json  # noqa: F401
+from .poses import check_pose, parse_pose  # noqa: F401
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
 from .naming import (  # noqa: F401
     ERRORS_DIR,
@@ -56,15 +61,11 @@ from .transforms import (  # noqa: F401
     IMAGE_EXTS,
     INTRINSIC_KEYS,
     SPLITS,
-    DatasetError,
     FrameInfo,
-    PoseError,
-    check_pose,
     detect_layout,
     frame_infos,
     parse_intrinsics,
     read_frames,
-    read_json,
     read_transforms,
     resolve_dataset_path,
     resolve_image,

@@ -15,7 +15,6 @@ Every problem raises ``DatasetError`` whose message names the file, frame and fi
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -26,6 +25,9 @@ import numpy as np
 
 from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
 from .naming import frame_stem
+from .errors import DatasetError, PoseError
+from .jsonfile import read_json
+from .poses import MAX_COORDINATE, check_pose, short_repr
 
 SPLITS = ("train", "val", "test")
 # Top-level fields that describe the scene rather than one camera; the first split file that has one
@@ -40,152 +42,9 @@ IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
 # (nerfstudio's ``depth_file_path`` before instant-ngp's ``depth_path``).
 EXTRA_FIELDS = (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_file_path", "normal"),
                 ("mask_path", "mask"))
-# Training and rendering work in float32, which keeps about 7 significant digits: at 1e6 units from the
-# origin neighbouring positions are 0.06 apart, so a scene placed that far out (or a box that large)
-# loses its detail. Coordinates beyond this are refused, with advice to move the scene nearer the origin.
-MAX_COORDINATE = 1e6
 # Focal lengths in pixels that float32 rays survive: at 1e-3 px a pixel's ray is 1000 image widths off
 # the axis (a field of view within a hair of 180 degrees); at 1e8 px a 100 k-pixel image spans 1e-3 rad.
 MIN_FOCAL_PX, MAX_FOCAL_PX = 1e-3, 1e8
-
-
-def _short(value, limit: int = 60) -> str:
-    """``repr(value)`` cut to ``limit`` characters, for messages about values of the wrong kind."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-def coordinate_problem(values, what: str) -> Optional[str]:
-    """Why the finite coordinates ``values`` (any shape) cannot be trained in float32, or None:
-    the message says ``what`` lies how far out, and how to fix it."""
-    far_out = float(np.max(np.abs(np.asarray(values, dtype=np.float64))))
-    if far_out <= MAX_COORDINATE:
-        return None
-    return (f"{what} reaches {far_out:.3g} units from the origin, beyond {MAX_COORDINATE:.0e}: training works in "
-            "float32 (7 significant digits), which cannot resolve detail that far out; move the scene and its "
-            "cameras nearer the origin, or use larger units")
-
-
-class DatasetError(Exception):
-    """Bad dataset input; the message names the file, frame and field concerned."""
-
-
-class PoseError(ValueError):
-    """A camera matrix that is not a finite rigid transform."""
-
-
-def _first_non_number(value):
-    """The first entry of a nested list that is a string or a bool (None when there is none)."""
-    if isinstance(value, (list, tuple)):
-        for v in value:
-            found = _first_non_number(v)
-            if found is not None:
-                return found
-        return None
-    return value if isinstance(value, (str, bool)) else None
-
-
-def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3) -> np.ndarray:
-    """Validate a camera-to-world matrix and return it as float64 (4, 4) (a (3, 4) gets [0, 0, 0, 1]).
-
-    Raises PoseError naming ``where`` for wrong shape, NaN/inf, a position beyond ``MAX_COORDINATE``, a
-    singular or scaled/sheared rotation part, a reflection, or a bottom row other than [0, 0, 0, 1].
-    """
-    bad = _first_non_number(matrix)
-    if bad is not None:
-        # numpy would quietly turn "1.0" into 1.0 and True into 1; other loaders refuse them.
-        raise PoseError(f"{where}: entries must be JSON numbers, got {bad!r}")
-    try:
-        m = np.asarray(matrix, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise PoseError(f"{where}: not a numeric matrix ({exc})") from exc
-    if m.shape == (3, 4):
-        m = np.vstack([m, [0, 0, 0, 1]])
-    if m.shape != (4, 4):
-        raise PoseError(f"{where}: expected a 4x4 matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise PoseError(f"{where}: contains NaN or inf (or a number too large for a float)")
-    far_out = coordinate_problem(m[:3, 3], "the camera position")
-    if far_out:
-        raise PoseError(f"{where}: {far_out}")
-    rot = m[:3, :3]
-    det = np.linalg.det(rot)
-    if abs(det) < 1e-8:
-        raise PoseError(f"{where}: rotation part is singular (determinant {det:.3g})")
-    gram = rot.T @ rot
-    if not np.allclose(gram, np.eye(3), atol=scale_tol):
-        scales = np.sqrt(np.diag(gram))
-        raise PoseError(
-            f"{where}: rotation part is scaled or sheared (column lengths {np.round(scales, 4).tolist()}); "
-            "transform_matrix must be matrix_world with the scale removed"
-        )
-    if det < 0:
-        raise PoseError(f"{where}: rotation part is a reflection (determinant {det:.3g})")
-    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
-        raise PoseError(f"{where}: bottom row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    return m
-
-
-class _DuplicateKey(ValueError):
-    def __init__(self, key: str):
-        super().__init__(key)
-        self.key = key
-
-
-def _no_conflicting_keys(pairs: list) -> dict:
-    """``object_pairs_hook`` for transforms files: a key written twice with two values is refused.
-
-    Python's json keeps the last value silently, so two ``frames`` arrays (a merge gone wrong) would
-    train on half the views with nothing said. A key repeated with the same value is harmless.
-    """
-    out: dict = {}
-    for key, value in pairs:
-        if key in out and out[key] != value:
-            raise _DuplicateKey(key)
-        out[key] = value
-    return out
-
-
-# The most digits an integer may have and still fit a float64 (about 1.8e308); beyond, a number in
-# a transforms file becomes inf, which every field's check refuses by name. Python's int() would
-# instead raise, with no file or field named, past 4300 digits or when converted to float.
-_FLOAT_DIGITS = 308
-
-
-def _parse_int(text: str):
-    return int(text) if len(text.lstrip("-")) <= _FLOAT_DIGITS else float(text)
-
-
-def parse_json_file(path: Path | str):
-    """The JSON value in ``path``; DatasetError naming the file when it cannot be read or parsed
-    (missing, unreadable, not UTF-8, invalid, nested too deeply for the parser, or a key given
-    twice with different values). A UTF-8 byte-order mark, which Windows editors write, is skipped."""
-    path = Path(path)
-    try:
-        with open(path, encoding="utf-8-sig") as f:
-            return json.load(f, object_pairs_hook=_no_conflicting_keys, parse_int=_parse_int)
-    except FileNotFoundError as exc:
-        raise DatasetError(f"{path}: file not found") from exc
-    except IsADirectoryError:
-        raise DatasetError(f"{path}: is a folder, not a JSON file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read ({exc})") from exc
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from exc
-    except _DuplicateKey as exc:
-        raise DatasetError(f"{path}: key {exc.key!r} appears twice in one object with different values; "
-                           "JSON readers keep either one, so the file is ambiguous") from None
-    except RecursionError:
-        raise DatasetError(f"{path}: JSON nested too deeply to read (thousands of levels of [ or {{)") from None
-
-
-def read_json(path: Path | str) -> dict:
-    """A transforms file's top-level object (DatasetError naming the file when it cannot be read)."""
-    path = Path(path)
-    meta = parse_json_file(path)
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{path}: expected a JSON object with 'frames'")
-    return meta
 
 
 def check_camera_model(src: dict, where: str) -> None:
@@ -209,9 +68,9 @@ def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
             try:
                 value = float(src[key])
             except (TypeError, ValueError, OverflowError) as exc:
-                raise DatasetError(f"{where}: field {key!r} is not a number ({_short(src[key])})") from exc
+                raise DatasetError(f"{where}: field {key!r} is not a number ({short_repr(src[key])})") from exc
             if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
-                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {_short(src[key])}")
+                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {short_repr(src[key])}")
             if key in ("fl_x", "fl_y") and not MIN_FOCAL_PX <= value <= MAX_FOCAL_PX:
                 raise DatasetError(f"{where}: field {key!r} is a focal length in pixels and must lie in "
                                    f"[{MIN_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] (float32 rays turn to NaN or parallel "
@@ -517,7 +376,7 @@ def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Se
             continue
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise DatasetError(f"{jf}: field '{name}_filenames' must be a list of file paths (strings), got "
-                               f"{_short(names)}")
+                               f"{short_repr(names)}")
         twice = next((n for k, n in enumerate(names) if norm(n) in {norm(m) for m in names[:k]}), None)
         if twice is not None:  # one image twice is one view, however often it is listed
             raise DatasetError(f"{jf}: field '{name}_filenames' lists {twice!r} twice")

@@ -12,9 +12,18 @@ from nerf_core.data.split import Split
 class RayBatcher:
     """Random ray batches over every pixel of a (train) split; images stay uint8 on the CPU.
 
-    ``background`` is a ``train --background`` mode other than ``auto`` (see ``nerf_core.data.backgrounds``);
-    ``gen`` draws every random number (pixels, random colours), so a saved generator state replays
-    the same batches.
+    ``sample(n, frac)`` returns one batch: rays_o (n, 3), rays_d (n, 3) unit, background (n, 3),
+    ground-truth colour (n, 3) composited onto that background (all float32 on ``device``), and the
+    mask weight (n,) float32 (1 = use the pixel, 0 = ignore it) or None when the split has no masks.
+
+    Args:
+        split: the ``Split`` to draw pixels from (uniformly over all its views' pixels).
+        background: a ``train --background`` mode other than ``auto`` (see ``nerf_core.data.backgrounds``):
+            "white", "black", "random", "white-then-random" or "environment" (ground truth on white;
+            the model's learned world replaces the colour).
+        gen: a CPU ``torch.Generator`` that draws every random number (pixels, random colours), so a
+            saved generator state replays the same batches.
+        device: where the batches go.
     """
 
     def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device):

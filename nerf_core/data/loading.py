@@ -24,10 +24,11 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras
+from nerf_core.contract.errors import DatasetError
 
 # Reading transforms files is the contract's (shared with the add-on); DatasetError, FrameInfo,
 # detect_layout and dataset_problems stay importable from here for data's long-standing callers.
-from nerf_core.contract.transforms import SPLITS, DatasetError, FrameInfo, frame_infos
+from nerf_core.contract.transforms import SPLITS, FrameInfo, frame_infos
 from nerf_core.data.backgrounds import small_subject_note
 from nerf_core.data.pixels import EXTRAS, camera_params, load_extra, load_pixels
 from nerf_core.data.scene_box import depth_points, estimate_aabb, pad_box_for_interior
@@ -121,7 +122,25 @@ def load_dataset(
 ) -> Dataset:
     """Load a dataset folder (or one transforms file) with the pixels of ``splits``.
 
-    ``downscale`` (integer >= 1) box-filters the images and scales the intrinsics accordingly.
+    Every frame's metadata is read and checked; only the splits in ``splits`` get their pixels (and
+    depth, normals, masks), the others come back empty. Without an ``aabb`` in the transforms files the
+    scene box is estimated from the cameras (``Dataset.aabb_source`` says how).
+
+    Args:
+        path: a dataset folder (``transforms_{train,val,test}.json`` or nerfstudio's ``transforms.json``)
+            or one transforms file in it.
+        splits: names among "train", "val", "test" whose images to read.
+        downscale: integer >= 1; box-filters the images and scales the intrinsics accordingly.
+        min_train_views: fewest train views accepted (when "train" is in ``splits``).
+
+    Returns:
+        A ``Dataset`` whose ``splits`` holds all three of "train", "val" and "test" (those not in
+        ``splits`` empty); images are (n, h, w, 3 or 4) uint8 (float32 for EXR), ``aabb`` (2, 3) float32.
+
+    Raises:
+        DatasetError: any problem with the input (the message names the file, frame and field), a
+            ``downscale`` that is not a positive integer, an unknown split name, or train images that
+            show nothing (all transparent, all black, masks that select nothing).
     """
     if int(downscale) != downscale or downscale < 1:
         raise DatasetError(f"downscale must be a positive integer, got {downscale!r}")
@@ -187,7 +206,23 @@ def load_dataset(
 
 def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[FrameInfo]]:
     """Cameras of one split of a transforms file without reading pixels (image sizes come from the
-    JSON, or from the image headers when ``w``/``h`` are absent)."""
+    JSON, or from the image headers when ``w``/``h`` are absent).
+
+    A held-out split whose images do not exist (camera-only test poses) still gives its cameras.
+
+    Args:
+        path: a dataset folder or one transforms file in it.
+        split: "train", "val" or "test".
+
+    Returns:
+        (cameras, frames): ``Cameras`` of n views (``c2w`` (n, 4, 4) float32, intrinsics (n,) float32,
+        sizes (n,) int64) and the n parsed frames (``FrameInfo``: file paths, (4, 4) float64 ``c2w``,
+        intrinsics), in the order of the transforms file.
+
+    Raises:
+        DatasetError: an unknown split, a split without frames, unreadable transforms, or a frame
+            without ``w``/``h`` whose image size cannot be read.
+    """
     if split not in SPLITS:
         raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, scene = frame_infos(path, SPLITS)

@@ -6,7 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, List, Optional
 
-from nerf_core.contract.transforms import SPLITS, DatasetError, FrameInfo, frame_infos
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.transforms import SPLITS, FrameInfo, frame_infos
 from nerf_core.data.loading import load_split
 from nerf_core.data.validation import (
     black_train_problem,

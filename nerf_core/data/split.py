@@ -10,7 +10,8 @@ from typing import Dict, List, Optional, Sequence
 import torch
 
 from nerf_core.cameras.rays import Cameras
-from nerf_core.contract.transforms import DatasetError, FrameInfo
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.transforms import FrameInfo
 from nerf_core.image.metrics import composite
 from nerf_core.image.pixel_filter import PixelFilter
 
@@ -20,10 +21,16 @@ BLACK_LEVEL = 1.5 / 255
 
 @dataclass
 class Split:
-    """The images and cameras of one split.
+    """The images and cameras of one split (n views of one size h x w), as ``load_dataset`` reads them.
+
+    ``image(view, background)`` gives one view's ground truth composited onto a background, and
+    ``pixels(...)`` a batch of pixels of it.
 
     Attributes:
+        name: "train", "val" or "test".
+        cameras: ``Cameras`` of the n views (``c2w`` (n, 4, 4), intrinsics (n,)).
         images: (n, h, w, c) uint8 (PNG) or float32 (EXR), c = 3 or 4 (straight, not premultiplied, alpha).
+        frames: the n parsed frames (``FrameInfo``: file names, (4, 4) float64 ``c2w``), in file order.
         depth: (n, h, w) float32 planar z-depth in scene units, 0 where unknown; or None.
         normals: (n, h, w, 3) float32 or None.
         masks: (n, h, w) bool, False = ignore the pixel; or None.
@@ -113,6 +120,29 @@ class Split:
 
 @dataclass
 class Dataset:
+    """A loaded dataset: its splits, the scene box and what the transforms files say about the scene.
+
+    ``split(name)`` returns a non-empty split or raises ``DatasetError`` saying why there is none.
+
+    Attributes:
+        root: the dataset folder.
+        layout: "synthetic" (``transforms_{train,val,test}.json``) or "nerfstudio" (``transforms.json``).
+        splits: {"train", "val", "test"} -> ``Split`` (empty for splits not loaded).
+        aabb: (2, 3) float32 scene box, [min corner, max corner] in scene units.
+        aabb_source: "dataset (FILE)" when a transforms file gives ``aabb``, else a sentence saying how
+            it was estimated.
+        near, far: the dataset's ray bounds in scene units, or None.
+        notes: human-readable remarks of the loader (estimated box, held-out frames, ...).
+        film_transparent: what the transforms files declare (captured on a transparent film); None
+            when they do not say.
+        world: the capture's description of the Blender world, when recorded; else None.
+        cameras_inside: most train cameras stand inside the scene box (an interior).
+        beyond_box: objects the capture says reach beyond ``aabb`` (a floor).
+        pixel_filter: what one pixel of the images averages over (``nerf_core.image.pixel_filter``),
+            at the loaded resolution; ``load_dataset`` gives Blender's default when the files do not
+            say (None only in a ``Dataset`` built by hand).
+    """
+
     root: Path
     layout: str  # "synthetic" or "nerfstudio"
     splits: Dict[str, Split]

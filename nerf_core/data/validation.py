@@ -11,7 +11,9 @@ from typing import Dict, List, Optional
 import numpy as np
 import torch
 
-from nerf_core.contract.transforms import DatasetError, FrameInfo, coordinate_problem
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.poses import coordinate_problem
+from nerf_core.contract.transforms import FrameInfo
 from nerf_core.image.pixel_filter import parse
 
 # A box thinner than this along an axis holds no scene: its grid cells would be below float32's reach.

@@ -21,7 +21,53 @@ MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samp
 
 @dataclass
 class TrainConfig:
-    """Everything that decides a run (saved in RUN/config.json and in checkpoints)."""
+    """Everything that decides a run (saved in RUN/config.json and in checkpoints); ``train(cfg)`` runs it.
+
+    The fields mirror ``python -m nerf_core train``'s flags (``max_steps`` is ``--max-steps``). Only
+    ``dataset`` and ``out`` are required; ``check()`` refuses values no run can use (TrainError).
+
+    Attributes:
+        dataset: dataset folder (``transforms_train.json`` or ``transforms.json``) or a transforms file.
+        out: run folder to create (refused when it exists and is not empty, unless ``resume`` or
+            ``overwrite``).
+        method: a registered method name; None: the library's default method (vmgrid).
+        max_steps: stop after this many optimisation steps (> 0), or None.
+        max_seconds: stop after this many seconds of training (previews, checkpoints and evaluation
+            not counted), or None. With both budgets training stops at the first spent; with neither,
+            at the method's ``default_max_steps`` (``train`` writes it into ``max_steps``).
+        seed: random seed in 0..2^63-1 (same seed and step budget: the same losses on a CPU).
+        resume: continue ``out`` from its latest checkpoint; only the fields in ``RESUME_MAY_CHANGE``
+            may differ from the run's own.
+        overwrite: delete the files an earlier run wrote into ``out`` and start anew.
+        dataset_moved: with ``resume``, accept a ``dataset`` path other than the recorded one (the
+            dataset's hash is checked when recorded).
+        size: "auto": ``nerf_core.methods.sizing`` picks the model size for the dataset; None: the
+            method's defaults.
+        options: explicit method options (``--set key=value``), over the method's defaults.
+        progress: an extra JSON-lines file to append the progress events to, or None.
+        device: "cpu", "cuda", "cuda:1"...; None or "auto": CUDA when there is one, else the CPU.
+        lr: base learning rate; None: the method's ``default_lr``.
+        batch_rays: rays per step in 1..2^22; None: the method's default (4x on CUDA).
+        background: "auto" (``nerf_core.data.backgrounds.choose``: environment for opaque images,
+            random for cut-outs), "environment", "random", "white", "black" or "white-then-random".
+        downscale: integer image downscale factor the dataset is loaded at.
+        log_every: emit a ``step`` event every this many steps.
+        preview_every: steps between preview images; None: every ``preview_seconds`` of training time.
+        preview_seconds: training seconds between previews (when ``preview_every`` is None).
+        preview_size: longest side of preview images, in pixels.
+        checkpoint_every: steps between checkpoints; None: every ``checkpoint_seconds`` of wall time.
+        checkpoint_seconds: wall seconds between checkpoints (when ``checkpoint_every`` is None).
+        keep_checkpoints: ``step_XXXXXXX.pt`` files kept besides ``latest.pt``.
+        max_rollbacks: divergence rollbacks (each halving the learning rate) before training stops
+            with a TrainError.
+        eval_views: held-out views evaluated at the end; None: as many as fit in ``eval_seconds``;
+            0: skip evaluation.
+        eval_seconds: time for the final evaluation; None: max(30 s, 25 % of the training time).
+        eval_at: training seconds (> 0) at which to also evaluate held-out views.
+        chunk: most rays per model call when rendering previews and evaluations.
+        stdout_events: print the JSON progress events on stdout (they go to RUN/progress.jsonl anyway).
+        show_bar: show a progress bar on stderr.
+    """
 
     dataset: str
     out: str

@@ -12,7 +12,7 @@ from typing import Optional
 
 from nerf_core import contract
 from nerf_core.image.io import write_png
-from nerf_core.render.views import render_view
+from nerf_core.render.frame import render_view
 from nerf_core.runs.folder import record_written
 
 

@@ -17,26 +17,25 @@ the loop and the rollback, everything else it uses has its own module.
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable, List, Optional
+from typing import Callable, Optional
 
 import torch
 
 from nerf_core import contract
-from nerf_core.contract.transforms import DatasetError
+from nerf_core.contract.errors import DatasetError
 from nerf_core.data import backgrounds
 from nerf_core.data.batcher import RayBatcher
 from nerf_core.data.loading import load_dataset
-from nerf_core.data.scene_box import beyond_box_reason
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
+from nerf_core.engine.callbacks import StepInterval, default_callbacks
 from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
+from nerf_core.engine.model_setup import build_seeded, default_batch_rays, model_options
 from nerf_core.engine.optim import (
-    clone_state,
     make_optimizer,
     rebuild_optimizer,
     rescale_base_lrs,
@@ -45,16 +44,20 @@ from nerf_core.engine.optim import (
 )
 from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
-from nerf_core.engine.report import emit_step, final_eval, held_out_eval
+from nerf_core.engine.report import final_eval
+from nerf_core.engine.rollback import (
+    SNAPSHOT_EVERY,
+    gradient_problem,
+    loss_problem,
+    roll_back,
+    take_snapshot,
+)
 from nerf_core.errors import RunError, TrainError
-from nerf_core.fields.environment import prefit_from_split, size_for_focal
+from nerf_core.fields.environment import prefit_from_split
 from nerf_core.image.losses import backward, masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
-from nerf_core.methods.registry import build_model, has_option, saved_options
-from nerf_core.methods.sizing import auto_size_dataset
 from nerf_core.runs.checkpoints import (
-    load_state_resizing,
     read_resume_checkpoint,
     save_checkpoint,
     versions,
@@ -74,13 +77,12 @@ from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
 from nerf_core.utils.interrupts import DeferredInterrupts, terminate_as_interrupt
 from nerf_core.utils.progressbar import ProgressBar
-from nerf_core.utils.seeding import rng_state, seed_everything, set_rng_state
+from nerf_core.utils.seeding import rng_state, set_rng_state
 
 __all__ = ["TrainConfig", "TrainError", "Trainer", "train", "default_method"]
 
 
 DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
-STEP_EVENT_SECONDS = 5.0  # slow steps still produce a step event this often
 
 
 class Trainer:
@@ -101,6 +103,17 @@ class Trainer:
             self.dist.close()
 
     def _fit_run_folder(self) -> dict:
+        """Open the run folder (checks, lock, events), then train with every failure reported as an
+        ``error`` event and a TrainError (or the dataset's or run's own error)."""
+        cfg = self.cfg  # as given: --resume replaces self.cfg with the run's merged config
+        dataset, ckpt, early_log, extra_logs = self._open_run()
+        self._start_events(cfg, early_log, extra_logs)
+        return self._fit_guarded(dataset, ckpt)
+
+    def _open_run(self):
+        """Check the flags, the run folder and the dataset, take the run's lock and load the dataset
+        (and the checkpoint to resume). Returns (dataset, checkpoint or None, the early event log,
+        the --progress logs); an error is emitted as an event before it is raised."""
         cfg = self.cfg
         main = self.dist.is_main  # only rank 0 writes: events, lock, checkpoints, previews, metrics
         extra_logs = [cfg.progress] if cfg.progress and main else []
@@ -146,6 +159,11 @@ class Trainer:
             early_log.close()
             self.dist.agree(False)
             raise
+        return dataset, ckpt, early_log, extra_logs
+
+    def _start_events(self, cfg: TrainConfig, early_log: EventLog, extra_logs: list) -> None:
+        """Clear what --overwrite removes and switch to RUN/progress.jsonl; every rank agrees to start."""
+        main = self.dist.is_main
         progress = Path(contract.progress_path(self.run))
         try:
             removed = clear_run_folder(self.run) if cfg.overwrite and main else []
@@ -167,6 +185,10 @@ class Trainer:
         if removed:
             print(f"train: --overwrite removed {len(removed)} file(s) written by an earlier run: "
                   + ", ".join(removed[:8]) + (" ..." if len(removed) > 8 else ""), file=sys.stderr)
+
+    def _fit_guarded(self, dataset: Dataset, ckpt: Optional[dict]) -> dict:
+        """``_fit`` with SIGTERM taken as Ctrl-C, a checkpoint saved on an interrupt, and every failure
+        one ``error`` event and one line (no traceback)."""
         restore = terminate_as_interrupt()
         try:
             return self._fit(dataset, ckpt)
@@ -176,7 +198,7 @@ class Trainer:
                 # rank must not cut the save short and lose every step since the last checkpoint.
                 with DeferredInterrupts(True, reraise=False):
                     distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
-                    path = self._save_checkpoint() if hasattr(self, "opt") else None
+                    path = self.save_checkpoint() if hasattr(self, "opt") else None
             except TrainError as err:
                 self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {err}")
                 raise
@@ -208,60 +230,18 @@ class Trainer:
 
     # ------------------------------------------------------------------ setup
 
-    def _build(self, dataset: Dataset, ckpt: Optional[dict]):
-
+    def _build(self, dataset: Dataset, ckpt: Optional[dict]) -> None:
+        """The model to train (``model_setup``), its learning rate, warm-up and rays per step."""
         cfg = self.cfg
-        train = dataset.split("train")
+        self.train = dataset.split("train")
         self.method = cfg.method or default_method()
-        self.size_reasons: List[str] = []
-        if ckpt is not None:
-            options = saved_options(self.method, ckpt["options"])
-            self.size_reasons = list(ckpt.get("size_reasons", []))
-            aabb = torch.as_tensor(ckpt["aabb"])
-        else:
-            options = {}
-            if cfg.size == "auto":
-
-                black = [0.0, 0.0, 0.0] if cfg.background == "black" else [1.0, 1.0, 1.0]
-                options, self.size_reasons = auto_size_dataset(self.method, dataset, black)
-            elif cfg.size not in (None, "", "default"):
-                raise TrainError(f"--size {cfg.size!r}: only 'auto' is supported")
-            options.update(cfg.options)
-            aabb = dataset.aabb
-            self._contract_if_beyond_box(dataset, options)
-        if ckpt is None and self.bg_mode == "environment" and "environment" not in options:
-
-            options["environment"] = {"width": size_for_focal(float(train.cameras.fx.median()))}
-        seed_everything(cfg.seed)
-        try:
-            model = build_model(self.method, aabb, **options)
-        except TypeError as exc:
-            raise TrainError(f"method {self.method!r} does not accept these options {sorted(options)}: {exc}") from exc
-        except ValueError as exc:  # unknown method or option values the method rejects
-            raise TrainError(str(exc)) from exc
-        if ckpt is not None:
-            load_state_resizing(model, ckpt["model"])
+        options, aabb, self.size_reasons = model_options(cfg, self.method, dataset, ckpt, self.bg_mode)
+        model = build_seeded(self.method, aabb, options, cfg.seed, ckpt)
         self.model = model.to(self.device).train()
         self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
         if cfg.batch_rays is None:
             cfg.batch_rays = default_batch_rays(model, self.device)
         self.warmup = warmup_steps(model, cfg.max_steps)
-        self.train = train
-
-    def _contract_if_beyond_box(self, dataset: Dataset, options: dict) -> None:
-        """Turn on ``contract`` for a method that has it (and was not told) when the scene reaches past
-        its box (``scene_box.beyond_box_reason``: the dataset says so, or a cut-out's opaque pixels look
-        past the box). On the capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB
-        with on a transparent film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot
-        hold a floor)."""
-
-        if "contract" in options or not has_option(self.method, "contract"):
-            return
-        why = beyond_box_reason(dataset, self.bg_mode)
-        if why:
-            options["contract"] = True
-            self.size_reasons.append(f"contract=true: {why}, so the world beyond the box is modelled too "
-                                     "(--set contract=false turns it off)")
 
     def _restore(self, ckpt: dict) -> None:
         """Continue from a checkpoint: counters, optimiser (fresh Adam if it does not fit) and RNGs."""
@@ -278,7 +258,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints and rollback
 
-    def _save_checkpoint(self) -> Optional[Path]:
+    def save_checkpoint(self) -> Optional[Path]:
         if not self.dist.is_main:  # the other ranks only keep the schedule (checkpoint_every)
             self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
             return None
@@ -296,38 +276,6 @@ class Trainer:
         self._last_ckpt_wall = time.monotonic()
         self._last_ckpt_step = self.step
         return latest
-
-    def _snapshot(self) -> None:
-        self.snap = {
-            "model": {k: v.detach().clone() for k, v in self.model.state_dict().items()},
-            "opt": clone_state(self.opt.state_dict()),
-            "step": self.step,
-            "elapsed_at": self.elapsed,
-            "loss_ema": self.loss_ema,
-        }
-
-    def _rollback(self, reason: str) -> None:
-        self.rollbacks += 1
-        self.lr_scale *= 0.5
-        if self.rollbacks > self.cfg.max_rollbacks:
-            raise TrainError(
-                f"training diverged: {self.rollbacks - 1} rollbacks did not help (last: {reason} at step {self.step}); "
-                f"try a lower --lr than {self.base_lr * self.lr_scale * 2:.3g} or another --method"
-            )
-        snap = self.snap
-        load_state_resizing(self.model, snap["model"])
-        self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
-        try:
-            self.opt.load_state_dict(clone_state(snap["opt"]))
-        except (ValueError, KeyError):
-            pass  # parameter set changed since the snapshot: fresh Adam moments
-        rescale_base_lrs(self.opt, self.model, self.base_lr * self.lr_scale)  # the state brought the old rates
-        at = self.step
-        self.step = snap["step"]
-        self.loss_ema = snap["loss_ema"]
-        self.steps_since_rollback = 0
-        self.log.emit("rollback", step=at, reason=f"{reason}; restored step {self.step}",
-                      lr=self.base_lr * self.lr_scale, restored_step=self.step, rollbacks=self.rollbacks)
 
     # ------------------------------------------------------------------ records
 
@@ -395,7 +343,7 @@ class Trainer:
             self.elapsed = self.replicas.start(self.model, self.elapsed)
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
                                  self.eval_bg, cfg.chunk)
-        self._eval_marks = sorted(t for t in cfg.eval_at if t > self.elapsed)
+        self.callbacks = default_callbacks(cfg)
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
             last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
         if self.step == (resumed_from or 0):
@@ -410,8 +358,8 @@ class Trainer:
         summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
         if not self.dist.is_main:
             return summary
-        self._preview()
-        latest = self._save_checkpoint()
+        self.preview()
+        latest = self.save_checkpoint()
         metrics = final_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.run, self.step, self.elapsed)
         self.log.emit("done", step=self.step, elapsed=self.elapsed, checkpoint=str(latest), metrics=metrics)
         return summary | {"checkpoint": str(latest), "metrics": metrics}
@@ -419,133 +367,99 @@ class Trainer:
     def _train_loop(self, batcher: RayBatcher, stop: DeferredInterrupts) -> Optional[float]:
         """Train until the budget is spent; returns the last step's loss. Under torchrun, ``stop``
         holds a SIGINT/SIGTERM until the step's reduce tells every rank to stop."""
-        cfg, dataset, rep = self.cfg, self.dataset, self.replicas
-        self._snapshot()
+        cfg = self.cfg
+        take_snapshot(self)
         self.steps_since_rollback = 0
         self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
-        last_preview_elapsed, last_preview_step = self.elapsed, self.step
-        interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
+        self.interval = StepInterval()
+        self.last_loss = self.last_psnr = None
         bar_total, bar_unit = cfg.bar_total()
         bar = ProgressBar(total=bar_total, label="train", enabled=cfg.show_bar and self.dist.is_main)
-        params_changed = self._ckpt_wall_due = False
-        last_loss = last_psnr = None
-        first_step = self.step + 1  # always report the first step (also after --resume)
-        last_event_wall = time.monotonic()
-
+        for callback in self.callbacks:
+            callback.start(self)
+        self._params_changed = self._ckpt_wall_due = False
         while not cfg.finished(self.step, self.elapsed):
-            t0 = time.perf_counter()
-            frac = cfg.budget_fraction(self.step, self.elapsed)
-            hook_frac = contract.budget_fraction(self.step, self.elapsed, cfg.max_steps, cfg.max_seconds)
-            if rep is not None:  # the hook's random draws (occupancy jitter) must be equal on every rank
-                rep.seed_shared(self.step, self.rollbacks)
-            if self.model.training_hook(self.step, hook_frac):
-                self.opt = rebuild_optimizer(self.model, self.opt, self.base_lr * self.lr_scale)
-                params_changed = True
-            if rep is not None:
-                rep.seed_rank(self.gen, self.step, self.rollbacks)
-            factor = schedule_factor(self.step, frac, self.warmup)
-            for g in self.opt.param_groups:
-                g["lr"] = g["base_lr"] * factor
-            rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
-            if self.model.environment is not None:
-                bg = self.model.background(rays_d, bg)
-            near, far = self.model.ray_interval(rays_o, rays_d, dataset.near, dataset.far)
-            out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
-            mse = masked_mse(out["rgb"], gt, weight)
-            loss = mse
-            if "rgb_coarse" in out:
-                loss = loss + masked_mse(out["rgb_coarse"], gt, weight)
-            if out.get("aux_loss") is not None:
-                loss = loss + out["aux_loss"]
-            n_samples = int(out.get("n_samples", cfg.batch_rays))
-            if rep is None:
-                loss_value = float(loss.detach())
-                bad = self._bad_loss(loss_value)
-                if bad is None:
-                    self.opt.zero_grad(set_to_none=True)
-                    backward(loss)
-                    bad = self._bad_gradient()
-                self.elapsed += time.perf_counter() - t0
-            else:  # every rank takes the same decisions from the same (reduced) numbers
+            if not self._step(batcher, stop):
+                continue
+            bar.set(cfg.bar_done(bar_unit, self.step, self.elapsed),
+                    info=f"step {self.step} loss {self.last_loss:.4f} psnr {self.last_psnr:.2f}")
+            if self._params_changed or self.step % SNAPSHOT_EVERY == 0:
+                take_snapshot(self)
+                self._params_changed = False
+            done = cfg.finished(self.step, self.elapsed)
+            # previews, checkpoints and evaluations: rank 0 writes, the others wait (every callback runs)
+            side_work = [callback.after_step(self, done) for callback in self.callbacks]
+            if any(side_work) and self.replicas is not None:
+                self.previews.cost = self.replicas.after_side_work(self.previews.cost)
+        last = self.last_loss
+        bar.close(info=f"step {self.step} loss {last if last is not None else float('nan'):.4f}")
+        return last
+
+    def _step(self, batcher: RayBatcher, stop: DeferredInterrupts) -> bool:
+        """One optimisation step; False when it was rolled back instead (a bad loss or gradient)."""
+        cfg, dataset, rep = self.cfg, self.dataset, self.replicas
+        t0 = time.perf_counter()
+        frac = cfg.budget_fraction(self.step, self.elapsed)
+        hook_frac = contract.budget_fraction(self.step, self.elapsed, cfg.max_steps, cfg.max_seconds)
+        if rep is not None:  # the hook's random draws (occupancy jitter) must be equal on every rank
+            rep.seed_shared(self.step, self.rollbacks)
+        if self.model.training_hook(self.step, hook_frac):
+            self.opt = rebuild_optimizer(self.model, self.opt, self.base_lr * self.lr_scale)
+            self._params_changed = True
+        if rep is not None:
+            rep.seed_rank(self.gen, self.step, self.rollbacks)
+        factor = schedule_factor(self.step, frac, self.warmup)
+        for g in self.opt.param_groups:
+            g["lr"] = g["base_lr"] * factor
+        rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
+        if self.model.environment is not None:
+            bg = self.model.background(rays_d, bg)
+        near, far = self.model.ray_interval(rays_o, rays_d, dataset.near, dataset.far)
+        out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
+        mse = masked_mse(out["rgb"], gt, weight)
+        loss = mse
+        if "rgb_coarse" in out:
+            loss = loss + masked_mse(out["rgb_coarse"], gt, weight)
+        if out.get("aux_loss") is not None:
+            loss = loss + out["aux_loss"]
+        n_samples = int(out.get("n_samples", cfg.batch_rays))
+        if rep is None:
+            loss_value = float(loss.detach())
+            bad = loss_problem(loss_value, self.loss_ema, self.steps_since_rollback)
+            if bad is None:
                 self.opt.zero_grad(set_to_none=True)
                 backward(loss)
-                params = [p for g in self.opt.param_groups for p in g["params"]]
-                shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
-                                    self.dist.is_main and self._checkpoint_due(wall_clock=True))
-                self.elapsed += shared.seconds
-                if shared.stop:
-                    raise KeyboardInterrupt
-                loss_value, mse, n_samples, self._ckpt_wall_due = shared.loss, shared.mse, shared.n_samples, shared.checkpoint_due
-                bad = self._bad_loss(loss_value) or self._bad_gradient()
-            if bad is not None:
-                if rep is not None:
-                    rep.end_step()
-                self.opt.zero_grad(set_to_none=True)
-                self._rollback(bad)
-                continue
-            t1 = time.perf_counter()
-            self.opt.step()
-            self.step += 1
-            self.steps_since_rollback += 1
-            self.loss_ema = loss_value if self.loss_ema is None else 0.98 * self.loss_ema + 0.02 * loss_value
+                bad = gradient_problem(self.opt)
+            self.elapsed += time.perf_counter() - t0
+        else:  # every rank takes the same decisions from the same (reduced) numbers
+            self.opt.zero_grad(set_to_none=True)
+            backward(loss)
+            params = [p for g in self.opt.param_groups for p in g["params"]]
+            shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
+                                self.dist.is_main and self.checkpoint_due(wall_clock=True))
+            self.elapsed += shared.seconds
+            if shared.stop:
+                raise KeyboardInterrupt
+            loss_value, mse, n_samples, self._ckpt_wall_due = shared.loss, shared.mse, shared.n_samples, shared.checkpoint_due
+            bad = loss_problem(loss_value, self.loss_ema, self.steps_since_rollback) or gradient_problem(self.opt)
+        if bad is not None:
             if rep is not None:
                 rep.end_step()
-            else:
-                self.elapsed += time.perf_counter() - t1
-            interval["t"] += time.perf_counter() - t0
-            interval["samples"] += n_samples
-            interval["loss"] += loss_value
-            interval["n"] += 1
-            last_loss, last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
-            bar.set(cfg.bar_done(bar_unit, self.step, self.elapsed), info=f"step {self.step} loss {loss_value:.4f} psnr {last_psnr:.2f}")
-
-            if params_changed or self.step % 100 == 0:
-                self._snapshot()
-                params_changed = False
-            done = cfg.finished(self.step, self.elapsed)
-            side_work = False  # previews, checkpoints and evaluations: rank 0 writes, the others wait
-            crossed = [t for t in self._eval_marks if self.elapsed >= t]
-            if crossed:
-                # Speed-against-accuracy curves: evaluate at fixed training times inside one run, so the
-                # learning-rate and growth schedules are the real ones. Evaluation time is not training time.
-                # A slow step can cross several marks; the model is the same for all of them, so it is
-                # evaluated once and the event names every mark it stands for.
-                del self._eval_marks[:len(crossed)]
-                if self.dist.is_main:
-                    held_out_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.step, self.elapsed,
-                                  marks=crossed)
-                side_work = True
-            # Slow steps (big models on a CPU) still report at least every few seconds.
-            if (self.step == first_step or self.step % cfg.log_every == 0 or done
-                    or time.monotonic() - last_event_wall >= STEP_EVENT_SECONDS):
-                last_event_wall = time.monotonic()
-                emit_step(self.log, cfg, self.opt, self.step, self.elapsed, last_loss, last_psnr, interval)
-                interval = {"t": 0.0, "samples": 0, "loss": 0.0, "n": 0}
-            if not done and self.previews.due(self.step, last_preview_step, self.elapsed, last_preview_elapsed):
-                self._preview()
-                last_preview_step, last_preview_elapsed = self.step, self.elapsed
-                side_work = True
-            if not done and self._checkpoint_due():
-                self._save_checkpoint()
-                side_work = True
-            if side_work and rep is not None:
-                self.previews.cost = rep.after_side_work(self.previews.cost)
-        bar.close(info=f"step {self.step} loss {last_loss if last_loss is not None else float('nan'):.4f}")
-        return last_loss
-
-    def _bad_loss(self, loss_value: float) -> Optional[str]:
-        """Why a step's loss must not be applied (NaN/inf, or a jump far above its running average), or None."""
-        if not math.isfinite(loss_value):
-            return f"loss is {loss_value}"
-        if (self.loss_ema is not None and self.steps_since_rollback > 200
-                and loss_value > 10.0 * self.loss_ema and loss_value - self.loss_ema > 0.01):
-            return f"loss {loss_value:.4g} jumped above 10x its running average {self.loss_ema:.4g}"
-        return None
-
-    def _bad_gradient(self) -> Optional[str]:
-        params = [p for g in self.opt.param_groups for p in g["params"] if p.grad is not None]
-        gnorm = torch.nn.utils.clip_grad_norm_(params, float("inf")) if params else torch.tensor(0.0)
-        return None if torch.isfinite(gnorm) else "gradient is NaN or inf"
+            self.opt.zero_grad(set_to_none=True)
+            roll_back(self, bad)
+            return False
+        t1 = time.perf_counter()
+        self.opt.step()
+        self.step += 1
+        self.steps_since_rollback += 1
+        self.loss_ema = loss_value if self.loss_ema is None else 0.98 * self.loss_ema + 0.02 * loss_value
+        if rep is not None:
+            rep.end_step()
+        else:
+            self.elapsed += time.perf_counter() - t1
+        self.interval.add(time.perf_counter() - t0, n_samples, loss_value)
+        self.last_loss, self.last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
+        return True
 
     def _prefit_environment(self) -> None:
         """Fit the learned world to the train rays that miss the scene box; counted as training time."""
@@ -560,7 +474,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ reporting
 
-    def _checkpoint_due(self, wall_clock: bool = False) -> bool:
+    def checkpoint_due(self, wall_clock: bool = False) -> bool:
         """Step-based (``checkpoint_every``) or by rank 0's wall clock, which under torchrun every rank
         learns from the step's reduce (``wall_clock=True``: rank 0 asks its own clock)."""
         if self.cfg.checkpoint_every:
@@ -569,26 +483,12 @@ class Trainer:
             return self._ckpt_wall_due
         return time.monotonic() - self._last_ckpt_wall >= self.cfg.checkpoint_seconds
 
-    def _preview(self) -> None:
+    def preview(self) -> None:
         if not self.dist.is_main:
             return
         path = self.previews.write(self.model, self.step)
         if path is not None:
             self.log.emit("preview", step=self.step, path=str(path))
-
-
-# A CPU step costs in proportion to its rays; a GPU step at these sizes mostly costs kernel launches,
-# so 4x the rays cost few steps. 30 s on an H100 (multi, 200 px, 5 test views): vmgrid 2048 rays
-# 38.31 dB (2998 steps) against 8192 rays 38.78 dB (2504); nerf 1024 rays 31.90 dB (3101) against
-# 4096 rays 32.63 dB (2272).
-CUDA_BATCH_SCALE = 4
-
-
-def default_batch_rays(model, device: "torch.device") -> int:
-    """Rays per step when ``--batch-rays`` is not given: the method's ``default_batch_rays`` (1024 when
-    it has none), ``CUDA_BATCH_SCALE`` times that on a CUDA device."""
-    base = int(getattr(model, "default_batch_rays", 0) or 1024)
-    return base * CUDA_BATCH_SCALE if device.type == "cuda" else base
 
 
 def train(cfg: TrainConfig) -> dict:

@@ -9,16 +9,17 @@ from pathlib import Path
 from typing import Callable, List, Optional, Sequence
 
 from nerf_core import contract
+from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.naming import evenly_spaced
-from nerf_core.contract.transforms import DatasetError
 from nerf_core.data.loading import load_cameras, load_dataset
 from nerf_core.errors import RunError
 from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 from nerf_core.image.pixel_filter import POINT
+from nerf_core.render.frame import render_view
+from nerf_core.render.memory import render_rate
 
 # Re-exported: callers and tests have always found the metrics here.
 from nerf_core.render.scoring import score_view
-from nerf_core.render.views import render_rate, render_view
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import dataset_changed_note
@@ -48,9 +49,27 @@ def evaluate_split(
 
     Ground truth is composited onto ``background`` (white, like the original NeRF evaluation) and
     the model renders onto the same colour, through the images' ``pixel_filter`` (``render_view``;
-    None: one ray through each pixel centre). Returns ``psnr``, ``ssim``, ``n_views``, ``per_view``,
-    the rendering time (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and
-    ``depth_mae`` when the split has depth.
+    None: one ray through each pixel centre). PSNR counts only the split's mask pixels when it has masks.
+
+    Args:
+        model: a ``RadianceModel`` in eval mode.
+        split: a ``Split`` with images (n, h, w, c).
+        views: view indices to evaluate; None: all n.
+        background: (3,) colour in [0, 1] behind both render and ground truth.
+        near, far: the dataset's ray bounds (``Dataset.near``/``far``), or None.
+        chunk: most rays per model call.
+        on_view: called with each view's entry (see ``per_view``) as soon as it is scored.
+        pixel_filter: the images' film filter (``Dataset.pixel_filter``), or None.
+
+    Returns:
+        dict with ``psnr`` and ``ssim`` (means over the views with finite values; None when none),
+        ``n_views``, ``n_views_total`` (len(split)), ``width``, ``height``, ``per_view`` (a list of
+        {``view``, ``name``, ``psnr``, ``ssim``[, ``depth_mae``]}), the rendering time
+        (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and ``depth_mae`` when
+        the split has depth.
+
+    Raises:
+        ValueError: images smaller than SSIM's 11 x 11 window.
     """
 
     views = list(range(len(split))) if views is None else list(views)
@@ -194,8 +213,35 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
                  pixel_filter: str = "auto") -> dict:
     """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
     view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).
-    ``pixel_filter``: "auto" renders through the dataset's film filter (``nerf_core.image.pixel_filter``),
-    "none" one ray through each pixel centre."""
+
+    The dataset is the one recorded in the run's config.json, loaded at the run's ``downscale`` unless
+    ``downscale`` says otherwise; render and ground truth are composited onto the run's
+    ``eval_background``.
+
+    Args:
+        run: a run folder written by ``train``.
+        split: "train", "val" or "test".
+        device: "cpu", "cuda"...; None: CUDA when there is one.
+        max_views: evaluate this many views, evenly spread (first and last included); None or 0: all.
+        downscale: integer image downscale; None: the one the run trained at.
+        chunk: most rays per model call.
+        checkpoint: a checkpoint file of the run to evaluate instead of ``latest.pt``.
+        print_fn: called with each view's line of text.
+        show_progress: show a progress bar on stderr.
+        pixel_filter: "auto" renders through the dataset's film filter (``nerf_core.image.pixel_filter``),
+            "none" one ray through each pixel centre.
+
+    Returns:
+        dict with ``psnr``, ``ssim``, ``split``, ``n_views``, ``n_views_total``, ``step`` (of the
+        checkpoint), ``method``, ``pixel_filter``, ``render_seconds``, ``rays``, ``rays_per_s``, and
+        ``depth_mae`` when the split has depth, ``unseen_world`` ({view name: share}) when some views
+        look at world no train view shows.
+
+    Raises:
+        RunError: an unusable run folder, checkpoint or metrics.json, or no dataset recorded.
+        CheckpointRefused: a checkpoint that would need code to load.
+        DatasetError: the run's dataset cannot be loaded, or has no views with images in ``split``.
+    """
 
     dev = pick_device(device)
     run = Path(run)

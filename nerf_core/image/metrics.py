@@ -31,7 +31,16 @@ def mse_to_psnr(mse: float | torch.Tensor) -> float:
 
 
 def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = None) -> float:
-    """PSNR of (..., 3) images in [0, 1], over the pixels where ``mask`` (...,) is True."""
+    """PSNR of (..., 3) images in [0, 1], over the pixels where ``mask`` (...,) is True.
+
+    Args:
+        pred: (..., 3) rendered colours in [0, 1] (e.g. (h, w, 3)); a tensor or numpy array.
+        gt: (..., 3) ground truth of the same shape.
+        mask: (...,) bool, the pixels to count; None: all.
+
+    Returns:
+        PSNR in dB, -10 log10(MSE); ``inf`` for a perfect match (NaN when ``mask`` selects nothing).
+    """
     err = (_tensor(pred).float() - _tensor(gt).float()) ** 2
     if mask is not None:
         err = err[_tensor(mask).bool()]
@@ -73,14 +82,38 @@ def ssim_map(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
 
 def ssim(pred: torch.Tensor, gt: torch.Tensor) -> float:
-    """Mean SSIM of two (h, w, 3) images in [0, 1]."""
+    """Mean SSIM of two (h, w, 3) images in [0, 1].
+
+    Wang et al. 2004 as the NeRF papers use it: 11 x 11 Gaussian window, sigma 1.5, over the valid
+    (unpadded) region, per channel, averaged.
+
+    Args:
+        pred: (h, w, 3) rendered colours in [0, 1]; a tensor or numpy array.
+        gt: (h, w, 3) ground truth of the same shape.
+
+    Returns:
+        The mean SSIM, at most 1.
+
+    Raises:
+        ValueError: images of different shapes, not (h, w, c), or smaller than 11 x 11 pixels.
+    """
     return float(ssim_map(pred, gt).mean())
 
 
 def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch.Tensor] = None,
               mask: Optional[torch.Tensor] = None) -> Optional[float]:
     """Mean absolute error of planar depths (h, w) over pixels with ground truth (finite, > 0),
-    ground-truth alpha > 0.5 and ``mask``; None when no pixel qualifies."""
+    ground-truth alpha > 0.5 and ``mask``; None when no pixel qualifies.
+
+    Args:
+        pred_z: (h, w) rendered planar z-depth (``render_view``'s ``z_depth``), in scene units.
+        gt_z: (h, w) ground-truth planar depth; 0, negative or non-finite where unknown.
+        gt_alpha: (h, w) ground-truth alpha in [0, 1], or None.
+        mask: (h, w) bool, the pixels to count, or None.
+
+    Returns:
+        The mean absolute difference in scene units, or None.
+    """
     valid = torch.isfinite(gt_z) & (gt_z > 0)
     if gt_alpha is not None:
         valid &= gt_alpha > 0.5

@@ -81,10 +81,18 @@ def density_length(aabb: torch.Tensor, unit: str) -> float:
 
 
 class RadianceModel(nn.Module):
-    """Base class of every method.
+    """Base class of every method: an ``nn.Module`` that renders batches of rays (``render_rays``).
 
     Subclasses store what they need to be rebuilt in ``self.options`` (a JSON-able dict): the trainer
-    saves ``method_name`` and ``options`` in checkpoints and calls ``build_model`` to restore.
+    saves ``method_name`` and ``options`` in checkpoints and calls ``build_model`` to restore. A new
+    method implements ``render_rays`` (rays_o, rays_d (n_rays, 3), near, far (n_rays,), background
+    (n_rays, 3) -> dict with ``rgb`` (n_rays, 3), ``depth`` (n_rays,), ``acc`` (n_rays,)) and registers
+    itself with ``@register("name")``; the other methods have working defaults.
+
+    Args:
+        aabb: (2, 3) scene box [min corner, max corner] (anything ``torch.as_tensor`` takes); kept as
+            the float32 buffer ``self.aabb``.
+        **options: the method's build options, kept in ``self.options``.
     """
 
     method_name = "base"

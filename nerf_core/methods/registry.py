@@ -15,7 +15,16 @@ _REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
 
 
 def register(name: str):
-    """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``."""
+    """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``.
+
+    Also sets the class's ``method_name`` to ``name``; a second registration of a name replaces the first.
+
+    Args:
+        name: the method's name (``train --method NAME``, saved in checkpoints).
+
+    Returns:
+        The decorator, which returns the class itself.
+    """
 
     def deco(cls):
         _REGISTRY[name] = cls
@@ -26,6 +35,11 @@ def register(name: str):
 
 
 def available_methods() -> list[str]:
+    """Names of the registered methods (built-in and plugins).
+
+    Returns:
+        The names, sorted.
+    """
     return sorted(_REGISTRY)
 
 
@@ -35,6 +49,18 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
     ``options["environment"]`` (a dict of ``EnvironmentMap`` options, or None) is handled here for
     every method: the method is built without it and the environment is attached afterwards, so a
     method never needs to know about the world behind the scene.
+
+    Args:
+        name: a registered method (``available_methods()``).
+        aabb: (2, 3) float scene box.
+        **options: the method's build options (its ``defaults`` overridden), plus ``environment``.
+
+    Returns:
+        The new model (a ``RadianceModel``, in training mode, on the CPU).
+
+    Raises:
+        ValueError: an unknown method name, an ``environment`` that is not a dict, or (from the method)
+            an option it refuses; a ``TypeError`` may come from an option the method does not take.
     """
     if name not in _REGISTRY:
         raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")

@@ -38,17 +38,13 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras
-from nerf_core.contract.transforms import (
-    MAX_COORDINATE,
-    MAX_FOCAL_PX,
-    MIN_FOCAL_PX,
-    PoseError,
-    check_pose,
-    coordinate_problem,
-)
+from nerf_core.contract.errors import PoseError
+from nerf_core.contract.poses import MAX_COORDINATE, coordinate_problem, parse_pose
+from nerf_core.contract.transforms import MAX_FOCAL_PX, MIN_FOCAL_PX
 from nerf_core.errors import RunError
 from nerf_core.image.pixel_filter import of_run
-from nerf_core.render.views import check_view_memory, render_view, straight_rgba
+from nerf_core.render.frame import render_view, straight_rgba
+from nerf_core.render.memory import check_view_memory
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.utils.device import pick_device
 
@@ -84,17 +80,8 @@ def parse_request(req: Any) -> Dict[str, Any]:
     if not isinstance(req, dict):
         raise RequestError(f"request must be a JSON object, got {type(req).__name__}")
     where = f"request {req.get('id')!r}" if "id" in req else "request"
-    raw = req.get("c2w")
     try:
-        m = np.asarray(raw, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise RequestError(f"{where}: field 'c2w' must be a 4x4 matrix (or 16 numbers, row-major)") from None
-    if m.size != 16:
-        raise RequestError(f"{where}: field 'c2w' must be a 4x4 matrix (or 16 numbers, row-major), got {m.size} numbers")
-    if m.ndim == 1:
-        raw = [raw[4 * i:4 * i + 4] for i in range(4)]
-    try:
-        c2w = check_pose(raw, f"{where}: field 'c2w'")  # the raw entries: "1.0" and true are no numbers
+        c2w = parse_pose(req.get("c2w"), f"{where}: field 'c2w'")
     except PoseError as exc:
         raise RequestError(str(exc)) from None
     out: Dict[str, Any] = {"id": req.get("id"), "c2w": c2w, "group": req.get("group")}

@@ -10,33 +10,18 @@ and that view's ``psnr``/``ssim`` in renders.json (docs/CONTRACTS.md). File name
 from __future__ import annotations
 
 import math
-import os
 import sys
 import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional
 
-import numpy as np
 import torch
 
-from nerf_core.cameras.camera_path import cameras_from_camera_path, is_camera_path
-from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_pixels, rays_for_view
+from nerf_core.cameras.rays import Cameras
 from nerf_core.contract import config_path
-from nerf_core.contract.intrinsics import resolve_intrinsics
-from nerf_core.contract.lens import parse_lens
-from nerf_core.contract.naming import frame_stem, render_files, unique_stems
-from nerf_core.contract.transforms import (
-    SPLITS,
-    DatasetError,
-    FrameInfo,
-    PoseError,
-    check_pose,
-    detect_layout,
-    frame_infos,
-    parse_json_file,
-    read_transforms,
-)
-from nerf_core.data.loading import cameras_of_frames, load_cameras, load_split
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.naming import render_files, unique_stems
+from nerf_core.contract.transforms import FrameInfo, detect_layout
 
 # Checkpoint reading moved to nerf_core.runs.checkpoints; the names stay importable from here for callers
 # written against render (scripts/benchmark.py reads model sizes through them).
@@ -44,12 +29,10 @@ from nerf_core.errors import RunError
 from nerf_core.image import pixel_filter as pf
 from nerf_core.image.io import write_exr, write_png
 from nerf_core.image.metrics import HEATMAP_VMAX, error_heatmap
-from nerf_core.image.pixel_filter import (
-    DEFAULT_SAMPLES,
-    POINT,
-    PixelFilter,
-    edge_pixels,
-)
+from nerf_core.image.pixel_filter import POINT, PixelFilter
+from nerf_core.render.cameras import camera_views, dataset_files, ground_truth_split
+from nerf_core.render.frame import render_view, straight_rgba
+from nerf_core.render.memory import check_view_memory, render_rate
 from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.runs.folder import dataset_changed_note
@@ -62,338 +45,8 @@ from nerf_core.volume.volrend import composite_background
 # rendering
 
 
-# On the CPU a model call is fastest when its samples' intermediate tensors stay in cache: measured
-# at one thread on trained runs, vmgrid renders 1.28x faster in calls of 1024 rays than of 8192 and
-# no faster below 512; nerf (128 samples per ray) 1.21x faster at 1024 rays than at 4096, 1.44x again
-# at 512, 1.27x at 256, 1.11x at 128: ~16k samples per call. Calls are at most CPU_MAX_CALL_RAYS rays,
-# fewer when the previous call reported more than CPU_SAMPLES_PER_CALL samples. A method whose samples
-# are cheaper sets its own ray cap as ``cpu_call_rays`` (vmgrid: 2048, see there).
-CPU_SAMPLES_PER_CALL = 1 << 14
-CPU_MAX_CALL_RAYS = 512
-CPU_MIN_CALL_RAYS = 64  # below this the per-call Python overhead dominates
-
-
-@torch.no_grad()
-def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int = 8192,
-                        on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
-    """Evaluation rendering of (m, 3) rays in model calls of at most ``chunk`` rays to bound memory.
-
-    On the CPU calls are smaller: at most ``CPU_MAX_CALL_RAYS`` rays (or the model's ``cpu_call_rays``)
-    and about ``CPU_SAMPLES_PER_CALL`` samples, from the ``n_samples`` the model returned for the
-    previous call (per-ray results do not depend on the call size).
-    Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
-    ``on_chunk(done, m)`` is called after each call (progress; it may raise to stop early).
-    """
-    out: Dict[str, List[torch.Tensor]] = {"rgb": [], "depth": [], "acc": []}
-    m = rays_o.shape[0]
-    bg = background.expand(m, 3) if background.dim() == 1 else background
-    cpu = rays_o.device.type == "cpu"
-    cap = min(chunk, int(getattr(model, "cpu_call_rays", CPU_MAX_CALL_RAYS))) if cpu else chunk
-    step = cap
-    s = 0
-    while s < m:
-        e = min(s + step, m)
-        res = model.render_rays(rays_o[s:e], rays_d[s:e], near[s:e], far[s:e], bg[s:e], training=False)
-        for k in out:
-            out[k].append(res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1) if k != "rgb" else res[k].detach().float())
-        if cpu and "n_samples" in res:
-            per_ray = max(1.0, float(res["n_samples"]) / (e - s))
-            step = int(min(cap, max(CPU_MIN_CALL_RAYS, CPU_SAMPLES_PER_CALL / per_ray)))
-        s = e
-        if on_chunk is not None:
-            on_chunk(e, m)
-    return {k: torch.cat(v) for k, v in out.items()}
-
-
-@torch.no_grad()
-def render_view(
-    model,
-    cameras: Cameras,
-    view: int,
-    background=(1.0, 1.0, 1.0),
-    near: Optional[float] = None,
-    far: Optional[float] = None,
-    chunk: int = 8192,
-    on_chunk: Optional[Callable[[int, int], None]] = None,
-    pixel_filter: Optional[PixelFilter] = None,
-    filter_samples: int = DEFAULT_SAMPLES,
-) -> Dict[str, torch.Tensor]:
-    """Render a whole camera on the model's device (``on_chunk``: see ``render_rays_chunked``).
-
-    ``pixel_filter``: the film's filter (``nerf_core.image.pixel_filter``): pixels at an edge of the centre-ray
-    image become the mean of ``filter_samples`` rays drawn from it, as Cycles renders them; None (or
-    the filter "NONE"): one ray through each pixel centre.
-
-    Returns CPU tensors: rgb (h, w, 3) composited onto ``background`` (onto the model's learned
-    environment instead when it has one), acc (h, w), depth (h, w)
-    (distance along the ray, normalised by acc where acc > 0) and z_depth (h, w) planar depth
-    along the camera's -Z (0 where acc < 0.5).
-    """
-    device = model.aabb.device
-    h, w = int(cameras.height[view]), int(cameras.width[view])
-    check_view_memory(w, h, f"view {view}")
-    rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
-    res = _render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk)
-    rgb, acc = res["rgb"].cpu().clamp(0, 1).reshape(h, w, 3), res["acc"].clamp(0, 1).cpu().reshape(h, w)
-    # Whether a model's depth is already divided by acc is method-specific; dividing again would be
-    # wrong, so only use acc to mark empty pixels.
-    dist = res["depth"].cpu().reshape(h, w)
-    z = dist * z_per_t.reshape(h, w)
-    n_rays = h * w
-    if pixel_filter is not None and not pixel_filter.is_point and filter_samples > 1:
-        rgb, acc, dist, z, n_rays = _filter_edges(model, cameras, view, rgb, acc, dist, z, pixel_filter, filter_samples,
-                                                  background, near, far, chunk, on_chunk)
-    return {
-        "rgb": rgb,
-        "acc": acc,
-        "depth": dist,
-        "z_depth": torch.where(acc >= 0.5, z, torch.zeros_like(z)),
-        "n_rays": n_rays,  # rays rendered: one a pixel, and the filter's at edges
-    }
-
-
-def _render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk) -> Dict[str, torch.Tensor]:
-    """``render_rays_chunked`` of camera rays (origins (m, 3) or (1, 3), unit directions (m, 3)) on the
-    model's device, over the model's own ray interval and its learned world when it has one."""
-    device = model.aabb.device
-    rays_o = rays_o.expand_as(rays_d).to(device)
-    rays_d = rays_d.to(device)
-    t0, t1 = model.ray_interval(rays_o, rays_d, near, far) if hasattr(model, "ray_interval") else \
-        ray_bounds(rays_o, rays_d, model.aabb, near, far)
-    bg = torch.as_tensor(background, dtype=torch.float32, device=device)
-    if getattr(model, "environment", None) is not None:
-        bg = model.background(rays_d, bg)  # the learned world replaces the fixed colour
-    return render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk, on_chunk)
-
-
-def _filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: torch.Tensor, dist: torch.Tensor,
-                  z: torch.Tensor, pixel_filter: PixelFilter, samples: int, background, near, far, chunk,
-                  on_chunk) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, int]:
-    """rgb (h, w, 3) and acc (h, w) with every pixel at an edge of the centre-ray image (colour or
-    opacity, ``pixel_filter.edge_pixels``) replaced by the mean of ``samples`` rays drawn from the
-    filter; its distance ``dist`` and z-depth ``z`` (h, w) by those rays' opacity-weighted mean (the
-    depth of what covers the pixel, so a pixel the filter makes opaque has one); and the number of
-    rays rendered in all.
-
-    A render of part of a frame (a Blender Render Region: the same camera, its principal point moved
-    into the crop) gives its pixels what the whole frame gives them: edges are found with the pixels
-    one beyond the image rendered too, and each pixel's draws are a hash of its place relative to the
-    principal point (``PixelFilter.offsets``), not of its place in the request."""
-    h, w = rgb.shape[:2]
-    total = h * w
-    # the one-pixel ring around the image, through offsets from the nearest pixel inside (a lens
-    # camera's per-pixel tables cover only the image)
-    ring_i = torch.cat([torch.arange(-1, w + 1), torch.arange(-1, w + 1), torch.full((h,), -1), torch.full((h,), w)])
-    ring_j = torch.cat([torch.full((w + 2,), -1), torch.full((w + 2,), h), torch.arange(h), torch.arange(h)])
-    inside_i, inside_j = ring_i.clamp(0, w - 1), ring_j.clamp(0, h - 1)
-    step = torch.stack([ring_i - inside_i, ring_j - inside_j], dim=-1).float()
-    views = torch.full((ring_i.shape[0],), int(view), dtype=torch.long)
-    o, d, _ = rays_for_pixels(cameras, views, inside_i, inside_j, step)
-    ring = _render_rays_of(model, o, d, background, near, far, chunk, None)
-    # Edges of the scene itself, premultiplied, whatever fixed colour lies behind it: render (on black)
-    # and eval (on white) refine the same pixels. A learned world is part of the picture.
-    behind = None if getattr(model, "environment", None) is not None else torch.as_tensor(background, dtype=torch.float32)
-
-    def scene_layer(c: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        c = c if behind is None else c - (1 - a).unsqueeze(-1) * behind
-        return torch.cat([c, a.unsqueeze(-1)], dim=-1)
-
-    padded = torch.zeros(h + 2, w + 2, 4)
-    padded[1:-1, 1:-1] = scene_layer(rgb, acc)
-    padded[ring_j + 1, ring_i + 1] = scene_layer(ring["rgb"].cpu().clamp(0, 1), ring["acc"].cpu().clamp(0, 1))
-    jj, ii = edge_pixels(padded)[1:-1, 1:-1].nonzero(as_tuple=True)
-    q = int(jj.shape[0])
-    if q == 0:
-        return rgb, acc, dist, z, total + ring_i.shape[0]
-    keys = torch.stack([torch.round(ii.double() + 0.5 - float(cameras.cx[view])),
-                        torch.round(jj.double() + 0.5 - float(cameras.cy[view]))], dim=-1).long()
-    off = pixel_filter.offsets(q, samples, keys=keys).reshape(-1, 2)
-    views = torch.full((q * samples,), int(view), dtype=torch.long)
-    rays_o, rays_d, z_per_t = rays_for_pixels(cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples),
-                                              off)
-    # The centre pass has reported the whole view; these calls only let ``on_chunk`` stop the render.
-    res = _render_rays_of(model, rays_o, rays_d, background, near, far, chunk,
-                          None if on_chunk is None else (lambda done, m: on_chunk(total, total)))
-    rgb, acc, dist, z = rgb.clone(), acc.clone(), dist.clone(), z.clone()
-    rgb[jj, ii] = res["rgb"].cpu().clamp(0, 1).reshape(q, samples, 3).mean(dim=1)
-    a = res["acc"].cpu().clamp(0, 1).reshape(q, samples)
-    acc[jj, ii] = a.mean(dim=1)
-    d = res["depth"].cpu().reshape(q, samples)
-    hit = a.sum(dim=1) > 1e-6  # where no filter ray hits anything the centre ray's depth stays
-    wsum = a.sum(dim=1).clamp_min(1e-6)
-    dist[jj[hit], ii[hit]] = ((a * d).sum(dim=1) / wsum)[hit]
-    z[jj[hit], ii[hit]] = ((a * d * z_per_t.cpu().reshape(q, samples)).sum(dim=1) / wsum)[hit]
-    return rgb, acc, dist, z, total + ring_i.shape[0] + q * samples
-
-
-def render_rate(seconds: float, rays: int) -> dict:
-    """The timing fields ``render`` and ``eval`` report: ``render_seconds`` (wall time spent in the model
-    rendering, without start-up, model loading, image files or metrics), ``rays`` and ``rays_per_s``."""
-    return {"render_seconds": seconds, "rays": int(rays), "rays_per_s": rays / seconds if seconds > 0 else None}
-
-
-# Bytes per pixel that rendering a whole view holds at once: ray origins/directions and their pixel
-# grid, per-ray bounds, the chunk outputs and their concatenation, the RGBA result and its PNG bytes.
-BYTES_PER_PIXEL = 160
-MIN_PIXELS_CHECKED = 4096 * 4096  # views up to 16 Mpx (2.7 GB) are never refused
-
-
-def available_memory() -> int:
-    """Bytes of memory this process could still get (MemAvailable on Linux, else physical memory)."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return 1 << 62
-
-
-def check_view_memory(w: int, h: int, where: str) -> None:
-    """Refuse (RunError) to render a w x h view that would not fit in memory, before allocating any of it."""
-    if w < 1 or h < 1:
-        raise RunError(f"{where}: image size {w}x{h} px is empty; use a smaller --downscale")
-    need = int(w) * int(h) * BYTES_PER_PIXEL
-    have = available_memory()
-    if w * h > MIN_PIXELS_CHECKED and need > have:
-        raise RunError(f"{where}: {w}x{h} px needs about {need / 1e9:.1f} GB of memory to render, more than the "
-                       f"{have / 1e9:.1f} GB available; render at a lower resolution (--downscale "
-                       f"{math.ceil(math.sqrt(need / max(have, 1)))} or more)")
-
-
 # ----------------------------------------------------------------------------------------------
 # camera files
-
-
-def _camera_list(data, src: Path) -> tuple[Cameras, List[str]]:
-    """Cameras from a JSON list: each item a 4x4 matrix (intrinsics from the top level) or a dict
-    with ``transform_matrix`` plus intrinsics (``contract.resolve_intrinsics``; ``w`` and ``h`` required)."""
-    if isinstance(data, list):
-        items, glob = data, {}
-    elif isinstance(data, dict):
-        items, glob = data.get("cameras"), data
-    else:  # a bare number or string
-        items, glob = None, {}
-    if not isinstance(items, list) or not items:
-        raise DatasetError(f"{src}: expected a list of cameras (or an object with 'frames' or 'cameras')")
-    mats, params, lenses = [], [], []
-    for k, item in enumerate(items):
-        where = f"{src}: camera {k}"
-        m = item.get("transform_matrix") if isinstance(item, dict) else item
-        try:
-            mats.append(check_pose(m, f"{where}: field 'transform_matrix'"))
-        except PoseError as exc:
-            raise DatasetError(str(exc)) from exc
-        own = item if isinstance(item, dict) else None
-        params.append(resolve_intrinsics(glob, own, None, where))
-        lens, problem = parse_lens(glob, own)
-        if problem:
-            raise DatasetError(f"{where}: field {problem[0]!r}: {problem[1]}")
-        lenses.append(lens)
-    p = np.asarray(params, dtype=np.float64)
-    cams = Cameras.create(np.stack(mats), p[:, 0], p[:, 1], p[:, 2], p[:, 3], p[:, 4].astype(int), p[:, 5].astype(int),
-                          lenses=lenses)
-    return cams, [frame_stem(item, k) for k, item in enumerate(items)]
-
-
-def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[str], List[Optional[FrameInfo]]]:
-    """Cameras to render, their output stems (unique, ``contract.output_stems``'s rule) and, per camera,
-    the transforms frame it came from (its ``image`` is the ground truth), None for a bare camera.
-
-    ``path`` may be a dataset folder (the frames of ``split``), a transforms file of either layout
-    (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), a
-    nerfstudio ``camera_path.json`` (``nerf_core.cameras.camera_path``), or a JSON list of cameras (see ``_camera_list``).
-    """
-
-    path = Path(path)
-    frames: List[Optional[FrameInfo]]
-    if path.is_dir():
-        cams, frames = load_cameras(path, split)
-        stems = [f.stem for f in frames]
-    else:
-        if not path.is_file():
-            raise DatasetError(f"{path}: cameras file not found")
-        data = parse_json_file(path)
-
-        if is_camera_path(data):  # nerfstudio's camera_path.json (viewer, Blender add-on)
-            cams, stems = cameras_from_camera_path(data, path)
-            frames = [None] * len(stems)
-        elif isinstance(data, dict) and "frames" in data:
-            if data.get("train_filenames") is not None and not path.name.startswith("transforms_"):
-                cams, frames = load_cameras(path, split)
-            else:
-                frames = read_transforms(path)
-                cams = cameras_of_frames(frames)
-            stems = [f.stem for f in frames]
-        else:
-            cams, stems = _camera_list(data, path)
-            frames = [None] * len(stems)
-    # Two frames with one basename (train/r_0 and test/r_0) must not overwrite each other's output.
-    return cams, unique_stems(stems), list(frames)
-
-
-def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, List[str]]:
-    """Cameras and output stems to render (``camera_views`` without the frames)."""
-    cams, stems, _ = camera_views(path, split)
-    return cams, stems
-
-
-def _ground_truth(frame: Optional[FrameInfo], cameras: Cameras, view: int, downscale: int):
-    """(one-view ``data.Split`` holding the ground truth of ``view``, None) or (None, why not). No
-    frame or no image file: (None, None), a camera without ground truth is not a problem."""
-
-    if frame is None or not frame.image.is_file():
-        return None, None
-    try:
-        split = load_split("ground truth", [frame], downscale, extras=("masks",))  # PSNR counts mask pixels
-    except DatasetError as exc:
-        return None, str(exc)
-    size, want = (split.width, split.height), (int(cameras.width[view]), int(cameras.height[view]))
-    if size != want:
-        return None, f"{frame.image} is {size[0]}x{size[1]} px (downscaled by {downscale}), the render {want[0]}x{want[1]}"
-    return split, None
-
-
-def straight_rgba(res: Dict[str, torch.Tensor], opaque: bool) -> np.ndarray:
-    """(h, w, 4) float32 RGBA with straight colour from ``render_view(..., background=(0, 0, 0))``.
-
-    ``opaque`` (a run with a learned world): what the camera sees, background included, alpha 1,
-    like the opaque capture it was trained on. Otherwise alpha = accumulated opacity.
-    """
-    acc = res["acc"]
-    if opaque:
-        return torch.cat([res["rgb"].clamp(0, 1), torch.ones_like(acc)[..., None]], -1).numpy()
-    # Rendered onto black, the result is premultiplied: dividing by acc gives straight colour for RGBA.
-    rgb = torch.where(acc[..., None] > 1e-6, res["rgb"] / acc[..., None].clamp_min(1e-6), torch.zeros_like(res["rgb"]))
-    return torch.cat([rgb.clamp(0, 1), acc[..., None]], -1).numpy()
-
-
-def dataset_files(*paths) -> Dict[Path, str]:
-    """{resolved file: 'FILE: frame K (PATH)'} of every image, depth, normal and mask file of the datasets
-    (folders or transforms files) at ``paths``, all splits; a path that is not a dataset adds nothing.
-    ``render`` never writes over these, even with --overwrite."""
-
-    out: Dict[Path, str] = {}
-    for path in paths:
-        if not path:
-            continue
-        try:
-            _, _, infos, _ = frame_infos(path, SPLITS)
-        except (DatasetError, OSError, ValueError):
-            continue
-        for frames in infos.values():
-            for fr in frames:
-                for f in (fr.image, fr.depth, fr.normal, fr.mask):
-                    if f is not None:
-                        try:
-                            out.setdefault(Path(f).resolve(), fr.where)
-                        except (OSError, RuntimeError):  # a symlink loop: not a file we could overwrite
-                            pass
-    return out
 
 
 def render_to_dir(
@@ -486,7 +139,7 @@ def render_to_dir(
         lens = cameras.lens(v)
         if lens is not None:  # the render is as distorted as the camera it was asked for
             entry.update(lens.fields())
-        gt_split, why_not = _ground_truth(gt_frames[v], cameras, v, gt_downscale)
+        gt_split, why_not = ground_truth_split(gt_frames[v], cameras, v, gt_downscale)
         if gt_split is not None:
             # What eval sees: the same pixels as rendering onto the background (model.render_rays puts
             # ``background`` behind the opacity exactly so); a learned world already fills them.
@@ -553,7 +206,35 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
                chunk: int = 8192, checkpoint=None, show_progress=True, pixel_filter: str = "auto") -> Path:
     """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
     per-view PSNR / SSIM and error heat-maps where the cameras' frames have ground-truth images.
-    ``pixel_filter``: "auto", the run's dataset's film filter (``pixel_filter.of_run``), or "none"."""
+
+    Writes, per camera, ``OUT/<stem>.png`` (RGBA: straight colour, alpha = accumulated opacity),
+    ``OUT/<stem>_depth.exr`` (planar z-depth, channel ``Z``) and ``OUT/renders.json``; for cameras with a
+    ground-truth image also ``OUT/errors/<stem>.png`` and that view's ``psnr``/``ssim`` in renders.json.
+
+    Args:
+        run: a run folder written by ``train``.
+        cameras_path: what to render: a dataset folder (the frames of ``split``), a transforms file,
+            a nerfstudio ``camera_path.json`` or a JSON list of cameras; None: the run's own dataset.
+        out: the folder to write into (created; never a dataset's root folder).
+        split: the split to render when ``cameras_path`` is a dataset folder (or a nerfstudio file with
+            split lists): "train", "val" or "test".
+        overwrite: replace existing outputs in ``out`` (a dataset's own images are never replaced).
+        device: "cpu", "cuda"...; None: CUDA when there is one.
+        downscale: factor > 0 to shrink the cameras by (an integer matches ``eval --downscale``'s
+            box-filtered ground truth; a fractional one renders without metrics).
+        chunk: most rays per model call.
+        checkpoint: a checkpoint file of the run to render instead of ``latest.pt``.
+        show_progress: show a progress bar on stderr.
+        pixel_filter: "auto", the run's dataset's film filter (``pixel_filter.of_run``), or "none".
+
+    Returns:
+        The path of ``OUT/renders.json``.
+
+    Raises:
+        RunError: an unusable run or checkpoint, a bad ``downscale``, outputs that exist without
+            ``overwrite``, or an ``out`` that is a dataset folder.
+        DatasetError: a cameras file that cannot be read.
+    """
 
     refuse_dataset_root_out(out)
     dev = pick_device(device)

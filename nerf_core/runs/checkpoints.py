@@ -204,7 +204,28 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
 
 
 def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
-    """(model in eval mode, config dict, checkpoint dict) of a run folder."""
+    """(model in eval mode, config dict, checkpoint dict) of a run folder.
+
+    The checkpoint is read safely (``torch.load(weights_only=True)``) and must belong to the run (same
+    method, same dataset hash); the model is rebuilt with ``build_model`` from the checkpoint's method,
+    options and scene box.
+
+    Args:
+        run: a run folder written by ``train`` (holds ``config.json`` and ``checkpoints/``).
+        device: where the model goes, e.g. ``torch.device("cpu")``.
+        checkpoint: a checkpoint file to load instead of ``RUN/checkpoints/latest.pt``.
+
+    Returns:
+        model: the trained ``RadianceModel`` in eval mode on ``device`` (``model.aabb``: (2, 3) float32).
+        config: RUN/config.json as a dict: the ``TrainConfig`` fields plus what training decided
+            (``near``, ``far``, ``eval_background``, ``aabb``, ...).
+        ckpt: the checkpoint dict (``step``, ``method``, ``options``, ``aabb``, ``model`` weights, ``config``...).
+
+    Raises:
+        RunError: a missing or unreadable run folder, config.json or checkpoint, a checkpoint of another
+            run, or one whose model does not build.
+        CheckpointRefused: a checkpoint that would need code to load (a crafted pickle).
+    """
     run = Path(run)
     cfg_path = Path(contract.config_path(run))
     if not run.is_dir():

@@ -32,7 +32,8 @@ except ImportError:  # Windows
     fcntl = None
 
 from nerf_core import contract
-from nerf_core.contract.transforms import DatasetError, detect_layout
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.transforms import detect_layout
 from nerf_core.errors import TrainError
 from nerf_core.utils.atomic import write_json_atomic
 

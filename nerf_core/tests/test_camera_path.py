@@ -11,7 +11,7 @@ import pytest
 from nerf_core.cameras.camera_path import CameraPathError, cameras_from_camera_path
 from nerf_core.cli.main import main
 from nerf_core.image.io import read_png
-from nerf_core.render.views import cameras_from_file
+from nerf_core.render.cameras import cameras_from_file
 from nerf_core.tests.conftest import look_at
 
 W, H = 20, 14

@@ -6,7 +6,7 @@ import pytest
 import torch
 from PIL import Image
 
-from nerf_core.contract.transforms import DatasetError
+from nerf_core.contract.errors import DatasetError
 from nerf_core.data.loading import load_cameras, load_dataset
 from nerf_core.image.io import read_exr
 

@@ -4,12 +4,7 @@ import math
 import torch
 from torch import nn
 
-from nerf_core.fields.encodings import (
-    FourierFeatures,
-    IdentityEncoding,
-    PositionalEncoding,
-    build_encoding,
-)
+from nerf_core.fields.encodings import FourierFeatures, IdentityEncoding, PositionalEncoding, build_encoding
 
 
 def test_positional_encoding_values_and_dims():

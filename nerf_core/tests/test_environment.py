@@ -13,16 +13,10 @@ from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_view
 from nerf_core.data import backgrounds
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.scene_box import pad_box_for_interior
-from nerf_core.fields.environment import (
-    EnvironmentMap,
-    directions_to_uv,
-    prefit,
-    sample_latlong,
-    size_for_focal,
-)
+from nerf_core.fields.environment import EnvironmentMap, directions_to_uv, prefit, sample_latlong, size_for_focal
 from nerf_core.image.io import read_png, write_png
 from nerf_core.methods.registry import build_model
-from nerf_core.render.views import render_view
+from nerf_core.render.frame import render_view
 
 # ----------------------------------------------------------------------------------------------- texture
 
@@ -237,7 +231,7 @@ def test_a_declared_opaque_film_wins_over_the_alpha(tmp_path, dataset_factory):
 
 
 def test_a_wrong_type_of_film_transparent_names_the_file_and_field(tmp_path, dataset_factory):
-    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.contract.errors import DatasetError
 
     ds = dataset_factory(tmp_path / "ds", depth=False, layouts=("synthetic",))
     meta = json.loads((ds / "transforms_train.json").read_text())

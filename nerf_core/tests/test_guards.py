@@ -169,11 +169,7 @@ def test_nearly_black_images_train_without_nan(tmp_path):
 def test_a_tiny_subject_is_named_before_training(tmp_path):
     """A 170-degree lens left the subject 0.2 % of each frame: the log said "100.0 % of the pixels are
     transparent" and the run's whole-image PSNR counted the empty film. Now check and train say so."""
-    from nerf_core.data.backgrounds import (
-        SMALL_SUBJECT_SHARE,
-        percent_text,
-        small_subject_note,
-    )
+    from nerf_core.data.backgrounds import SMALL_SUBJECT_SHARE, percent_text, small_subject_note
 
     speck = np.zeros((SIZE, SIZE, 4), np.uint8)
     speck[7, 7] = [200, 100, 50, 255]  # one pixel of 256: 0.4 %

@@ -8,12 +8,7 @@ import pytest
 import torch
 
 from nerf_core.cameras.distortion import fold_pixel
-from nerf_core.cameras.rays import (
-    Cameras,
-    project_points,
-    rays_for_pixels,
-    rays_for_view,
-)
+from nerf_core.cameras.rays import Cameras, project_points, rays_for_pixels, rays_for_view
 from nerf_core.contract.lens import Lens, parse_lens
 
 

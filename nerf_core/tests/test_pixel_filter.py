@@ -10,7 +10,7 @@ import torch
 from nerf_core.cameras.rays import Cameras, rays_for_pixels
 from nerf_core.cli.main import main
 from nerf_core.image import pixel_filter as pf
-from nerf_core.render.views import render_view
+from nerf_core.render.frame import render_view
 
 
 def _variance(filt: pf.PixelFilter) -> float:
@@ -172,7 +172,7 @@ def test_eval_and_render_use_the_datasets_filter_and_say_so(run_copy, tmp_path, 
 
 
 def test_a_datasets_filter_is_loaded_downscaled_and_a_bad_one_is_named(tmp_path, dataset_factory):
-    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.contract.errors import DatasetError
     from nerf_core.data.loading import load_dataset
 
     ds = dataset_factory(tmp_path / "ds", n_train=3, n_test=1, layouts=("synthetic",))

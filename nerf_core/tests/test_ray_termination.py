@@ -148,7 +148,7 @@ def test_vmgrid_renders_the_same_image_without_grad_with_less_density_work():
     assert sum(evaluated) < 0.8 * full, (sum(evaluated), full)
     # Per-ray results do not depend on how many rays a call holds (render.render_rays_chunked reads
     # the method's cpu_call_rays): one call of all 1024 rays against calls of 100.
-    from nerf_core.render.views import render_rays_chunked
+    from nerf_core.render.frame import render_rays_chunked
     with torch.no_grad():
         whole = render_rays_chunked(model, o, d, near, far, bg)
         model.cpu_call_rays = 100

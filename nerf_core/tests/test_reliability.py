@@ -495,7 +495,7 @@ def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, ca
 
 def test_check_lists_every_loader_problem_and_train_stops_at_the_first(dataset_factory, tmp_path):
     from nerf_core.check.dataset import check_dataset
-    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.contract.errors import DatasetError
     from nerf_core.data.loading import load_dataset
     from nerf_core.data.problems import dataset_problems
 
@@ -537,7 +537,7 @@ def test_paths_outside_the_dataset_are_read_with_a_note_and_bad_path_types_are_r
     import shutil
 
     from nerf_core.check.dataset import check_dataset
-    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.contract.errors import DatasetError
     from nerf_core.data.loading import load_dataset
 
     ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
@@ -781,7 +781,7 @@ def test_nerfstudio_split_lists_of_the_wrong_kind_are_named(sphere_dataset, caps
 
 
 def test_exr_images_with_nan_or_alpha_out_of_range_are_named(tmp_path):
-    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.contract.errors import DatasetError
     from nerf_core.data.loading import load_dataset
     from nerf_core.image.io import read_exr_rgba
     from nerf_core.tests.conftest import make_dataset, write_exr

@@ -12,7 +12,8 @@ from nerf_core.cameras.rays import Cameras
 from nerf_core.cli.main import main
 from nerf_core.image.io import read_exr
 from nerf_core.image.pixel_filter import PixelFilter
-from nerf_core.render.views import cameras_from_file, render_view
+from nerf_core.render.cameras import cameras_from_file
+from nerf_core.render.frame import render_view
 
 
 def test_render_writes_png_and_exr_of_the_right_size(trained_run, tmp_path, capsys):
@@ -63,7 +64,7 @@ def test_an_interrupted_overwrite_leaves_no_renders_json_of_the_old_images(train
 
 
 def _run_and_cameras(run, ds):
-    from nerf_core.render.views import camera_views
+    from nerf_core.render.cameras import camera_views
     from nerf_core.runs.checkpoints import load_run
 
     model, _config, _ckpt = load_run(run, "cpu")

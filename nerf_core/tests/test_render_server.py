@@ -11,7 +11,7 @@ import numpy as np
 
 from nerf_core.cameras.rays import Cameras
 from nerf_core.render.server import RenderServer, parse_request
-from nerf_core.render.views import render_view
+from nerf_core.render.frame import render_view
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.tests.conftest import REPO_ROOT, look_at
 
@@ -175,7 +175,7 @@ def test_a_file_that_appears_while_the_view_renders_is_never_replaced(trained_ru
         target.write_bytes(b"the user's data")
         return res
 
-    monkeypatch.setattr("nerf_core.render.views.render_view", render_then_someone_writes)
+    monkeypatch.setattr("nerf_core.render.server.render_view", render_then_someone_writes)
     events = _serve(trained_run["run"], [json.dumps(_req(1, target, depth=False))])
     assert events[1]["event"] == "error" and "appeared while the view rendered" in events[1]["message"]
     assert target.read_bytes() == b"the user's data"

@@ -4,12 +4,7 @@ import pytest
 import torch
 
 from nerf_core.methods.registry import build_model
-from nerf_core.methods.sizing import (
-    auto_size,
-    detail_score,
-    fine_detail_share,
-    nearest_box_distance,
-)
+from nerf_core.methods.sizing import auto_size, detail_score, fine_detail_share, nearest_box_distance
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 

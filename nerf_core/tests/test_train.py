@@ -211,7 +211,7 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
 def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_dataset, tmp_path):
     # An opaque capture cannot show by its alpha that a floor runs past the box; the capture says so.
     from nerf_core.check.dataset import check_dataset
-    from nerf_core.contract.transforms import DatasetError
+    from nerf_core.contract.errors import DatasetError
     from nerf_core.data.loading import load_dataset
 
     path = sphere_dataset / "transforms_train.json"
@@ -277,14 +277,14 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
             raise KeyboardInterrupt
         return False
 
-    save = Trainer._save_checkpoint
+    save = Trainer.save_checkpoint
 
     def impatient_save(self):
         os.kill(os.getpid(), signal.SIGINT)  # pressed again while the checkpoint is being written
         return save(self)
 
     monkeypatch.setattr(method_class("test-grid"), "training_hook", hook)
-    monkeypatch.setattr(Trainer, "_save_checkpoint", impatient_save)
+    monkeypatch.setattr(Trainer, "save_checkpoint", impatient_save)
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
         train(_cfg(sphere_dataset, run, max_steps=15))
@@ -383,7 +383,7 @@ def test_a_run_that_would_train_nothing_is_an_error(sphere_dataset, tmp_path, mo
 
 
 def test_the_default_batch_is_the_methods_and_four_times_that_on_cuda():
-    from nerf_core.engine.trainer import CUDA_BATCH_SCALE, default_batch_rays
+    from nerf_core.engine.model_setup import CUDA_BATCH_SCALE, default_batch_rays
 
     class WithDefault:
         default_batch_rays = 2048

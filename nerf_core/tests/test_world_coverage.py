@@ -6,11 +6,7 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras
-from nerf_core.fields.world_coverage import (
-    _dilate,
-    covered_directions,
-    unseen_world_share,
-)
+from nerf_core.fields.world_coverage import _dilate, covered_directions, unseen_world_share
 
 
 def _camera(yaw_deg: float, pitch_deg: float = 0.0, w: int = 40, h: int = 40, fov_deg: float = 40.0,

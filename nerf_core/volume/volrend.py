@@ -33,11 +33,14 @@ def render_transmittance_from_density(t_starts: Tensor, t_ends: Tensor, sigmas: 
     """Transmittance before each sample and each sample's alpha.
 
     Args:
-        t_starts, t_ends: (n_rays, n_samples) interval bounds along each ray.
+        t_starts: (n_rays, n_samples) start of each sample's interval along its ray.
+        t_ends: (n_rays, n_samples) end of each interval.
         sigmas: (n_rays, n_samples) non-negative densities.
 
     Returns:
-        transmittance (n_rays, n_samples) = T_i, alphas (n_rays, n_samples), both float32.
+        transmittance: (n_rays, n_samples) T_i = exp(-sum_{j<i} sigma_j delta_j).
+        alphas: (n_rays, n_samples) 1 - exp(-sigma_i delta_i).
+        Both float32 (float16/bfloat16 inputs are computed in float32; float64 stays float64).
     """
     sigma_delta = _as_float(sigmas) * (_as_float(t_ends) - _as_float(t_starts))
     alphas = 1.0 - torch.exp(-sigma_delta)
@@ -51,10 +54,15 @@ def render_weight_from_density(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor)
     """Compositing weights of a dense batch of samples.
 
     Args:
-        t_starts, t_ends, sigmas: (n_rays, n_samples).
+        t_starts: (n_rays, n_samples) start of each sample's interval along its ray.
+        t_ends: (n_rays, n_samples) end of each interval.
+        sigmas: (n_rays, n_samples) non-negative densities.
 
     Returns:
-        weights (n_rays, n_samples), transmittance (n_rays, n_samples), alphas (n_rays, n_samples), float32.
+        weights: (n_rays, n_samples) w_i = T_i * alpha_i.
+        transmittance: (n_rays, n_samples) T_i.
+        alphas: (n_rays, n_samples) alpha_i.
+        All float32 (float64 inputs stay float64).
     """
     transmittance, alphas = render_transmittance_from_density(t_starts, t_ends, sigmas)
     return transmittance * alphas, transmittance, alphas
@@ -64,11 +72,12 @@ def accumulate_along_rays(weights: Tensor, values: Optional[Tensor] = None) -> T
     """Sum ``weights * values`` over the samples of each ray.
 
     Args:
-        weights: (n_rays, n_samples).
-        values: (n_rays, n_samples, d), or None to accumulate the weights themselves (opacity).
+        weights: (n_rays, n_samples) compositing weights.
+        values: (n_rays, n_samples, d) per-sample values (colours: d = 3), or None to accumulate the
+            weights themselves (opacity).
 
     Returns:
-        (n_rays, d), or (n_rays,) when ``values`` is None.
+        (n_rays, d) accumulated values, or (n_rays,) opacity when ``values`` is None.
     """
     if values is None:
         return weights.sum(dim=-1)
@@ -76,7 +85,16 @@ def accumulate_along_rays(weights: Tensor, values: Optional[Tensor] = None) -> T
 
 
 def composite_background(rgb: Tensor, acc: Tensor, background: Tensor) -> Tensor:
-    """Put ``background`` (n_rays, 3) behind premultiplied ``rgb`` (n_rays, 3) with opacity ``acc`` (n_rays,)."""
+    """Put ``background`` (n_rays, 3) behind premultiplied ``rgb`` (n_rays, 3) with opacity ``acc`` (n_rays,).
+
+    Args:
+        rgb: (n_rays, 3) accumulated (premultiplied) colour, ``accumulate_along_rays(weights, rgbs)``.
+        acc: (n_rays,) accumulated opacity in [0, 1].
+        background: (n_rays, 3) colour behind each ray (or anything that broadcasts, e.g. (3,)).
+
+    Returns:
+        (n_rays, 3) rgb + (1 - acc) * background.
+    """
     return rgb + (1.0 - acc).unsqueeze(-1) * background
 
 
@@ -103,7 +121,16 @@ def render_rays_dense(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor, rgbs: Te
 
 
 def packed_info_from_ray_indices(ray_indices: Tensor, n_rays: int) -> Tuple[Tensor, Tensor]:
-    """(first sample index, sample count) of each ray, both (n_rays,) long, from sorted ``ray_indices``."""
+    """(first sample index, sample count) of each ray, both (n_rays,) long, from sorted ``ray_indices``.
+
+    Args:
+        ray_indices: (n_samples_total,) long, the ray of each packed sample, sorted.
+        n_rays: number of rays.
+
+    Returns:
+        starts: (n_rays,) long index of each ray's first sample in the packed arrays.
+        counts: (n_rays,) long number of samples of each ray (0 for a ray without samples).
+    """
     counts = torch.bincount(ray_indices, minlength=n_rays)
     starts = torch.cumsum(counts, 0) - counts
     return starts, counts
@@ -115,10 +142,17 @@ def render_transmittance_from_density_packed(
     """Packed version of :func:`render_transmittance_from_density`.
 
     Args:
-        t_starts, t_ends, sigmas: (n_samples_total,); ray_indices: (n_samples_total,) long, sorted.
+        t_starts: (n_samples_total,) start of each packed sample's interval.
+        t_ends: (n_samples_total,) end of each interval.
+        sigmas: (n_samples_total,) non-negative densities.
+        ray_indices: (n_samples_total,) long, the ray of each sample, sorted (a ray's samples contiguous
+            and in order of distance).
+        n_rays: number of rays.
 
     Returns:
-        transmittance, alphas: (n_samples_total,) float32.
+        transmittance: (n_samples_total,) T_i within each sample's ray.
+        alphas: (n_samples_total,) alpha_i.
+        Both float32 (float64 inputs stay float64); the prefix sums are float64.
     """
     sigma_delta = _as_float(sigmas) * (_as_float(t_ends) - _as_float(t_starts))
     alphas = 1.0 - torch.exp(-sigma_delta)
@@ -139,7 +173,21 @@ def render_transmittance_from_density_packed(
 def render_weight_from_density_packed(
     t_starts: Tensor, t_ends: Tensor, sigmas: Tensor, ray_indices: Tensor, n_rays: int
 ) -> Tuple[Tensor, Tensor, Tensor]:
-    """Packed compositing weights: returns weights, transmittance, alphas, each (n_samples_total,) float32."""
+    """Packed compositing weights: returns weights, transmittance, alphas, each (n_samples_total,) float32.
+
+    Args:
+        t_starts: (n_samples_total,) start of each packed sample's interval.
+        t_ends: (n_samples_total,) end of each interval.
+        sigmas: (n_samples_total,) non-negative densities.
+        ray_indices: (n_samples_total,) long, the ray of each sample, sorted.
+        n_rays: number of rays.
+
+    Returns:
+        weights: (n_samples_total,) w_i = T_i * alpha_i.
+        transmittance: (n_samples_total,) T_i.
+        alphas: (n_samples_total,) alpha_i.
+        All float32 (float64 inputs stay float64).
+    """
     transmittance, alphas = render_transmittance_from_density_packed(t_starts, t_ends, sigmas, ray_indices, n_rays)
     return transmittance * alphas, transmittance, alphas
 
@@ -148,11 +196,14 @@ def accumulate_along_rays_packed(weights: Tensor, ray_indices: Tensor, n_rays: i
     """Sum ``weights * values`` per ray in the packed layout.
 
     Args:
-        weights: (n_samples_total,); ray_indices: (n_samples_total,) long;
-        values: (n_samples_total, d) or None for opacity.
+        weights: (n_samples_total,) compositing weights.
+        ray_indices: (n_samples_total,) long, the ray of each sample (need not be sorted here).
+        n_rays: number of rays.
+        values: (n_samples_total, d) per-sample values, or None for opacity.
 
     Returns:
-        (n_rays, d), or (n_rays,) when ``values`` is None.
+        (n_rays, d) accumulated values, or (n_rays,) opacity when ``values`` is None; 0 for rays
+        without samples.
     """
     if values is None:
         return torch.zeros(n_rays, dtype=weights.dtype, device=weights.device).index_add(0, ray_indices, weights)
@@ -172,10 +223,15 @@ def distortion_loss_packed(weights: Tensor, t_starts: Tensor, t_ends: Tensor, ra
     W_<i = sum_{j<i} w_j and S_<i = sum_{j<i} w_j m_j.
 
     Args:
-        weights, t_starts, t_ends: (n_samples_total,); ray_indices: (n_samples_total,) long, sorted.
+        weights: (n_samples_total,) compositing weights.
+        t_starts: (n_samples_total,) start of each sample's interval.
+        t_ends: (n_samples_total,) end of each interval.
+        ray_indices: (n_samples_total,) long, the ray of each sample, sorted.
+        n_rays: number of rays.
 
     Returns:
-        (n_rays,) loss per ray, in the units of ``t`` (divide ``t`` beforehand to normalise).
+        (n_rays,) float32 loss per ray, in the units of ``t`` (divide ``t`` beforehand to normalise);
+        0 for rays without samples.
     """
     if weights.numel() == 0:
         return torch.zeros(n_rays, dtype=weights.dtype, device=weights.device)

@@ -17,7 +17,8 @@ from typing import Iterable, Optional, Sequence
 
 import _bootstrap  # noqa: F401  (puts the repository on sys.path, for nerf_core; as in runner)
 from nerf_core.contract.intrinsics import resolve_intrinsics
-from nerf_core.contract.transforms import DatasetError, frame_infos
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.transforms import frame_infos
 
 from . import runner
 from .report import fmt, markdown_table

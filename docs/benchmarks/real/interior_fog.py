@@ -9,7 +9,7 @@ Made from two 400-step runs on the benchmark's interior capture (scripts/benchma
 import sys, torch, numpy as np
 sys.path.insert(0, __import__("os").path.join(__import__("os").path.dirname(__import__("os").path.abspath(__file__)), "..", "..", ".."))
 from nerf_core.runs.checkpoints import load_run
-from nerf_core.render.views import render_view
+from nerf_core.render.frame import render_view
 from nerf_core.data.loading import load_dataset
 import matplotlib; matplotlib.use("Agg"); import matplotlib.pyplot as plt
 torch.set_num_threads(1)

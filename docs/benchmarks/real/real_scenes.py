@@ -17,7 +17,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from nerf_core import contract  # noqa: E402
 from nerf_core.runs.checkpoints import load_run  # noqa: E402
 from nerf_core.data.loading import load_dataset  # noqa: E402
-from nerf_core.render.views import render_view  # noqa: E402
+from nerf_core.render.frame import render_view  # noqa: E402
 
 
 def row(run: str, n_views: int = 3):

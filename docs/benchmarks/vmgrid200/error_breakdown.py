@@ -34,7 +34,7 @@ from nerf_core.data.loading import load_cameras, load_split  # noqa: E402
 from nerf_core.image.io import read_png  # noqa: E402
 from nerf_core.methods.registry import available_methods  # noqa: E402
 from nerf_core.image.pixel_filter import of_run  # noqa: E402
-from nerf_core.render.views import render_view  # noqa: E402
+from nerf_core.render.frame import render_view  # noqa: E402
 
 KINDS = ("background", "silhouette", "texture edge", "flat")
 

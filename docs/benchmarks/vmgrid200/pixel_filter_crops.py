@@ -23,7 +23,7 @@ from nerf_core.runs.checkpoints import load_run  # noqa: E402
 from nerf_core.data.loading import load_dataset  # noqa: E402
 from nerf_core.render.scoring import score_view  # noqa: E402
 from nerf_core.image.pixel_filter import edge_pixels  # noqa: E402
-from nerf_core.render.views import render_view  # noqa: E402
+from nerf_core.render.frame import render_view  # noqa: E402
 
 
 def main(argv=None) -> int:
