@@ -8,9 +8,9 @@ UI modules (``prefs``, ``jobs``, ``capture_ui``, ``train_ui``, ``render_engine``
 by scripts without registering anything. ``render_engine`` registers the "NeRF" render engine and its
 Render Properties panel.
 """
-from . import prefs, jobs, capture_ui, train_ui, render_engine
+from . import capture, common, compare, render_engine, train
 
-_MODULES = (prefs, jobs, capture_ui, train_ui, render_engine)
+_MODULES = (common, capture, train, compare, render_engine)
 
 
 def register():

@@ -30,7 +30,7 @@ def repo_root() -> str:
 def train_settings(tmp_path):
     """The Train panel's settings (its classes registered), with Dataset and Run folders under
     ``tmp_path`` that do not exist yet."""
-    from addon import train_ui
+    from addon.train import train_ui
 
     train_ui.register()
     settings = bpy.context.scene.nerf_train

@@ -19,7 +19,7 @@ import OpenEXR
 import pytest
 from PIL import Image
 
-from addon import capture, layouts
+from addon.capture import capture_job as capture, layouts
 
 PY = sys.executable
 CUBE_HALF = 0.75
@@ -230,7 +230,7 @@ def test_nerfstudio_gets_millimetre_depth_pngs_and_no_object_masks_on_a_transpar
 
 
 def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path):
-    from addon import passes
+    from addon.scene import passes
 
     # EEVEE writes the far clipping plane (a little more off the axis) where Cycles writes 1e10.
     z = np.array([[2.0, 100.5, 1e10], [0.0, 99.95, 50.0]], np.float32)
@@ -280,7 +280,7 @@ def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
 
 
 def test_ngp_aabb_scale_reaches_twice_the_farthest_camera_when_the_scene_renders_beyond_the_box():
-    from addon.export import ngp_aabb_scale
+    from addon.dataset.export import ngp_aabb_scale
 
     # Off-centre and large, but all inside the box: instant-ngp's aabb mapping makes it fill the cube.
     assert ngp_aabb_scale((2.8, 2.8, 0), (7.2, 7.2, 3.5), [(15, 0, 2)], beyond_box=False) == 1
@@ -380,7 +380,7 @@ def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
 
 
 def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path):
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     build_test_scene()
     bpy.ops.mesh.primitive_plane_add(size=200.0, location=(0, 0, -CUBE_HALF))
@@ -404,7 +404,7 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
 def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
     # A lone plane (a painting, an image imported as a plane) spans no z: its box was 0 thick, and every
     # loader refused the dataset (min < max).
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
     from nerf_core.dataset_checks import dataset_problems
 
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))

@@ -11,7 +11,8 @@ import bpy
 import pytest
 from mathutils import Matrix
 
-from addon import capture, capture_render, export, layouts
+from addon.capture import capture_job as capture, capture_render, layouts
+from addon.dataset import export
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -518,7 +519,7 @@ def test_pass_files_round_trip_and_unreadable_ones_are_named(tmp_path):
     import OpenEXR
     from PIL import Image
 
-    from addon import passes
+    from addon.scene import passes
 
     z = np.arange(12, dtype=np.float32).reshape(3, 4) / 7
     z[0, 0] = np.inf

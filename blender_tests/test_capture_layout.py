@@ -15,7 +15,7 @@ import sys
 
 import bpy
 
-from addon import capture, layouts
+from addon.capture import capture_job as capture, layouts
 
 EXTS = ("png", "jpg", "jpeg", "exr")
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from addon import capture, layouts
+from addon.capture import capture_job as capture, layouts
 
 CENTRE, RADIUS = np.array([0.3, -0.2, 0.4]), 1.0
 GS_PROPERTIES = ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]  # 3DGS fetchPly / storePly

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture_plan
+from addon.capture import capture_plan
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -192,7 +192,7 @@ def test_parse_shard_and_round_robin():
 
 def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
     """In-process shards (CaptureJob with settings.shard): 2 frames over 3 shards; shard 3 has none."""
-    from addon import capture, capture_merge, layouts
+    from addon.capture import capture_job as capture, capture_merge, layouts
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
@@ -215,7 +215,7 @@ def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
 
 def test_a_whole_capture_keeps_the_frames_shards_finished(tmp_path):
     """Switching from the farm to one machine midway: the whole run keeps every frame a shard recorded."""
-    from addon import capture, layouts
+    from addon.capture import capture_job as capture, layouts
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene

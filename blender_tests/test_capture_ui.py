@@ -8,7 +8,8 @@ import bpy
 import pytest
 
 import addon
-from addon import capture_ui, jobs, layouts
+from addon.capture import capture_ui, layouts
+from addon.common import jobs
 
 
 @pytest.fixture
@@ -111,7 +112,7 @@ def _fake_modal_operator(job):
 def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
     from types import SimpleNamespace
 
-    from addon import capture
+    from addon.capture import capture_job as capture
 
     bpy.ops.mesh.primitive_cube_add()
     s = bpy.context.scene.nerf_capture
@@ -212,7 +213,7 @@ class _RecordingLayout:
 def test_panel_draws_every_layout_and_the_running_state(registered, layout_name, monkeypatch):
     from types import SimpleNamespace
 
-    from addon import jobs
+    from addon.common import jobs
 
     s = bpy.context.scene.nerf_capture
     s.layout = layout_name

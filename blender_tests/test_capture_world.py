@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture, demo_scenes, layouts
+from addon.capture import capture_job as capture, demo_scenes, layouts
 
 TRANSFORMS = ("transforms_train.json", "transforms_val.json", "transforms_test.json", "nerfstudio/transforms.json")
 

@@ -12,7 +12,8 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon import export, gallery_frame, image_storage, planes, view_cameras
+from addon.dataset import export
+from addon.compare import gallery_frame, image_storage, planes, view_cameras
 from test_planes import fake_render
 
 INTRINSICS = [
@@ -212,7 +213,8 @@ def test_absolute_paths_and_unknown_modes(tmp_path):
 
 
 def test_the_compare_panel_leaves_the_users_camera_and_images_alone(tmp_path):
-    from addon import compare, train_props
+    from addon.compare import compare_views as compare
+    from addon.train import train_props
 
     train_props.register()
     try:

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture, demo_capture, demo_scenes, layouts, scene_bounds
+from addon.capture import capture_job as capture, demo_capture, demo_scenes, layouts
+from addon.scene import scene_bounds
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "make_demo_scene.py")

@@ -16,7 +16,11 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon import capture, jobs, layouts, planes, runs, train_ui, trainer_process
+from addon.capture import capture_job as capture, layouts
+from addon.common import jobs
+from addon.compare import planes
+from addon.bridge import runs, trainer_process
+from addon.train import train_ui
 
 RES = 32
 

@@ -12,7 +12,10 @@ import bpy
 import pytest
 
 import addon
-from addon import capture, capture_ui, jobs, train_ui, trainer_process, ui_common
+from addon.capture import capture_job as capture, capture_ui
+from addon.common import jobs, ui_common
+from addon.train import train_ui
+from addon.bridge import trainer_process
 
 
 @pytest.fixture

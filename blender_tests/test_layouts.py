@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from addon import export, layouts
-from addon.capture import RenderView
+from addon.dataset import export
+from addon.capture import layouts
+from addon.capture.capture_job import RenderView
 
 
 def _elevations(points, centre=(0, 0, 0)):
@@ -286,7 +287,7 @@ def _monkey_scene(*extras):
     (("floor", "dome"), ["Plane", "Sphere"]),
 ])
 def test_a_floor_or_dome_that_dwarfs_the_subject_is_left_out_of_the_framing(extras, left_out):
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene(*extras)
     spec = layouts.LayoutSpec(train=8, val=1, test=1)
@@ -313,7 +314,7 @@ def test_objects_that_are_part_of_the_subject_stay_in_the_framing(extras):
     # A floor little larger than the monkey is its stage; a 60 m building beside it makes the floor
     # under both part of the scene; a table is not the surroundings of the screw on it (the screw
     # pokes out of the table's box).
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene(*extras)
     lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec())
@@ -342,7 +343,7 @@ def _instance_of(collection_name, location, *, scene):
 def test_collection_instances_are_bounded_like_the_objects_they_show():
     # A chair that is a collection instance (its source collection excluded from the view layer, as
     # after linking an asset) was missing from the bounds: the scene box and the framing left it out.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene()
     chairs = bpy.data.collections.new("Chairs")
@@ -381,7 +382,7 @@ def test_what_renders_nothing_stretches_no_box_and_hair_does():
     # A camera path (a curve without bevel), an empty Grease Pencil object, a text with no body, the
     # second metaball of a family and a mesh of loose edges render nothing, yet each counted as its
     # (padded) control box or as a point at its origin: Suzanne came out 0.2 % of the frame.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene()
     bpy.ops.curve.primitive_bezier_circle_add(radius=8.0, location=(0, 0, 2))
@@ -418,7 +419,7 @@ def test_bounds_follow_the_view_layer_that_renders():
     # A capture renders the active view layer only; the bounds read the first one. With the file's
     # second layer active, an object only it renders fell outside the box (44-60 % of a view's
     # opaque pixels) and out of the masks, and one that only the first renders stretched the box.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = bpy.context.scene
     near, far = (bpy.data.collections.new(n) for n in ("Near", "Far"))
@@ -445,7 +446,7 @@ def test_bounds_follow_the_view_layer_that_renders():
 def test_bounds_follow_what_renders_not_what_the_viewport_shows():
     # Artists hide heavy objects in the viewport (eye or monitor icon); they still render, so they must
     # be inside the box. A collection disabled in renders or excluded from the view layer renders nothing.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene()
     bpy.ops.mesh.primitive_cube_add(size=2.0, location=(6.0, 0.0, 1.0))

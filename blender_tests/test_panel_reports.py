@@ -10,8 +10,12 @@ import bpy
 import pytest
 
 import addon
-from addon import compare, jobs, render_client, render_engine, train_props, train_ui, trainer_process, ui_common
-from addon.trainer_process import SetupError
+from addon.compare import compare_views as compare
+from addon.common import jobs, ui_common
+from addon.bridge import render_client, trainer_process
+from addon.render_engine import engine as render_engine
+from addon.train import train_props, train_ui
+from addon.bridge.trainer_process import SetupError
 from test_register import _draw, _labels
 
 

@@ -11,7 +11,8 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Euler, Matrix, Vector
 
-from addon import export, image_metrics, planes
+from addon.dataset import export
+from addon.compare import image_metrics, planes
 from nerf_core import metrics
 
 W, H = 40, 30
@@ -233,7 +234,7 @@ def test_image_metrics_against_hand_computed_values(tmp_path):
 def test_a_sibling_run_with_infinite_budgets_is_listed(tmp_path):
     # json reads Infinity; int() of it raised OverflowError and stopped Refresh Runs (and the refresh
     # after every job) at that run.
-    from addon import runs
+    from addon.bridge import runs
 
     for name, steps in (("a_run", float("inf")), ("b_run", 200)):
         (tmp_path / name).mkdir()

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from addon.progress import ProgressParser
+from addon.bridge.progress import ProgressParser
 
 STREAM = [
     {"event": "start", "time": 1.0, "run": "/r", "method": "nerf", "max_steps": 200, "max_seconds": None,

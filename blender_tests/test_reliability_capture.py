@@ -10,7 +10,7 @@ import sys
 import bpy
 import pytest
 
-from addon import capture, capture_verify, layouts
+from addon.capture import capture_job as capture, capture_verify, layouts
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")

@@ -19,7 +19,9 @@ import numpy as np
 import pytest
 
 import addon
-from addon import capture, demo_scenes, layouts, render_client, render_engine
+from addon.capture import capture_job as capture, demo_scenes, layouts
+from addon.bridge import render_client
+from addon.render_engine import engine as render_engine
 from nerf_core import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
 
 RES = 48
@@ -111,7 +113,7 @@ def _render_still(scene, path):
 
 
 def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(engine_scene, cube_run, tmp_path):
-    from addon import export
+    from addon.dataset import export
 
     scene = engine_scene
     cam = layouts.capture_cameras(scene)["test"][0]  # a view the run never trained on
@@ -209,7 +211,7 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
 
 
 def trainer_process_alive(pid):
-    from addon import trainer_process
+    from addon.bridge import trainer_process
 
     return trainer_process.pid_alive(pid)
 
@@ -325,7 +327,7 @@ def test_viewport_intrinsics_from_blenders_projection_equal_the_capture_rule(fit
     a camera (``calc_matrix_camera``) must give what ``export.camera_intrinsics`` gives for it."""
     from types import SimpleNamespace
 
-    from addon import export
+    from addon.dataset import export
 
     scene = bpy.context.scene
     cam = bpy.data.objects.new("C", bpy.data.cameras.new("C"))

@@ -13,8 +13,11 @@ import bpy
 import numpy as np
 import pytest
 
-from addon import compare, image_metrics, jobs, prefs, train_ui, trainer_process
-from addon.trainer_process import SetupError
+from addon.compare import compare_views as compare, image_metrics
+from addon.common import jobs, prefs
+from addon.train import train_ui
+from addon.bridge import trainer_process
+from addon.bridge.trainer_process import SetupError
 
 
 @pytest.fixture
@@ -51,7 +54,7 @@ def test_no_dataset(s, tmp_path):
         train_ui.start_training(bpy.context)
     # an empty field takes the Capture panel's Output: a failure names where that path came from, and
     # the field stays as the user left it
-    from addon import capture_ui
+    from addon.capture import capture_ui
 
     capture_ui.register()
     try:
@@ -79,7 +82,7 @@ def test_no_dataset(s, tmp_path):
 def test_paths_relative_to_an_unsaved_blend_or_home_are_not_the_working_folder(s, tmp_path, monkeypatch):
     # In an unsaved file "//my_run/" trained into <Blender's working folder>/my_run, and "~/x" into
     # a folder named "~" there.
-    from addon import ui_common
+    from addon.common import ui_common
 
     monkeypatch.chdir(tmp_path)
     s.run_dir = "//my_run/"
@@ -254,7 +257,8 @@ def test_quitting_blender_leaves_no_orphan_trainer(tmp_path, repo_root):
 import sys, time
 sys.path.insert(0, {repo_root!r})
 import bpy
-from addon import jobs, train_ui
+from addon.common import jobs
+from addon.train import train_ui
 train_ui.register()
 cmd = [sys.executable, "-c", "import time\\nwhile True: time.sleep(0.1)"]
 job = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)

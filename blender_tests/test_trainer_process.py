@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from addon import trainer_process
-from addon.trainer_process import BackgroundProcess, group_pids, pid_alive
+from addon.bridge import trainer_process
+from addon.bridge.trainer_process import BackgroundProcess, group_pids, pid_alive
 
 FAKE_TRAINER = textwrap.dedent('''
     import json, subprocess, sys, time

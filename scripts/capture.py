@@ -94,7 +94,7 @@ def argument_errors(args) -> list[str]:
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
     if args.shard is not None:
-        from addon import capture_plan
+        from addon.capture import capture_plan
 
         try:
             capture_plan.parse_shard(args.shard)
@@ -112,7 +112,7 @@ def argument_errors(args) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from addon import layouts
+    from addon.capture import layouts
 
     ap = _bootstrap.scene_parser("capture.py", __doc__.split("\n\n")[0], "scene to open")
     ap.add_argument("--out", required=True, help="dataset folder to write")
@@ -166,14 +166,15 @@ def main(argv: list[str]) -> int:
             print(f"capture: error: {e}", file=sys.stderr)
         return 2
     if args.merge:
-        from addon import capture_merge
+        from addon.capture import capture_merge
 
         print(json.dumps(capture_merge.merge(args.out)), flush=True)
         return 0
     _bootstrap.open_blend(args.blend)
     import bpy
 
-    from addon import capture, capture_plan, export, layouts
+    from addon.capture import capture_job as capture, capture_plan, layouts
+    from addon.dataset import export
     from nerf_core.progressbar import ProgressBar
 
     res_x, res_y = args.resolution
@@ -229,9 +230,11 @@ def main(argv: list[str]) -> int:
 
 
 def run() -> int:
-    from addon import capture, export, layouts, scene_bounds
+    from addon.capture import capture_job as capture, layouts
+    from addon.dataset import export
+    from addon.scene import scene_bounds
 
-    from addon import passes
+    from addon.scene import passes
 
     known = (capture.CaptureError, layouts.LayoutError, export.ExportError, scene_bounds.BoundsError,
              passes.PassError)

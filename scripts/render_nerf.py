@@ -71,7 +71,7 @@ def set_format(settings, fmt: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    from addon import render_client, trainer_process
+    from addon.bridge import render_client, trainer_process
 
     run = os.path.abspath(args.run)
     problem = render_client.run_problem(run, os.path.abspath(args.checkpoint) if args.checkpoint else "")
@@ -100,7 +100,7 @@ def main(argv) -> int:
         fail(trainer_process.describe_os_error(exc, out, "creating"))
 
     import addon
-    from addon import render_engine
+    from addon.render_engine import engine as render_engine
 
     if not hasattr(bpy.types.Scene, "nerf_render"):  # an installed copy of the extension may have registered it
         addon.register()

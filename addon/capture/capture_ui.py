@@ -12,8 +12,11 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import capture, demo_scenes, export, jobs, layouts, scene_bounds
-from .ui_common import NerfPanel, draw_wrapped, path_options, property_split, report_and_cancel
+from . import capture_job as capture, demo_scenes, layouts
+from ..dataset import export
+from ..common import jobs
+from ..scene import scene_bounds
+from ..common.ui_common import NerfPanel, draw_wrapped, path_options, property_split, report_and_cancel
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 

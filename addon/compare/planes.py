@@ -34,7 +34,7 @@ import numpy as np
 from mathutils import Matrix, Vector
 
 from . import gallery_frame, view_cameras
-from .core_contract import contract
+from ..bridge.core_contract import contract
 
 VIEWS_COLLECTION = "NeRF Views"
 VIEW_CAMERAS_COLLECTION = "NeRF View Cameras"  # a child of VIEWS_COLLECTION: hiding the views hides both

@@ -8,15 +8,18 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from . import trainer_process
+from ..bridge import trainer_process
 from .ui_common import report_and_cancel
+
+# The add-on's own package (its preferences key): this module lives one level below it, in common/.
+ADDON_PACKAGE = (__package__ or "").rpartition(".")[0]
 
 
 def get_preferences(context=None):
     """The add-on's preferences, or None when the add-on is not registered as an extension/add-on
     (e.g. imported by a script); callers then use the defaults."""
     context = context or bpy.context
-    addon = context.preferences.addons.get(__package__) if __package__ else None
+    addon = context.preferences.addons.get(ADDON_PACKAGE) if ADDON_PACKAGE else None
     return addon.preferences if addon is not None else None
 
 
@@ -43,7 +46,7 @@ class NERF_OT_check_python(bpy.types.Operator):
 
 
 class NerfBridgePreferences(bpy.types.AddonPreferences):
-    bl_idname = __package__
+    bl_idname = ADDON_PACKAGE
 
     python_path: StringProperty(
         name="Python with torch",

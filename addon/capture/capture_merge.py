@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import os
 
-from . import capture_shards, capture_verify, capture_write, export
+from . import capture_shards, capture_verify, capture_write
+from ..dataset import export
 from .capture_plan import CaptureError, plan_hash, shard_frames
 
 

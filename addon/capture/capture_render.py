@@ -11,7 +11,8 @@ import os
 import bpy
 import numpy as np
 
-from . import export, passes, point_normals
+from ..dataset import export
+from ..scene import passes, point_normals
 from .capture_plan import CaptureError
 from .capture_shards import unique_suffix
 

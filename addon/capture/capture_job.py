@@ -30,10 +30,12 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, export, layouts, passes
-from . import scene_appearance, scene_bounds, scene_files
+from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, layouts
+from ..dataset import export
+from ..scene import passes
+from ..scene import scene_appearance, scene_bounds, scene_files
 from .capture_plan import CaptureError
-from .core_contract import contract
+from ..bridge.core_contract import contract
 from .capture_world import world_description  # noqa: F401  (public: the panel and tests describe worlds)
 
 ENGINE_ALIASES = {

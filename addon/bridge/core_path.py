@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 from typing import Optional
 
-ADDON_DIR = os.path.dirname(os.path.abspath(__file__))
+ADDON_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the add-on root, above bridge/
 VENDOR_DIRNAME = "vendor"  # scripts/build_addon.py stages nerf_core into ADDON/vendor/nerf_core
 
 

@@ -6,7 +6,7 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
-from .ui_common import path_options
+from ..common.ui_common import path_options
 
 MAX_TIME_BUDGET_S = 7 * 24 * 3600.0  # the Time Budget's upper limit: a week of training
 

@@ -450,7 +450,7 @@ def framing_bounds(scene, spec: LayoutSpec) -> tuple:
     """(min, max, surroundings) that a generated layout looking in frames: the selection, or the
     scene without the floor, dome or backdrop that dwarfs its subject (``scene_bounds.subject_bounds``;
     their names, else [])."""
-    from . import scene_bounds
+    from ..scene import scene_bounds
 
     if spec.target == "SELECTION":
         # with_thickness refuses a selection that spans no space (an empty curve, a lone vertex): its
@@ -479,7 +479,7 @@ MOTION_PROBE_FRAMES = 12
 def moving_objects(scene, frames) -> list:
     """Names of renderable objects (and instances) whose world box changes between ``frames`` (at most
     ``MOTION_PROBE_FRAMES`` of them are compared); the scene's current frame is restored."""
-    from . import scene_bounds
+    from ..scene import scene_bounds
 
     frames = list(frames)
     if len(frames) > MOTION_PROBE_FRAMES:
@@ -534,7 +534,7 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     "scene-cameras" copies the scene's other cameras; "animation" copies the active camera at every
     ``frame_step``-th frame (recording the frame in ``obj["nerf_frame"]``). User cameras are never moved.
     """
-    from . import scene_bounds
+    from ..scene import scene_bounds
 
     coll_existing = nerf_collection(scene, create=False)
     lens_at: dict = {}  # animation layout: frame -> LENS_PROPS of the camera at that frame

@@ -13,11 +13,14 @@ import bpy
 import bpy.utils.previews
 from bpy.props import BoolProperty, EnumProperty
 
-from . import compare, jobs, planes, prefs, runs, train_props, trainer_process
-from .core_contract import contract
+from ..compare import compare_views as compare, planes
+from ..common import jobs, prefs
+from ..bridge import runs, trainer_process
+from . import train_props
+from ..bridge.core_contract import contract
 from .train_props import settings_of
-from .trainer_process import SetupError
-from .ui_common import (NerfPanel, abs_path, draw_error, draw_wrapped, format_seconds, property_split,
+from ..bridge.trainer_process import SetupError
+from ..common.ui_common import (NerfPanel, abs_path, draw_error, draw_wrapped, format_seconds, property_split,
                         report_and_cancel)
 
 TRAIN, RENDER = "train", "render"  # this module's keys in the job registry

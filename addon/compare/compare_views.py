@@ -15,9 +15,11 @@ from typing import List, Optional, Tuple
 
 import bpy
 
-from . import export, image_storage, planes, runs, trainer_process
-from .core_contract import contract
-from .trainer_process import SetupError
+from ..dataset import export
+from . import image_storage, planes
+from ..bridge import runs, trainer_process
+from ..bridge.core_contract import contract
+from ..bridge.trainer_process import SetupError
 
 VIEWS_DIR = "views"  # RUN/views/: cameras files and render folders made by the add-on
 SPLIT_FILES = ("transforms_test.json", "transforms_val.json", "transforms_train.json", "transforms.json")

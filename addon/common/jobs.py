@@ -22,7 +22,9 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import bpy
 
-from . import capture, compare, planes, trainer_process
+from ..capture import capture_job as capture
+from ..compare import compare_views as compare, planes
+from ..bridge import trainer_process
 from .ui_common import status_bar, tag_redraw
 
 TICK = 0.05  # seconds between timer events; each job says how often it wants updating

@@ -11,13 +11,14 @@ import time
 
 import numpy as np
 
-from . import export
-from .core_contract import contract
+from ..dataset import export
+from ..bridge.core_contract import contract
+from ..bridge.core_path import ADDON_DIR
 from .capture_plan import SHARD_ASSIGNMENT, round6
 
 FORMAT = "nerf_bridge_capture"
 SPLITS = ("train", "val", "test")
-_ADDON_MANIFEST = os.path.join(os.path.dirname(os.path.abspath(__file__)), "blender_manifest.toml")
+_ADDON_MANIFEST = os.path.join(ADDON_DIR, "blender_manifest.toml")
 
 
 def addon_version() -> str | None:
@@ -62,7 +63,7 @@ def nerfstudio_depth(out: str, frames: list[dict]) -> None:
     (a command-line option, 1e-3 unless set, never read from the JSON): an EXR there fails to load,
     or (channel ``Z``) loads as zeros, which turns depth supervision off without a word.
     """
-    from . import passes
+    from ..scene import passes
 
     for fr in frames:
         if not fr.get("depth_file_path"):

@@ -14,7 +14,7 @@ import os
 
 import numpy as np
 
-from .core_contract import contract
+from ..bridge.core_contract import contract
 
 MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
@@ -63,7 +63,7 @@ def camera_intrinsics(cam_obj, render) -> dict:
     """Intrinsics of a Blender camera object for the scene's render settings (resolution %, aspect)."""
     cam = cam_obj.data
     if cam.type != "PERSP":
-        from .layouts import camera_label
+        from ..capture.layouts import camera_label
 
         raise ExportError(f"{camera_label(cam_obj)} is {cam.type.lower()}; only perspective cameras make a NeRF dataset")
     scale = render.resolution_percentage / 100.0
@@ -74,7 +74,7 @@ def camera_intrinsics(cam_obj, render) -> dict:
 
 def camera_to_world(cam_obj) -> list[list[float]]:
     """``matrix_world`` with scale removed, as 4 rows (OpenGL axes, never pre-flipped)."""
-    from .layouts import camera_scale_error
+    from ..capture.layouts import camera_scale_error
 
     err = camera_scale_error(cam_obj)
     if err:

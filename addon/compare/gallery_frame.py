@@ -16,7 +16,7 @@ from typing import Iterable, Optional, Tuple
 import bpy
 from mathutils import Matrix, Vector
 
-from . import scene_bounds
+from ..scene import scene_bounds
 
 Box = Tuple[Vector, Vector]
 

@@ -90,7 +90,7 @@ def abs_path(path: str) -> str:
     if not path:
         return ""
     if path.startswith("//") and not bpy.data.filepath:
-        from .trainer_process import SetupError
+        from ..bridge.trainer_process import SetupError
 
         raise SetupError(f"{path!r} is relative to the .blend, which is not saved yet: save the file or choose an "
                          "absolute folder.")
