@@ -20,7 +20,9 @@ from addon.capture import capture_job as capture, layouts
 from addon.common import jobs
 from addon.compare import planes
 from addon.bridge import runs, trainer_process
-from addon.train import train_ui
+from addon import compare, train
+from addon.compare import compare_ui
+from addon.train import train_ui, train_job
 
 RES = 32
 
@@ -29,11 +31,11 @@ def drive(job, timeout=240.0):
     """What the modal timer does, in a loop: update the job until it leaves 'running'."""
     deadline = time.monotonic() + timeout
     while job.update() == "running":
-        if isinstance(job, jobs.TrainJob):
+        if isinstance(job, train_job.TrainJob):
             train_ui.sync_train_settings(job)
         assert time.monotonic() < deadline, f"{job.kind} did not finish in {timeout} s:\n{job.process.log_tail()}"
         time.sleep(0.1)
-    if isinstance(job, jobs.TrainJob):
+    if isinstance(job, train_job.TrainJob):
         train_ui.sync_train_settings(job)
     assert job.state == "done", job.message
     return job
@@ -41,9 +43,11 @@ def drive(job, timeout=240.0):
 
 @pytest.fixture
 def registered():
-    train_ui.register()
+    train.register()
+    compare.register()
     yield
-    train_ui.unregister()
+    compare.unregister()
+    train.unregister()
 
 
 def tiny_capture(root: str):
@@ -89,7 +93,7 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
 
     # Novel views of the test cameras, camera-aligned.
     s.view_source, s.layout = "TEST", "CAMERA"
-    job = drive(train_ui.start_render(bpy.context))
+    job = drive(compare_ui.start_render(bpy.context))
     views = job.views
     assert [v.name for v in views] == ["r_0", "r_1"]
     test_cams = layouts.capture_cameras(scene)["test"]
@@ -120,7 +124,7 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     scene.frame_start, scene.frame_end = 1, 2
     bpy.context.view_layer.objects.active = cam
     s.view_source = "ANIMATION"
-    job = drive(train_ui.start_render(bpy.context))
+    job = drive(compare_ui.start_render(bpy.context))
     assert [v.name for v in job.views] == ["frame_0001", "frame_0002"]
     for frame, view in ((1, job.views[0]), (2, job.views[1])):
         scene.frame_set(frame)
@@ -192,7 +196,7 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
     s.dataset_dir, s.run_dir = tiny_capture(root), os.path.join(root, "run")
     # The job the Train button starts, minus the dataset check (the loop test above covers it).
     cmd = trainer_process.train_command(sys.executable, s.dataset_dir, s.run_dir, max_seconds=600)
-    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
+    job = train_job.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
     jobs.add(train_ui.TRAIN, job)
     deadline = time.monotonic() + 180
     while job.stage != "train" or job.process.progress.step is None:  # the first step event

@@ -14,7 +14,8 @@ import pytest
 import addon
 from addon.capture import capture_job as capture, capture_ui
 from addon.common import jobs, ui_common
-from addon.train import train_ui
+from addon.compare import compare_ui
+from addon.train import train_ui, train_job
 from addon.bridge import trainer_process
 
 
@@ -54,7 +55,7 @@ def _fake_trainer(tmp_path, body: str) -> list:
 
 
 def _train_job(cmd):
-    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
+    job = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
     job.on_update, job.on_end = train_ui.sync_train_settings, None
     return jobs.add(train_ui.TRAIN, job)
 
@@ -134,7 +135,7 @@ def test_headless_there_is_no_follower_to_start(registered):
 
 def test_a_second_job_under_a_running_key_is_refused(registered, tmp_path):
     _train_job(_fake_trainer(tmp_path, "while True: time.sleep(0.1)\n"))
-    other = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "",
+    other = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "",
                           _fake_trainer(tmp_path, "pass\n"), check=False)
     with pytest.raises(trainer_process.SetupError, match="already running"):
         jobs.add(train_ui.TRAIN, other)
@@ -142,7 +143,7 @@ def test_a_second_job_under_a_running_key_is_refused(registered, tmp_path):
 
 
 def test_every_panel_takes_its_place_from_one_mixin(registered):
-    for panel in (capture_ui.NERF_PT_capture, train_ui.NERF_PT_train, train_ui.NERF_PT_compare):
+    for panel in (capture_ui.NERF_PT_capture, train_ui.NERF_PT_train, compare_ui.NERF_PT_compare):
         assert issubclass(panel, ui_common.NerfPanel)
         assert not {"bl_space_type", "bl_region_type", "bl_category"} & set(vars(panel))
         registered_panel = getattr(bpy.types, panel.bl_idname)

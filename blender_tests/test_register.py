@@ -109,6 +109,7 @@ def _labels(calls):
 
 
 def test_panels_draw_in_every_state(tmp_path):
+    from addon.compare import compare_ui
     from addon.train import train_ui
 
     addon.register()
@@ -141,7 +142,7 @@ def test_panels_draw_in_every_state(tmp_path):
         # A Compare render (a fly-through of hundreds of frames) is stopped from the Compare panel.
         jobs.is_running = lambda key: key == train_ui.RENDER
         try:
-            calls = _draw(train_ui.NERF_PT_compare)
+            calls = _draw(compare_ui.NERF_PT_compare)
         finally:
             jobs.is_running = real
         cancel = [c for c in calls if c[0] == "operator" and c[1][0] == "nerf.train_cancel"]
@@ -159,7 +160,7 @@ def test_panels_draw_in_every_state(tmp_path):
         s.layout = "CAMERA"
         m = s.view_metrics.add()
         m.name, m.psnr, m.ssim, m.has_metrics = "r_0", 20.0, 0.9, True
-        calls = _draw(train_ui.NERF_PT_compare)
+        calls = _draw(compare_ui.NERF_PT_compare)
         assert any(c[0] == "prop" and c[1][1] == "plane_distance" for c in calls)
         assert any(c[0] == "template_list" and c[1][0] == "NERF_UL_view_metrics" for c in calls)
     finally:

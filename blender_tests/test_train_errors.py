@@ -15,7 +15,7 @@ import pytest
 
 from addon.compare import compare_views as compare, image_metrics
 from addon.common import jobs, prefs
-from addon.train import train_ui
+from addon.train import train_ui, train_job
 from addon.bridge import trainer_process
 from addon.bridge.trainer_process import SetupError
 
@@ -38,7 +38,7 @@ def finish(job, timeout=120.0):
     while job.update() == "running":
         assert time.monotonic() < deadline, job.process.log_tail()
         time.sleep(0.05)
-    if isinstance(job, jobs.TrainJob):
+    if isinstance(job, train_job.TrainJob):
         train_ui.sync_train_settings(job)
     return job
 
@@ -159,7 +159,7 @@ def test_trainer_that_dies_is_reported_with_its_log_tail(s, tmp_path):
     script.write_text("import sys\nprint('{\"event\": \"start\", \"time\": 0}', flush=True)\n"
                       "for i in range(50): print(f'log line {i}', file=sys.stderr)\n"
                       "raise MemoryError('out of memory in the trainer')\n")
-    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
+    job = train_job.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
                             [sys.executable, str(script)], check=False)
     finish(job)
     assert job.state == "failed"
@@ -258,10 +258,10 @@ import sys, time
 sys.path.insert(0, {repo_root!r})
 import bpy
 from addon.common import jobs
-from addon.train import train_ui
+from addon.train import train_ui, train_job
 train_ui.register()
 cmd = [sys.executable, "-c", "import time\\nwhile True: time.sleep(0.1)"]
-job = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
+job = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
 jobs.add(train_ui.TRAIN, job)
 print(job.process.pid, flush=True)
 time.sleep(0.5)

@@ -1,7 +1,7 @@
 """Capture panel (3D viewport > N-panel > NeRF > Capture), its settings and operators.
 
 Settings live in ``Scene.nerf_capture`` (saved with the .blend). The Capture operator prepares a
-``capture.CaptureJob`` and hands it, as a ``jobs.CaptureTask``, to the job follower that also
+``capture.CaptureJob`` and hands it, as a ``capture_task.CaptureTask``, to the job follower that also
 advances training and rendering: one frame per timer event, so Blender stays responsive between
 frames; Esc or the Cancel button stops it, leaving a folder that resumes on the next capture.
 """
@@ -15,6 +15,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
 from . import capture_job as capture, demo_scenes, layouts
 from ..dataset import export
 from ..common import jobs
+from .capture_task import CaptureTask
 from ..scene import scene_bounds
 from ..common.ui_common import NerfPanel, draw_wrapped, path_options, property_split, report_and_cancel
 
@@ -216,7 +217,7 @@ class NERF_OT_capture(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def follow_capture(scene, job: capture.CaptureJob) -> jobs.CaptureTask:
+def follow_capture(scene, job: capture.CaptureJob) -> CaptureTask:
     """Hand a prepared capture to the job follower, mirroring it into ``scene.nerf_capture``."""
     name = scene.name
 
@@ -232,7 +233,7 @@ def follow_capture(scene, job: capture.CaptureJob) -> jobs.CaptureTask:
         s = settings()
         return f"{s.status} ({100 * s.progress:.0f}%)" if s is not None else ""
 
-    task = jobs.CaptureTask(name, job, cancel_requested=cancel_requested, progress_text=progress_text)
+    task = CaptureTask(name, job, cancel_requested=cancel_requested, progress_text=progress_text)
     task.on_update, task.on_end = sync_capture_settings, _dataset_to_train
     jobs.add(CAPTURE, task)
     s = scene.nerf_capture
@@ -240,7 +241,7 @@ def follow_capture(scene, job: capture.CaptureJob) -> jobs.CaptureTask:
     return task
 
 
-def sync_capture_settings(task: jobs.CaptureTask) -> None:
+def sync_capture_settings(task: CaptureTask) -> None:
     """After the capture stops: the panel leaves its running state and says how it ended."""
     scene = task.scene
     if scene is None or task.state == "running":
@@ -250,7 +251,7 @@ def sync_capture_settings(task: jobs.CaptureTask) -> None:
     s.status = task.message.splitlines()[0]
 
 
-def _dataset_to_train(task: jobs.CaptureTask) -> None:
+def _dataset_to_train(task: CaptureTask) -> None:
     scene = task.scene
     train = getattr(scene, "nerf_train", None) if scene is not None else None
     if task.state == "done" and train is not None and hasattr(train, "dataset_dir") and not train.dataset_dir:

@@ -14,7 +14,6 @@ their own process group, so nothing else would take them down.
 from __future__ import annotations
 
 import atexit
-import os
 import sys
 import time
 import traceback
@@ -22,8 +21,6 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import bpy
 
-from ..capture import capture_job as capture
-from ..compare import compare_views as compare, planes
 from ..bridge import trainer_process
 from .ui_common import status_bar, tag_redraw
 
@@ -139,122 +136,6 @@ class ProcessJob(Job):
     def succeeded(self) -> str:
         """The child exited cleanly: finish the job's own work, set ``done`` and say what was done."""
         raise NotImplementedError
-
-
-class TrainJob(ProcessJob):
-    """``nerf_core check`` on the dataset, then ``nerf_core train``, both in the background."""
-
-    kind = "training"
-
-    def __init__(self, scene_name: str, python: str, dataset: str, run: str, command: List[str],
-                 check: bool = True):
-        super().__init__(scene_name)
-        self.python, self.dataset, self.run, self.command = python, dataset, run, command
-        if check:
-            self.stage = "check"
-            # What train refuses stops the job; a dataset of another tool (the original NeRF scenes,
-            # instant-ngp, nerfstudio) lacks fields our exports add, and still trains.
-            self.process = trainer_process.BackgroundProcess(
-                [python, "-m", "nerf_core", "check", dataset, "--for-training"]).start()
-        else:
-            self.stage = "train"
-            self.process = trainer_process.BackgroundProcess(command).start()
-
-    def child_exited(self) -> str:
-        if self.stage != "check":
-            return super().child_exited()
-        if self.process.returncode != 0:
-            lines = [ln for ln in self.process.tail if ln.strip()]
-            detail = "\n".join(lines[-5:]) or f"exit code {self.process.returncode}"
-            return self.fail(f"Dataset {self.dataset} is not usable:\n{detail}")
-        self.stage = "train"
-        self.process = trainer_process.BackgroundProcess(self.command).start()
-        return self.state
-
-    def succeeded(self) -> str:
-        self.state = "done"
-        self.message = f"Training finished: {self.run}"
-        return self.state
-
-
-class RenderJob(ProcessJob):
-    """``nerf_core render`` of a transforms file, then the planes import (``compare.import_views``)."""
-
-    kind = "rendering"
-
-    def __init__(self, scene_name: str, python: str, run: str, cameras: str, out: str, layout: str,
-                 distance: float, n_views: int, checkpoint: str = ""):
-        super().__init__(scene_name)
-        self.run, self.cameras, self.out, self.layout, self.distance = run, cameras, out, layout, distance
-        self.n_views, self.checkpoint = n_views, checkpoint
-        self.process = trainer_process.BackgroundProcess(
-            trainer_process.render_command(python, run, cameras, out, checkpoint=checkpoint)).start()
-        self.views: List[planes.View] = []
-
-    def rendered(self) -> int:
-        return compare.rendered_count(self.out)
-
-    def succeeded(self) -> str:
-        try:
-            self.views = planes.views_from_render(self.out, self.cameras)
-            note = compare.import_views(self.scene, self.views, self.layout, self.out, self.run, self.distance)
-        except (ValueError, RuntimeError, TypeError, KeyError) as exc:  # a damaged renders.json
-            return self.fail(f"{os.path.join(self.out, 'renders.json')}: cannot import the views: {exc}")
-        except OSError as exc:
-            return self.fail(trainer_process.describe_os_error(exc, self.out))
-        self.state = "done"
-        self.message = f"Imported {len(self.views)} view(s) from {self.out}" + (f"; {note}" if note else "")
-        self.warnings = compare.render_notes(self.out)  # e.g. the scores are against a re-captured dataset
-        if self.checkpoint:  # latest.pt was gone: say which checkpoint the views show
-            self.warnings.insert(0, f"Rendered from {self.checkpoint}: the run has no checkpoints/latest.pt")
-        return self.state
-
-
-class CaptureTask(Job):
-    """A ``capture.CaptureJob`` (already prepared), one frame per update; Blender renders in this
-    process, so each update blocks for one frame and the UI answers between frames."""
-
-    kind = "capture"
-    interval = 0.0  # a frame per timer event: the render itself is the wait
-    esc_cancels = True
-    keeps_timer_event = True
-    cancel_report = "WARNING"
-
-    def __init__(self, scene_name: str, job: capture.CaptureJob,
-                 cancel_requested: Callable[[], bool] = lambda: False, progress_text: Callable[[], str] = str):
-        super().__init__(scene_name)
-        self.capture = job
-        self.cancel_requested = cancel_requested  # the Cancel button's flag, read before each frame
-        self.progress_text = progress_text
-
-    def update(self) -> str:
-        if self.state != "running":
-            return self.state
-        if self.cancel_requested():
-            self.cancel()
-            return self.state
-        try:
-            more = self.capture.step()
-        except Exception as exc:  # a failed frame must not leave the job running: keep what is rendered
-            self.cancel()
-            return self.fail(f"capture stopped: {exc}; {self.message}")
-        if not more:
-            summary = self.capture.finish()
-            self.state = "done"
-            self.message = f"done: {summary['frames']} frames in {summary['out']}"
-        return self.state
-
-    def cancel(self, wait: bool = True) -> None:
-        """Stop after the current frame: the folder stays consistent and the next capture resumes it."""
-        if self.state != "running":
-            return
-        summary = self.capture.cancel()
-        self.state = "cancelled"
-        self.message = (f"cancelled: {summary['rendered'] + summary['kept']}/{summary['frames']} frames kept; "
-                        "capture again to resume")
-
-    def status_bar_text(self) -> Optional[str]:
-        return f"NeRF capture {self.progress_text()} - Esc to cancel"
 
 
 # -- the registry ------------------------------------------------------------------------------------

@@ -1,9 +1,9 @@
 """Train and Compare panels (3D viewport > N-panel > NeRF) and their operators.
 
-The operators only start jobs (``jobs.TrainJob``, ``jobs.RenderJob``) and hand them to the one job
+The operators only start jobs (``TrainJob``, ``jobs.RenderJob``) and hand them to the one job
 follower (``jobs.NERF_OT_follow_jobs``), which advances them a few times a second, so Blender never
 waits on a child. Each job mirrors its progress into ``Scene.nerf_train`` (``train_props``) for the
-panels to draw. What a render writes and how its views come back as planes is ``compare``'s.
+panels to draw. The Compare feature reuses ``StartsJob``, ``show_outcome`` and the Cancel operator.
 """
 from __future__ import annotations
 
@@ -13,22 +13,22 @@ import bpy
 import bpy.utils.previews
 from bpy.props import BoolProperty, EnumProperty
 
-from ..compare import compare_views as compare, planes
 from ..common import jobs, prefs
 from ..bridge import runs, trainer_process
 from . import train_props
+from .train_job import TrainJob
 from ..bridge.core_contract import contract
 from .train_props import settings_of
 from ..bridge.trainer_process import SetupError
 from ..common.ui_common import (NerfPanel, abs_path, draw_error, draw_wrapped, format_seconds, property_split,
                         report_and_cancel)
 
-TRAIN, RENDER = "train", "render"  # this module's keys in the job registry
+TRAIN, RENDER = "train", "render"  # keys in the job registry; Cancel (this module) stops either
 _PREVIEWS = None  # bpy.utils.previews collection holding the latest training preview
 
 
 # -- starting and following jobs ----------------------------------------------------------------------
-def start_training(context, resume: bool = False) -> jobs.TrainJob:
+def start_training(context, resume: bool = False) -> TrainJob:
     """Validate the settings and start the check + train job; SetupError says what to fix."""
     if jobs.is_running(TRAIN):
         raise SetupError("A training run is already in progress: cancel it first.")
@@ -74,8 +74,8 @@ def start_training(context, resume: bool = False) -> jobs.TrainJob:
     python = trainer_process.resolve_interpreter(prefs.python_preference(context))
     cmd = trainer_process.train_command(python, dataset, run, method=s.method.strip(), max_seconds=s.max_seconds,
                                         max_steps=s.max_steps, seed=s.seed, resume=resume)
-    job = jobs.TrainJob(context.scene.name, python, dataset, run, cmd)
-    job.on_update, job.on_end = sync_train_settings, _refresh_after
+    job = TrainJob(context.scene.name, python, dataset, run, cmd)
+    job.on_update, job.on_end = sync_train_settings, refresh_after
     jobs.add(TRAIN, job)
     s.running, s.error, s.step, s.loss, s.psnr, s.fraction, s.rollbacks = True, "", 0, 0.0, 0.0, 0.0, 0
     s.elapsed, s.eta, s.preview_path, s.background = 0.0, -1.0, "", ""
@@ -83,7 +83,7 @@ def start_training(context, resume: bool = False) -> jobs.TrainJob:
     return job
 
 
-def sync_train_settings(job: jobs.TrainJob) -> None:
+def sync_train_settings(job: TrainJob) -> None:
     """Mirror the job's progress into the scene settings the panel draws."""
     scene = job.scene
     if scene is None:
@@ -108,28 +108,16 @@ def sync_train_settings(job: jobs.TrainJob) -> None:
             f"Step {s.step}" + (f" ({100 * s.fraction:.0f}%)" if s.fraction else ""))
     else:
         s.running = False
-        _show_outcome(s, job)
+        show_outcome(s, job)
 
 
-def sync_render_settings(job: jobs.RenderJob) -> None:
-    """The panel's status line while views render, then the outcome."""
-    scene = job.scene
-    if scene is None:
-        return
-    s = scene.nerf_train
-    if job.state == "running":
-        s.status = f"Rendering views: {job.rendered()}/{job.n_views}"
-    else:
-        _show_outcome(s, job)
-
-
-def _show_outcome(s, job: jobs.Job) -> None:
+def show_outcome(s, job: jobs.Job) -> None:
     # The status line gets the headline; the error box the whole message (the log tail names the cause).
     s.status = job.message.splitlines()[0] if job.message else job.state
     s.error = job.message if job.state == "failed" else ""
 
 
-def _refresh_after(job: jobs.Job) -> None:
+def refresh_after(job: jobs.Job) -> None:
     # A finished or cancelled run changes what the run list shows (metrics, checkpoint).
     scene = job.scene
     if job.state != "failed" and scene is not None:
@@ -185,26 +173,8 @@ def use_highlighted_run(settings) -> bool:
     return True
 
 
-def start_render(context) -> jobs.RenderJob:
-    """Write the cameras to render, then start ``nerf_core render`` into a fresh folder of the run."""
-    if jobs.is_running(RENDER):
-        raise SetupError("Views are already being rendered: wait for them or cancel.")
-    s = settings_of(context)
-    run = abs_path(s.run_dir)
-    compare.require_checkpoint(run)  # before the interpreter check: the likelier thing to fix
-    python = trainer_process.resolve_interpreter(prefs.python_preference(context))
-    plan = compare.prepare_render(context, run, s.view_source)
-    job = jobs.RenderJob(context.scene.name, python, run, plan.cameras, plan.out, s.layout, s.plane_distance,
-                         plan.n_views, checkpoint=plan.checkpoint)
-    job.on_update, job.on_end = sync_render_settings, _refresh_after
-    jobs.add(RENDER, job)
-    s.status = f"Rendering {plan.n_views} view(s)..."
-    s.error = ""
-    return job
-
-
 # -- operators -----------------------------------------------------------------------------------------
-class _StartsJob:
+class StartsJob:
     """Operators that start a job: the UI hands it to the follower; scripts and tests (``execute``)
     drive ``update()`` themselves."""
 
@@ -226,7 +196,7 @@ class _StartsJob:
         return {"FINISHED"}
 
 
-class NERF_OT_train(_StartsJob, bpy.types.Operator):
+class NERF_OT_train(StartsJob, bpy.types.Operator):
     """Train a NeRF on the dataset in a separate process (Blender stays responsive)"""
 
     bl_idname = "nerf.train"
@@ -263,7 +233,7 @@ class NERF_OT_train_cancel(bpy.types.Operator):
         s = settings_of(context)
         s.status = "Stopping: the trainer saves a checkpoint first..." if self.background else "Cancelled"
         for job in running:
-            if isinstance(job, jobs.TrainJob) and job.state != "running":
+            if isinstance(job, TrainJob) and job.state != "running":
                 sync_train_settings(job)
         return {"FINISHED"}
 
@@ -314,29 +284,6 @@ class NERF_OT_use_run(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class NERF_OT_render_views(_StartsJob, bpy.types.Operator):
-    """Render novel views with the trained NeRF and import them as image planes"""
-
-    bl_idname = "nerf.render_views"
-    bl_label = "Render & Import Views"
-
-    def start(self, context):
-        return start_render(context)
-
-
-class NERF_OT_clear_views(bpy.types.Operator):
-    """Remove the imported NeRF planes (and the images and materials they used)"""
-
-    bl_idname = "nerf.clear_views"
-    bl_label = "Clear Views"
-
-    def execute(self, context):
-        n = planes.clear_collection(planes.VIEWS_COLLECTION) + planes.clear_collection(planes.GALLERY_COLLECTION)
-        settings_of(context).view_metrics.clear()
-        self.report({"INFO"}, f"Removed {n} object(s)")
-        return {"FINISHED"}
-
-
 # -- panels ------------------------------------------------------------------------------------------
 class NERF_UL_runs(bpy.types.UIList):
     def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
@@ -344,14 +291,6 @@ class NERF_UL_runs(bpy.types.UIList):
         row.label(text=item.name, icon="FILE_FOLDER")
         row.label(text=item.method)
         row.label(text=item.metrics)
-
-
-class NERF_UL_view_metrics(bpy.types.UIList):
-    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0):
-        row = layout.row(align=True)
-        row.label(text=item.name, icon="IMAGE_DATA")
-        row.label(text=f"{item.psnr:.2f} dB" if item.has_metrics else "-")
-        row.label(text=f"SSIM {item.ssim:.3f}" if item.has_metrics else "-")
 
 
 class NERF_PT_train(NerfPanel, bpy.types.Panel):
@@ -415,33 +354,10 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
             layout.operator(NERF_OT_use_run.bl_idname)
 
 
-class NERF_PT_compare(NerfPanel, bpy.types.Panel):
-    bl_label = "Compare"
-    bl_idname = "NERF_PT_compare"
-
-    def draw(self, context):
-        layout = property_split(self.layout)
-        s = settings_of(context)
-        layout.prop(s, "view_source")
-        layout.prop(s, "layout")
-        if s.layout == "CAMERA":
-            layout.prop(s, "plane_distance")
-        layout.prop(s, "image_storage")
-        row = layout.row(align=True)
-        if jobs.is_running(RENDER):  # a long fly-through must be stoppable from here
-            row.operator(NERF_OT_train_cancel.bl_idname, text="Cancel Render", icon="CANCEL").target = "RENDER"
-        else:
-            row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
-        row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
-        if len(s.view_metrics):
-            layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)
-
-
 # -- registration -------------------------------------------------------------------------------------
 classes = (
     NERF_OT_train, NERF_OT_train_cancel, NERF_OT_run_new_name, NERF_OT_refresh_runs, NERF_OT_use_run,
-    NERF_OT_render_views, NERF_OT_clear_views,
-    NERF_UL_runs, NERF_UL_view_metrics, NERF_PT_train, NERF_PT_compare,
+    NERF_UL_runs, NERF_PT_train,
 )
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
 
