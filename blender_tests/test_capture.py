@@ -280,7 +280,7 @@ def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
 
 
 def test_ngp_aabb_scale_reaches_twice_the_farthest_camera_when_the_scene_renders_beyond_the_box():
-    from addon.dataset.export import ngp_aabb_scale
+    from addon.dataset.aabb import ngp_aabb_scale
 
     # Off-centre and large, but all inside the box: instant-ngp's aabb mapping makes it fill the cube.
     assert ngp_aabb_scale((2.8, 2.8, 0), (7.2, 7.2, 3.5), [(15, 0, 2)], beyond_box=False) == 1

@@ -11,8 +11,9 @@ import bpy
 import pytest
 from mathutils import Matrix
 
+from addon import file_writes
 from addon.capture import capture_job as capture, capture_render, layouts
-from addon.dataset import export
+from addon.dataset import capture_manifest
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -477,7 +478,7 @@ def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
     proc = subprocess.run([PY, SCRIPT, "--blend", str(empty), "--out", str(tmp_path / "ds2"), "--quiet"],
                           capture_output=True, text=True, timeout=180)
     assert proc.returncode == 2 and "no visible objects" in proc.stderr and "Traceback" not in proc.stderr
-    assert export.read_manifest(str(tmp_path / "ds2")) is None
+    assert capture_manifest.read_manifest(str(tmp_path / "ds2")) is None
 
 
 def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
@@ -537,5 +538,5 @@ def test_pass_files_round_trip_and_unreadable_ones_are_named(tmp_path):
     with pytest.raises(passes.PassError, match="junk.exr: not an OpenEXR"):
         passes.read_exr_channels(str(tmp_path / "junk.exr"))
     mask = (np.arange(20).reshape(4, 5) % 3 == 0).astype(np.uint8) * 255
-    passes.write_png_gray(str(tmp_path / "m.png"), mask)
+    file_writes.write_png_gray(str(tmp_path / "m.png"), mask)
     assert np.array_equal(np.asarray(Image.open(tmp_path / "m.png")), mask)

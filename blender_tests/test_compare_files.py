@@ -12,7 +12,7 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon.dataset import export
+from addon.dataset import cameras
 from addon.compare import gallery_frame, image_storage, planes, view_cameras
 from test_planes import fake_render
 
@@ -27,7 +27,7 @@ INTRINSICS = [
 @pytest.mark.parametrize("intr", INTRINSICS)
 def test_camera_params_invert_the_capture_intrinsics_rule(intr):
     p = view_cameras.camera_params(intr)
-    back = export.intrinsics_from_params(p["lens"], p["sensor_width"], p["sensor_height"], p["sensor_fit"],
+    back = cameras.intrinsics_from_params(p["lens"], p["sensor_width"], p["sensor_height"], p["sensor_fit"],
                                          p["shift_x"], p["shift_y"], p["res_x"], p["res_y"],
                                          p["pixel_aspect_x"], p["pixel_aspect_y"])
     got = [back[k] for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")]

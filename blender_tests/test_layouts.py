@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from addon.dataset import export
+from addon.dataset import cameras
 from addon.capture import layouts
 from addon.capture.capture_job import RenderView
 
@@ -144,7 +144,7 @@ def test_auto_radius_frames_the_scene_bounds(res):
     corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     tightest = 1.0
     for cam in cams:
-        intr = export.camera_intrinsics(cam, RenderView(bpy.context.scene.render, *res))
+        intr = cameras.camera_intrinsics(cam, RenderView(bpy.context.scene.render, *res))
         w2c = np.linalg.inv(np.asarray(cam.matrix_world))
         x, y, z = (w2c @ corners.T)[:3]
         u = intr["cx"] + intr["fl_x"] * x / -z

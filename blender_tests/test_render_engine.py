@@ -113,7 +113,7 @@ def _render_still(scene, path):
 
 
 def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(engine_scene, cube_run, tmp_path):
-    from addon.dataset import export
+    from addon.dataset import cameras
 
     scene = engine_scene
     cam = layouts.capture_cameras(scene)["test"][0]  # a view the run never trained on
@@ -129,7 +129,7 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
 
     # 1. The same camera through `python -m nerf_core render` (its own process, PNG writer, no Blender):
     #    the engine's colour conversion, row order and premultiplication round-trip to the same bytes.
-    intr = export.camera_intrinsics(cam, r)
+    intr = cameras.camera_intrinsics(cam, r)
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps([{"transform_matrix": [list(row) for row in cam.matrix_world.normalized()],
                                  **{k: intr[k] for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")}}]))
@@ -324,10 +324,10 @@ def test_headless_script_renders_an_animation_that_matches_cycles(cube_run, repo
                                                       ("HORIZONTAL", (-0.05, 0.1), (1.0, 1.3), (64, 48))])
 def test_viewport_intrinsics_from_blenders_projection_equal_the_capture_rule(fit, shift, aspect, size):
     """The viewport derives fx, fy, cx, cy from an OpenGL projection matrix; Blender's own projection of
-    a camera (``calc_matrix_camera``) must give what ``export.camera_intrinsics`` gives for it."""
+    a camera (``calc_matrix_camera``) must give what ``cameras.camera_intrinsics`` gives for it."""
     from types import SimpleNamespace
 
-    from addon.dataset import export
+    from addon.dataset import cameras
 
     scene = bpy.context.scene
     cam = bpy.data.objects.new("C", bpy.data.cameras.new("C"))
@@ -344,7 +344,7 @@ def test_viewport_intrinsics_from_blenders_projection_equal_the_capture_rule(fit
     region = SimpleNamespace(width=size[0], height=size[1])
     space = SimpleNamespace(camera=cam, clip_start=0.1, clip_end=100.0)
     got = render_engine.viewport_request(region, rv3d, space)
-    want = export.camera_intrinsics(cam, r)
+    want = cameras.camera_intrinsics(cam, r)
     for key, ref in (("fx", "fl_x"), ("fy", "fl_y"), ("cx", "cx"), ("cy", "cy"), ("w", "w"), ("h", "h")):
         assert got[key] == pytest.approx(want[ref], rel=1e-5, abs=1e-4), key
     assert np.allclose(got["c2w"], np.array(cam.matrix_world), atol=1e-6)

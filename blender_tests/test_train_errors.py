@@ -13,7 +13,8 @@ import bpy
 import numpy as np
 import pytest
 
-from addon.compare import compare_views as compare, image_metrics
+from addon import file_writes
+from addon.compare import compare_views as compare
 from addon.common import jobs, prefs
 from addon.train import train_ui, train_job
 from addon.bridge import trainer_process
@@ -185,10 +186,10 @@ def test_disk_full_is_named(s, tmp_path, monkeypatch):
     with open(png, "wb") as fh:
         fh.write(b"earlier heat-map")
     real_open = open
-    monkeypatch.setattr(image_metrics, "open", lambda p, *a, **k: no_space() if ".tmp" in p else real_open(p, *a, **k),
+    monkeypatch.setattr(file_writes, "open", lambda p, *a, **k: no_space() if ".tmp" in p else real_open(p, *a, **k),
                         raising=False)
     with pytest.raises(OSError, match=r"Disk full while writing .*heat.png"):
-        image_metrics.write_png(png, np.zeros((4, 4, 3)))
+        file_writes.write_png(png, np.zeros((4, 4, 3)))
     assert open(png, "rb").read() == b"earlier heat-map"
 
 

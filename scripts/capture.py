@@ -174,13 +174,13 @@ def main(argv: list[str]) -> int:
     import bpy
 
     from addon.capture import capture_job as capture, capture_plan, layouts
-    from addon.dataset import export
+    from addon.dataset import capture_manifest
     from nerf_core.progressbar import ProgressBar
 
     res_x, res_y = args.resolution
     res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)
     scene = bpy.context.scene
-    if args.resume and export.read_manifest(os.path.abspath(args.out)) is None:
+    if args.resume and capture_manifest.read_manifest(os.path.abspath(args.out)) is None:
         raise capture.CaptureError(f"--resume: {args.out} holds no capture to continue")
     spec = layouts.LayoutSpec(
         layout=args.layout, train=args.count, val=args.val_count, test=args.test_count, radius=args.radius,
@@ -231,12 +231,12 @@ def main(argv: list[str]) -> int:
 
 def run() -> int:
     from addon.capture import capture_job as capture, layouts
-    from addon.dataset import export
+    from addon.dataset.errors import ExportError
     from addon.scene import scene_bounds
 
     from addon.scene import passes
 
-    known = (capture.CaptureError, layouts.LayoutError, export.ExportError, scene_bounds.BoundsError,
+    known = (capture.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
              passes.PassError)
     try:
         return main(_bootstrap.script_args())

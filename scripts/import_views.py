@@ -118,15 +118,16 @@ def check_scene_matches_run(run: str, scene_file: str, force: bool) -> None:
     The capture manifest (DATASET/nerf_capture/manifest.json) records the .blend's path and sha256;
     planes imported into another scene would sit beside renders of something else.
     """
-    from addon.dataset import export
+    from addon.dataset import capture_manifest
+    from addon.dataset.errors import ExportError
     from addon.bridge import runs
 
     dataset = runs.run_dataset(run)
     if not dataset or not scene_file or not os.path.isfile(scene_file):
         return
     try:
-        manifest = export.read_manifest(dataset)
-    except export.ExportError as exc:
+        manifest = capture_manifest.read_manifest(dataset)
+    except ExportError as exc:
         print(f"import_views: warning: {exc}; cannot check that {scene_file} is the captured scene", file=sys.stderr)
         return
     want = (manifest or {}).get("blend_sha256")

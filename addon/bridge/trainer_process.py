@@ -27,6 +27,7 @@ from typing import Dict, List, Optional, Sequence
 from .core_contract import contract
 from .core_path import ADDON_DIR, nerf_core_search_path  # noqa: F401 (nerf_core_search_path: re-exported)
 from .progress import LOG_TAIL_LINES, ProgressParser
+from ..file_writes import write_atomic
 
 PREFS_HINT = "Edit > Preferences > Add-ons > NeRF Bridge > Python with torch"
 
@@ -218,17 +219,10 @@ def describe_os_error(exc: OSError, path: str, what: str = "writing") -> str:
 
 def write_json_atomic(path: str, obj) -> None:
     """Write JSON through a temporary file so a full disk never leaves a truncated file behind."""
-    tmp = f"{path}.tmp{os.getpid()}"
     try:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(obj, fh, indent=2)
-        os.replace(tmp, path)
+        write_atomic(path, lambda fh: json.dump(obj, fh, indent=2), tmp=f"{path}.tmp{os.getpid()}")
     except OSError as exc:
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
         if exc.errno == errno.ENOSPC:
             raise DiskFullError(exc.errno, describe_os_error(exc, path)) from exc
         raise

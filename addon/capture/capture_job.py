@@ -31,7 +31,9 @@ import bpy
 import numpy as np
 
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, layouts
-from ..dataset import export
+from ..scene import camera_checks
+from ..dataset import aabb, cameras, capture_manifest, transforms
+from ..dataset.errors import ExportError
 from ..scene import passes
 from ..scene import scene_appearance, scene_bounds, scene_files
 from .capture_plan import CaptureError
@@ -45,8 +47,8 @@ ENGINE_ALIASES = {
 }
 # Paths a capture owns inside its folder; the only ones --overwrite removes.
 DATASET_PATHS = ("train", "val", "test", "depth", "normals", "masks", "points3d.ply", "transforms.json",
-                 "transforms_train.json", "transforms_val.json", "transforms_test.json", export.MANIFEST_DIR,
-                 export.NERFSTUDIO_DIR)
+                 "transforms_train.json", "transforms_val.json", "transforms_test.json", capture_manifest.MANIFEST_DIR,
+                 transforms.NERFSTUDIO_DIR)
 FORMAT = capture_write.FORMAT
 
 
@@ -127,7 +129,7 @@ def clipping_notes(frames: list, bounds) -> list:
     """
     if bounds is None:
         return []
-    corners = export.box_corners(*bounds)
+    corners = aabb.box_corners(*bounds)
     cut = []
     for fr in frames:
         obj = bpy.data.objects.get(fr["camera"])
@@ -173,7 +175,7 @@ def depth_png_notes(frames: list, bounds) -> list:
     PNGs under nerfstudio/depth/ are affected."""
     if bounds is None or not frames:
         return []
-    corners = export.box_corners(*bounds)
+    corners = aabb.box_corners(*bounds)
     far = max(_box_depths(fr, corners)[1] for fr in frames)
     top = passes.MAX_DEPTH_MM / 1000.0
     if far > top:
@@ -356,15 +358,15 @@ class CaptureJob:
         """Append a frame dict per camera of ``cams`` to ``frames`` (inside ``fresh_matrices``)."""
         for split in layouts.SPLITS:
             for k, obj in enumerate(cams[split]):
-                err = layouts.camera_scale_error(obj)
+                err = camera_checks.camera_scale_error(obj)
                 scale_removed = None
                 if err:
-                    if not self.s.normalize_camera_scale or layouts.camera_shape_error(obj):
+                    if not self.s.normalize_camera_scale or camera_checks.camera_shape_error(obj):
                         raise CaptureError(err)
                     scale_removed = [round(c.length, 6) for c in (obj.matrix_world.col[i].xyz for i in range(3))]
                 try:
-                    intr = export.camera_intrinsics(obj, render)
-                except export.ExportError as exc:
+                    intr = cameras.camera_intrinsics(obj, render)
+                except ExportError as exc:
                     raise CaptureError(str(exc)) from exc
                 c2w = [[float(v) for v in row] for row in obj.matrix_world.normalized()]
                 frame = obj.get("nerf_frame")
@@ -376,7 +378,7 @@ class CaptureJob:
                 fr["hash"] = capture_plan.stable_hash({"render": self.render_sig, "c2w": c2w, "intr": intr,
                                                        "frame": fr["frame"]})
                 fr.update(capture_plan.frame_files(split, fr["name"], self.s.depth, self.s.normals, self.s.masks,
-                                                   self.s.points, export.MANIFEST_DIR))
+                                                   self.s.points, capture_manifest.MANIFEST_DIR))
                 frames.append(fr)
 
     # ------------------------------------------------------------------ folder checks
@@ -397,15 +399,15 @@ class CaptureJob:
             return None, None
         # Empty folders hold nothing to overwrite; a concurrent shard makes its frame folders a moment
         # before its state file, and must not look like foreign content to the others.
-        entries = sorted(e for e in os.listdir(out) if e != export.MANIFEST_DIR and not _empty_tree(os.path.join(out, e)))
+        entries = sorted(e for e in os.listdir(out) if e != capture_manifest.MANIFEST_DIR and not _empty_tree(os.path.join(out, e)))
         try:
-            manifest = export.read_manifest(out)
-            states = capture_shards.read_states(out, export.MANIFEST_DIR)
-        except (export.ExportError, CaptureError) as exc:
+            manifest = capture_manifest.read_manifest(out)
+            states = capture_shards.read_states(out, capture_manifest.MANIFEST_DIR)
+        except (ExportError, CaptureError) as exc:
             return None, str(exc)
         if manifest is not None and manifest.get("format") != FORMAT:
             manifest = None
-        conflict = capture_shards.conflict(out, export.MANIFEST_DIR, self.plan_doc, self.plan_hash, self.shard,
+        conflict = capture_shards.conflict(out, capture_manifest.MANIFEST_DIR, self.plan_doc, self.plan_hash, self.shard,
                                            manifest, states)
         if conflict:
             return manifest, conflict
@@ -449,8 +451,8 @@ class CaptureJob:
         if conflict and (self.shard or not self.s.overwrite):
             raise CaptureError(conflict)
         try:
-            os.makedirs(os.path.join(self.out, export.MANIFEST_DIR), exist_ok=True)
-            probe = os.path.join(self.out, export.MANIFEST_DIR, f".write_probe.{capture_shards.unique_suffix()}")
+            os.makedirs(os.path.join(self.out, capture_manifest.MANIFEST_DIR), exist_ok=True)
+            probe = os.path.join(self.out, capture_manifest.MANIFEST_DIR, f".write_probe.{capture_shards.unique_suffix()}")
             with open(probe, "w") as fh:
                 fh.write("ok")
             os.remove(probe)
@@ -468,7 +470,7 @@ class CaptureJob:
                 shutil.rmtree(path)
             elif os.path.exists(path):
                 os.remove(path)
-        os.makedirs(os.path.join(self.out, export.MANIFEST_DIR), exist_ok=True)
+        os.makedirs(os.path.join(self.out, capture_manifest.MANIFEST_DIR), exist_ok=True)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -479,7 +481,7 @@ class CaptureJob:
         manifest = self._check_folder()
         kept = set()
         self.file_sha256 = {}
-        records = capture_shards.done_records(self.out, export.MANIFEST_DIR, self.frames, self.plan_hash, manifest)
+        records = capture_shards.done_records(self.out, capture_manifest.MANIFEST_DIR, self.frames, self.plan_hash, manifest)
         for key, rec in records.items():
             fr = next((f for f in self.frames if f["key"] == key), None)
             if fr is None or key not in self.share or rec["hash"] != fr["hash"]:
@@ -609,7 +611,7 @@ class CaptureJob:
         if self._needs_passes():
             n_train = sum(f["split"] == "train" for f in self.frames)
             capture_render.save_passes(sc, result, fr, self.out, self.s, self.engine,
-                                       os.path.join(self.out, export.MANIFEST_DIR),
+                                       os.path.join(self.out, capture_manifest.MANIFEST_DIR),
                                        max(1, self.s.n_points // max(1, n_train)))
         self.file_sha256[fr["key"]] = capture_verify.file_hashes(self.out, fr)
         self.pending.pop(0)
@@ -637,7 +639,7 @@ class CaptureJob:
         """Stop now: JSON for the frames done, manifest "incomplete", settings restored; resumable."""
         if self._started and not self._finished:
             try:
-                folder = os.path.join(self.out, export.MANIFEST_DIR)
+                folder = os.path.join(self.out, capture_manifest.MANIFEST_DIR)
                 mine = capture_shards.unique_suffix()
                 for name in os.listdir(folder):
                     # a shard removes only its own leftovers: the others may be writing theirs
@@ -687,7 +689,7 @@ class CaptureJob:
     def _write_record(self) -> None:
         """After each frame: the manifest (one machine) or this shard's own state file (a farm)."""
         if not self.shard:
-            export.write_manifest(self.out, capture_write.manifest(
+            capture_manifest.write_manifest(self.out, capture_write.manifest(
                 self.plan_doc, self.done_keys, dict(self._manifest_info(), status=self.status,
                                                     near=getattr(self, "near", None), far=getattr(self, "far", None))))
             return
@@ -696,7 +698,7 @@ class CaptureJob:
                  "assignment": capture_plan.SHARD_ASSIGNMENT, "plan": self.plan_doc,
                  "manifest_info": {key: v for key, v in self._manifest_info().items() if key != "file_sha256"},
                  "done": {key: self.file_sha256[key] for key in sorted(self.done_keys) if key in self.file_sha256}}
-        capture_shards.write_state(capture_shards.state_path(self.out, export.MANIFEST_DIR, k, n), state)
+        capture_shards.write_state(capture_shards.state_path(self.out, capture_manifest.MANIFEST_DIR, k, n), state)
 
 
 class RenderView:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 
 from . import capture_shards, capture_verify, capture_write
-from ..dataset import export
+from ..dataset import capture_manifest
 from .capture_plan import CaptureError, plan_hash, shard_frames
 
 
@@ -19,7 +19,7 @@ def _plans(out: str, states: list, manifest: dict | None) -> tuple[dict, str, in
     """(plan, its hash, shard count) the states agree on; CaptureError naming the files when not."""
     hashes = {}
     for name, st in states:
-        hashes.setdefault(st.get("hash"), []).append(capture_shards.describe(name, export.MANIFEST_DIR))
+        hashes.setdefault(st.get("hash"), []).append(capture_shards.describe(name, capture_manifest.MANIFEST_DIR))
     if len(hashes) > 1:
         listed = "; ".join(f"{h[:12] if h else None}: {', '.join(files)}" for h, files in hashes.items())
         raise CaptureError(f"{out}: the shards were planned with different settings ({listed}); run them again "
@@ -27,11 +27,11 @@ def _plans(out: str, states: list, manifest: dict | None) -> tuple[dict, str, in
     counts = {st.get("shards") for _, st in states}
     if len(counts) > 1:
         raise CaptureError(f"{out}: shard states disagree on the number of shards ({sorted(map(str, counts))}); "
-                           f"delete {export.MANIFEST_DIR}/{capture_shards.SHARD_DIR} of the wrong ones")
+                           f"delete {capture_manifest.MANIFEST_DIR}/{capture_shards.SHARD_DIR} of the wrong ones")
     name, st = states[0]
     plan = st.get("plan")
     if not isinstance(plan, dict) or plan_hash(plan) != st.get("hash"):
-        raise CaptureError(f"{capture_shards.describe(name, export.MANIFEST_DIR)}: its plan does not match its "
+        raise CaptureError(f"{capture_shards.describe(name, capture_manifest.MANIFEST_DIR)}: its plan does not match its "
                            "hash (edited or damaged); run that shard again")
     return plan, st["hash"], counts.pop()
 
@@ -66,16 +66,16 @@ def merge(out_dir: str) -> dict:
     out = os.path.abspath(out_dir)
     if not os.path.isdir(out):
         raise CaptureError(f"--merge: {out} is not a folder")
-    manifest = export.read_manifest(out)
-    states = capture_shards.read_states(out, export.MANIFEST_DIR)
+    manifest = capture_manifest.read_manifest(out)
+    states = capture_shards.read_states(out, capture_manifest.MANIFEST_DIR)
     if not states:
-        raise CaptureError(f"--merge: {out} holds no shard states ({export.MANIFEST_DIR}/{capture_shards.SHARD_DIR}/); "
+        raise CaptureError(f"--merge: {out} holds no shard states ({capture_manifest.MANIFEST_DIR}/{capture_shards.SHARD_DIR}/); "
                            "run the shards (--shard K/N) first")
     plan, phash, n_shards = _plans(out, states, manifest)
     if manifest is not None and manifest.get("plan_hash") not in (None, phash):
-        raise CaptureError(f"--merge: {export.manifest_path(out)} records another capture (plan hash "
+        raise CaptureError(f"--merge: {capture_manifest.manifest_path(out)} records another capture (plan hash "
                            f"{str(manifest.get('plan_hash'))[:12]}, the shards' {phash[:12]}); merge into a clean folder")
-    records = capture_shards.done_records(out, export.MANIFEST_DIR, plan["frames"], phash,
+    records = capture_shards.done_records(out, capture_manifest.MANIFEST_DIR, plan["frames"], phash,
                                           manifest if manifest and manifest.get("plan_hash") == phash else None)
     missing = missing_frames(out, plan, records, n_shards)
     if missing:

@@ -11,8 +11,9 @@ import os
 import bpy
 import numpy as np
 
-from ..dataset import export
+from ..dataset import points
 from ..scene import passes, point_normals
+from ..file_writes import write_png_gray
 from .capture_plan import CaptureError
 from .capture_shards import unique_suffix
 
@@ -97,11 +98,11 @@ def save_passes(scene, result, fr: dict, out: str, s, engine: str, scratch_dir: 
         else:
             alpha = passes.find_pass(ch, "Combined", "A")
             mask = alpha[..., 0] > 0.5
-        passes.write_png_gray(os.path.join(out, fr["mask_path"]), mask.astype(np.uint8) * 255)
+        write_png_gray(os.path.join(out, fr["mask_path"]), mask.astype(np.uint8) * 255)
     if s.points and fr["split"] == "train":
         rgba = read_png_rgba(os.path.join(out, fr["image"]))
         d = np.where(rgba[..., 3] > 127, depth, np.inf)
-        pts, cols = export.backproject(d, rgba[..., :3], fr["intrinsics"], fr["transform_matrix"])
+        pts, cols = points.backproject(d, rgba[..., :3], fr["intrinsics"], fr["transform_matrix"])
         nrm = point_normals.point_normals(d, fr["intrinsics"], fr["transform_matrix"], normal)
         if len(pts) > points_budget:
             pick = np.random.default_rng(s.seed + fr["index"]).choice(len(pts), points_budget, replace=False)

@@ -14,6 +14,7 @@ import re
 import socket
 import time
 
+from ..file_writes import write_atomic
 from .capture_plan import CaptureError, shard_settings_error
 
 SHARD_DIR = "shards"  # inside the dataset's manifest folder
@@ -37,10 +38,8 @@ def unique_suffix() -> str:
 def write_state(path: str, state: dict) -> None:
     """Write a shard's state atomically (readers see the old file or the new one, whole)."""
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    tmp = f"{path}.{unique_suffix()}.partial"
-    with open(tmp, "w") as fh:
-        json.dump(dict(state, updated=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())), fh)
-    os.replace(tmp, path)
+    state = dict(state, updated=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
+    write_atomic(path, lambda fh: json.dump(state, fh), tmp=f"{path}.{unique_suffix()}.partial")
 
 
 def read_states(out: str, manifest_dir: str) -> list[tuple[str, dict]]:

@@ -13,7 +13,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
                        StringProperty)
 
 from . import capture_job as capture, demo_scenes, layouts
-from ..dataset import export
+from ..dataset.errors import ExportError
 from ..common import jobs
 from .capture_task import CaptureTask
 from ..scene import scene_bounds
@@ -107,7 +107,7 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
             layout=self.layout_spec().to_dict(), seed=self.seed)
 
 
-_ERRORS = (capture.CaptureError, layouts.LayoutError, export.ExportError, scene_bounds.BoundsError,
+_ERRORS = (capture.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
            demo_scenes.DemoSceneError)
 
 

@@ -11,9 +11,10 @@ import time
 
 import numpy as np
 
-from ..dataset import export
+from ..dataset import aabb, capture_manifest, points, transforms
 from ..bridge.core_contract import contract
 from ..bridge.core_path import ADDON_DIR
+from ..file_writes import write_png_gray
 from .capture_plan import SHARD_ASSIGNMENT, round6
 
 FORMAT = "nerf_bridge_capture"
@@ -36,7 +37,7 @@ def addon_version() -> str | None:
 def near_far_of(plan: dict) -> tuple[float, float]:
     """Near/far bracketing the scene box from every planned camera (not only those rendered yet)."""
     cams = [fr["transform_matrix"] for fr in plan["frames"]]
-    return export.near_far([[m[0][3], m[1][3], m[2][3]] for m in cams], plan["bounds"]["min"], plan["bounds"]["max"])
+    return aabb.near_far([[m[0][3], m[1][3], m[2][3]] for m in cams], plan["bounds"]["min"], plan["bounds"]["max"])
 
 
 def write_point_cloud(out: str, frames: list[dict]) -> bool:
@@ -50,7 +51,7 @@ def write_point_cloud(out: str, frames: list[dict]) -> bool:
                 nrms.append(z["normals"])
     if not pts:
         return False
-    export.write_ply(os.path.join(out, "points3d.ply"), np.concatenate(pts), np.concatenate(cols),
+    points.write_ply(os.path.join(out, "points3d.ply"), np.concatenate(pts), np.concatenate(cols),
                      np.concatenate(nrms))
     return True
 
@@ -68,11 +69,11 @@ def nerfstudio_depth(out: str, frames: list[dict]) -> None:
     for fr in frames:
         if not fr.get("depth_file_path"):
             continue
-        rel = f"{export.NERFSTUDIO_DIR}/depth/{fr['split']}/{fr['name']}.png"
+        rel = f"{transforms.NERFSTUDIO_DIR}/depth/{fr['split']}/{fr['name']}.png"
         src, dst = os.path.join(out, fr["depth_file_path"]), os.path.join(out, rel)
         if not os.path.isfile(dst) or os.path.getmtime(dst) < os.path.getmtime(src):
             os.makedirs(os.path.dirname(dst), exist_ok=True)
-            passes.write_png_gray(dst, passes.depth_millimetres(passes.read_exr_channels(src)["Z"]))
+            write_png_gray(dst, passes.depth_millimetres(passes.read_exr_channels(src)["Z"]))
         fr["nerfstudio_depth_file_path"] = rel
 
 
@@ -87,7 +88,7 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
     beyond = bool(plan["bounds"].get("surroundings")) or not plan["film_transparent"]
     cams = [[m[0][3], m[1][3], m[2][3]] for m in (fr["transform_matrix"] for fr in plan["frames"])]
     common = {"aabb": [list(map(float, lo)), list(map(float, hi))],
-              "near": near, "far": far, "aabb_scale": export.ngp_aabb_scale(lo, hi, cams, beyond),
+              "near": near, "far": far, "aabb_scale": aabb.ngp_aabb_scale(lo, hi, cams, beyond),
               "film_transparent": bool(plan["film_transparent"]), "world": plan["world"],
               # the film's pixel filter: a NeRF renders edge pixels through it to match the images
               "pixel_filter": plan["render"].get("pixel_filter") or contract.film_filter_field(contract.DEFAULT_FILTER_KIND)}
@@ -100,14 +101,14 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
     if any(fr["split"] == "train" for fr in done):
         frames = [dict(fr) for fr in done]
         nerfstudio_depth(out, frames)
-        export.write_transforms(out, frames, common)
+        transforms.write_transforms(out, frames, common)
         # Captures before nerfstudio/ wrote nerfstudio's file at the root, where instant-ngp loads
         # it beside the split files (every frame twice). It is this capture's own file: drop it.
         legacy = os.path.join(out, "transforms.json")
         if os.path.isfile(legacy):
             os.remove(legacy)
     info = dict(manifest_info, status="complete" if complete else "incomplete", near=near, far=far)
-    export.write_manifest(out, manifest(plan, done_keys, info))
+    capture_manifest.write_manifest(out, manifest(plan, done_keys, info))
     return near, far
 
 

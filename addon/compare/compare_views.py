@@ -15,7 +15,7 @@ from typing import List, Optional, Tuple
 
 import bpy
 
-from ..dataset import export
+from ..dataset import cameras
 from . import image_storage, planes
 from ..bridge import runs, trainer_process
 from ..bridge.core_contract import contract
@@ -146,7 +146,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
             cams = [ob for ob in context.selected_objects if ob.type == "CAMERA"]
             if not cams:
                 raise SetupError("No camera is selected: select the camera(s) to render.")
-            data = export.cameras_transforms(cams, scene, (meta["w"], meta["h"]), base=meta, prefix="selected")
+            data = cameras.cameras_transforms(cams, scene, (meta["w"], meta["h"]), base=meta, prefix="selected")
             label = "selected"
         else:
             cam = scene.camera if scene.camera is not None else None
@@ -155,7 +155,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
             if cam is None:
                 raise SetupError("No active camera for the fly-through: make a camera active.")
             frames = list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
-            data = export.cameras_transforms([cam], scene, (meta["w"], meta["h"]), frames=frames, base=meta,
+            data = cameras.cameras_transforms([cam], scene, (meta["w"], meta["h"]), frames=frames, base=meta,
                                              prefix="flythrough")
             label = "flythrough"
     except ValueError as exc:

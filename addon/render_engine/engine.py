@@ -4,7 +4,7 @@ Choose *NeRF* as the render engine and a run folder in Render Properties > NeRF 
 Render Animation then render the active camera at the scene's resolution (x percentage) and frame
 range into Blender's own render result (Combined pass; the Depth pass when the view layer's Z pass
 is on), so the usual output formats, video encoding and compositor apply. Cameras come from
-Blender's camera data: the intrinsics from ``export.camera_intrinsics`` (the rule the capture
+Blender's camera data: the intrinsics from ``cameras.camera_intrinsics`` (the rule the capture
 uses: lens, sensor fit, shift, pixel aspect), the pose from ``matrix_world`` without scale.
 
 torch never loads here: cameras go to a ``nerf_core serve`` process (``render_client``) that stays
@@ -27,7 +27,8 @@ import numpy as np
 from bpy.props import IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 
-from ..dataset import export
+from ..dataset import cameras
+from ..dataset.errors import ExportError
 from ..common import prefs
 from ..bridge import render_client, runs, trainer_process
 from ..common.ui_common import draw_wrapped, path_options
@@ -87,10 +88,10 @@ def _client_for(scene) -> render_client.RenderClient:
 def camera_request(cam_obj, render) -> dict:
     """The render request for a Blender camera object at the scene's render settings.
 
-    Intrinsics: ``export.camera_intrinsics`` (one rule with the capture). Pose: ``matrix_world``
+    Intrinsics: ``cameras.camera_intrinsics`` (one rule with the capture). Pose: ``matrix_world``
     with scale (and shear) removed. near/far: the camera's clip range, as Blender clips.
     """
-    intr = export.camera_intrinsics(cam_obj, render)
+    intr = cameras.camera_intrinsics(cam_obj, render)
     loc, rot, _scale = cam_obj.matrix_world.decompose()
     c2w = Matrix.LocRotScale(loc, rot, None)
     cam = cam_obj.data
@@ -121,7 +122,7 @@ def border_window(render, w: int, h: int) -> Optional[tuple]:
     x0, x1 = int(f(render.border_min_x) * f(w)), int(f(render.border_max_x) * f(w))
     y0, y1 = int(f(render.border_min_y) * f(h)), int(f(render.border_max_y) * f(h))
     if x1 <= x0 or y1 <= y0:
-        raise export.ExportError(f"the Render Region covers no pixel of the {w}x{h} px frame: draw a larger region "
+        raise ExportError(f"the Render Region covers no pixel of the {w}x{h} px frame: draw a larger region "
                                  "(Ctrl+B in the camera view) or turn Render Region off")
     return x0, y0, x1 - x0, y1 - y0
 
@@ -276,14 +277,14 @@ class NerfRenderEngine(bpy.types.RenderEngine):
         cam = self.camera_override or scene.camera
         try:
             if cam is None:
-                raise export.ExportError(f"scene {scene.name!r} has no active camera: set one (Ctrl+Numpad 0)")
+                raise ExportError(f"scene {scene.name!r} has no active camera: set one (Ctrl+Numpad 0)")
             w, h = self.resolution_x, self.resolution_y
             size_problem = resolution_problem(scene.render, w, h)
             if size_problem:
-                raise export.ExportError(size_problem)
+                raise ExportError(size_problem)
             request = camera_request(cam, scene.render)
             if (request["w"], request["h"]) != (w, h):
-                raise export.ExportError(f"camera {cam.name!r}: intrinsics are for {request['w']}x{request['h']} px "
+                raise ExportError(f"camera {cam.name!r}: intrinsics are for {request['w']}x{request['h']} px "
                                          f"but Blender renders {w}x{h} px")
             window = border_window(scene.render, w, h)
             if window is not None:  # Render Region: Blender's result holds the region's pixels only
@@ -292,7 +293,7 @@ class NerfRenderEngine(bpy.types.RenderEngine):
             client = _client_for(scene)
             got = client.render(request, depth=want_depth, should_stop=self.test_break,
                                 on_progress=lambda f, text: (self.update_progress(f), self.update_stats("", text)))
-        except (trainer_process.SetupError, render_client.RenderClientError, export.ExportError) as exc:
+        except (trainer_process.SetupError, render_client.RenderClientError, ExportError) as exc:
             self.report({"ERROR"}, f"NeRF render, frame {scene.frame_current}: {exc}")
             return
         if got is None:  # cancelled (Esc)

@@ -2,18 +2,18 @@
 
 Blender's Python has numpy but not OpenEXR, so this module carries a small EXR reader for the one
 kind of file we ask Blender to write (scanline, uncompressed, half or float channels) and an EXR
-writer for single-part float files. PNG masks are written with zlib. Nothing here imports bpy.
+writer for single-part float files. PNG masks are written by ``file_writes.write_png_gray``. Nothing here imports bpy.
 
 Arrays are row 0 = top of the image, like the PNGs, so a pixel (column i, row j) lines up with the
 ray convention in docs/CONTRACTS.md.
 """
 from __future__ import annotations
 
-import os
 import struct
-import zlib
 
 import numpy as np
+
+from ..file_writes import write_atomic
 
 EXR_MAGIC = 20000630
 _PIXEL_DTYPES = {0: np.dtype("<u4"), 1: np.dtype("<f2"), 2: np.dtype("<f4")}
@@ -106,13 +106,6 @@ def find_pass(channels: dict[str, np.ndarray], pass_name: str, components: str) 
     return np.stack(found, axis=-1)
 
 
-def _atomic_write(path: str, data: bytes) -> None:
-    tmp = f"{path}.partial"
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
-
-
 def write_exr(path: str, channels: dict[str, np.ndarray]) -> None:
     """Write float32 (h, w) arrays as one uncompressed scanline EXR, atomically (``{"Z": depth}``)."""
     names = sorted(channels, key=lambda n: n.encode("utf-8"))
@@ -143,26 +136,7 @@ def write_exr(path: str, channels: dict[str, np.ndarray]) -> None:
     for y in range(h):
         body += struct.pack("<ii", y, line_bytes)
         body += rows[y].tobytes()
-    _atomic_write(path, header + offsets.tobytes() + bytes(body))
-
-
-def write_png_gray(path: str, image: np.ndarray) -> None:
-    """Write a (h, w) uint8 or uint16 array as an 8- or 16-bit greyscale PNG, atomically."""
-    bits = 16 if image.dtype == np.uint16 else 8
-    image = np.ascontiguousarray(image, dtype=">u2" if bits == 16 else np.uint8)  # PNG is big-endian
-    h, w = image.shape
-    raw = b"".join(b"\0" + image[y].tobytes() for y in range(h))
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    png = (
-        b"\x89PNG\r\n\x1a\n"
-        + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bits, 0, 0, 0, 0))
-        + chunk(b"IDAT", zlib.compress(raw, 6))
-        + chunk(b"IEND", b"")
-    )
-    _atomic_write(path, png)
+    write_atomic(path, header + offsets.tobytes() + bytes(body))
 
 
 # The most a 16-bit depth PNG holds, in millimetres: nerfstudio reads them as integers times its
