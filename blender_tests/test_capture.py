@@ -20,6 +20,7 @@ import pytest
 from PIL import Image
 
 from addon.capture import capture_job as capture, layouts
+from addon.capture import camera_collection, layout_cameras
 
 PY = sys.executable
 CUBE_HALF = 0.75
@@ -38,9 +39,9 @@ def build_test_scene():
 def do_capture(out, res, engine, spec, tweak=None, **kw):
     build_test_scene()
     scene = bpy.context.scene
-    layouts.create_cameras(scene, spec, *res)
+    layout_cameras.create_cameras(scene, spec, *res)
     if tweak:
-        for split in layouts.capture_cameras(scene).values():
+        for split in camera_collection.capture_cameras(scene).values():
             for cam in split:
                 tweak(cam)
     settings = capture.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=res[0], res_y=res[1],
@@ -240,7 +241,7 @@ def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path)
     build_test_scene()
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="sphere", train=3, val=0, test=1, radius=7.0)
-    layouts.create_cameras(scene, spec, 16, 16)
+    layout_cameras.create_cameras(scene, spec, 16, 16)
     for engine in ("workbench", "eevee"):
         settings = capture.CaptureSettings(out_dir=str(tmp_path / engine), engine=engine, res_x=16, res_y=16,
                                            film_transparent=False, masks=True, layout=spec.to_dict())
@@ -325,7 +326,7 @@ def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
         scene.collection.objects.link(cam)
         cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
     spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
     job = capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
                                                             res_y=30, layout=spec.to_dict()))
     job.plan()  # says, before rendering, that one camera_angle_x cannot hold three lenses
@@ -365,7 +366,7 @@ def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
         cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
         cams.append(cam)
     spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
-    made = layouts.create_cameras(scene, spec, 40, 30)
+    made = layout_cameras.create_cameras(scene, spec, 40, 30)
     settings = dict(engine="cycles", samples=4, res_x=40, res_y=30, layout=spec.to_dict())
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "sharp"), **settings)).run()
     for obj in made:
@@ -386,7 +387,7 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     bpy.ops.mesh.primitive_plane_add(size=200.0, location=(0, 0, -CUBE_HALF))
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi, around = scene_bounds.subject_bounds(scene)
@@ -410,7 +411,7 @@ def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi = np.array(json.loads((tmp_path / "transforms_train.json").read_text())["aabb"])
@@ -429,7 +430,7 @@ def test_a_tiny_or_huge_subject_is_captured_whole(tmp_path, size):
     bpy.ops.mesh.primitive_monkey_add(size=size)
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    made = layouts.create_cameras(scene, spec, 40, 30)
+    made = layout_cameras.create_cameras(scene, spec, 40, 30)
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     for split in ("train", "val", "test"):
@@ -446,7 +447,7 @@ def test_masks_of_a_selection_cover_only_it(tmp_path):
     for obj in scene.objects:
         obj.select_set(obj.name == "Sphere")
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=1, radius=7.0, elevation_min=20)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="cycles", samples=1, res_x=40,
                                                       res_y=30, masks=True, target="SELECTION")).run()
     assert bpy.data.objects["Cube"].pass_index == 0 and bpy.data.objects["Sphere"].pass_index == 0  # restored
@@ -479,7 +480,7 @@ def test_masks_cover_objects_shown_by_a_collection_instance(tmp_path):
     empty.instance_type, empty.instance_collection = "COLLECTION", props
     scene.collection.objects.link(empty)
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=0, radius=7.0, elevation_min=20)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
 
     def masks(out, target):
         capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
@@ -507,7 +508,7 @@ def test_holdouts_are_named_before_a_capture(tmp_path):
     build_test_scene()
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0, elevation_min=20)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
 
     def notes():
         settings = capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="cycles", samples=1, res_x=40,
@@ -548,7 +549,7 @@ def test_missing_textures_and_libraries_are_named_before_a_capture(tmp_path):
     # a word: the capture was "complete" and check said "valid" for a dataset of the wrong scene.
     build_test_scene()
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
 
     def notes():
         return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
@@ -590,7 +591,7 @@ def test_masks_refuse_what_the_object_index_pass_never_marks(tmp_path):
     # the drawing marked "ignore".
     build_test_scene()
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
     bpy.ops.object.grease_pencil_add(type="MONKEY", location=(0, 0, 1))
 
     def job(engine, target="ALL"):
@@ -621,7 +622,7 @@ def test_animation_layout_renders_each_sampled_frame(tmp_path):
     cam.rotation_euler = (np.radians(80), 0, 0)
     scene.frame_set(5)
     spec = layouts.LayoutSpec(layout="animation", frame_step=20, val=0, test=1, seed=0)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
                                                       res_y=30)).run()
     assert scene.frame_current == 5 and scene.camera == cam
@@ -667,7 +668,7 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
     bpy.context.scene.cycles.pixel_filter_type = "GAUSSIAN"
     bpy.context.scene.cycles.filter_width = 2.25
     scene = bpy.context.scene
-    layouts.create_cameras(scene, spec, 16, 12)
+    layout_cameras.create_cameras(scene, spec, 16, 12)
     settings = capture.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
                                        layout=spec.to_dict())
     capture.CaptureJob(scene, settings).run()

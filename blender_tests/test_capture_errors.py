@@ -13,6 +13,7 @@ from mathutils import Matrix
 
 from addon import file_writes
 from addon.capture import capture_job as capture, capture_render, layouts
+from addon.capture import camera_collection, layout_cameras
 from addon.dataset import capture_manifest
 
 PY = sys.executable
@@ -21,7 +22,7 @@ SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
 
 def scene_with_cameras(train=4, val=1, test=1):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
-    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=train, val=val, test=test), 24, 16)
+    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=train, val=val, test=test), 24, 16)
     return bpy.context.scene
 
 
@@ -62,7 +63,7 @@ def test_no_capture_cameras(tmp_path):
 @pytest.mark.parametrize("kind", ["scale", "shear"])
 def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
     scene = scene_with_cameras()
-    cam = layouts.capture_cameras(scene)["train"][1]
+    cam = camera_collection.capture_cameras(scene)["train"][1]
     if kind == "scale":
         cam.scale = (2.0, 2.0, 2.0)
         pattern = "NeRF_train_001.*has scale"
@@ -83,7 +84,7 @@ def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
 
 def test_scaled_camera_normalised_on_request_and_recorded(tmp_path):
     scene = scene_with_cameras(train=2, val=0, test=0)
-    cam = layouts.capture_cameras(scene)["train"][0]
+    cam = camera_collection.capture_cameras(scene)["train"][0]
     cam.scale = (0.5, 0.5, 0.5)
     bpy.context.view_layer.update()
     capture.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
@@ -123,14 +124,14 @@ def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
     cams[2].scale = (-1.0, 1.0, 1.0)
     bpy.context.view_layer.update()
     with pytest.raises(layouts.LayoutError, match="camera 'Cam2' is mirrored by its own scale"):
-        layouts.create_cameras(scene, spec, 24, 16)
+        layout_cameras.create_cameras(scene, spec, 24, 16)
     for cam in cams:
         bpy.data.objects.remove(cam)
     rig = bpy.data.objects.new("Rig", None)
     scene.collection.objects.link(rig)
     rig.scale = (2.0, 2.0, 2.0)
     _ring_of_scene_cameras(scene, parent=rig)
-    layouts.create_cameras(scene, spec, 24, 16)  # a scale alone waits for the capture
+    layout_cameras.create_cameras(scene, spec, 24, 16)  # a scale alone waits for the capture
     with pytest.raises(capture.CaptureError, match=r"\(the copy of 'Cam\d'\) has scale \(2.0, 2.0, 2.0\) from the "
                                                    r"scale of its parent 'Rig'; clear that scale, or let the capture"):
         capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
@@ -140,7 +141,7 @@ def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
     rig.scale = (-2.0, 2.0, 2.0)  # mirrored by the parent: no normalising fixes that
     bpy.context.view_layer.update()
     with pytest.raises(layouts.LayoutError, match="mirrored by the scale of its parent 'Rig'"):
-        layouts.create_cameras(scene, spec, 24, 16)
+        layout_cameras.create_cameras(scene, spec, 24, 16)
 
 
 def test_a_scale_a_constraint_brings_is_named_as_the_constraints(tmp_path):
@@ -149,7 +150,7 @@ def test_a_scale_a_constraint_brings_is_named_as_the_constraints(tmp_path):
     rig = bpy.data.objects.new("Rig", None)
     scene.collection.objects.link(rig)
     rig.scale = (1.5, 1.5, 1.5)
-    camera = next(o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA")
+    camera = next(o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA")
     constraint = camera.constraints.new("CHILD_OF")
     constraint.target = rig
     constraint.set_inverse_pending = False
@@ -163,7 +164,7 @@ def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
     scene = bpy.context.scene
     for cam in _ring_of_scene_cameras(scene):
         cam.data.type = "ORTHO"
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
     with pytest.raises(capture.CaptureError, match=r"camera 'NeRF_train_000' \(the copy of 'Cam\d'\) is ortho"):
         capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
@@ -266,7 +267,7 @@ def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reop
     scene = scene_with_cameras(train=3, val=0, test=1)
     cube = bpy.data.objects["Cube"]
     cube.location = (1.5, 0.5, 0.25)
-    cameras = [o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras = [o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA"]
     poses = {o.name: [v for row in o.matrix_world.normalized() for v in row] for o in cameras}
     for obj in cameras + [cube]:
         obj.hide_viewport = True
@@ -314,7 +315,7 @@ def test_cameras_whose_clipping_cuts_the_scene_box_are_named(tmp_path):
     job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
     assert not any("clip the scene box" in n for n in job.notes)
-    cameras = [o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras = [o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA"]
     cameras[0].data.clip_end = 0.5
     job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
@@ -365,7 +366,7 @@ def test_different_capture_refused_unless_overwrite(tmp_path):
     before = mtimes(out)
     with pytest.raises(capture.CaptureError, match="different capture.*render settings changed.*--overwrite"):
         capture.CaptureJob(scene, settings(out, res_x=32)).run()
-    layouts.capture_cameras(scene)["train"][0].location.x += 0.5
+    camera_collection.capture_cameras(scene)["train"][0].location.x += 0.5
     bpy.context.view_layer.update()
     with pytest.raises(capture.CaptureError, match="cameras changed.*train/r_0"):
         capture.CaptureJob(scene, settings(out)).run()
@@ -483,7 +484,7 @@ def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
 
 def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
     scene = scene_with_cameras(train=3, val=1, test=1)
-    cam = layouts.capture_cameras(scene)["train"][0]
+    cam = camera_collection.capture_cameras(scene)["train"][0]
     cam.matrix_world = Matrix(layouts.look_at((0.5, -4.0, 1.0), (0, 0, 0)))  # a user edit
     blend = tmp_path / "cams.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))

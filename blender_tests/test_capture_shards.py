@@ -193,10 +193,11 @@ def test_parse_shard_and_round_robin():
 def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
     """In-process shards (CaptureJob with settings.shard): 2 frames over 3 shards; shard 3 has none."""
     from addon.capture import capture_job as capture, capture_merge, layouts
+    from addon.capture import layout_cameras
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=1), 16, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=1), 16, 16)
     out = tmp_path / "ds"
 
     def shard(k):
@@ -216,10 +217,11 @@ def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
 def test_a_whole_capture_keeps_the_frames_shards_finished(tmp_path):
     """Switching from the farm to one machine midway: the whole run keeps every frame a shard recorded."""
     from addon.capture import capture_job as capture, layouts
+    from addon.capture import layout_cameras
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=3, val=0, test=1), 16, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=3, val=0, test=1), 16, 16)
     out = tmp_path / "ds"
     base = dict(out_dir=str(out), engine="workbench", res_x=16, res_y=16, depth=True)
     first = capture.CaptureJob(scene, capture.CaptureSettings(**base, shard=(1, 2))).run()

@@ -9,6 +9,7 @@ import pytest
 
 import addon
 from addon.capture import capture_ui, layouts
+from addon.capture import camera_collection, layout_cameras
 from addon.common import jobs
 
 
@@ -56,7 +57,7 @@ def test_generate_and_capture_operators(registered, tmp_path):
     s.resolution_x, s.resolution_y, s.engine = 24, 16, "workbench"
     s.output_dir = str(tmp_path / "ds")
     assert bpy.ops.nerf.generate_cameras() == {"FINISHED"}
-    assert [len(v) for v in layouts.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
+    assert [len(v) for v in camera_collection.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
     assert bpy.ops.nerf.capture() == {"FINISHED"}
     with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
         assert json.load(fh)["status"] == "complete"
@@ -66,7 +67,7 @@ def test_generate_and_capture_operators(registered, tmp_path):
         bpy.ops.nerf.capture()
     assert bpy.ops.nerf.capture(overwrite=True) == {"FINISHED"}
     assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
-    assert not any(layouts.capture_cameras(bpy.context.scene).values())
+    assert not any(camera_collection.capture_cameras(bpy.context.scene).values())
 
 
 def test_operator_errors_are_reported_not_raised_deep(registered, tmp_path):
@@ -87,7 +88,7 @@ def test_the_panel_cannot_capture_a_dataset_without_val_or_test_views(registered
     s.train_count = 1  # nor for a train split of one view, which train and check refuse
     assert s.train_count == 2
     # A collection made elsewhere (a script, an older file) without test cameras is refused, naming it.
-    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
+    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
     s.output_dir, s.engine = str(tmp_path / "ds"), "workbench"
     with pytest.raises(RuntimeError, match="no test camera"):
         bpy.ops.nerf.capture()
@@ -250,7 +251,7 @@ def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered,
     s.radius, s.focal_length = 0.0, 50.0
 
     def stale():
-        return layouts.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        return camera_collection.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
 
     def panel_lines():
         log = []
@@ -271,7 +272,7 @@ def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered,
     assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
     # cameras the user puts in the collection were laid out by no settings of ours
     user = bpy.data.objects.new("mine", bpy.data.cameras.new("mine"))
-    layouts.nerf_collection(scene).objects.link(user)
+    camera_collection.nerf_collection(scene).objects.link(user)
     s.radius = 3.0
     assert stale() is None
 

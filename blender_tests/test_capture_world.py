@@ -14,6 +14,7 @@ import pytest
 from PIL import Image
 
 from addon.capture import capture_job as capture, demo_scenes, layouts
+from addon.capture import layout_cameras
 
 TRANSFORMS = ("transforms_train.json", "transforms_val.json", "transforms_test.json", "nerfstudio/transforms.json")
 
@@ -29,7 +30,7 @@ def _records(out):
 
 
 def _capture(scene, out, spec, engine="workbench", res=32, **kw):
-    layouts.create_cameras(scene, spec, res, res)
+    layout_cameras.create_cameras(scene, spec, res, res)
     settings = capture.CaptureSettings(out_dir=str(out), engine=engine, samples=kw.pop("samples", 1), res_x=res,
                                        res_y=res, layout=spec.to_dict(), **kw)
     return capture.CaptureJob(scene, settings).run()

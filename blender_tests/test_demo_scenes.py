@@ -12,6 +12,7 @@ import pytest
 from PIL import Image
 
 from addon.capture import capture_job as capture, demo_capture, demo_scenes, layouts
+from addon.capture import camera_collection, layout_cameras
 from addon.scene import scene_bounds
 
 PY = sys.executable
@@ -55,7 +56,7 @@ def test_unknown_scene_is_named():
 
 def test_workbench_render_of_the_flat_cube_shows_it_lit(tmp_path):
     scene = demo_scenes.build("cube")
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=0, elevation_min=30, elevation_max=30), 32, 32)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=0, elevation_min=30, elevation_max=30), 32, 32)
     capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
                                                       res_x=32, res_y=32)).run()
     rgba = np.asarray(Image.open(tmp_path / "ds" / "train" / "r_0.png")).astype(float)
@@ -134,8 +135,8 @@ def test_interior_is_a_closed_lit_room_with_furniture():
 
 def _inside_cameras(scene, **kw):
     spec = layouts.LayoutSpec(**{"layout": "inside", "train": 40, "val": 4, "test": 6, "seed": 3, **kw})
-    layouts.create_cameras(scene, spec, 32, 32)
-    cams = layouts.capture_cameras(scene)
+    layout_cameras.create_cameras(scene, spec, 32, 32)
+    cams = camera_collection.capture_cameras(scene)
     return {s: [np.asarray(o.matrix_world) for o in cams[s]] for s in layouts.SPLITS}, cams
 
 

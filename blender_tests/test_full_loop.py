@@ -17,6 +17,7 @@ from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
 from addon.capture import capture_job as capture, layouts
+from addon.capture import camera_collection, layout_cameras
 from addon.common import jobs
 from addon.compare import planes
 from addon.bridge import runs, trainer_process
@@ -56,7 +57,7 @@ def tiny_capture(root: str):
     mat = bpy.data.materials.new("red")
     mat.diffuse_color = (0.8, 0.2, 0.1, 1.0)
     bpy.context.object.data.materials.append(mat)
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
     settings = capture.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
     summary = capture.CaptureJob(scene, settings).run()
     assert summary["status"] == "complete"
@@ -96,7 +97,7 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     job = drive(compare_ui.start_render(bpy.context))
     views = job.views
     assert [v.name for v in views] == ["r_0", "r_1"]
-    test_cams = layouts.capture_cameras(scene)["test"]
+    test_cams = camera_collection.capture_cameras(scene)["test"]
     scene.render.resolution_x = scene.render.resolution_y = RES  # the capture's resolution
     scene.render.resolution_percentage = 100
     config = json.load(open(os.path.join(s.run_dir, "config.json")))

@@ -20,6 +20,7 @@ import pytest
 
 import addon
 from addon.capture import capture_job as capture, demo_scenes, layouts
+from addon.capture import camera_collection, layout_cameras
 from addon.bridge import render_client
 from addon.render_engine import engine as render_engine
 from nerf_core import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
@@ -70,7 +71,7 @@ def cube_run(tmp_path_factory):
     scene = bpy.context.scene
     demo_scenes.build("cube", scene)
     _standard_colour(scene)
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
     settings = capture.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
     assert capture.CaptureJob(scene, settings).run()["status"] == "complete"
     blend = str(root / "scene.blend")
@@ -116,7 +117,7 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
     from addon.dataset import cameras
 
     scene = engine_scene
-    cam = layouts.capture_cameras(scene)["test"][0]  # a view the run never trained on
+    cam = camera_collection.capture_cameras(scene)["test"][0]  # a view the run never trained on
     scene.camera = cam
     cam.data.shift_x = 0.05
     r = scene.render
@@ -218,7 +219,7 @@ def trainer_process_alive(pid):
 
 def test_render_errors_are_reported_and_abort_cleanly(engine_scene, tmp_path):
     scene = engine_scene
-    scene.camera = layouts.capture_cameras(scene)["test"][0]
+    scene.camera = camera_collection.capture_cameras(scene)["test"][0]
     scene.render.filepath = str(tmp_path / "x.png")
     scene.nerf_render.run_dir = ""
     with pytest.raises(RuntimeError, match="No NeRF run is chosen"):
@@ -234,7 +235,7 @@ def _animated_camera(scene):
     with lens shift, vertical sensor fit, non-square pixels and an animated lens."""
     from mathutils import Matrix
 
-    test_cam = layouts.capture_cameras(scene)["test"][0]
+    test_cam = camera_collection.capture_cameras(scene)["test"][0]
     cam = bpy.data.objects.new("Fly", test_cam.data.copy())
     scene.collection.objects.link(cam)
     cam.data.shift_x, cam.data.shift_y, cam.data.sensor_fit = 0.04, -0.03, "VERTICAL"
@@ -362,7 +363,7 @@ def test_viewport_preview_is_asynchronous_progressive_and_follows_the_latest_vie
 
     bpy.ops.wm.open_mainfile(filepath=cube_run["blend"])
     scene = bpy.context.scene
-    cam = layouts.capture_cameras(scene)["test"][0]
+    cam = camera_collection.capture_cameras(scene)["test"][0]
     region = SimpleNamespace(width=64, height=48)
     space = SimpleNamespace(camera=cam, clip_start=0.1, clip_end=100.0)
     depsgraph = bpy.context.evaluated_depsgraph_get()

@@ -174,6 +174,7 @@ def main(argv: list[str]) -> int:
     import bpy
 
     from addon.capture import capture_job as capture, capture_plan, layouts
+    from addon.capture import camera_collection, layout_cameras, layout_notes
     from addon.dataset import capture_manifest
     from nerf_core.progressbar import ProgressBar
 
@@ -187,17 +188,17 @@ def main(argv: list[str]) -> int:
         elevation_min=args.elevation_min, elevation_max=args.elevation_max, seed=args.seed, rings=args.rings,
         turns=args.turns, frame_step=args.frame_step, focal_length=args.focal_length, target=args.target.upper())
     if args.keep_cameras:
-        kept = layouts.capture_cameras(scene)
+        kept = camera_collection.capture_cameras(scene)
         if not any(kept.values()):
             raise capture.CaptureError(f"--keep-cameras: scene has no cameras in {layouts.COLLECTION_NAME!r}")
-        problem = layouts.held_out_problem(kept) if kept["train"] else None
+        problem = camera_collection.held_out_problem(kept) if kept["train"] else None
         if problem:
             raise capture.CaptureError(f"--keep-cameras: {problem}")
         layout_record = {"layout": "existing 'NeRF Cameras' collection"}
     else:
-        layouts.create_cameras(scene, spec, res_x, res_y)
+        layout_cameras.create_cameras(scene, spec, res_x, res_y)
         layout_record = spec.to_dict()
-        for note in layouts.layout_notes(scene, spec):
+        for note in layout_notes.layout_notes(scene, spec):
             print(f"capture: note: {note}", file=sys.stderr)
     settings = capture.CaptureSettings(
         out_dir=args.out, engine=args.engine, samples=args.samples, res_x=res_x, res_y=res_y,

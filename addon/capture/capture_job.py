@@ -31,6 +31,7 @@ import bpy
 import numpy as np
 
 from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write, layouts
+from . import camera_collection
 from ..scene import camera_checks
 from ..dataset import aabb, cameras, capture_manifest, transforms
 from ..dataset.errors import ExportError
@@ -121,7 +122,7 @@ def _box_depths(fr: dict, corners: np.ndarray) -> tuple[float, float]:
 def clipping_notes(frames: list, bounds) -> list:
     """A warning when cameras' clipping planes cut into the scene box (empty when none).
 
-    Generated layouts set clipping to fit the box (``layouts.create_cameras``); cameras the user set
+    Generated layouts set clipping to fit the box (``layout_cameras.create_cameras``); cameras the user set
     up keep theirs, and a clip_end short of the far side (or a clip_start beyond the near side of a
     box in front of the camera) leaves part of the scene out of some pictures only: views that
     disagree about what is there, which a radiance field turns into floaters or holes. The planes are
@@ -322,7 +323,7 @@ class CaptureJob:
 
     def plan(self) -> list[dict]:
         """Frames to capture, from the "NeRF Cameras" collection; raises CaptureError on bad cameras."""
-        cams = layouts.capture_cameras(self.scene)
+        cams = camera_collection.capture_cameras(self.scene)
         if not cams["train"]:
             raise CaptureError(f"no train cameras in the {layouts.COLLECTION_NAME!r} collection; "
                                "generate a camera layout first")

@@ -13,6 +13,7 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
                        StringProperty)
 
 from . import capture_job as capture, demo_scenes, layouts
+from . import camera_collection, layout_cameras, layout_notes
 from ..dataset.errors import ExportError
 from ..common import jobs
 from .capture_task import CaptureTask
@@ -59,7 +60,7 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
         ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
     # At least 2: `train` and `check` refuse a train split of one view (there is nothing to triangulate).
     train_count: IntProperty(name="Train", default=100, min=2, soft_max=1000)
-    # At least 1 each: `train` and `check` refuse a dataset with an empty split (layouts.held_out_problem).
+    # At least 1 each: `train` and `check` refuse a dataset with an empty split (camera_collection.held_out_problem).
     val_count: IntProperty(name="Val", default=10, min=1, soft_max=200)
     test_count: IntProperty(name="Test", default=20, min=1, soft_max=400)
     radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
@@ -121,12 +122,12 @@ class NERF_OT_generate_cameras(bpy.types.Operator):
     def execute(self, context):
         s = context.scene.nerf_capture
         try:
-            made = layouts.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+            made = layout_cameras.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
         counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in layouts.SPLITS}
         self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
-        for note in layouts.layout_notes(context.scene, s.layout_spec()):
+        for note in layout_notes.layout_notes(context.scene, s.layout_spec()):
             self.report({"WARNING"}, note)
         return {"FINISHED"}
 
@@ -139,7 +140,7 @@ class NERF_OT_clear_cameras(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        n = layouts.clear_cameras(context.scene)
+        n = camera_collection.clear_cameras(context.scene)
         self.report({"INFO"}, f"removed {n} capture cameras")
         return {"FINISHED"}
 
@@ -161,10 +162,10 @@ class NERF_OT_capture(bpy.types.Operator):
 
     def _make_job(self, context):
         s = context.scene.nerf_capture
-        if self.generate and not any(layouts.capture_cameras(context.scene).values()):
-            layouts.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
-        cams = layouts.capture_cameras(context.scene)
-        problem = layouts.held_out_problem(cams) if cams["train"] else None  # no train: CaptureJob says so
+        if self.generate and not any(camera_collection.capture_cameras(context.scene).values()):
+            layout_cameras.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        cams = camera_collection.capture_cameras(context.scene)
+        problem = camera_collection.held_out_problem(cams) if cams["train"] else None  # no train: CaptureJob says so
         if problem:
             raise capture.CaptureError(problem)
         return capture.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
@@ -198,7 +199,7 @@ class NERF_OT_capture(bpy.types.Operator):
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
         s = context.scene.nerf_capture
-        stale = layouts.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        stale = camera_collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
         for note in ([stale] if stale else []) + list(job.notes):
             self.report({"WARNING"}, note)
         if context.window is None or bpy.app.background:
@@ -338,9 +339,9 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         row = col.row(align=True)
         row.operator(NERF_OT_generate_cameras.bl_idname, icon="OUTLINER_OB_CAMERA")
         row.operator(NERF_OT_clear_cameras.bl_idname, text="", icon="TRASH")
-        cams = layouts.capture_cameras(context.scene)
+        cams = camera_collection.capture_cameras(context.scene)
         col.label(text=f"{len(cams['train'])} train, {len(cams['val'])} val, {len(cams['test'])} test cameras")
-        stale = layouts.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y, cams)
+        stale = camera_collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y, cams)
         if stale:
             draw_wrapped(col, "Cameras out of date: " + stale, "ERROR")
 
