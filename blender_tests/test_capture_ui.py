@@ -113,14 +113,14 @@ def _fake_modal_operator(job):
 def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
     from types import SimpleNamespace
 
-    from addon.capture import capture_job as capture
+    from addon.capture import capture_job
 
     bpy.ops.mesh.primitive_cube_add()
     s = bpy.context.scene.nerf_capture
     s.train_count, s.val_count, s.test_count = 3, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
-    job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job = capture_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
     job.prepare()
     op, ctx = _fake_modal_operator(job)
     s.is_running = True

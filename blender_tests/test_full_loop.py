@@ -16,7 +16,8 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon.capture import capture_job as capture, layouts
+from addon.capture import layouts
+from addon.capture import capture_job, capture_settings
 from addon.capture import camera_collection, layout_cameras
 from addon.common import jobs
 from addon.compare import planes
@@ -58,8 +59,8 @@ def tiny_capture(root: str):
     mat.diffuse_color = (0.8, 0.2, 0.1, 1.0)
     bpy.context.object.data.materials.append(mat)
     layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
-    settings = capture.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
-    summary = capture.CaptureJob(scene, settings).run()
+    settings = capture_settings.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
+    summary = capture_job.CaptureJob(scene, settings).run()
     assert summary["status"] == "complete"
     return settings.out_dir
 

@@ -12,7 +12,8 @@ import bpy
 import pytest
 
 import addon
-from addon.capture import capture_job as capture, capture_ui
+from addon.capture import capture_ui
+from addon.capture import capture_job
 from addon.common import jobs, ui_common
 from addon.compare import compare_ui
 from addon.train import train_ui, train_job
@@ -41,7 +42,7 @@ def _prepared_capture(tmp_path, frames=2):
     s.train_count, s.val_count, s.test_count = frames, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
-    job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job = capture_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
     job.prepare()
     return job
 

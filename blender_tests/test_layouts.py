@@ -11,7 +11,7 @@ from mathutils import Matrix
 from addon.dataset import cameras
 from addon.capture import layouts
 from addon.capture import camera_collection, layout_cameras, layout_notes
-from addon.capture.capture_job import RenderView
+from addon.capture.capture_settings import RenderView
 
 
 def _elevations(points, centre=(0, 0, 0)):

@@ -10,7 +10,8 @@ import sys
 import bpy
 import pytest
 
-from addon.capture import capture_job as capture, capture_verify, layouts
+from addon.capture import capture_verify, layouts
+from addon.capture import capture_job, capture_plan, capture_settings
 from addon.capture import camera_collection, layout_cameras
 
 PY = sys.executable
@@ -66,8 +67,8 @@ def test_save_blend_never_replaces_an_existing_file(tmp_path):
 def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
-    with pytest.raises(capture.CaptureError, match="70000.*65536"):
-        capture.CaptureJob(bpy.context.scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
+    with pytest.raises(capture_plan.CaptureError, match="70000.*65536"):
+        capture_job.CaptureJob(bpy.context.scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
                                                                       samples=1, res_x=70000, res_y=16))
 
 
@@ -172,7 +173,7 @@ def test_capture_resume_renders_again_what_fails_verification(tmp_path):
     out = tmp_path / "ds"
 
     def job():
-        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
+        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
                                                                  res_x=24, res_y=16, depth=True))
 
     assert job().run()["rendered"] == 5
@@ -194,8 +195,8 @@ def test_capture_resume_catches_a_changed_file_that_still_decodes(tmp_path):
     layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
     out = tmp_path / "ds"
     settings = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
-    capture.CaptureJob(scene, capture.CaptureSettings(**settings)).run()
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**settings)).run()
     a, b = out / "train" / "r_0.png", out / "train" / "r_1.png"
     a.write_bytes(b.read_bytes())  # a valid PNG of the right size, but not the one written for r_0
-    again = capture.CaptureJob(scene, capture.CaptureSettings(**settings)).run()
+    again = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**settings)).run()
     assert (again["rendered"], again["kept"]) == (1, 1)

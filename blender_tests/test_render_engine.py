@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import addon
-from addon.capture import capture_job as capture, demo_scenes, layouts
+from addon.capture import demo_scenes, layouts
+from addon.capture import capture_job, capture_settings
 from addon.capture import camera_collection, layout_cameras
 from addon.bridge import render_client
 from addon.render_engine import engine as render_engine
@@ -72,8 +73,8 @@ def cube_run(tmp_path_factory):
     demo_scenes.build("cube", scene)
     _standard_colour(scene)
     layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
-    settings = capture.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
-    assert capture.CaptureJob(scene, settings).run()["status"] == "complete"
+    settings = capture_settings.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
+    assert capture_job.CaptureJob(scene, settings).run()["status"] == "complete"
     blend = str(root / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend, copy=True)
     run = str(root / "run")

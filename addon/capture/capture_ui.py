@@ -1,7 +1,7 @@
 """Capture panel (3D viewport > N-panel > NeRF > Capture), its settings and operators.
 
 Settings live in ``Scene.nerf_capture`` (saved with the .blend). The Capture operator prepares a
-``capture.CaptureJob`` and hands it, as a ``capture_task.CaptureTask``, to the job follower that also
+``capture_job.CaptureJob`` and hands it, as a ``capture_task.CaptureTask``, to the job follower that also
 advances training and rendering: one frame per timer event, so Blender stays responsive between
 frames; Esc or the Cancel button stops it, leaving a folder that resumes on the next capture.
 """
@@ -12,7 +12,8 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import capture_job as capture, demo_scenes, layouts
+from . import demo_scenes, layouts
+from . import capture_job, capture_plan, capture_settings
 from . import camera_collection, layout_cameras, layout_notes
 from ..dataset.errors import ExportError
 from ..common import jobs
@@ -99,8 +100,8 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
             seed=self.seed, rings=self.rings, turns=self.turns, frame_step=self.frame_step,
             focal_length=self.focal_length, target=self.target)
 
-    def capture_settings(self, overwrite: bool = False) -> capture.CaptureSettings:
-        return capture.CaptureSettings(
+    def capture_settings(self, overwrite: bool = False) -> capture_settings.CaptureSettings:
+        return capture_settings.CaptureSettings(
             out_dir=self.output_dir, engine=self.engine, samples=self.samples,
             res_x=self.resolution_x, res_y=self.resolution_y, film_transparent=self.film_transparent,
             denoise=self.denoise, depth=self.depth, normals=self.normals, masks=self.masks, points=self.points,
@@ -108,7 +109,7 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
             layout=self.layout_spec().to_dict(), seed=self.seed)
 
 
-_ERRORS = (capture.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
+_ERRORS = (capture_plan.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
            demo_scenes.DemoSceneError)
 
 
@@ -167,8 +168,8 @@ class NERF_OT_capture(bpy.types.Operator):
         cams = camera_collection.capture_cameras(context.scene)
         problem = camera_collection.held_out_problem(cams) if cams["train"] else None  # no train: CaptureJob says so
         if problem:
-            raise capture.CaptureError(problem)
-        return capture.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
+            raise capture_plan.CaptureError(problem)
+        return capture_job.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
 
     def _progress(self, context):
         scene_name = context.scene.name
@@ -218,7 +219,7 @@ class NERF_OT_capture(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def follow_capture(scene, job: capture.CaptureJob) -> CaptureTask:
+def follow_capture(scene, job: capture_job.CaptureJob) -> CaptureTask:
     """Hand a prepared capture to the job follower, mirroring it into ``scene.nerf_capture``."""
     name = scene.name
 
