@@ -67,7 +67,7 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
         self.kept = len(kept)
         self.pending = [fr for fr in self.frames if fr["key"] in self.share and fr["key"] not in kept]
         for rel in {os.path.dirname(v) for fr in self.frames for k, v in fr.items()
-                    if k in capture_verify.FRAME_FILE_KEYS}:
+                    if k in capture_plan.FRAME_FILE_KEYS}:
             os.makedirs(os.path.join(self.out, rel), exist_ok=True)
         self.blend_sha256 = capture_verify.sha256_file(bpy.data.filepath)
         self.created = (manifest or {}).get("created") or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())

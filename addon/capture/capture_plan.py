@@ -16,7 +16,9 @@ import json
 import re
 
 PLAN_VERSION = 1
-# What a frame entry of the plan carries besides its files (capture_verify.FRAME_FILE_KEYS).
+# Files a frame may own, as keys of its plan entry; all but the point cache are images.
+FRAME_FILE_KEYS = ("image", "depth_file_path", "normal_file_path", "mask_path", "points_cache")
+# What a frame entry of the plan carries besides its files (FRAME_FILE_KEYS).
 FRAME_KEYS = ("index", "key", "split", "name", "camera", "transform_matrix", "intrinsics", "frame",
               "scale_removed", "hash")
 SHARD_ASSIGNMENT = "frame i of plan.frames (counting from 0) belongs to shard (i mod N) + 1"
@@ -85,8 +87,6 @@ def make_plan(frames: list[dict], *, settings, render_sig: dict, world: dict, bo
               blender_version: str, surroundings=()) -> dict:
     """The JSON plan of a capture; ``frames`` in plan order, ``settings`` a CaptureSettings.
     ``surroundings``: objects the scene box leaves out (``capture.scene_box``), recorded when any."""
-    from .capture_verify import FRAME_FILE_KEYS
-
     keep = FRAME_KEYS + FRAME_FILE_KEYS
     lo, hi = bounds
     plan = {

@@ -12,8 +12,8 @@ import os
 import bpy
 import numpy as np
 
-# Files a frame may own, as keys of its plan entry; all but the point cache are images.
-FRAME_FILE_KEYS = ("image", "depth_file_path", "normal_file_path", "mask_path", "points_cache")
+from .capture_plan import FRAME_FILE_KEYS
+
 
 
 def sha256_file(path: str) -> str | None:

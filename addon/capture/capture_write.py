@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import time
+import tomllib
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from ..dataset import aabb, capture_manifest, points, transforms
 from ..bridge.core_contract import contract
 from ..bridge.core_path import ADDON_DIR
 from ..file_writes import write_png_gray
+from ..scene import passes
 from .capture_plan import SHARD_ASSIGNMENT, round6
 
 FORMAT = "nerf_bridge_capture"
@@ -25,11 +27,9 @@ _ADDON_MANIFEST = os.path.join(ADDON_DIR, "blender_manifest.toml")
 def addon_version() -> str | None:
     """The add-on's ``version`` from its blender_manifest.toml; None when it cannot be read."""
     try:
-        import tomllib
-
         with open(_ADDON_MANIFEST, "rb") as fh:
             version = tomllib.load(fh).get("version")
-    except (ImportError, OSError, ValueError):
+    except (OSError, ValueError):
         return None
     return str(version) if version is not None else None
 
@@ -64,8 +64,6 @@ def nerfstudio_depth(out: str, frames: list[dict]) -> None:
     (a command-line option, 1e-3 unless set, never read from the JSON): an EXR there fails to load,
     or (channel ``Z``) loads as zeros, which turns depth supervision off without a word.
     """
-    from ..scene import passes
-
     for fr in frames:
         if not fr.get("depth_file_path"):
             continue

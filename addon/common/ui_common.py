@@ -4,9 +4,13 @@ wrapped notes, and the redraw/status-bar helpers the job follower uses."""
 from __future__ import annotations
 
 import os
+import textwrap
 from typing import Optional
 
 import bpy
+from bpy.props import StringProperty
+
+from ..bridge.trainer_process import SetupError
 
 
 class NerfPanel:
@@ -64,8 +68,6 @@ def draw_error(layout, text: str) -> None:
 def draw_wrapped(layout, text: str, icon: str, width: int = 60) -> None:
     """``text`` in a box, wrapped at ``width`` characters (a label does not wrap), ``icon`` on its
     first line; the others are indented to match."""
-    import textwrap
-
     box = layout.box()
     for k, line in enumerate(textwrap.wrap(text, width) or [text]):
         box.label(text=line, icon=icon if k == 0 else "BLANK1")
@@ -74,8 +76,6 @@ def draw_wrapped(layout, text: str, icon: str, width: int = 60) -> None:
 def path_options() -> set:
     """StringProperty options for a folder or file setting: Blender 4.5+ warns about "//" paths unless
     the property says it supports them; older versions lack the flag."""
-    from bpy.props import StringProperty
-
     try:
         StringProperty(options={"PATH_SUPPORTS_BLEND_RELATIVE"})
     except TypeError:
@@ -90,8 +90,6 @@ def abs_path(path: str) -> str:
     if not path:
         return ""
     if path.startswith("//") and not bpy.data.filepath:
-        from ..bridge.trainer_process import SetupError
-
         raise SetupError(f"{path!r} is relative to the .blend, which is not saved yet: save the file or choose an "
                          "absolute folder.")
     return os.path.abspath(os.path.expanduser(bpy.path.abspath(path)))

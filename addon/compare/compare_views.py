@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import List, Optional, Tuple
 
 import bpy
+import mathutils
 
 from ..dataset import cameras
 from . import image_storage, planes
@@ -217,8 +218,6 @@ def auto_distances(views: List[planes.View], run: str) -> List[float]:
     """Per view, where a camera-aligned plane goes when no distance is set: at the depth of the scene
     centre (middle of the run's aabb, else the dataset's), so the image sits among the objects it
     shows; just beyond ``near`` when the centre is behind that; 1 scene unit when nothing is known."""
-    import mathutils
-
     meta = dataset_meta(run)
     try:
         with open(contract.config_path(run), encoding="utf-8") as fh:

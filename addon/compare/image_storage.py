@@ -12,6 +12,8 @@ from __future__ import annotations
 import os
 from typing import Iterable, List
 
+import bpy
+
 MODES = ("pack", "relative", "absolute")
 DEFAULT = "pack"
 
@@ -39,8 +41,6 @@ def store(images, mode: str, start_dir: str = "") -> str:
     ``relative_remap`` rebases them); without a folder the paths stay absolute and the note says so.
     ``absolute``: absolute paths (and nothing packed).
     """
-    import bpy
-
     if mode not in MODES:
         raise ValueError(f"image storage {mode!r}: choose one of {', '.join(MODES)}")
     start = start_dir or (os.path.dirname(bpy.data.filepath) if bpy.data.filepath else "")

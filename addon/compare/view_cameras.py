@@ -11,6 +11,9 @@ from __future__ import annotations
 
 from typing import Dict
 
+import bpy
+from mathutils import Matrix
+
 SENSOR_WIDTH = 36.0  # mm, Blender's default; any width works, the lens follows from it
 LENS_RANGE = (1.0, 5000.0)  # mm: what Blender accepts for Camera.lens
 SENSOR_RANGE = (1.0, 100.0)  # mm: what Blender accepts for Camera.sensor_width
@@ -51,9 +54,6 @@ def make_view_camera(name: str, c2w, intrinsics: Dict[str, float], collection, c
     """A new perspective camera object ``name`` in ``collection`` at ``c2w`` (4x4, no scale) with the
     lens, sensor and shift of ``intrinsics``; returns it. The scene's resolution and pixel aspect
     are set separately (``use_view_resolution``): they belong to the scene, not the camera."""
-    import bpy
-    from mathutils import Matrix
-
     params = camera_params(intrinsics)
     data = bpy.data.cameras.new(name)
     data.type = "PERSP"

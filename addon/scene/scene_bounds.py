@@ -8,9 +8,11 @@ their own. Cameras, lights and empties have no extent.
 """
 from __future__ import annotations
 
+import hashlib
 from contextlib import contextmanager
 
 import bpy
+import numpy as np
 from mathutils import Vector
 
 # Object types whose bound_box is a surface the camera can see.
@@ -264,8 +266,6 @@ def _hair_box(ev, matrix):
     (``render_type`` PATH), or None. Hair is drawn from the object's particles, not its mesh, so its
     bound_box leaves it out: a plane with 4-unit hair was boxed 0.04 units thick and the hair cut off
     in every view. Child strands spread about their parents by the children's radius."""
-    import numpy as np
-
     if ev.type != "MESH":
         return None
     points, pad = [], 0.0
@@ -290,10 +290,6 @@ def scene_signature(scene, view_layer=None) -> str | None:
     names and evaluated geometry (vertex positions), instances included. It changes when an object is
     added, removed, moved or edited, or its modifiers change; not when a material's nodes change.
     None when ``scene`` is not the context's (its evaluated scene is not at hand)."""
-    import hashlib
-
-    import numpy as np
-
     if bpy.context.scene != scene:
         return None
     view_layer = view_layer or render_view_layer(scene)
