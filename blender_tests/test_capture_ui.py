@@ -8,6 +8,7 @@ import bpy
 import pytest
 
 import addon
+from addon import capture as capture_feature
 from addon.capture import capture_ui, layouts
 from addon.capture import camera_collection, layout_cameras
 from addon.common import jobs
@@ -15,17 +16,17 @@ from addon.common import jobs
 
 @pytest.fixture
 def registered():
-    # Only this module: the panel's tests should not depend on the other panels registering.
-    capture_ui.register()
+    # Only this feature: the panel's tests should not depend on the other panels registering.
+    capture_feature.register()
     yield
-    capture_ui.unregister()
+    capture_feature.unregister()
 
 
 def test_capture_ui_register_unregister_twice():
     for _ in range(2):
-        capture_ui.register()
+        capture_feature.register()
         assert hasattr(bpy.types.Scene, "nerf_capture") and hasattr(bpy.types, "NERF_PT_capture")
-        capture_ui.unregister()
+        capture_feature.unregister()
         assert not hasattr(bpy.types.Scene, "nerf_capture") and not hasattr(bpy.types, "NERF_PT_capture")
 
 

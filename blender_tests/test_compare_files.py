@@ -214,9 +214,9 @@ def test_absolute_paths_and_unknown_modes(tmp_path):
 
 def test_the_compare_panel_leaves_the_users_camera_and_images_alone(tmp_path):
     from addon.compare import compare_views as compare
-    from addon.train import train_props
+    from addon import train
 
-    train_props.register()
+    train.register()
     try:
         scene = bpy.context.scene
         mine = bpy.data.objects.new("My Camera", bpy.data.cameras.new("My Camera"))
@@ -248,4 +248,4 @@ def test_the_compare_panel_leaves_the_users_camera_and_images_alone(tmp_path):
         note = compare.import_views(scene, views, "CAMERA", render, str(tmp_path / "run"), 2.0)
         assert "not saved yet" in note
     finally:
-        train_props.unregister()
+        train.unregister()

@@ -55,9 +55,9 @@ def test_no_dataset(s, tmp_path):
         train_ui.start_training(bpy.context)
     # an empty field takes the Capture panel's Output: a failure names where that path came from, and
     # the field stays as the user left it
-    from addon.capture import capture_ui
+    from addon import capture as capture_feature
 
-    capture_ui.register()
+    capture_feature.register()
     try:
         s.dataset_dir = ""
         bpy.context.scene.nerf_capture.output_dir = str(tmp_path / "captured")
@@ -66,7 +66,7 @@ def test_no_dataset(s, tmp_path):
             train_ui.start_training(bpy.context)
         assert s.dataset_dir == ""
     finally:
-        capture_ui.unregister()
+        capture_feature.unregister()
     # a transforms file is a dataset too (nerf_core train reads it); another file is not
     (tmp_path / "ds").mkdir()
     (tmp_path / "ds" / "transforms_train.json").write_text("{}")
@@ -259,8 +259,9 @@ import sys, time
 sys.path.insert(0, {repo_root!r})
 import bpy
 from addon.common import jobs
+from addon import train
 from addon.train import train_ui, train_job
-train_ui.register()
+train.register()
 cmd = [sys.executable, "-c", "import time\\nwhile True: time.sleep(0.1)"]
 job = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
 jobs.add(train_ui.TRAIN, job)

@@ -1,6 +1,6 @@
-"""Capture panel (3D viewport > N-panel > NeRF > Capture), its settings and operators.
+"""Capture panel (3D viewport > N-panel > NeRF > Capture) and its operators.
 
-Settings live in ``Scene.nerf_capture`` (saved with the .blend). The Capture operator prepares a
+Settings live in ``Scene.nerf_capture`` (``capture_props``, saved with the .blend). The Capture operator prepares a
 ``capture_job.CaptureJob`` and hands it, as a ``capture_task.CaptureTask``, to the job follower that also
 advances training and rendering: one frame per timer event, so Blender stays responsive between
 frames; Esc or the Cancel button stops it, leaving a folder that resumes on the next capture.
@@ -9,104 +9,19 @@ from __future__ import annotations
 
 
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
-                       StringProperty)
+from bpy.props import BoolProperty, EnumProperty, PointerProperty
 
 from . import demo_scenes, layouts
-from . import capture_job, capture_plan, capture_settings
+from . import capture_job, capture_plan
+from .capture_props import NerfCaptureSettings
 from . import camera_collection, layout_cameras, layout_notes
 from ..dataset.errors import ExportError
 from ..common import jobs
 from .capture_task import CaptureTask
 from ..scene import scene_bounds
-from ..common.ui_common import NerfPanel, draw_wrapped, path_options, property_split, report_and_cancel
+from ..common.ui_common import NerfPanel, draw_wrapped, property_split, report_and_cancel
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
-
-_LAYOUT_ITEMS = [
-    ("hemisphere", "Hemisphere", "Fibonacci points on the upper hemisphere (elevation range)"),
-    ("sphere", "Sphere", "Fibonacci points on the full sphere"),
-    ("random", "Random", "Random points on the sphere band, reproducible from the seed"),
-    ("rings", "Rings", "Horizontal rings at evenly spaced elevations"),
-    ("spiral", "Spiral", "A spiral climbing from the lowest to the highest elevation"),
-    ("inside", "Inside", "Cameras inside the scene's box (a room), looking outward all around"),
-    ("scene-cameras", "Scene Cameras", "Copies of the scene's own cameras"),
-    ("animation", "Animation", "The active camera at every Nth frame of the scene's range"),
-]
-_ENGINE_ITEMS = [
-    ("cycles", "Cycles", "Path tracing: the reference; slowest"),
-    ("eevee", "EEVEE", "Rasterised; needs a GPU"),
-    ("workbench", "Workbench", "Flat studio shading; fastest, no normals"),
-]
-
-
-def _layout_changed(self, _context):
-    # Spheres default to the full elevation range, the others to the upper hemisphere.
-    if self.layout in ("sphere", "random"):
-        self.elevation_min, self.elevation_max = -90.0, 90.0
-    elif self.layout in ("hemisphere", "spiral"):
-        self.elevation_min, self.elevation_max = 0.0, 90.0
-    elif self.layout == "rings":
-        self.elevation_min, self.elevation_max = 10.0, 60.0
-    elif self.layout == "inside":
-        self.elevation_min, self.elevation_max = layouts.INSIDE_ELEVATION
-
-
-class NerfCaptureSettings(bpy.types.PropertyGroup):
-    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="//nerf_dataset/", options=path_options(),
-                               description="Dataset folder (relative paths start at the .blend's folder)")
-    layout: EnumProperty(name="Layout", items=_LAYOUT_ITEMS, default="hemisphere", update=_layout_changed)
-    target: EnumProperty(name="Target", items=[
-        ("SCENE", "Whole Scene", "Aim at and frame everything visible"),
-        ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
-    # At least 2: `train` and `check` refuse a train split of one view (there is nothing to triangulate).
-    train_count: IntProperty(name="Train", default=100, min=2, soft_max=1000)
-    # At least 1 each: `train` and `check` refuse a dataset with an empty split (camera_collection.held_out_problem).
-    val_count: IntProperty(name="Val", default=10, min=1, soft_max=200)
-    test_count: IntProperty(name="Test", default=20, min=1, soft_max=400)
-    radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
-                          description="Camera distance from the target centre; 0 = auto (target fills the frame)")
-    elevation_min: FloatProperty(name="Min Elevation", default=0.0, min=-90.0, max=90.0)
-    elevation_max: FloatProperty(name="Max Elevation", default=90.0, min=-90.0, max=90.0)
-    seed: IntProperty(name="Seed", default=0, min=0)
-    rings: IntProperty(name="Rings", default=3, min=1, max=32)
-    turns: FloatProperty(name="Turns", default=3.0, min=0.1, max=50.0)
-    frame_step: IntProperty(name="Every Nth Frame", default=10, min=1)
-    focal_length: FloatProperty(name="Focal Length", default=50.0, min=1.0, max=500.0, unit="CAMERA",
-                                description="Lens of generated cameras (36 mm sensor)")
-    engine: EnumProperty(name="Engine", items=_ENGINE_ITEMS, default="cycles")
-    samples: IntProperty(name="Samples", default=16, min=1, soft_max=4096)
-    denoise: BoolProperty(name="Denoise", default=False)
-    resolution_x: IntProperty(name="X", default=200, min=4, soft_max=4096, subtype="PIXEL")
-    resolution_y: IntProperty(name="Y", default=200, min=4, soft_max=4096, subtype="PIXEL")
-    film_transparent: BoolProperty(name="Transparent Film", default=True,
-                                   description="RGBA images with a transparent background (what NeRF loaders expect)")
-    depth: BoolProperty(name="Depth", default=False, description="Planar depth EXRs")
-    normals: BoolProperty(name="Normals", default=False, description="World-space normal EXRs (Cycles/EEVEE)")
-    masks: BoolProperty(name="Masks", default=False, description="Object mask PNGs")
-    points: BoolProperty(name="Point Cloud", default=False, description="points3d.ply from the train views")
-    normalize_camera_scale: BoolProperty(name="Normalise Camera Scale", default=False,
-                                         description="Accept scaled cameras, dropping the scale (recorded)")
-    # Runtime state shown by the panel (not user settings).
-    is_running: BoolProperty(default=False, options={"SKIP_SAVE"})
-    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
-    status: StringProperty(default="", options={"SKIP_SAVE"})
-    cancel_requested: BoolProperty(default=False, options={"SKIP_SAVE"})
-
-    def layout_spec(self) -> layouts.LayoutSpec:
-        return layouts.LayoutSpec(
-            layout=self.layout, train=self.train_count, val=self.val_count, test=self.test_count,
-            radius=self.radius, elevation_min=self.elevation_min, elevation_max=self.elevation_max,
-            seed=self.seed, rings=self.rings, turns=self.turns, frame_step=self.frame_step,
-            focal_length=self.focal_length, target=self.target)
-
-    def capture_settings(self, overwrite: bool = False) -> capture_settings.CaptureSettings:
-        return capture_settings.CaptureSettings(
-            out_dir=self.output_dir, engine=self.engine, samples=self.samples,
-            res_x=self.resolution_x, res_y=self.resolution_y, film_transparent=self.film_transparent,
-            denoise=self.denoise, depth=self.depth, normals=self.normals, masks=self.masks, points=self.points,
-            overwrite=overwrite, target=self.target, normalize_camera_scale=self.normalize_camera_scale,
-            layout=self.layout_spec().to_dict(), seed=self.seed)
 
 
 _ERRORS = (capture_plan.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
@@ -372,25 +287,11 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         layout.operator_menu_enum(NERF_OT_add_demo_scene.bl_idname, "name", icon="SCENE_DATA")
 
 
-classes = (
-    NerfCaptureSettings,
-    NERF_OT_generate_cameras,
-    NERF_OT_clear_cameras,
-    NERF_OT_capture,
-    NERF_OT_capture_cancel,
-    NERF_OT_add_demo_scene,
-    NERF_PT_capture,
-)
-
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
-
-
-def register():
-    _register_classes()
+def attach() -> None:
+    """What registering the classes does not: the settings on every scene."""
     bpy.types.Scene.nerf_capture = PointerProperty(type=NerfCaptureSettings)
 
 
-def unregister():
+def detach() -> None:
     jobs.forget((CAPTURE,))  # disabling the add-on mid-capture: keep what is rendered, resumable
     del bpy.types.Scene.nerf_capture
-    _unregister_classes()

@@ -101,7 +101,3 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
         if len(s.view_metrics):
             layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)
-
-
-# -- registration -------------------------------------------------------------------------------------
-classes = (NERF_OT_render_views, NERF_OT_clear_views, NERF_UL_view_metrics, NERF_PT_compare)

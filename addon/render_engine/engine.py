@@ -407,24 +407,19 @@ def _patch_standard_panels(add: bool) -> None:
         _PATCHED_PANELS.clear()
 
 
-CLASSES = (NerfRenderSettings, NerfRenderEngine, NERF_PT_render_run)
-
-
-def register():
-    for cls in CLASSES:
-        bpy.utils.register_class(cls)
+def attach() -> None:
+    """What registering the classes does not: the settings on every scene, Blender's own panels shown
+    for this engine, and the viewport timer."""
     bpy.types.Scene.nerf_render = PointerProperty(type=NerfRenderSettings)
     _patch_standard_panels(True)
     if not bpy.app.timers.is_registered(_viewport_timer):
         bpy.app.timers.register(_viewport_timer, first_interval=TIMER_INTERVAL_S, persistent=True)
 
 
-def unregister():
+def detach() -> None:
     if bpy.app.timers.is_registered(_viewport_timer):
         bpy.app.timers.unregister(_viewport_timer)
     _VIEWPORTS.clear()
     render_client.shutdown_all()  # no render process outlives the add-on
     _patch_standard_panels(False)
     del bpy.types.Scene.nerf_render
-    for cls in reversed(CLASSES):
-        bpy.utils.unregister_class(cls)

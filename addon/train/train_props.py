@@ -81,15 +81,10 @@ def settings_of(context) -> NerfTrainSettings:
     return context.scene.nerf_train
 
 
-classes = (NerfViewMetric, NerfRunItem, NerfTrainSettings)
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
-
-
-def register():
-    _register_classes()
+def attach() -> None:
+    """What registering the classes does not: the settings on every scene."""
     bpy.types.Scene.nerf_train = PointerProperty(type=NerfTrainSettings)
 
 
-def unregister():
+def detach() -> None:
     del bpy.types.Scene.nerf_train
-    _unregister_classes()

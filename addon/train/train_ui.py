@@ -354,24 +354,10 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
             layout.operator(NERF_OT_use_run.bl_idname)
 
 
-# -- registration -------------------------------------------------------------------------------------
-classes = (
-    NERF_OT_train, NERF_OT_train_cancel, NERF_OT_run_new_name, NERF_OT_refresh_runs, NERF_OT_use_run,
-    NERF_UL_runs, NERF_PT_train,
-)
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
-
-
-def register():
-    train_props.register()
-    _register_classes()
-
-
-def unregister():
+# -- what registering the classes does not ----------------------------------------------------------
+def detach() -> None:
     global _PREVIEWS
     jobs.forget((TRAIN, RENDER))  # no child outlives the panels that follow it
     if _PREVIEWS is not None:
         bpy.utils.previews.remove(_PREVIEWS)
         _PREVIEWS = None
-    _unregister_classes()
-    train_props.unregister()
