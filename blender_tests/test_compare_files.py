@@ -1,5 +1,5 @@
-"""Compare .blend files you can look through: view cameras (addon/view_cameras.py), the gallery's
-place and camera (addon/gallery_frame.py) and how images are kept (addon/image_storage.py)."""
+"""Compare .blend files you can look through: view cameras (addon/compare/view_cameras.py), the gallery's
+place and camera (addon/compare/gallery_frame.py) and how images are kept (addon/compare/image_storage.py)."""
 from __future__ import annotations
 
 import math

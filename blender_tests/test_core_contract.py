@@ -1,4 +1,4 @@
-"""addon/core_contract.py: the add-on reads nerf_core's contract without torch, from the same nerf_core
+"""addon/bridge/core_contract.py: the add-on reads nerf_core's contract without torch, from the same nerf_core
 its trainer gets (the checkout, or the installed extension's vendor/ folder)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""One modal follower (addon/jobs.py) advances capture, training and rendering jobs together; Esc
+"""One modal follower (addon/common/jobs.py) advances capture, training and rendering jobs together; Esc
 stops a capture only; loading a file stops every child; the panels share one header."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Image planes (addon/planes.py): placement in the camera frustum, gallery, re-import, camera files."""
+"""Image planes (addon/compare/planes.py): placement in the camera frustum, gallery, re-import, camera files."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""The JSON-line progress parser (addon/progress.py) fed the way a pipe delivers output."""
+"""The JSON-line progress parser (addon/bridge/progress.py) fed the way a pipe delivers output."""
 from __future__ import annotations
 
 import json

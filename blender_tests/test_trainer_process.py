@@ -1,4 +1,4 @@
-"""Process management of the training child (addon/trainer_process.py), with a fake trainer that
+"""Process management of the training child (addon/bridge/trainer_process.py), with a fake trainer that
 speaks the JSON-line protocol of docs/CONTRACTS.md: this tests the plumbing, not NeRF training."""
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ What ``--out`` holds, ready to look at:
   Numpad 0 (or any camera made active) shows the NeRF's image exactly over the frame.
 * ``--layout gallery``: the gallery beside the scene's objects and ``NeRF Gallery Camera``, an
   orthographic camera framing it (headers included), as the scene's camera at the gallery's aspect.
-* ``--images pack`` (default; why: addon/image_storage.py) stores the images inside the .blend,
+* ``--images pack`` (default; why: addon/compare/image_storage.py) stores the images inside the .blend,
   ``relative`` as ``//`` paths relative to ``--out``, ``absolute`` as absolute paths.
 """
 from __future__ import annotations

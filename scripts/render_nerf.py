@@ -4,7 +4,7 @@
     blender -b scene.blend --python scripts/render_nerf.py -- --run RUN --out DIR [--frames A:B] [--depth]
 
 For each frame F (``--frames A:B`` inclusive, default the scene's range and step) the scene is rendered
-with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine.py: the active camera's lens, sensor
+with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine/engine.py: the active camera's lens, sensor
 fit, shift and pixel aspect at the scene's resolution x percentage) and written as ``DIR/FFFF.png``
 (RGBA, 8 bit) and, with ``--depth``, ``DIR/FFFF_depth.exr``: Blender's multilayer EXR of the same
 render (float32; layer ``ViewLayer``, passes ``Combined`` and ``Depth``, channel ``ViewLayer.Depth.Z`` =

@@ -2,7 +2,7 @@
 
 ``prepare_render`` writes the cameras to render (the dataset's test/val split, or a
 transforms file for selected cameras / a fly-through) and makes a fresh output folder;
-``jobs.RenderJob`` runs ``nerf_core render`` into it, then ``import_views`` lays the images out as
+``render_job.RenderJob`` runs ``nerf_core render`` into it, then ``import_views`` lays the images out as
 camera-aligned planes or a NeRF | Blender | error gallery. scripts/import_views.py uses the same
 functions headless. Earlier renders are never overwritten: each gets its own ``RUN/views/<label>_NNN``.
 """

@@ -1,4 +1,4 @@
-"""Blender camera objects for rendered views: the exact inverse of ``export.intrinsics_from_params``.
+"""Blender camera objects for rendered views: the exact inverse of ``dataset/cameras.intrinsics_from_params``.
 
 A rendered view (``renders.json``) is a pinhole camera in pixels, fx, fy, cx, cy, w, h, with an OpenGL
 camera-to-world matrix (Blender's own camera axes: looking down -Z, +Y up). ``camera_params`` turns

@@ -47,7 +47,7 @@ def depth_normals(depth: np.ndarray, intr: dict) -> np.ndarray:
 
 
 def point_normals(depth: np.ndarray, intr: dict, c2w, normal_pass: np.ndarray | None = None) -> np.ndarray:
-    """(n, 3) float32 world-space unit normals, one per point of ``export.backproject(depth, ...)``.
+    """(n, 3) float32 world-space unit normals, one per point of ``points.backproject(depth, ...)``.
 
     depth: (h, w) planar z (inf = none); c2w: 4x4 rows; normal_pass: (h, w, 3) world-space normals
     from the render (0 where no surface) or None. Points without a usable normal get the direction

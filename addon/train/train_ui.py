@@ -1,9 +1,10 @@
-"""Train and Compare panels (3D viewport > N-panel > NeRF) and their operators.
+"""The Train panel (3D viewport > N-panel > NeRF) and its operators.
 
-The operators only start jobs (``TrainJob``, ``jobs.RenderJob``) and hand them to the one job
-follower (``jobs.NERF_OT_follow_jobs``), which advances them a few times a second, so Blender never
-waits on a child. Each job mirrors its progress into ``Scene.nerf_train`` (``train_props``) for the
-panels to draw. The Compare feature reuses ``StartsJob``, ``show_outcome`` and the Cancel operator.
+The operators only start jobs (``train_job.TrainJob``) and hand them to the one job follower
+(``jobs.NERF_OT_follow_jobs``), which advances them a few times a second, so Blender never waits on a
+child. Each job mirrors its progress into ``Scene.nerf_train`` (``train_props``) for the panels to draw.
+The Compare feature (``compare/compare_ui``) reuses ``StartsJob``, ``show_outcome``, ``refresh_after``
+and the Cancel operator, which stops training and rendering alike.
 """
 from __future__ import annotations
 
