@@ -163,6 +163,33 @@ def test_no_private_names_across_modules():
     assert not bad, "no module uses another module's _private names:\n" + "\n".join(bad)
 
 
+# Function-local imports the add-on needs, each with its reason in a comment where it is made.
+LOCAL_IMPORTS_ALLOWED = {
+    ("render_engine/engine.py", "gpu"),  # the gpu module does not exist in background mode
+    ("render_engine/engine.py", "gpu_extras.presets"),
+}
+
+
+def test_imports_are_at_the_top_of_their_module():
+    bad = []
+    for path, _ in MODULES:
+        rel = os.path.relpath(path, ADDON).replace(os.sep, "/")
+        tree = ast.parse(open(path, encoding="utf-8").read(), path)
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Import):
+                    mods = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom):
+                    mods = ["." * node.level + (node.module or "")]
+                else:
+                    continue
+                bad += [f"{_where(path, node.lineno)}: {ast.unparse(node)}" for m in mods
+                        if (rel, m) not in LOCAL_IMPORTS_ALLOWED]
+    assert not bad, "function-local imports (move them to the top, or allow one with its reason):\n" + "\n".join(bad)
+
+
 @pytest.mark.parametrize("rule", ["feature", "bpy", "upward", "private"])
 def test_the_checks_catch_a_violation(tmp_path, monkeypatch, rule):
     """Each check fails on a module written to break it (a copy of the tree, not the real add-on)."""

@@ -6,7 +6,7 @@ and ``scripts/capture.py`` (a loop). It never imports nerf_core: progress goes t
 
 Safety rules it enforces:
 - A folder holding anything else (or a capture whose frames differ) is refused unless
-  ``overwrite``; overwrite deletes only the dataset's own paths (``DATASET_PATHS``).
+  ``overwrite``; overwrite deletes only the dataset's own paths (``capture_folder.DATASET_PATHS``).
 - Frames are written under a temporary name and renamed, so a frame file is whole or absent.
 - Resume: a frame whose settings hash (render settings + camera pose + intrinsics) is in the
   manifest (or a shard's state) and whose files are the ones written is kept, not re-rendered.
