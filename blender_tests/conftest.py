@@ -30,14 +30,16 @@ def repo_root() -> str:
 def train_settings(tmp_path):
     """The Train panel's settings (its classes registered), with Dataset and Run folders under
     ``tmp_path`` that do not exist yet."""
-    from addon import train_ui
+    from addon import compare, train  # the Compare panel's operators use the Train panel's settings
 
-    train_ui.register()
+    train.register()
+    compare.register()
     settings = bpy.context.scene.nerf_train
     settings.dataset_dir = str(tmp_path / "dataset")
     settings.run_dir = str(tmp_path / "run")
     yield settings
-    train_ui.unregister()
+    compare.unregister()
+    train.unregister()
 
 
 @pytest.fixture

@@ -19,7 +19,9 @@ import OpenEXR
 import pytest
 from PIL import Image
 
-from addon import capture, layouts
+from addon.capture import layouts
+from addon.capture import capture_job, capture_notes, capture_plan, capture_planning, capture_settings
+from addon.capture import camera_collection, layout_cameras
 
 PY = sys.executable
 CUBE_HALF = 0.75
@@ -38,14 +40,14 @@ def build_test_scene():
 def do_capture(out, res, engine, spec, tweak=None, **kw):
     build_test_scene()
     scene = bpy.context.scene
-    layouts.create_cameras(scene, spec, *res)
+    layout_cameras.create_cameras(scene, spec, *res)
     if tweak:
-        for split in layouts.capture_cameras(scene).values():
+        for split in camera_collection.capture_cameras(scene).values():
             for cam in split:
                 tweak(cam)
-    settings = capture.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=res[0], res_y=res[1],
+    settings = capture_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=res[0], res_y=res[1],
                                        layout=spec.to_dict(), **kw)
-    return capture.CaptureJob(scene, settings).run()
+    return capture_job.CaptureJob(scene, settings).run()
 
 
 def shifted_vertical_fit(cam):
@@ -230,7 +232,7 @@ def test_nerfstudio_gets_millimetre_depth_pngs_and_no_object_masks_on_a_transpar
 
 
 def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path):
-    from addon import passes
+    from addon.scene import passes
 
     # EEVEE writes the far clipping plane (a little more off the axis) where Cycles writes 1e10.
     z = np.array([[2.0, 100.5, 1e10], [0.0, 99.95, 50.0]], np.float32)
@@ -240,12 +242,12 @@ def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path)
     build_test_scene()
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="sphere", train=3, val=0, test=1, radius=7.0)
-    layouts.create_cameras(scene, spec, 16, 16)
+    layout_cameras.create_cameras(scene, spec, 16, 16)
     for engine in ("workbench", "eevee"):
-        settings = capture.CaptureSettings(out_dir=str(tmp_path / engine), engine=engine, res_x=16, res_y=16,
+        settings = capture_settings.CaptureSettings(out_dir=str(tmp_path / engine), engine=engine, res_x=16, res_y=16,
                                            film_transparent=False, masks=True, layout=spec.to_dict())
-        with pytest.raises(capture.CaptureError, match="opaque film need Cycles"):
-            capture.CaptureJob(scene, settings)
+        with pytest.raises(capture_plan.CaptureError, match="opaque film need Cycles"):
+            capture_job.CaptureJob(scene, settings)
 
 
 def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
@@ -280,7 +282,7 @@ def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
 
 
 def test_ngp_aabb_scale_reaches_twice_the_farthest_camera_when_the_scene_renders_beyond_the_box():
-    from addon.export import ngp_aabb_scale
+    from addon.dataset.aabb import ngp_aabb_scale
 
     # Off-centre and large, but all inside the box: instant-ngp's aabb mapping makes it fill the cube.
     assert ngp_aabb_scale((2.8, 2.8, 0), (7.2, 7.2, 3.5), [(15, 0, 2)], beyond_box=False) == 1
@@ -325,8 +327,8 @@ def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
         scene.collection.objects.link(cam)
         cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
     spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
-    layouts.create_cameras(scene, spec, 40, 30)
-    job = capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+    layout_cameras.create_cameras(scene, spec, 40, 30)
+    job = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
                                                             res_y=30, layout=spec.to_dict()))
     job.plan()  # says, before rendering, that one camera_angle_x cannot hold three lenses
     assert any("3 different cameras" in n and "3DGS" in n for n in job.notes), job.notes
@@ -365,12 +367,12 @@ def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
         cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
         cams.append(cam)
     spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
-    made = layouts.create_cameras(scene, spec, 40, 30)
+    made = layout_cameras.create_cameras(scene, spec, 40, 30)
     settings = dict(engine="cycles", samples=4, res_x=40, res_y=30, layout=spec.to_dict())
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "sharp"), **settings)).run()
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "sharp"), **settings)).run()
     for obj in made:
         obj.data.dof.use_dof, obj.data.dof.aperture_fstop, obj.data.dof.focus_distance = True, 0.1, 100.0
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "dof"), **settings)).run()
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "dof"), **settings)).run()
     assert all(obj.data.dof.use_dof for obj in made)  # restored
     for split in ("train", "test"):
         for (_d, fr, _i), (_d2, fr2, _i2) in zip(frames(tmp_path / "sharp", split), frames(tmp_path / "dof", split)):
@@ -380,14 +382,14 @@ def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
 
 
 def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path):
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     build_test_scene()
     bpy.ops.mesh.primitive_plane_add(size=200.0, location=(0, 0, -CUBE_HALF))
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    layouts.create_cameras(scene, spec, 40, 30)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    layout_cameras.create_cameras(scene, spec, 40, 30)
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi, around = scene_bounds.subject_bounds(scene)
     box = [list(v) for v in scene_bounds.subject_box(scene, lo, hi)]
@@ -397,21 +399,21 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     assert manifest["plan"]["bounds"]["surroundings"] == ["Plane"] == around
     assert doc["beyond_box"] == ["Plane"]  # so that train models the floor beyond the box (--contract)
     # A room captured from inside keeps the whole scene as its box.
-    whole = capture.scene_box(scene, capture.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
+    whole = capture_planning.scene_box(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
     assert whole[1] == [] and whole[0][1][0] - whole[0][0][0] == pytest.approx(200.0)
 
 
 def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
     # A lone plane (a painting, an image imported as a plane) spans no z: its box was 0 thick, and every
     # loader refused the dataset (min < max).
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
     from nerf_core.data.problems import dataset_problems
 
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    layouts.create_cameras(scene, spec, 40, 30)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    layout_cameras.create_cameras(scene, spec, 40, 30)
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi = np.array(json.loads((tmp_path / "transforms_train.json").read_text())["aabb"])
     thick = scene_bounds.MIN_THICKNESS * math.sqrt(8.0)  # of the plane's 2 x 2 x 0 diagonal
@@ -429,8 +431,8 @@ def test_a_tiny_or_huge_subject_is_captured_whole(tmp_path, size):
     bpy.ops.mesh.primitive_monkey_add(size=size)
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    made = layouts.create_cameras(scene, spec, 40, 30)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    made = layout_cameras.create_cameras(scene, spec, 40, 30)
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     for split in ("train", "val", "test"):
         for _doc, fr, _intr in frames(tmp_path, split):
@@ -446,8 +448,8 @@ def test_masks_of_a_selection_cover_only_it(tmp_path):
     for obj in scene.objects:
         obj.select_set(obj.name == "Sphere")
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=1, radius=7.0, elevation_min=20)
-    layouts.create_cameras(scene, spec, 40, 30)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="cycles", samples=1, res_x=40,
+    layout_cameras.create_cameras(scene, spec, 40, 30)
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="cycles", samples=1, res_x=40,
                                                       res_y=30, masks=True, target="SELECTION")).run()
     assert bpy.data.objects["Cube"].pass_index == 0 and bpy.data.objects["Sphere"].pass_index == 0  # restored
     for split in ("train", "test"):
@@ -479,10 +481,10 @@ def test_masks_cover_objects_shown_by_a_collection_instance(tmp_path):
     empty.instance_type, empty.instance_collection = "COLLECTION", props
     scene.collection.objects.link(empty)
     spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=0, radius=7.0, elevation_min=20)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
 
     def masks(out, target):
-        capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
+        capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
                                                           res_y=30, masks=True, target=target)).run()
         assert ball.pass_index == 7
         for _doc, fr, intr in frames(out, "train"):
@@ -507,12 +509,12 @@ def test_holdouts_are_named_before_a_capture(tmp_path):
     build_test_scene()
     scene = bpy.context.scene
     spec = layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0, elevation_min=20)
-    layouts.create_cameras(scene, spec, 40, 30)
+    layout_cameras.create_cameras(scene, spec, 40, 30)
 
     def notes():
-        settings = capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="cycles", samples=1, res_x=40,
+        settings = capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="cycles", samples=1, res_x=40,
                                            res_y=30, film_transparent=False)
-        return capture.CaptureJob(scene, settings).notes
+        return capture_job.CaptureJob(scene, settings).notes
 
     assert notes() == []
     ball = bpy.data.objects["Sphere"]
@@ -535,7 +537,7 @@ def test_holdouts_are_named_before_a_capture(tmp_path):
     assert "'Sphere' render(s) as holdout" in notes()[0]
     # What the note is about: on an opaque film, the hole has alpha 0 where the ball is.
     out = tmp_path / "ds"
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
                                                       res_y=30, film_transparent=False)).run()
     _doc, fr, intr = next(iter(frames(out, "train")))
     alpha = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))[..., 3]
@@ -548,10 +550,10 @@ def test_missing_textures_and_libraries_are_named_before_a_capture(tmp_path):
     # a word: the capture was "complete" and check said "valid" for a dataset of the wrong scene.
     build_test_scene()
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
 
     def notes():
-        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
+        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
 
     assert notes() == []
     tex = tmp_path / "wood.png"
@@ -590,14 +592,14 @@ def test_masks_refuse_what_the_object_index_pass_never_marks(tmp_path):
     # the drawing marked "ignore".
     build_test_scene()
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
     bpy.ops.object.grease_pencil_add(type="MONKEY", location=(0, 0, 1))
 
     def job(engine, target="ALL"):
-        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine=engine, res_x=40,
+        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine=engine, res_x=40,
                                                                  res_y=30, masks=True, target=target))
 
-    with pytest.raises(capture.CaptureError, match=r"never marks 'Suzanne \(Grease Pencil\)'.*alpha"):
+    with pytest.raises(capture_plan.CaptureError, match=r"never marks 'Suzanne \(Grease Pencil\)'.*alpha"):
         job("cycles")
     job("workbench")  # masks from the alpha, which the drawing has
     for obj in scene.objects:
@@ -621,8 +623,8 @@ def test_animation_layout_renders_each_sampled_frame(tmp_path):
     cam.rotation_euler = (np.radians(80), 0, 0)
     scene.frame_set(5)
     spec = layouts.LayoutSpec(layout="animation", frame_step=20, val=0, test=1, seed=0)
-    layouts.create_cameras(scene, spec, 40, 30)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+    layout_cameras.create_cameras(scene, spec, 40, 30)
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
                                                       res_y=30)).run()
     assert scene.frame_current == 5 and scene.camera == cam
     seen = {}
@@ -648,10 +650,10 @@ def test_depth_beyond_what_nerfstudio_pngs_hold_is_named():
     def box(half):
         return (-half, -half, -half), (half, half, half)
 
-    assert capture.depth_png_notes(frames_at(5.0), box(1.0)) == []
-    huge = capture.depth_png_notes(frames_at(900.0), box(250.0))
+    assert capture_notes.depth_png_notes(frames_at(5.0), box(1.0)) == []
+    huge = capture_notes.depth_png_notes(frames_at(900.0), box(250.0))
     assert len(huge) == 1 and "reaches 1150 units" in huge[0] and "written there as 0" in huge[0]
-    tiny = capture.depth_png_notes(frames_at(0.004), box(0.001))
+    tiny = capture_notes.depth_png_notes(frames_at(0.004), box(0.001))
     assert len(tiny) == 1 and "at most 5 steps" in tiny[0]
 
 
@@ -667,10 +669,10 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
     bpy.context.scene.cycles.pixel_filter_type = "GAUSSIAN"
     bpy.context.scene.cycles.filter_width = 2.25
     scene = bpy.context.scene
-    layouts.create_cameras(scene, spec, 16, 12)
-    settings = capture.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
+    layout_cameras.create_cameras(scene, spec, 16, 12)
+    settings = capture_settings.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
                                        layout=spec.to_dict())
-    capture.CaptureJob(scene, settings).run()
+    capture_job.CaptureJob(scene, settings).run()
     for out, want in ((default, {"type": "BLACKMAN_HARRIS", "width": 1.5}), (gauss, {"type": "GAUSSIAN", "width": 2.25})):
         for name in ("transforms_train.json", "transforms_test.json", "nerfstudio/transforms.json"):
             with open(out / name) as fh:
@@ -680,9 +682,9 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
         assert render.get("pixel_filter") == (None if out == default else want)
     # Workbench and EEVEE: Film > Filter Size, Blackman-Harris; Workbench without anti-aliasing: none
     scene.render.filter_size = 0.75
-    assert capture.film_filter(scene, "BLENDER_EEVEE_NEXT") == {"type": "BLACKMAN_HARRIS", "width": 0.75}
+    assert capture_settings.film_filter(scene, "BLENDER_EEVEE_NEXT") == {"type": "BLACKMAN_HARRIS", "width": 0.75}
     scene.display.render_aa = "OFF"
-    assert capture.film_filter(scene, "BLENDER_WORKBENCH") == {"type": "NONE"}
+    assert capture_settings.film_filter(scene, "BLENDER_WORKBENCH") == {"type": "NONE"}
     # and nerf_core reads it back
     proc = subprocess.run([PY, "-c", "import sys; from nerf_core.data.loading import load_dataset; "
                            "print(load_dataset(sys.argv[1]).pixel_filter)", str(gauss)],

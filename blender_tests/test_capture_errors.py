@@ -11,7 +11,11 @@ import bpy
 import pytest
 from mathutils import Matrix
 
-from addon import capture, capture_render, export, layouts
+from addon import file_writes
+from addon.capture import capture_render, layouts
+from addon.capture import capture_job, capture_plan, capture_settings
+from addon.capture import camera_collection, layout_cameras
+from addon.dataset import capture_manifest
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -19,14 +23,14 @@ SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
 
 def scene_with_cameras(train=4, val=1, test=1):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
-    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=train, val=val, test=test), 24, 16)
+    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=train, val=val, test=test), 24, 16)
     return bpy.context.scene
 
 
 def settings(out, **kw):
     base = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
     base.update(kw)
-    return capture.CaptureSettings(**base)
+    return capture_settings.CaptureSettings(**base)
 
 
 def mtimes(folder):
@@ -41,26 +45,26 @@ def manifest(out):
 
 def test_no_visible_objects(tmp_path):
     bpy.ops.object.light_add(type="SUN")
-    with pytest.raises(capture.CaptureError, match="no visible objects"):
-        capture.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
+    with pytest.raises(capture_plan.CaptureError, match="no visible objects"):
+        capture_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
     hidden = bpy.data.objects.new("Hidden", bpy.data.meshes.new("Hidden"))
     bpy.context.scene.collection.objects.link(hidden)
     hidden.hide_render = True
-    with pytest.raises(capture.CaptureError, match="no visible objects"):
-        capture.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
+    with pytest.raises(capture_plan.CaptureError, match="no visible objects"):
+        capture_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
     assert not (tmp_path / "ds").exists()
 
 
 def test_no_capture_cameras(tmp_path):
     bpy.ops.mesh.primitive_cube_add()
-    with pytest.raises(capture.CaptureError, match="no train cameras.*generate a camera layout"):
-        capture.CaptureJob(bpy.context.scene, settings(tmp_path / "ds")).run()
+    with pytest.raises(capture_plan.CaptureError, match="no train cameras.*generate a camera layout"):
+        capture_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds")).run()
 
 
 @pytest.mark.parametrize("kind", ["scale", "shear"])
 def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
     scene = scene_with_cameras()
-    cam = layouts.capture_cameras(scene)["train"][1]
+    cam = camera_collection.capture_cameras(scene)["train"][1]
     if kind == "scale":
         cam.scale = (2.0, 2.0, 2.0)
         pattern = "NeRF_train_001.*has scale"
@@ -74,17 +78,17 @@ def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
         bpy.context.view_layer.update()
         pattern = "NeRF_train_001"
     bpy.context.view_layer.update()
-    with pytest.raises(capture.CaptureError, match=pattern):
-        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    with pytest.raises(capture_plan.CaptureError, match=pattern):
+        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     assert not (tmp_path / "ds").exists()
 
 
 def test_scaled_camera_normalised_on_request_and_recorded(tmp_path):
     scene = scene_with_cameras(train=2, val=0, test=0)
-    cam = layouts.capture_cameras(scene)["train"][0]
+    cam = camera_collection.capture_cameras(scene)["train"][0]
     cam.scale = (0.5, 0.5, 0.5)
     bpy.context.view_layer.update()
-    capture.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
     m = manifest(tmp_path / "ds")
     assert m["frames"]["train/r_0"]["camera_scale_removed"] == [0.5, 0.5, 0.5]
     with open(tmp_path / "ds" / "transforms_train.json") as fh:
@@ -121,24 +125,24 @@ def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
     cams[2].scale = (-1.0, 1.0, 1.0)
     bpy.context.view_layer.update()
     with pytest.raises(layouts.LayoutError, match="camera 'Cam2' is mirrored by its own scale"):
-        layouts.create_cameras(scene, spec, 24, 16)
+        layout_cameras.create_cameras(scene, spec, 24, 16)
     for cam in cams:
         bpy.data.objects.remove(cam)
     rig = bpy.data.objects.new("Rig", None)
     scene.collection.objects.link(rig)
     rig.scale = (2.0, 2.0, 2.0)
     _ring_of_scene_cameras(scene, parent=rig)
-    layouts.create_cameras(scene, spec, 24, 16)  # a scale alone waits for the capture
-    with pytest.raises(capture.CaptureError, match=r"\(the copy of 'Cam\d'\) has scale \(2.0, 2.0, 2.0\) from the "
+    layout_cameras.create_cameras(scene, spec, 24, 16)  # a scale alone waits for the capture
+    with pytest.raises(capture_plan.CaptureError, match=r"\(the copy of 'Cam\d'\) has scale \(2.0, 2.0, 2.0\) from the "
                                                    r"scale of its parent 'Rig'; clear that scale, or let the capture"):
-        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     assert not (tmp_path / "ds").exists()
-    capture.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
     assert manifest(tmp_path / "ds")["frames"]["train/r_0"]["camera_scale_removed"] == [2.0, 2.0, 2.0]
     rig.scale = (-2.0, 2.0, 2.0)  # mirrored by the parent: no normalising fixes that
     bpy.context.view_layer.update()
     with pytest.raises(layouts.LayoutError, match="mirrored by the scale of its parent 'Rig'"):
-        layouts.create_cameras(scene, spec, 24, 16)
+        layout_cameras.create_cameras(scene, spec, 24, 16)
 
 
 def test_a_scale_a_constraint_brings_is_named_as_the_constraints(tmp_path):
@@ -147,13 +151,13 @@ def test_a_scale_a_constraint_brings_is_named_as_the_constraints(tmp_path):
     rig = bpy.data.objects.new("Rig", None)
     scene.collection.objects.link(rig)
     rig.scale = (1.5, 1.5, 1.5)
-    camera = next(o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA")
+    camera = next(o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA")
     constraint = camera.constraints.new("CHILD_OF")
     constraint.target = rig
     constraint.set_inverse_pending = False
     bpy.context.view_layer.update()
-    with pytest.raises(capture.CaptureError, match=r"from its constraint 'Child Of'; turn off its scale"):
-        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    with pytest.raises(capture_plan.CaptureError, match=r"from its constraint 'Child Of'; turn off its scale"):
+        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
 def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
@@ -161,9 +165,9 @@ def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
     scene = bpy.context.scene
     for cam in _ring_of_scene_cameras(scene):
         cam.data.type = "ORTHO"
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
-    with pytest.raises(capture.CaptureError, match=r"camera 'NeRF_train_000' \(the copy of 'Cam\d'\) is ortho"):
-        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
+    with pytest.raises(capture_plan.CaptureError, match=r"camera 'NeRF_train_000' \(the copy of 'Cam\d'\) is ortho"):
+        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
 def test_stereoscopy_is_turned_off_for_the_capture(tmp_path):
@@ -172,7 +176,7 @@ def test_stereoscopy_is_turned_off_for_the_capture(tmp_path):
     scene = scene_with_cameras(train=2)
     scene.render.use_multiview = True
     scene.render.views_format = "STEREO_3D"
-    capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     names = sorted(f for _d, _s, files in os.walk(tmp_path / "ds" / "train") for f in files)
     assert names == ["r_0.png", "r_1.png"]
     assert scene.render.use_multiview  # the user's setting comes back
@@ -192,7 +196,7 @@ def test_a_camera_bound_to_a_marker_does_not_take_over_the_views(tmp_path):
     marker.camera = shot
     scene.camera = shot
     scene.render.image_settings.file_format = "JPEG"  # and the output format comes back, passes or not
-    capture.CaptureJob(scene, settings(tmp_path / "ds", depth=True)).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "ds", depth=True)).run()
     images = [np.asarray(Image.open(tmp_path / "ds" / "train" / f"r_{k}.png")) for k in range(3)]
     assert not np.array_equal(images[0], images[1]) and not np.array_equal(images[1], images[2])
     assert marker.camera == shot and scene.camera == shot
@@ -204,7 +208,7 @@ def test_views_render_at_the_frame_the_capture_started_at(tmp_path):
     # the views at another moment of an animated scene.
     scene = scene_with_cameras(train=2)
     scene.frame_set(5)
-    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.prepare()
     scene.frame_set(30)
     job.step()
@@ -216,16 +220,16 @@ def test_resuming_after_the_scene_changed_is_a_conflict(tmp_path):
     # Frame hashes cover cameras and render settings only: after an edit, a resume kept pictures of the
     # old scene beside an aabb and near/far computed for the new one.
     scene = scene_with_cameras(train=2)
-    capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     manifest_before = manifest(tmp_path / "ds")
     assert manifest_before["scene_signature"]
-    _, conflict = capture.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
+    _, conflict = capture_job.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
     assert conflict is None  # nothing changed: resumes (keeps every frame)
     bpy.data.objects["Cube"].scale = (0.3, 0.3, 0.3)
     bpy.context.view_layer.update()
-    with pytest.raises(capture.CaptureError, match="holds frames of this scene as it was before it changed"):
-        capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
-    summary = capture.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
+    with pytest.raises(capture_plan.CaptureError, match="holds frames of this scene as it was before it changed"):
+        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    summary = capture_job.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
     assert summary["rendered"] == summary["frames"]
 
 
@@ -240,21 +244,21 @@ def test_resuming_after_the_look_changed_is_a_conflict_but_moving_a_node_is_not(
     if scene.world is None:
         scene.world = bpy.data.worlds.new("World")
     background = next(n for n in scene.world.node_tree.nodes if n.type == "BACKGROUND")
-    capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     assert manifest(tmp_path / "ds")["appearance_signature"]
     bsdf = material.node_tree.nodes["Principled BSDF"]
     bsdf.location.x += 200  # tidying the node editor changes no pixel
-    _, conflict = capture.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
+    _, conflict = capture_job.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
     assert conflict is None
     edits = [lambda: setattr(bsdf.inputs["Base Color"], "default_value", (1.0, 0.0, 0.0, 1.0)),
              lambda: setattr(background.inputs["Strength"], "default_value", 3.0),
              lambda: setattr(lamp.data, "energy", 5000.0),
              lambda: setattr(scene.world, "color", (0.9, 0.1, 0.1))]  # the background Workbench shows
     for edit in edits:
-        capture.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
+        capture_job.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
         edit()
-        with pytest.raises(capture.CaptureError, match="as it looked before it changed"):
-            capture.CaptureJob(scene, settings(tmp_path / "ds")).run()
+        with pytest.raises(capture_plan.CaptureError, match="as it looked before it changed"):
+            capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
 def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reopening(tmp_path):
@@ -264,7 +268,7 @@ def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reop
     scene = scene_with_cameras(train=3, val=0, test=1)
     cube = bpy.data.objects["Cube"]
     cube.location = (1.5, 0.5, 0.25)
-    cameras = [o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras = [o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA"]
     poses = {o.name: [v for row in o.matrix_world.normalized() for v in row] for o in cameras}
     for obj in cameras + [cube]:
         obj.hide_viewport = True
@@ -274,7 +278,7 @@ def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reop
     scene = bpy.context.scene
     assert bpy.data.objects["Cube"].matrix_world.translation.length < 1e-6  # what the capture used to read
     homes = {o.name: sorted(c.name for c in o.users_collection) for o in bpy.data.objects}
-    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
     for fr in job.plan():
         assert sum(fr["transform_matrix"], []) == pytest.approx(poses[fr["camera"]], abs=1e-5), fr["camera"]
     lo, hi = job.bounds
@@ -295,11 +299,11 @@ def test_the_layer_the_box_comes_from_is_the_layer_rendered_whatever_its_use_fla
     subject.objects.link(cube)
     active = bpy.context.view_layer
     active.use = False
-    summary = capture.CaptureJob(scene, settings(tmp_path / "one")).run()  # its only layer: rendered anyway
+    summary = capture_job.CaptureJob(scene, settings(tmp_path / "one")).run()  # its only layer: rendered anyway
     assert summary["rendered"] == summary["frames"]
     other = scene.view_layers.new("Other")
     other.layer_collection.children["Subject"].exclude = True  # this layer renders nothing
-    capture.CaptureJob(scene, settings(tmp_path / "two")).run()
+    capture_job.CaptureJob(scene, settings(tmp_path / "two")).run()
     alpha = capture_render.read_png_rgba(str(tmp_path / "two" / "train" / "r_0.png"))[..., 3]
     assert alpha.max() > 0  # the cube of the active layer, not the empty other layer
     assert active.use is False and other.use is True  # the file's flags are restored
@@ -309,12 +313,12 @@ def test_cameras_whose_clipping_cuts_the_scene_box_are_named(tmp_path):
     # Generated layouts fit their clipping to the box; a user's own clip_end short of the scene left
     # parts of it out of some views only, with no word.
     scene = scene_with_cameras(train=3, val=0, test=1)
-    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
     assert not any("clip the scene box" in n for n in job.notes)
-    cameras = [o for o in layouts.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras = [o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA"]
     cameras[0].data.clip_end = 0.5
-    job = capture.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
     assert any(n.startswith(f"1 camera(s) clip the scene box, e.g. {cameras[0].name!r}: clip") for n in job.notes), job.notes
 
@@ -325,7 +329,7 @@ def test_an_overwrite_says_what_it_would_delete(tmp_path):
     (out / "test").mkdir(parents=True)
     (out / "test" / "test_shading.py").write_text("user code")
     (out / "notes.txt").write_text("user notes")
-    _, conflict = capture.CaptureJob(scene, settings(out)).inspect_folder()
+    _, conflict = capture_job.CaptureJob(scene, settings(out)).inspect_folder()
     assert "holds no capture of ours (notes.txt, test)" in conflict
     assert conflict.endswith("overwrite deletes test (the dataset's names) and keeps the rest")
 
@@ -334,10 +338,10 @@ def test_output_folder_not_writable(tmp_path):
     scene = scene_with_cameras()
     blocker = tmp_path / "a_file"
     blocker.write_text("user data")
-    with pytest.raises(capture.CaptureError, match="not a folder"):
-        capture.CaptureJob(scene, settings(blocker)).run()
-    with pytest.raises(capture.CaptureError, match="not writable"):
-        capture.CaptureJob(scene, settings(blocker / "ds")).run()
+    with pytest.raises(capture_plan.CaptureError, match="not a folder"):
+        capture_job.CaptureJob(scene, settings(blocker)).run()
+    with pytest.raises(capture_plan.CaptureError, match="not writable"):
+        capture_job.CaptureJob(scene, settings(blocker / "ds")).run()
     assert blocker.read_text() == "user data"
 
 
@@ -347,11 +351,11 @@ def test_foreign_folder_refused_then_overwrite_keeps_unrelated_files(tmp_path):
     (out / "train").mkdir(parents=True)
     (out / "train" / "holiday.png").write_bytes(b"precious")
     (out / "notes.txt").write_text("mine")
-    with pytest.raises(capture.CaptureError, match="not empty and holds no capture.*notes.txt.*--overwrite"):
-        capture.CaptureJob(scene, settings(out)).run()
+    with pytest.raises(capture_plan.CaptureError, match="not empty and holds no capture.*notes.txt.*--overwrite"):
+        capture_job.CaptureJob(scene, settings(out)).run()
     assert (out / "train" / "holiday.png").read_bytes() == b"precious"
     assert not (out / "transforms_train.json").exists()
-    capture.CaptureJob(scene, settings(out, overwrite=True)).run()
+    capture_job.CaptureJob(scene, settings(out, overwrite=True)).run()
     assert (out / "notes.txt").read_text() == "mine"  # only the dataset's own paths are replaced
     assert not (out / "train" / "holiday.png").exists() and (out / "train" / "r_0.png").exists()
 
@@ -359,31 +363,31 @@ def test_foreign_folder_refused_then_overwrite_keeps_unrelated_files(tmp_path):
 def test_different_capture_refused_unless_overwrite(tmp_path):
     scene = scene_with_cameras()
     out = tmp_path / "ds"
-    capture.CaptureJob(scene, settings(out)).run()
+    capture_job.CaptureJob(scene, settings(out)).run()
     before = mtimes(out)
-    with pytest.raises(capture.CaptureError, match="different capture.*render settings changed.*--overwrite"):
-        capture.CaptureJob(scene, settings(out, res_x=32)).run()
-    layouts.capture_cameras(scene)["train"][0].location.x += 0.5
+    with pytest.raises(capture_plan.CaptureError, match="different capture.*render settings changed.*--overwrite"):
+        capture_job.CaptureJob(scene, settings(out, res_x=32)).run()
+    camera_collection.capture_cameras(scene)["train"][0].location.x += 0.5
     bpy.context.view_layer.update()
-    with pytest.raises(capture.CaptureError, match="cameras changed.*train/r_0"):
-        capture.CaptureJob(scene, settings(out)).run()
+    with pytest.raises(capture_plan.CaptureError, match="cameras changed.*train/r_0"):
+        capture_job.CaptureJob(scene, settings(out)).run()
     assert mtimes(out) == before
-    capture.CaptureJob(scene, settings(out, res_x=32, overwrite=True)).run()
+    capture_job.CaptureJob(scene, settings(out, res_x=32, overwrite=True)).run()
     assert manifest(out)["render"]["resolution"] == [32, 16]
 
 
 def test_resume_keeps_finished_frames(tmp_path):
     scene = scene_with_cameras()
     out = tmp_path / "ds"
-    first = capture.CaptureJob(scene, settings(out)).run()
+    first = capture_job.CaptureJob(scene, settings(out)).run()
     assert first["rendered"] == 6
     before = mtimes(out)
-    again = capture.CaptureJob(scene, settings(out)).run()
+    again = capture_job.CaptureJob(scene, settings(out)).run()
     assert (again["rendered"], again["kept"]) == (0, 6)
     pngs = {k: v for k, v in mtimes(out).items() if k.endswith(".png")}
     assert pngs == {k: v for k, v in before.items() if k.endswith(".png")}
     os.remove(out / "val" / "r_0.png")
-    third = capture.CaptureJob(scene, settings(out)).run()
+    third = capture_job.CaptureJob(scene, settings(out)).run()
     assert (third["rendered"], third["kept"]) == (1, 5) and (out / "val" / "r_0.png").exists()
 
 
@@ -392,7 +396,7 @@ def test_a_view_blender_cannot_render_is_named_with_the_resolution(tmp_path, mon
     # allows: a traceback reached the user, or "capture stopped: Error: ..." that named no resolution.
     scene = scene_with_cameras()
     out = tmp_path / "ds"
-    job = capture.CaptureJob(scene, settings(out))
+    job = capture_job.CaptureJob(scene, settings(out))
     job.prepare()
     assert job.step()  # one frame is rendered before the failure
 
@@ -400,7 +404,7 @@ def test_a_view_blender_cannot_render_is_named_with_the_resolution(tmp_path, mon
         raise RuntimeError("Error: Failed to allocate GPU buffers\n")
 
     monkeypatch.setattr(capture_render, "render_still", cannot)
-    with pytest.raises(capture.CaptureError, match=r"train/r_1: Blender could not render this view at 24x16 px with "
+    with pytest.raises(capture_plan.CaptureError, match=r"train/r_1: Blender could not render this view at 24x16 px with "
                                                    r"BLENDER_WORKBENCH \(Failed to allocate GPU buffers\); a lower "
                                                    r"resolution may fit.*resumes"):
         job.step()
@@ -415,7 +419,7 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
     scene.camera = user_camera
     scene.render.resolution_x, scene.render.engine = 1234, "CYCLES"
     out = tmp_path / "ds"
-    job = capture.CaptureJob(scene, settings(out, depth=True))
+    job = capture_job.CaptureJob(scene, settings(out, depth=True))
     job.prepare()
     for _ in range(3):
         assert job.step()
@@ -430,7 +434,7 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
     for fr in done:
         assert (out / (fr["file_path"] + ".png")).is_file() and (out / fr["depth_file_path"]).is_file()
     assert not [p for p in mtimes(out) if ".partial" in p]
-    resumed = capture.CaptureJob(scene, settings(out, depth=True)).run()
+    resumed = capture_job.CaptureJob(scene, settings(out, depth=True)).run()
     assert (resumed["kept"], resumed["rendered"], resumed["status"]) == (3, 3, "complete")
     with open(out / "nerfstudio" / "transforms.json") as fh:
         assert len(json.load(fh)["frames"]) == 6
@@ -438,10 +442,10 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
 
 def test_normals_with_workbench_and_bad_engine(tmp_path):
     scene = scene_with_cameras()
-    with pytest.raises(capture.CaptureError, match="normals need the Cycles or EEVEE"):
-        capture.CaptureJob(scene, settings(tmp_path, normals=True))
-    with pytest.raises(capture.CaptureError, match="unknown render engine 'povray'"):
-        capture.CaptureJob(scene, settings(tmp_path, engine="povray"))
+    with pytest.raises(capture_plan.CaptureError, match="normals need the Cycles or EEVEE"):
+        capture_job.CaptureJob(scene, settings(tmp_path, normals=True))
+    with pytest.raises(capture_plan.CaptureError, match="unknown render engine 'povray'"):
+        capture_job.CaptureJob(scene, settings(tmp_path, engine="povray"))
 
 
 def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
@@ -476,12 +480,12 @@ def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
     proc = subprocess.run([PY, SCRIPT, "--blend", str(empty), "--out", str(tmp_path / "ds2"), "--quiet"],
                           capture_output=True, text=True, timeout=180)
     assert proc.returncode == 2 and "no visible objects" in proc.stderr and "Traceback" not in proc.stderr
-    assert export.read_manifest(str(tmp_path / "ds2")) is None
+    assert capture_manifest.read_manifest(str(tmp_path / "ds2")) is None
 
 
 def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
     scene = scene_with_cameras(train=3, val=1, test=1)
-    cam = layouts.capture_cameras(scene)["train"][0]
+    cam = camera_collection.capture_cameras(scene)["train"][0]
     cam.matrix_world = Matrix(layouts.look_at((0.5, -4.0, 1.0), (0, 0, 0)))  # a user edit
     blend = tmp_path / "cams.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -518,7 +522,7 @@ def test_pass_files_round_trip_and_unreadable_ones_are_named(tmp_path):
     import OpenEXR
     from PIL import Image
 
-    from addon import passes
+    from addon.scene import passes
 
     z = np.arange(12, dtype=np.float32).reshape(3, 4) / 7
     z[0, 0] = np.inf
@@ -536,5 +540,5 @@ def test_pass_files_round_trip_and_unreadable_ones_are_named(tmp_path):
     with pytest.raises(passes.PassError, match="junk.exr: not an OpenEXR"):
         passes.read_exr_channels(str(tmp_path / "junk.exr"))
     mask = (np.arange(20).reshape(4, 5) % 3 == 0).astype(np.uint8) * 255
-    passes.write_png_gray(str(tmp_path / "m.png"), mask)
+    file_writes.write_png_gray(str(tmp_path / "m.png"), mask)
     assert np.array_equal(np.asarray(Image.open(tmp_path / "m.png")), mask)

@@ -15,7 +15,9 @@ import sys
 
 import bpy
 
-from addon import capture, layouts
+from addon.capture import layouts
+from addon.capture import capture_job, capture_settings
+from addon.capture import layout_cameras
 
 EXTS = ("png", "jpg", "jpeg", "exr")
 
@@ -23,8 +25,8 @@ EXTS = ("png", "jpg", "jpeg", "exr")
 def _capture(out):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=4, val=1, test=2, seed=1), 16, 16)
-    return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=4, val=1, test=2, seed=1), 16, 16)
+    return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
                                                              res_y=16, depth=True, points=True)).run()
 
 

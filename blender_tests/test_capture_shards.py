@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture_plan
+from addon.capture import capture_plan
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -192,20 +192,22 @@ def test_parse_shard_and_round_robin():
 
 def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
     """In-process shards (CaptureJob with settings.shard): 2 frames over 3 shards; shard 3 has none."""
-    from addon import capture, capture_merge, layouts
+    from addon.capture import capture_merge, layouts
+    from addon.capture import capture_job, capture_plan, capture_settings
+    from addon.capture import layout_cameras
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=1), 16, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=1), 16, 16)
     out = tmp_path / "ds"
 
     def shard(k):
-        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
+        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
                                                                  res_y=16, shard=(k, 3))).run()
 
     empty = shard(3)
     assert (empty["frames"], empty["rendered"], empty["status"], empty["planned"]) == (0, 0, "done", 2)
-    with pytest.raises(capture.CaptureError, match="2 of 2 planned frames"):
+    with pytest.raises(capture_plan.CaptureError, match="2 of 2 planned frames"):
         capture_merge.merge(str(out))
     assert [shard(k)["rendered"] for k in (1, 2)] == [1, 1]
     merged = capture_merge.merge(str(out))
@@ -215,16 +217,18 @@ def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
 
 def test_a_whole_capture_keeps_the_frames_shards_finished(tmp_path):
     """Switching from the farm to one machine midway: the whole run keeps every frame a shard recorded."""
-    from addon import capture, layouts
+    from addon.capture import layouts
+    from addon.capture import capture_job, capture_settings
+    from addon.capture import layout_cameras
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=3, val=0, test=1), 16, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=3, val=0, test=1), 16, 16)
     out = tmp_path / "ds"
     base = dict(out_dir=str(out), engine="workbench", res_x=16, res_y=16, depth=True)
-    first = capture.CaptureJob(scene, capture.CaptureSettings(**base, shard=(1, 2))).run()
+    first = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**base, shard=(1, 2))).run()
     assert first["rendered"] == 2  # frames 0 and 2 of 4
-    whole = capture.CaptureJob(scene, capture.CaptureSettings(**base)).run()
+    whole = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**base)).run()
     assert (whole["kept"], whole["rendered"], whole["status"]) == (2, 2, "complete")
     manifest = json.loads((out / "nerf_capture" / "manifest.json").read_text())
     assert all(f["done"] and "sha256" in f for f in manifest["frames"].values())

@@ -8,22 +8,25 @@ import bpy
 import pytest
 
 import addon
-from addon import capture_ui, jobs, layouts
+from addon import capture as capture_feature
+from addon.capture import capture_ui, layouts
+from addon.capture import camera_collection, layout_cameras
+from addon.common import jobs
 
 
 @pytest.fixture
 def registered():
-    # Only this module: the panel's tests should not depend on the other panels registering.
-    capture_ui.register()
+    # Only this feature: the panel's tests should not depend on the other panels registering.
+    capture_feature.register()
     yield
-    capture_ui.unregister()
+    capture_feature.unregister()
 
 
 def test_capture_ui_register_unregister_twice():
     for _ in range(2):
-        capture_ui.register()
+        capture_feature.register()
         assert hasattr(bpy.types.Scene, "nerf_capture") and hasattr(bpy.types, "NERF_PT_capture")
-        capture_ui.unregister()
+        capture_feature.unregister()
         assert not hasattr(bpy.types.Scene, "nerf_capture") and not hasattr(bpy.types, "NERF_PT_capture")
 
 
@@ -55,7 +58,7 @@ def test_generate_and_capture_operators(registered, tmp_path):
     s.resolution_x, s.resolution_y, s.engine = 24, 16, "workbench"
     s.output_dir = str(tmp_path / "ds")
     assert bpy.ops.nerf.generate_cameras() == {"FINISHED"}
-    assert [len(v) for v in layouts.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
+    assert [len(v) for v in camera_collection.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
     assert bpy.ops.nerf.capture() == {"FINISHED"}
     with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
         assert json.load(fh)["status"] == "complete"
@@ -65,7 +68,7 @@ def test_generate_and_capture_operators(registered, tmp_path):
         bpy.ops.nerf.capture()
     assert bpy.ops.nerf.capture(overwrite=True) == {"FINISHED"}
     assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
-    assert not any(layouts.capture_cameras(bpy.context.scene).values())
+    assert not any(camera_collection.capture_cameras(bpy.context.scene).values())
 
 
 def test_operator_errors_are_reported_not_raised_deep(registered, tmp_path):
@@ -86,7 +89,7 @@ def test_the_panel_cannot_capture_a_dataset_without_val_or_test_views(registered
     s.train_count = 1  # nor for a train split of one view, which train and check refuse
     assert s.train_count == 2
     # A collection made elsewhere (a script, an older file) without test cameras is refused, naming it.
-    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
+    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
     s.output_dir, s.engine = str(tmp_path / "ds"), "workbench"
     with pytest.raises(RuntimeError, match="no test camera"):
         bpy.ops.nerf.capture()
@@ -111,14 +114,14 @@ def _fake_modal_operator(job):
 def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
     from types import SimpleNamespace
 
-    from addon import capture
+    from addon.capture import capture_job
 
     bpy.ops.mesh.primitive_cube_add()
     s = bpy.context.scene.nerf_capture
     s.train_count, s.val_count, s.test_count = 3, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
-    job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job = capture_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
     job.prepare()
     op, ctx = _fake_modal_operator(job)
     s.is_running = True
@@ -212,7 +215,7 @@ class _RecordingLayout:
 def test_panel_draws_every_layout_and_the_running_state(registered, layout_name, monkeypatch):
     from types import SimpleNamespace
 
-    from addon import jobs
+    from addon.common import jobs
 
     s = bpy.context.scene.nerf_capture
     s.layout = layout_name
@@ -249,7 +252,7 @@ def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered,
     s.radius, s.focal_length = 0.0, 50.0
 
     def stale():
-        return layouts.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        return camera_collection.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
 
     def panel_lines():
         log = []
@@ -270,7 +273,7 @@ def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered,
     assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
     # cameras the user puts in the collection were laid out by no settings of ours
     user = bpy.data.objects.new("mine", bpy.data.cameras.new("mine"))
-    layouts.nerf_collection(scene).objects.link(user)
+    camera_collection.nerf_collection(scene).objects.link(user)
     s.radius = 3.0
     assert stale() is None
 

@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture, demo_scenes, layouts
+from addon.capture import demo_scenes, layouts
+from addon.capture import capture_job, capture_plan, capture_settings, capture_world
+from addon.capture import layout_cameras
 
 TRANSFORMS = ("transforms_train.json", "transforms_val.json", "transforms_test.json", "nerfstudio/transforms.json")
 
@@ -29,10 +31,10 @@ def _records(out):
 
 
 def _capture(scene, out, spec, engine="workbench", res=32, **kw):
-    layouts.create_cameras(scene, spec, res, res)
-    settings = capture.CaptureSettings(out_dir=str(out), engine=engine, samples=kw.pop("samples", 1), res_x=res,
+    layout_cameras.create_cameras(scene, spec, res, res)
+    settings = capture_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=kw.pop("samples", 1), res_x=res,
                                        res_y=res, layout=spec.to_dict(), **kw)
-    return capture.CaptureJob(scene, settings).run()
+    return capture_job.CaptureJob(scene, settings).run()
 
 
 def _assert_background_recorded(out, film_transparent, world):
@@ -49,7 +51,7 @@ def test_hdri_capture_is_opaque_and_records_the_hdri_world(tmp_path):
     spec = layouts.LayoutSpec(train=4, val=1, test=1, elevation_min=5, elevation_max=30, seed=1)
     summary = _capture(scene, out, spec, engine="cycles", samples=4, film_transparent=False)
     assert summary["status"] == "complete" and summary["rendered"] == 6
-    world = capture.world_description(scene.world)
+    world = capture_world.world_description(scene.world)
     assert world == {"name": "NeRF Demo HDRI", "kind": "environment_texture", "image": demo_scenes.HDRI_NAME,
                      "color": None, "strength": 1.0}
     _assert_background_recorded(out, False, world)
@@ -97,13 +99,13 @@ def test_switching_the_film_or_an_opaque_world_changes_what_resume_keeps(tmp_pat
     spec = layouts.LayoutSpec(train=2, val=0, test=1)
     assert _capture(scene, out, spec, res=16, film_transparent=False)["rendered"] == 3
     assert _capture(scene, out, spec, res=16, film_transparent=False)["kept"] == 3  # same settings: resumed
-    with pytest.raises(capture.CaptureError, match="render settings changed"):
+    with pytest.raises(capture_plan.CaptureError, match="render settings changed"):
         _capture(scene, out, spec, res=16, film_transparent=True)
     summary = _capture(scene, out, spec, res=16, film_transparent=True, overwrite=True)
     assert summary["rendered"] == 3 and _records(out)[0]["film_transparent"] is True
     _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)
     scene.world.color = (0.6, 0.2, 0.2)  # what Workbench shows behind the scene (it ignores the nodes)
-    with pytest.raises(capture.CaptureError, match="render settings changed"):
+    with pytest.raises(capture_plan.CaptureError, match="render settings changed"):
         _capture(scene, out, spec, res=16, film_transparent=False)
     assert _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)["rendered"] == 3
     assert _records(out)[1]["nerfstudio/transforms.json"]["world"]["color"] == pytest.approx([0.6, 0.2, 0.2])
@@ -122,21 +124,21 @@ def _world(name):
 
 
 def test_world_description_of_each_kind_of_world():
-    assert capture.world_description(None) == {"name": None, "kind": "none", "image": None, "color": None,
+    assert capture_world.world_description(None) == {"name": None, "kind": "none", "image": None, "color": None,
                                                "strength": None}
     world, tree, bg, _out = _world("Plain")
     bg.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
     bg.inputs["Strength"].default_value = 0.5
-    d = capture.world_description(world)
+    d = capture_world.world_description(world)
     assert d["kind"] == "color" and d["color"] == pytest.approx([0.2, 0.4, 0.6]) and d["strength"] == 0.5
     world.color = (0.9, 0.1, 0.1)  # Workbench ignores the nodes and shows the viewport colour
-    d = capture.world_description(world, "BLENDER_WORKBENCH")
+    d = capture_world.world_description(world, "BLENDER_WORKBENCH")
     assert d["kind"] == "color" and d["color"] == pytest.approx([0.9, 0.1, 0.1])
 
     world, tree, bg, _out = _world("Sky")
     sky = tree.nodes.new("ShaderNodeTexSky")
     tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
-    assert capture.world_description(world)["kind"] == "sky_texture"
+    assert capture_world.world_description(world)["kind"] == "sky_texture"
 
     world, tree, bg, out = _world("Mixed")  # the light-path trick: a Background inside a Mix Shader
     env = tree.nodes.new("ShaderNodeTexEnvironment")
@@ -147,14 +149,14 @@ def test_world_description_of_each_kind_of_world():
     tree.links.new(mix.outputs["Shader"], out.inputs["Surface"])
     value = tree.nodes.new("ShaderNodeValue")
     tree.links.new(value.outputs["Value"], bg.inputs["Strength"])
-    d = capture.world_description(world)
+    d = capture_world.world_description(world)
     assert d["kind"] == "environment_texture" and d["image"] == demo_scenes.HDRI_NAME and d["strength"] is None
 
     world, tree, bg, out = _world("Unlinked")
     tree.links.remove(out.inputs["Surface"].links[0])
-    assert capture.world_description(world)["kind"] == "none"
+    assert capture_world.world_description(world)["kind"] == "none"
 
     world, tree, bg, out = _world("Gradient")
     grad = tree.nodes.new("ShaderNodeTexGradient")
     tree.links.new(grad.outputs["Color"], bg.inputs["Color"])
-    assert capture.world_description(world)["kind"] == "other"
+    assert capture_world.world_description(world)["kind"] == "other"

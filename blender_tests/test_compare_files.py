@@ -1,5 +1,5 @@
-"""Compare .blend files you can look through: view cameras (addon/view_cameras.py), the gallery's
-place and camera (addon/gallery_frame.py) and how images are kept (addon/image_storage.py)."""
+"""Compare .blend files you can look through: view cameras (addon/compare/view_cameras.py), the gallery's
+place and camera (addon/compare/gallery_frame.py) and how images are kept (addon/compare/image_storage.py)."""
 from __future__ import annotations
 
 import math
@@ -12,7 +12,8 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon import export, gallery_frame, image_storage, planes, view_cameras
+from addon.dataset import cameras
+from addon.compare import gallery_frame, image_storage, planes, view_cameras
 from test_planes import fake_render
 
 INTRINSICS = [
@@ -26,7 +27,7 @@ INTRINSICS = [
 @pytest.mark.parametrize("intr", INTRINSICS)
 def test_camera_params_invert_the_capture_intrinsics_rule(intr):
     p = view_cameras.camera_params(intr)
-    back = export.intrinsics_from_params(p["lens"], p["sensor_width"], p["sensor_height"], p["sensor_fit"],
+    back = cameras.intrinsics_from_params(p["lens"], p["sensor_width"], p["sensor_height"], p["sensor_fit"],
                                          p["shift_x"], p["shift_y"], p["res_x"], p["res_y"],
                                          p["pixel_aspect_x"], p["pixel_aspect_y"])
     got = [back[k] for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")]
@@ -212,9 +213,10 @@ def test_absolute_paths_and_unknown_modes(tmp_path):
 
 
 def test_the_compare_panel_leaves_the_users_camera_and_images_alone(tmp_path):
-    from addon import compare, train_props
+    from addon.compare import compare_views as compare
+    from addon import train
 
-    train_props.register()
+    train.register()
     try:
         scene = bpy.context.scene
         mine = bpy.data.objects.new("My Camera", bpy.data.cameras.new("My Camera"))
@@ -246,4 +248,4 @@ def test_the_compare_panel_leaves_the_users_camera_and_images_alone(tmp_path):
         note = compare.import_views(scene, views, "CAMERA", render, str(tmp_path / "run"), 2.0)
         assert "not saved yet" in note
     finally:
-        train_props.unregister()
+        train.unregister()

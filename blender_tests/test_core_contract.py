@@ -1,4 +1,4 @@
-"""addon/core_contract.py: the add-on reads nerf_core's contract without torch, from the same nerf_core
+"""addon/bridge/core_contract.py: the add-on reads nerf_core's contract without torch, from the same nerf_core
 its trainer gets (the checkout, or the installed extension's vendor/ folder)."""
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ import sys
 
 import pytest
 
-from addon import core_contract, core_path, planes
+from addon.bridge import core_contract, core_path
+from addon.compare import planes
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts"))
 import build_addon  # noqa: E402
@@ -30,8 +31,10 @@ def test_checkout_addon_loads_the_contract_with_torch_blocked(repo_root):
     code = BLOCK_TORCH + (
         "import json, bpy, addon\n"
         "addon.register()\n"  # every module of the add-on, registered, as Blender loads it
-        "from addon.core_contract import contract\n"
-        "from addon import compare, jobs, progress, runs, trainer_process\n"
+        "from addon.bridge.core_contract import contract\n"
+        "from addon.bridge import progress, runs, trainer_process\n"
+        "from addon.common import jobs\n"
+        "from addon.compare import compare_views\n"
         "addon.unregister()\n"
         "print(json.dumps({'file': contract.__file__, 'torch': 'torch' in sys.modules,\n"
         "                  'nerf_core': 'nerf_core' in sys.modules, 'latest': contract.latest_checkpoint('R')}))\n")
@@ -89,9 +92,9 @@ def test_installed_extension_uses_its_vendored_contract_without_torch(tmp_path):
         "                                                   enable_on_install=True)\n"
         "pkg = 'bl_ext.user_default.nerf_bridge'\n"
         "assert pkg in bpy.context.preferences.addons, 'the extension was not enabled'\n"
-        "cc = importlib.import_module(pkg + '.core_contract')\n"
-        "progress = importlib.import_module(pkg + '.progress')\n"
-        "runs = importlib.import_module(pkg + '.runs')\n"
+        "cc = importlib.import_module(pkg + '.bridge.core_contract')\n"
+        "progress = importlib.import_module(pkg + '.bridge.progress')\n"
+        "runs = importlib.import_module(pkg + '.bridge.runs')\n"
         "p = progress.ProgressParser()\n"
         "p.feed(json.dumps({'event': 'start', 'max_steps': 100}) + '\\n')\n"
         "p.feed(json.dumps({'event': 'step', 'step': 20, 'elapsed': 1.0}) + '\\n')\n"
@@ -110,7 +113,7 @@ def test_installed_extension_uses_its_vendored_contract_without_torch(tmp_path):
     got = json.loads(out.stdout.strip().splitlines()[-1])
     installed = home / "extensions" / "user_default" / "nerf_bridge"
     assert got["result"] == ["FINISHED"] and got["train_panel"]
-    assert got["addon"] == str(installed / "core_contract.py")
+    assert got["addon"] == str(installed / "bridge" / "core_contract.py")
     assert got["file"] == str(installed / "vendor" / "nerf_core" / "contract" / "__init__.py")
     assert got["torch"] is False
     assert got["old"] == 0.2 and got["new"] == 0.75  # 20/100 from the budgets, then the trainer's frac

@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon import capture, demo_capture, demo_scenes, layouts, scene_bounds
+from addon.capture import demo_capture, demo_scenes, layouts
+from addon.capture import capture_job, capture_settings, capture_world
+from addon.capture import camera_collection, layout_cameras
+from addon.scene import scene_bounds
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "make_demo_scene.py")
@@ -54,8 +57,8 @@ def test_unknown_scene_is_named():
 
 def test_workbench_render_of_the_flat_cube_shows_it_lit(tmp_path):
     scene = demo_scenes.build("cube")
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=0, elevation_min=30, elevation_max=30), 32, 32)
-    capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=0, elevation_min=30, elevation_max=30), 32, 32)
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
                                                       res_x=32, res_y=32)).run()
     rgba = np.asarray(Image.open(tmp_path / "ds" / "train" / "r_0.png")).astype(float)
     obj = rgba[..., 3] == 255
@@ -95,7 +98,7 @@ def test_hdri_scene_shows_one_of_blenders_studio_light_photographs():
     assert os.path.dirname(path) == os.path.join(bpy.utils.system_resource("DATAFILES"), "studiolights", "world")
     assert env.image.packed_file is not None  # the saved .blend does not depend on this bpy's install path
     assert tuple(env.image.size) == (1024, 512)  # it loads: a real equirectangular photo, not a pink placeholder
-    assert capture.world_description(scene.world) == {
+    assert capture_world.world_description(scene.world) == {
         "name": scene.world.name, "kind": "environment_texture", "image": demo_scenes.HDRI_NAME, "color": None,
         "strength": pytest.approx(1.0)}
     names = {o.name for o in scene.objects if o.type == "MESH"}
@@ -123,7 +126,7 @@ def test_interior_is_a_closed_lit_room_with_furniture():
         p = light.matrix_world.translation
         assert all(lo[k] < p[k] < hi[k] for k in range(3)), (light.name, p)
     bg, src = _world_nodes(scene)
-    assert src is None and capture.world_description(scene.world)["kind"] == "color"
+    assert src is None and capture_world.world_description(scene.world)["kind"] == "color"
     # Floor and walls are textured (something to reconstruct), in metres (object coordinates).
     for obj_name in ("Floor", "Wall -X", "Wall +Y"):
         nodes = bpy.data.objects[obj_name].material_slots[0].material.node_tree.nodes
@@ -133,8 +136,8 @@ def test_interior_is_a_closed_lit_room_with_furniture():
 
 def _inside_cameras(scene, **kw):
     spec = layouts.LayoutSpec(**{"layout": "inside", "train": 40, "val": 4, "test": 6, "seed": 3, **kw})
-    layouts.create_cameras(scene, spec, 32, 32)
-    cams = layouts.capture_cameras(scene)
+    layout_cameras.create_cameras(scene, spec, 32, 32)
+    cams = camera_collection.capture_cameras(scene)
     return {s: [np.asarray(o.matrix_world) for o in cams[s]] for s in layouts.SPLITS}, cams
 
 

@@ -16,7 +16,15 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon import capture, jobs, layouts, planes, runs, train_ui, trainer_process
+from addon.capture import layouts
+from addon.capture import capture_job, capture_settings
+from addon.capture import camera_collection, layout_cameras
+from addon.common import jobs
+from addon.compare import planes
+from addon.bridge import runs, trainer_process
+from addon import compare, train
+from addon.compare import compare_ui
+from addon.train import train_ui, train_job
 
 RES = 32
 
@@ -25,11 +33,11 @@ def drive(job, timeout=240.0):
     """What the modal timer does, in a loop: update the job until it leaves 'running'."""
     deadline = time.monotonic() + timeout
     while job.update() == "running":
-        if isinstance(job, jobs.TrainJob):
+        if isinstance(job, train_job.TrainJob):
             train_ui.sync_train_settings(job)
         assert time.monotonic() < deadline, f"{job.kind} did not finish in {timeout} s:\n{job.process.log_tail()}"
         time.sleep(0.1)
-    if isinstance(job, jobs.TrainJob):
+    if isinstance(job, train_job.TrainJob):
         train_ui.sync_train_settings(job)
     assert job.state == "done", job.message
     return job
@@ -37,9 +45,11 @@ def drive(job, timeout=240.0):
 
 @pytest.fixture
 def registered():
-    train_ui.register()
+    train.register()
+    compare.register()
     yield
-    train_ui.unregister()
+    compare.unregister()
+    train.unregister()
 
 
 def tiny_capture(root: str):
@@ -48,9 +58,9 @@ def tiny_capture(root: str):
     mat = bpy.data.materials.new("red")
     mat.diffuse_color = (0.8, 0.2, 0.1, 1.0)
     bpy.context.object.data.materials.append(mat)
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
-    settings = capture.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
-    summary = capture.CaptureJob(scene, settings).run()
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
+    settings = capture_settings.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
+    summary = capture_job.CaptureJob(scene, settings).run()
     assert summary["status"] == "complete"
     return settings.out_dir
 
@@ -85,10 +95,10 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
 
     # Novel views of the test cameras, camera-aligned.
     s.view_source, s.layout = "TEST", "CAMERA"
-    job = drive(train_ui.start_render(bpy.context))
+    job = drive(compare_ui.start_render(bpy.context))
     views = job.views
     assert [v.name for v in views] == ["r_0", "r_1"]
-    test_cams = layouts.capture_cameras(scene)["test"]
+    test_cams = camera_collection.capture_cameras(scene)["test"]
     scene.render.resolution_x = scene.render.resolution_y = RES  # the capture's resolution
     scene.render.resolution_percentage = 100
     config = json.load(open(os.path.join(s.run_dir, "config.json")))
@@ -116,7 +126,7 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     scene.frame_start, scene.frame_end = 1, 2
     bpy.context.view_layer.objects.active = cam
     s.view_source = "ANIMATION"
-    job = drive(train_ui.start_render(bpy.context))
+    job = drive(compare_ui.start_render(bpy.context))
     assert [v.name for v in job.views] == ["frame_0001", "frame_0002"]
     for frame, view in ((1, job.views[0]), (2, job.views[1])):
         scene.frame_set(frame)
@@ -188,7 +198,7 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
     s.dataset_dir, s.run_dir = tiny_capture(root), os.path.join(root, "run")
     # The job the Train button starts, minus the dataset check (the loop test above covers it).
     cmd = trainer_process.train_command(sys.executable, s.dataset_dir, s.run_dir, max_seconds=600)
-    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
+    job = train_job.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
     jobs.add(train_ui.TRAIN, job)
     deadline = time.monotonic() + 180
     while job.stage != "train" or job.process.progress.step is None:  # the first step event

@@ -1,4 +1,4 @@
-"""One modal follower (addon/jobs.py) advances capture, training and rendering jobs together; Esc
+"""One modal follower (addon/common/jobs.py) advances capture, training and rendering jobs together; Esc
 stops a capture only; loading a file stops every child; the panels share one header."""
 from __future__ import annotations
 
@@ -12,7 +12,12 @@ import bpy
 import pytest
 
 import addon
-from addon import capture, capture_ui, jobs, train_ui, trainer_process, ui_common
+from addon.capture import capture_ui
+from addon.capture import capture_job
+from addon.common import jobs, ui_common
+from addon.compare import compare_ui
+from addon.train import train_ui, train_job
+from addon.bridge import trainer_process
 
 
 @pytest.fixture
@@ -37,7 +42,7 @@ def _prepared_capture(tmp_path, frames=2):
     s.train_count, s.val_count, s.test_count = frames, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
-    job = capture.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job = capture_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
     job.prepare()
     return job
 
@@ -51,7 +56,7 @@ def _fake_trainer(tmp_path, body: str) -> list:
 
 
 def _train_job(cmd):
-    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
+    job = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
     job.on_update, job.on_end = train_ui.sync_train_settings, None
     return jobs.add(train_ui.TRAIN, job)
 
@@ -131,7 +136,7 @@ def test_headless_there_is_no_follower_to_start(registered):
 
 def test_a_second_job_under_a_running_key_is_refused(registered, tmp_path):
     _train_job(_fake_trainer(tmp_path, "while True: time.sleep(0.1)\n"))
-    other = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "",
+    other = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "",
                           _fake_trainer(tmp_path, "pass\n"), check=False)
     with pytest.raises(trainer_process.SetupError, match="already running"):
         jobs.add(train_ui.TRAIN, other)
@@ -139,7 +144,7 @@ def test_a_second_job_under_a_running_key_is_refused(registered, tmp_path):
 
 
 def test_every_panel_takes_its_place_from_one_mixin(registered):
-    for panel in (capture_ui.NERF_PT_capture, train_ui.NERF_PT_train, train_ui.NERF_PT_compare):
+    for panel in (capture_ui.NERF_PT_capture, train_ui.NERF_PT_train, compare_ui.NERF_PT_compare):
         assert issubclass(panel, ui_common.NerfPanel)
         assert not {"bl_space_type", "bl_region_type", "bl_category"} & set(vars(panel))
         registered_panel = getattr(bpy.types, panel.bl_idname)

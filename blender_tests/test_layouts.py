@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from addon import export, layouts
-from addon.capture import RenderView
+from addon.dataset import cameras
+from addon.capture import layouts
+from addon.capture import camera_collection, layout_cameras, layout_notes
+from addon.capture.capture_settings import RenderView
 
 
 def _elevations(points, centre=(0, 0, 0)):
@@ -138,12 +140,12 @@ def test_auto_radius_frames_the_scene_bounds(res):
     _add_box(2.0, (0.3, -0.2, 0.4))
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(1.5, 0.0, 0.0))
     spec = layouts.LayoutSpec(layout="sphere", train=30, val=0, test=0)
-    cams = layouts.create_cameras(bpy.context.scene, spec, *res)
+    cams = layout_cameras.create_cameras(bpy.context.scene, spec, *res)
     lo, hi = np.array([-0.7, -1.2, -0.6]), np.array([2.0, 0.8, 1.4])
     corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     tightest = 1.0
     for cam in cams:
-        intr = export.camera_intrinsics(cam, RenderView(bpy.context.scene.render, *res))
+        intr = cameras.camera_intrinsics(cam, RenderView(bpy.context.scene.render, *res))
         w2c = np.linalg.inv(np.asarray(cam.matrix_world))
         x, y, z = (w2c @ corners.T)[:3]
         u = intr["cx"] + intr["fl_x"] * x / -z
@@ -160,10 +162,10 @@ def test_create_cameras_replaces_only_its_collection():
     bpy.context.scene.collection.objects.link(user_cam)
     user_cam.matrix_world = Matrix.Translation((0, -10, 0))
     spec = layouts.LayoutSpec(train=8, val=2, test=3)
-    layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
     spec.train = 5
-    made = layouts.create_cameras(bpy.context.scene, spec, 32, 32)
-    cams = layouts.capture_cameras(bpy.context.scene)
+    made = layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
+    cams = camera_collection.capture_cameras(bpy.context.scene)
     assert [len(cams[s]) for s in layouts.SPLITS] == [5, 2, 3]
     assert len(made) == 10
     assert all(o.name in bpy.data.collections[layouts.COLLECTION_NAME].objects for o in made)
@@ -172,7 +174,7 @@ def test_create_cameras_replaces_only_its_collection():
     assert not any(o.name.startswith("NeRF_") and o.name.endswith(".001") for o in bpy.data.objects)
     mine = bpy.data.objects.new("MovedIntoCollection", None)  # a user's object put in our collection
     bpy.data.collections[layouts.COLLECTION_NAME].objects.link(mine)
-    assert layouts.clear_cameras(bpy.context.scene) == 10
+    assert camera_collection.clear_cameras(bpy.context.scene) == 10
     assert [o.name for o in bpy.data.objects if o.type == "CAMERA"] == ["UserCam"]
     assert "MovedIntoCollection" in bpy.data.objects
 
@@ -184,13 +186,13 @@ def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
         bpy.context.scene.collection.objects.link(cam)
         cam.matrix_world = Matrix(layouts.look_at((5 * math.cos(k), 5 * math.sin(k), 1.0), (0, 0, 0)))
     spec = layouts.LayoutSpec(layout="scene-cameras", val=1, test=2)
-    made = layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    made = layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
     assert len(made) == 6
     assert sorted(o["nerf_source"] for o in made) == [f"Cam{k}" for k in range(6)]
     for obj in made:
         src = bpy.data.objects[obj["nerf_source"]]
         np.testing.assert_allclose(np.asarray(obj.matrix_world), np.asarray(src.matrix_world), atol=1e-6)
-    cams = layouts.capture_cameras(bpy.context.scene)
+    cams = camera_collection.capture_cameras(bpy.context.scene)
     assert [len(cams[s]) for s in layouts.SPLITS] == [3, 1, 2]
 
 
@@ -206,7 +208,7 @@ def _flying_camera(active_camera):
 
 def test_animation_layout_samples_every_nth_frame(active_camera):
     scene = _flying_camera(active_camera)
-    made = layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
     assert sorted(o["nerf_frame"] for o in made) == [1, 11, 21, 31]
     xs = {o["nerf_frame"]: o.matrix_world.translation.x for o in made}
     assert xs[1] == pytest.approx(-5.0) and xs[31] > xs[21] > xs[11] > xs[1]
@@ -222,7 +224,7 @@ def test_animation_layout_keeps_an_animated_zoom(active_camera):
         lens.lens = mm
         lens.keyframe_insert("lens", frame=f)
     scene.frame_set(7)
-    made = layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
     mm = {o["nerf_frame"]: o.data.lens for o in made}
     assert mm[1] == pytest.approx(20.0) and mm[31] > mm[21] > mm[11] > 20.0 and mm[31] < 80.0
     assert scene.frame_current == 7 and all(o.data.animation_data is None for o in made)
@@ -233,32 +235,32 @@ def test_objects_that_move_during_an_animation_capture_are_named(active_camera):
     # still scene a NeRF assumes. The camera itself may move; the cube of the fixture stands still.
     scene = _flying_camera(active_camera)
     spec = layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1)
-    assert layouts.motion_note(scene, spec) is None and layouts.layout_notes(scene, spec) == []
+    assert layout_notes.motion_note(scene, spec) is None and layout_notes.layout_notes(scene, spec) == []
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(3.0, 0.0, 0.0))
     ball = bpy.context.active_object
     ball.keyframe_insert("location", frame=30)
     ball.location.z = 2.0
     ball.keyframe_insert("location", frame=40)
-    note = layouts.motion_note(scene, spec)
+    note = layout_notes.motion_note(scene, spec)
     assert note.startswith("'Sphere' move(s) between the animation's frames") and "ghosts" in note
-    assert layouts.layout_notes(scene, spec) == [note]
-    assert layouts.motion_note(scene, layouts.LayoutSpec()) is None  # generated layouts render one frame
+    assert layout_notes.layout_notes(scene, spec) == [note]
+    assert layout_notes.motion_note(scene, layouts.LayoutSpec()) is None  # generated layouts render one frame
     assert scene.frame_current == 7
 
 
 def test_layouts_that_need_a_camera_say_so():
     _add_box()
     with pytest.raises(layouts.LayoutError, match="scene-cameras.*no camera"):
-        layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="scene-cameras", val=0, test=0), 32, 32)
+        layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="scene-cameras", val=0, test=0), 32, 32)
     with pytest.raises(layouts.LayoutError, match="animation.*no active camera"):
-        layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="animation", val=0, test=0), 32, 32)
+        layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="animation", val=0, test=0), 32, 32)
 
 
 def test_bad_elevation_range_is_refused():
     _add_box()
     spec = layouts.LayoutSpec(elevation_min=50, elevation_max=10)
     with pytest.raises(layouts.LayoutError, match="elevation range"):
-        layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+        layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
 
 
 def _monkey_scene(*extras):
@@ -286,18 +288,18 @@ def _monkey_scene(*extras):
     (("floor", "dome"), ["Plane", "Sphere"]),
 ])
 def test_a_floor_or_dome_that_dwarfs_the_subject_is_left_out_of_the_framing(extras, left_out):
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene(*extras)
     spec = layouts.LayoutSpec(train=8, val=1, test=1)
-    lo, hi, around = layouts.framing_bounds(scene, spec)
+    lo, hi, around = layout_notes.framing_bounds(scene, spec)
     assert around == left_out
     assert np.allclose(lo, (-1.37, -0.85, 0.02), atol=0.02) and np.allclose(hi, (1.37, 0.85, 1.98), atol=0.02)
-    made = layouts.create_cameras(scene, spec, 100, 100)
+    made = layout_cameras.create_cameras(scene, spec, 100, 100)
     # The monkey fills the frame from about 4.5 m (framed on the 100 m floor: 219 m, 2 px wide).
     assert max(o.matrix_world.translation.length for o in made) < 8.0
-    assert "without 'Plane'" in layouts.framing_note(scene, spec)
-    assert layouts.framing_note(scene, layouts.LayoutSpec(layout="inside")) is None  # a room keeps its floor
+    assert "without 'Plane'" in layout_notes.framing_note(scene, spec)
+    assert layout_notes.framing_note(scene, layouts.LayoutSpec(layout="inside")) is None  # a room keeps its floor
     # The scene box a capture writes: the monkey with a quarter of its diagonal around it, clipped to
     # the scene (without the dome, the floor at z = 0 is its bottom and the monkey's top its top).
     pad = 0.25 * np.linalg.norm(np.subtract(hi, lo))
@@ -313,10 +315,10 @@ def test_objects_that_are_part_of_the_subject_stay_in_the_framing(extras):
     # A floor little larger than the monkey is its stage; a 60 m building beside it makes the floor
     # under both part of the scene; a table is not the surroundings of the screw on it (the screw
     # pokes out of the table's box).
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene(*extras)
-    lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec())
+    lo, hi, around = layout_notes.framing_bounds(scene, layouts.LayoutSpec())
     s_lo, s_hi = scene_bounds.scene_bounds(scene)
     assert around == [] and tuple(lo) == tuple(s_lo) and tuple(hi) == tuple(s_hi)
 
@@ -325,7 +327,7 @@ def test_a_selection_is_framed_as_selected():
     scene = _monkey_scene("floor")
     for obj in scene.objects:
         obj.select_set(obj.name == "Plane")
-    lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
+    lo, hi, around = layout_notes.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
     assert around == [] and hi[0] - lo[0] == pytest.approx(100.0)
 
 
@@ -342,7 +344,7 @@ def _instance_of(collection_name, location, *, scene):
 def test_collection_instances_are_bounded_like_the_objects_they_show():
     # A chair that is a collection instance (its source collection excluded from the view layer, as
     # after linking an asset) was missing from the bounds: the scene box and the framing left it out.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene()
     chairs = bpy.data.collections.new("Chairs")
@@ -359,7 +361,7 @@ def test_collection_instances_are_bounded_like_the_objects_they_show():
     assert np.allclose(boxes["Chairs instance/Cube"], [(3.5, -0.5, 0.0), (4.5, 0.5, 1.0)])
     lo, hi = scene_bounds.scene_bounds(scene)
     assert hi[0] == pytest.approx(4.5) and lo[0] == pytest.approx(-1.37, abs=0.02)
-    lo, hi, around = layouts.framing_bounds(scene, layouts.LayoutSpec())
+    lo, hi, around = layout_notes.framing_bounds(scene, layouts.LayoutSpec())
     assert around == [] and hi[0] == pytest.approx(4.5)
     # A bounce card hidden from camera rays lights the scene but is in no picture: not bounded.
     bpy.ops.mesh.primitive_plane_add(size=8.0, location=(0.0, -9.0, 2.0))
@@ -381,7 +383,7 @@ def test_what_renders_nothing_stretches_no_box_and_hair_does():
     # A camera path (a curve without bevel), an empty Grease Pencil object, a text with no body, the
     # second metaball of a family and a mesh of loose edges render nothing, yet each counted as its
     # (padded) control box or as a point at its origin: Suzanne came out 0.2 % of the frame.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene()
     bpy.ops.curve.primitive_bezier_circle_add(radius=8.0, location=(0, 0, 2))
@@ -411,14 +413,14 @@ def test_what_renders_nothing_stretches_no_box_and_hair_does():
     for obj in scene.objects:
         obj.select_set(obj.type == "GREASEPENCIL")
     with pytest.raises(scene_bounds.BoundsError, match="no selected visible objects"):
-        layouts.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
+        layout_notes.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
 
 
 def test_bounds_follow_the_view_layer_that_renders():
     # A capture renders the active view layer only; the bounds read the first one. With the file's
     # second layer active, an object only it renders fell outside the box (44-60 % of a view's
     # opaque pixels) and out of the masks, and one that only the first renders stretched the box.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = bpy.context.scene
     near, far = (bpy.data.collections.new(n) for n in ("Near", "Far"))
@@ -445,7 +447,7 @@ def test_bounds_follow_the_view_layer_that_renders():
 def test_bounds_follow_what_renders_not_what_the_viewport_shows():
     # Artists hide heavy objects in the viewport (eye or monitor icon); they still render, so they must
     # be inside the box. A collection disabled in renders or excluded from the view layer renders nothing.
-    from addon import scene_bounds
+    from addon.scene import scene_bounds
 
     scene = _monkey_scene()
     bpy.ops.mesh.primitive_cube_add(size=2.0, location=(6.0, 0.0, 1.0))
@@ -473,7 +475,7 @@ def test_each_scene_has_its_own_capture_cameras():
     # replaced the first scene's cameras, and Clear Cameras there deleted them.
     _add_box()
     first = bpy.context.scene
-    made = layouts.create_cameras(first, layouts.LayoutSpec(train=3, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(first, layouts.LayoutSpec(train=3, val=1, test=1), 32, 32)
     second = bpy.data.scenes.new("Second")
     bpy.ops.mesh.primitive_uv_sphere_add(radius=3.0)
     ball = bpy.context.active_object
@@ -481,9 +483,9 @@ def test_each_scene_has_its_own_capture_cameras():
         coll.objects.unlink(ball)
     second.collection.objects.link(ball)
     with bpy.context.temp_override(scene=second):
-        assert not any(layouts.capture_cameras(second).values())
-        theirs = layouts.create_cameras(second, layouts.LayoutSpec(train=2, val=1, test=1), 32, 32)
-        assert layouts.clear_cameras(second) == len(theirs) == 4
-    assert sorted(o.name for split in layouts.capture_cameras(first).values() for o in split) == sorted(
+        assert not any(camera_collection.capture_cameras(second).values())
+        theirs = layout_cameras.create_cameras(second, layouts.LayoutSpec(train=2, val=1, test=1), 32, 32)
+        assert camera_collection.clear_cameras(second) == len(theirs) == 4
+    assert sorted(o.name for split in camera_collection.capture_cameras(first).values() for o in split) == sorted(
         o.name for o in made)
-    assert layouts.nerf_collection(second).name == layouts.COLLECTION_NAME + ".001"
+    assert camera_collection.nerf_collection(second).name == layouts.COLLECTION_NAME + ".001"

@@ -10,8 +10,13 @@ import bpy
 import pytest
 
 import addon
-from addon import compare, jobs, render_client, render_engine, train_props, train_ui, trainer_process, ui_common
-from addon.trainer_process import SetupError
+from addon.compare import compare_views as compare
+from addon.common import jobs, ui_common
+from addon.bridge import render_client, trainer_process
+from addon.render_engine import engine as render_engine
+from addon.compare import compare_ui
+from addon.train import train_props, train_ui
+from addon.bridge.trainer_process import SetupError
 from test_register import _draw, _labels
 
 
@@ -136,7 +141,7 @@ def test_compare_of_a_real_run_without_latest_pt_renders_from_its_step_checkpoin
     os.remove(os.path.join(ckpts, "latest.pt"))
     [step] = [n for n in os.listdir(ckpts) if n.startswith("step_")]
     s.view_source, s.layout = "TEST", "CAMERA"
-    job = drive(train_ui.start_render(bpy.context))
+    job = drive(compare_ui.start_render(bpy.context))
     assert [v.name for v in job.views] == ["r_0", "r_1"]
     assert job.warnings[0] == f"Rendered from {os.path.join(ckpts, step)}: the run has no checkpoints/latest.pt"
     assert os.listdir(ckpts) == [step]  # nothing rewritten

@@ -1,4 +1,4 @@
-"""Image planes (addon/planes.py): placement in the camera frustum, gallery, re-import, camera files."""
+"""Image planes (addon/compare/planes.py): placement in the camera frustum, gallery, re-import, camera files."""
 from __future__ import annotations
 
 import json
@@ -11,7 +11,9 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Euler, Matrix, Vector
 
-from addon import export, image_metrics, planes
+from addon.dataset import cameras
+from addon import file_writes
+from addon.compare import planes
 from nerf_core.image import metrics
 
 W, H = 40, 30
@@ -19,7 +21,7 @@ W, H = 40, 30
 
 def write_png(path, rgba):
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    image_metrics.write_png(path, rgba)
+    file_writes.write_png(path, rgba)
 
 
 def fake_render(tmp_path, n=2, intr=None):
@@ -180,7 +182,7 @@ def test_selected_camera_file_matches_blenders_projection_including_shift(tmp_pa
     scene.collection.objects.link(cam)
     cam.data.lens, cam.data.shift_x, cam.data.shift_y = 40.0, 0.15, -0.1
     cam.matrix_world = Matrix.Translation((1.0, -5.0, 2.0)) @ Euler((math.radians(70), 0, math.radians(15))).to_matrix().to_4x4()
-    data = export.cameras_transforms([cam], scene, (160, 120), base={"near": 0.1, "far": 9, "aabb": [[-1] * 3, [1] * 3]})
+    data = cameras.cameras_transforms([cam], scene, (160, 120), base={"near": 0.1, "far": 9, "aabb": [[-1] * 3, [1] * 3]})
     assert data["near"] == 0.1 and data["w"] == 160 and len(data["frames"]) == 1
     frame = data["frames"][0]
     intr = planes.intrinsics_from(data, frame)
@@ -198,7 +200,7 @@ def test_fly_through_writes_one_view_per_frame(tmp_path):
     for f, x in ((1, 0.0), (3, 2.0)):
         cam.location = (x, -5, 0)
         cam.keyframe_insert("location", frame=f)
-    data = export.cameras_transforms([cam], scene, (50, 50), frames=[1, 2, 3], prefix="flythrough")
+    data = cameras.cameras_transforms([cam], scene, (50, 50), frames=[1, 2, 3], prefix="flythrough")
     xs = [fr["transform_matrix"][0][3] for fr in data["frames"]]
     assert [fr["file_path"] for fr in data["frames"]] == [f"./flythrough/frame_{i:04d}" for i in (1, 2, 3)]
     assert xs[0] == pytest.approx(0.0) and xs[2] == pytest.approx(2.0) and 0 < xs[1] < 2
@@ -211,7 +213,7 @@ def test_camera_with_another_aspect_is_refused(tmp_path):
     cam = bpy.data.objects.new("Wide", bpy.data.cameras.new("Wide"))
     scene.collection.objects.link(cam)
     with pytest.raises(ValueError, match=r"'Wide' renders at 1920x1080.*aspect 1.778.*trained on 100x100"):
-        export.cameras_transforms([cam], scene, (100, 100))
+        cameras.cameras_transforms([cam], scene, (100, 100))
 
 
 def test_image_metrics_against_hand_computed_values(tmp_path):
@@ -225,7 +227,7 @@ def test_image_metrics_against_hand_computed_values(tmp_path):
     heat = metrics.error_heatmap(a, b, vmax=0.1)
     assert heat.shape == (16, 16, 3) and heat[0, 0] == pytest.approx([0.988, 0.998, 0.645], abs=1e-3)
     path = str(tmp_path / "x.png")
-    image_metrics.write_png(path, np.dstack([b, np.ones((16, 16))]))
+    file_writes.write_png(path, np.dstack([b, np.ones((16, 16))]))
     back = planes.load_image_array(path)
     assert back.shape == (16, 16, 4) and back[0, 0, 0] == pytest.approx(round(0.1 * 255) / 255, abs=1e-6)
 
@@ -233,7 +235,7 @@ def test_image_metrics_against_hand_computed_values(tmp_path):
 def test_a_sibling_run_with_infinite_budgets_is_listed(tmp_path):
     # json reads Infinity; int() of it raised OverflowError and stopped Refresh Runs (and the refresh
     # after every job) at that run.
-    from addon import runs
+    from addon.bridge import runs
 
     for name, steps in (("a_run", float("inf")), ("b_run", 200)):
         (tmp_path / name).mkdir()

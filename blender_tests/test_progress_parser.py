@@ -1,9 +1,9 @@
-"""The JSON-line progress parser (addon/progress.py) fed the way a pipe delivers output."""
+"""The JSON-line progress parser (addon/bridge/progress.py) fed the way a pipe delivers output."""
 from __future__ import annotations
 
 import json
 
-from addon.progress import ProgressParser
+from addon.bridge.progress import ProgressParser
 
 STREAM = [
     {"event": "start", "time": 1.0, "run": "/r", "method": "nerf", "max_steps": 200, "max_seconds": None,

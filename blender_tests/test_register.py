@@ -14,7 +14,7 @@ import bpy
 import pytest
 
 import addon
-from addon import trainer_process
+from addon.bridge import trainer_process
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts"))
 import build_addon  # noqa: E402
@@ -59,7 +59,7 @@ def test_built_zip_carries_nerf_core_for_the_trainer(tmp_path, use_bundled):
     path = build_addon.build(out_dir=str(tmp_path / "dist"), use_bundled=use_bundled, addon_dir=str(source))
     assert os.path.basename(path) == "nerf_bridge-0.1.0.zip"
     names = zipfile.ZipFile(path).namelist()
-    assert {"blender_manifest.toml", "__init__.py", "train_ui.py", "vendor/nerf_core/__init__.py",
+    assert {"blender_manifest.toml", "__init__.py", "train/train_ui.py", "vendor/nerf_core/__init__.py",
             "vendor/nerf_core/cli/main.py"} <= set(names)
     assert not [n for n in names if "/tests/" in n or "__pycache__" in n or n.endswith(".pyc")]
     installed = tmp_path / "installed" / "nerf_bridge"
@@ -109,7 +109,8 @@ def _labels(calls):
 
 
 def test_panels_draw_in_every_state(tmp_path):
-    from addon import train_ui
+    from addon.compare import compare_ui
+    from addon.train import train_ui
 
     addon.register()
     try:
@@ -117,7 +118,7 @@ def test_panels_draw_in_every_state(tmp_path):
         assert "Runs" in _labels(_draw(train_ui.NERF_PT_train))
         s.running, s.step, s.loss, s.psnr, s.elapsed, s.eta, s.fraction, s.rollbacks = True, 120, 0.01, 21.5, 65, 30, .5, 1
         s.status = "Step 120 (50%)"
-        from addon import jobs
+        from addon.common import jobs
 
         real = jobs.is_running
         jobs.is_running = lambda key: key == train_ui.TRAIN
@@ -141,7 +142,7 @@ def test_panels_draw_in_every_state(tmp_path):
         # A Compare render (a fly-through of hundreds of frames) is stopped from the Compare panel.
         jobs.is_running = lambda key: key == train_ui.RENDER
         try:
-            calls = _draw(train_ui.NERF_PT_compare)
+            calls = _draw(compare_ui.NERF_PT_compare)
         finally:
             jobs.is_running = real
         cancel = [c for c in calls if c[0] == "operator" and c[1][0] == "nerf.train_cancel"]
@@ -159,7 +160,7 @@ def test_panels_draw_in_every_state(tmp_path):
         s.layout = "CAMERA"
         m = s.view_metrics.add()
         m.name, m.psnr, m.ssim, m.has_metrics = "r_0", 20.0, 0.9, True
-        calls = _draw(train_ui.NERF_PT_compare)
+        calls = _draw(compare_ui.NERF_PT_compare)
         assert any(c[0] == "prop" and c[1][1] == "plane_distance" for c in calls)
         assert any(c[0] == "template_list" and c[1][0] == "NERF_UL_view_metrics" for c in calls)
     finally:

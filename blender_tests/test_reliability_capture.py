@@ -10,7 +10,9 @@ import sys
 import bpy
 import pytest
 
-from addon import capture, capture_verify, layouts
+from addon.capture import capture_verify, layouts
+from addon.capture import capture_job, capture_plan, capture_settings
+from addon.capture import camera_collection, layout_cameras
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -64,9 +66,9 @@ def test_save_blend_never_replaces_an_existing_file(tmp_path):
 
 def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
-    layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
-    with pytest.raises(capture.CaptureError, match="70000.*65536"):
-        capture.CaptureJob(bpy.context.scene, capture.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
+    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
+    with pytest.raises(capture_plan.CaptureError, match="70000.*65536"):
+        capture_job.CaptureJob(bpy.context.scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
                                                                       samples=1, res_x=70000, res_y=16))
 
 
@@ -85,18 +87,18 @@ def test_rings_default_to_the_panels_range_and_give_distinct_poses():
     _box()
     spec = layouts.LayoutSpec(layout="rings", train=12, val=2, test=2)
     assert spec.elevation_range() == (10.0, 60.0)
-    cams = layouts.create_cameras(bpy.context.scene, spec, 32, 32)
+    cams = layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
     assert len(set(_matrices(cams))) == len(cams) == 16
 
 
 def test_a_ring_at_the_pole_is_refused_before_any_camera_changes():
     _box()
-    first = layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=4, val=0, test=0), 32, 32)
+    first = layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=4, val=0, test=0), 32, 32)
     names = sorted(o.name for o in first)
     with pytest.raises(layouts.LayoutError, match="same pose.*elevation"):
-        layouts.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="rings", train=12, val=0, test=0,
+        layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="rings", train=12, val=0, test=0,
                                                                      elevation_min=0.0, elevation_max=90.0), 32, 32)
-    assert sorted(o.name for o in layouts.nerf_collection(bpy.context.scene).objects) == names  # untouched
+    assert sorted(o.name for o in camera_collection.nerf_collection(bpy.context.scene).objects) == names  # untouched
 
 
 def test_a_still_camera_sampled_by_animation_is_refused(active_camera):
@@ -104,7 +106,7 @@ def test_a_still_camera_sampled_by_animation_is_refused(active_camera):
     scene = bpy.context.scene
     cam.location = (0.0, -6.0, 1.0)
     with pytest.raises(layouts.LayoutError, match="same pose.*frame step"):
-        layouts.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=0, test=0), 32, 32)
+        layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=0, test=0), 32, 32)
 
 
 def test_check_distinct_poses_is_exact_enough():
@@ -167,11 +169,11 @@ def test_import_views_is_quiet_for_the_captured_blend(tmp_path):
 def test_capture_resume_renders_again_what_fails_verification(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=3, val=1, test=1), 24, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=3, val=1, test=1), 24, 16)
     out = tmp_path / "ds"
 
     def job():
-        return capture.CaptureJob(scene, capture.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
+        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
                                                                  res_x=24, res_y=16, depth=True))
 
     assert job().run()["rendered"] == 5
@@ -190,11 +192,11 @@ def test_capture_resume_renders_again_what_fails_verification(tmp_path):
 def test_capture_resume_catches_a_changed_file_that_still_decodes(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layouts.create_cameras(scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
     out = tmp_path / "ds"
     settings = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
-    capture.CaptureJob(scene, capture.CaptureSettings(**settings)).run()
+    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**settings)).run()
     a, b = out / "train" / "r_0.png", out / "train" / "r_1.png"
     a.write_bytes(b.read_bytes())  # a valid PNG of the right size, but not the one written for r_0
-    again = capture.CaptureJob(scene, capture.CaptureSettings(**settings)).run()
+    again = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**settings)).run()
     assert (again["rendered"], again["kept"]) == (1, 1)

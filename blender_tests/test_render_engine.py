@@ -19,7 +19,11 @@ import numpy as np
 import pytest
 
 import addon
-from addon import capture, demo_scenes, layouts, render_client, render_engine
+from addon.capture import demo_scenes, layouts
+from addon.capture import capture_job, capture_settings
+from addon.capture import camera_collection, layout_cameras
+from addon.bridge import render_client
+from addon.render_engine import engine as render_engine
 from nerf_core.image import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
 
 RES = 48
@@ -68,9 +72,9 @@ def cube_run(tmp_path_factory):
     scene = bpy.context.scene
     demo_scenes.build("cube", scene)
     _standard_colour(scene)
-    layouts.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
-    settings = capture.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
-    assert capture.CaptureJob(scene, settings).run()["status"] == "complete"
+    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
+    settings = capture_settings.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
+    assert capture_job.CaptureJob(scene, settings).run()["status"] == "complete"
     blend = str(root / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend, copy=True)
     run = str(root / "run")
@@ -111,10 +115,10 @@ def _render_still(scene, path):
 
 
 def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(engine_scene, cube_run, tmp_path):
-    from addon import export
+    from addon.dataset import cameras
 
     scene = engine_scene
-    cam = layouts.capture_cameras(scene)["test"][0]  # a view the run never trained on
+    cam = camera_collection.capture_cameras(scene)["test"][0]  # a view the run never trained on
     scene.camera = cam
     cam.data.shift_x = 0.05
     r = scene.render
@@ -127,7 +131,7 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
 
     # 1. The same camera through `python -m nerf_core render` (its own process, PNG writer, no Blender):
     #    the engine's colour conversion, row order and premultiplication round-trip to the same bytes.
-    intr = export.camera_intrinsics(cam, r)
+    intr = cameras.camera_intrinsics(cam, r)
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps([{"transform_matrix": [list(row) for row in cam.matrix_world.normalized()],
                                  **{k: intr[k] for k in ("fl_x", "fl_y", "cx", "cy", "w", "h")}}]))
@@ -209,14 +213,14 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
 
 
 def trainer_process_alive(pid):
-    from addon import trainer_process
+    from addon.bridge import trainer_process
 
     return trainer_process.pid_alive(pid)
 
 
 def test_render_errors_are_reported_and_abort_cleanly(engine_scene, tmp_path):
     scene = engine_scene
-    scene.camera = layouts.capture_cameras(scene)["test"][0]
+    scene.camera = camera_collection.capture_cameras(scene)["test"][0]
     scene.render.filepath = str(tmp_path / "x.png")
     scene.nerf_render.run_dir = ""
     with pytest.raises(RuntimeError, match="No NeRF run is chosen"):
@@ -232,7 +236,7 @@ def _animated_camera(scene):
     with lens shift, vertical sensor fit, non-square pixels and an animated lens."""
     from mathutils import Matrix
 
-    test_cam = layouts.capture_cameras(scene)["test"][0]
+    test_cam = camera_collection.capture_cameras(scene)["test"][0]
     cam = bpy.data.objects.new("Fly", test_cam.data.copy())
     scene.collection.objects.link(cam)
     cam.data.shift_x, cam.data.shift_y, cam.data.sensor_fit = 0.04, -0.03, "VERTICAL"
@@ -322,10 +326,10 @@ def test_headless_script_renders_an_animation_that_matches_cycles(cube_run, repo
                                                       ("HORIZONTAL", (-0.05, 0.1), (1.0, 1.3), (64, 48))])
 def test_viewport_intrinsics_from_blenders_projection_equal_the_capture_rule(fit, shift, aspect, size):
     """The viewport derives fx, fy, cx, cy from an OpenGL projection matrix; Blender's own projection of
-    a camera (``calc_matrix_camera``) must give what ``export.camera_intrinsics`` gives for it."""
+    a camera (``calc_matrix_camera``) must give what ``cameras.camera_intrinsics`` gives for it."""
     from types import SimpleNamespace
 
-    from addon import export
+    from addon.dataset import cameras
 
     scene = bpy.context.scene
     cam = bpy.data.objects.new("C", bpy.data.cameras.new("C"))
@@ -342,7 +346,7 @@ def test_viewport_intrinsics_from_blenders_projection_equal_the_capture_rule(fit
     region = SimpleNamespace(width=size[0], height=size[1])
     space = SimpleNamespace(camera=cam, clip_start=0.1, clip_end=100.0)
     got = render_engine.viewport_request(region, rv3d, space)
-    want = export.camera_intrinsics(cam, r)
+    want = cameras.camera_intrinsics(cam, r)
     for key, ref in (("fx", "fl_x"), ("fy", "fl_y"), ("cx", "cx"), ("cy", "cy"), ("w", "w"), ("h", "h")):
         assert got[key] == pytest.approx(want[ref], rel=1e-5, abs=1e-4), key
     assert np.allclose(got["c2w"], np.array(cam.matrix_world), atol=1e-6)
@@ -360,7 +364,7 @@ def test_viewport_preview_is_asynchronous_progressive_and_follows_the_latest_vie
 
     bpy.ops.wm.open_mainfile(filepath=cube_run["blend"])
     scene = bpy.context.scene
-    cam = layouts.capture_cameras(scene)["test"][0]
+    cam = camera_collection.capture_cameras(scene)["test"][0]
     region = SimpleNamespace(width=64, height=48)
     space = SimpleNamespace(camera=cam, clip_start=0.1, clip_end=100.0)
     depsgraph = bpy.context.evaluated_depsgraph_get()

@@ -13,8 +13,12 @@ import bpy
 import numpy as np
 import pytest
 
-from addon import compare, image_metrics, jobs, prefs, train_ui, trainer_process
-from addon.trainer_process import SetupError
+from addon import file_writes
+from addon.compare import compare_views as compare
+from addon.common import jobs, prefs
+from addon.train import train_ui, train_job
+from addon.bridge import trainer_process
+from addon.bridge.trainer_process import SetupError
 
 
 @pytest.fixture
@@ -35,7 +39,7 @@ def finish(job, timeout=120.0):
     while job.update() == "running":
         assert time.monotonic() < deadline, job.process.log_tail()
         time.sleep(0.05)
-    if isinstance(job, jobs.TrainJob):
+    if isinstance(job, train_job.TrainJob):
         train_ui.sync_train_settings(job)
     return job
 
@@ -51,9 +55,9 @@ def test_no_dataset(s, tmp_path):
         train_ui.start_training(bpy.context)
     # an empty field takes the Capture panel's Output: a failure names where that path came from, and
     # the field stays as the user left it
-    from addon import capture_ui
+    from addon import capture as capture_feature
 
-    capture_ui.register()
+    capture_feature.register()
     try:
         s.dataset_dir = ""
         bpy.context.scene.nerf_capture.output_dir = str(tmp_path / "captured")
@@ -62,7 +66,7 @@ def test_no_dataset(s, tmp_path):
             train_ui.start_training(bpy.context)
         assert s.dataset_dir == ""
     finally:
-        capture_ui.unregister()
+        capture_feature.unregister()
     # a transforms file is a dataset too (nerf_core train reads it); another file is not
     (tmp_path / "ds").mkdir()
     (tmp_path / "ds" / "transforms_train.json").write_text("{}")
@@ -79,7 +83,7 @@ def test_no_dataset(s, tmp_path):
 def test_paths_relative_to_an_unsaved_blend_or_home_are_not_the_working_folder(s, tmp_path, monkeypatch):
     # In an unsaved file "//my_run/" trained into <Blender's working folder>/my_run, and "~/x" into
     # a folder named "~" there.
-    from addon import ui_common
+    from addon.common import ui_common
 
     monkeypatch.chdir(tmp_path)
     s.run_dir = "//my_run/"
@@ -156,7 +160,7 @@ def test_trainer_that_dies_is_reported_with_its_log_tail(s, tmp_path):
     script.write_text("import sys\nprint('{\"event\": \"start\", \"time\": 0}', flush=True)\n"
                       "for i in range(50): print(f'log line {i}', file=sys.stderr)\n"
                       "raise MemoryError('out of memory in the trainer')\n")
-    job = jobs.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
+    job = train_job.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir,
                             [sys.executable, str(script)], check=False)
     finish(job)
     assert job.state == "failed"
@@ -182,10 +186,10 @@ def test_disk_full_is_named(s, tmp_path, monkeypatch):
     with open(png, "wb") as fh:
         fh.write(b"earlier heat-map")
     real_open = open
-    monkeypatch.setattr(image_metrics, "open", lambda p, *a, **k: no_space() if ".tmp" in p else real_open(p, *a, **k),
+    monkeypatch.setattr(file_writes, "open", lambda p, *a, **k: no_space() if ".tmp" in p else real_open(p, *a, **k),
                         raising=False)
     with pytest.raises(OSError, match=r"Disk full while writing .*heat.png"):
-        image_metrics.write_png(png, np.zeros((4, 4, 3)))
+        file_writes.write_png(png, np.zeros((4, 4, 3)))
     assert open(png, "rb").read() == b"earlier heat-map"
 
 
@@ -254,10 +258,12 @@ def test_quitting_blender_leaves_no_orphan_trainer(tmp_path, repo_root):
 import sys, time
 sys.path.insert(0, {repo_root!r})
 import bpy
-from addon import jobs, train_ui
-train_ui.register()
+from addon.common import jobs
+from addon import train
+from addon.train import train_ui, train_job
+train.register()
 cmd = [sys.executable, "-c", "import time\\nwhile True: time.sleep(0.1)"]
-job = jobs.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
+job = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "", cmd, check=False)
 jobs.add(train_ui.TRAIN, job)
 print(job.process.pid, flush=True)
 time.sleep(0.5)

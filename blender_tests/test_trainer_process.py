@@ -1,4 +1,4 @@
-"""Process management of the training child (addon/trainer_process.py), with a fake trainer that
+"""Process management of the training child (addon/bridge/trainer_process.py), with a fake trainer that
 speaks the JSON-line protocol of docs/CONTRACTS.md: this tests the plumbing, not NeRF training."""
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from addon import trainer_process
-from addon.trainer_process import BackgroundProcess, group_pids, pid_alive
+from addon.bridge import trainer_process
+from addon.bridge.trainer_process import BackgroundProcess, group_pids, pid_alive
 
 FAKE_TRAINER = textwrap.dedent('''
     import json, subprocess, sys, time

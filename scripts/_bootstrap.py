@@ -62,7 +62,7 @@ def fail(prog: str, message: str) -> None:
 def torch_python(prog: str, requested: str) -> str:
     """The interpreter that runs nerf_core for a script: ``requested`` (``--python``), else
     $NERF_PYTHON, else this Python; when it cannot import torch, ``fail`` says what to pass."""
-    from addon import trainer_process
+    from addon.bridge import trainer_process
 
     try:
         return trainer_process.resolve_interpreter(requested, addon_dir=os.path.join(REPO_ROOT, "addon"))

@@ -94,7 +94,7 @@ def argument_errors(args) -> list[str]:
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
     if args.shard is not None:
-        from addon import capture_plan
+        from addon.capture import capture_plan
 
         try:
             capture_plan.parse_shard(args.shard)
@@ -112,7 +112,7 @@ def argument_errors(args) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from addon import layouts
+    from addon.capture import layouts
 
     ap = _bootstrap.scene_parser("capture.py", __doc__.split("\n\n")[0], "scene to open")
     ap.add_argument("--out", required=True, help="dataset folder to write")
@@ -166,39 +166,41 @@ def main(argv: list[str]) -> int:
             print(f"capture: error: {e}", file=sys.stderr)
         return 2
     if args.merge:
-        from addon import capture_merge
+        from addon.capture import capture_merge
 
         print(json.dumps(capture_merge.merge(args.out)), flush=True)
         return 0
     _bootstrap.open_blend(args.blend)
     import bpy
 
-    from addon import capture, capture_plan, export, layouts
+    from addon.capture import capture_job, capture_plan, capture_settings, layouts
+    from addon.capture import camera_collection, layout_cameras, layout_notes
+    from addon.dataset import capture_manifest
     from nerf_core.utils.progressbar import ProgressBar
 
     res_x, res_y = args.resolution
     res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)
     scene = bpy.context.scene
-    if args.resume and export.read_manifest(os.path.abspath(args.out)) is None:
-        raise capture.CaptureError(f"--resume: {args.out} holds no capture to continue")
+    if args.resume and capture_manifest.read_manifest(os.path.abspath(args.out)) is None:
+        raise capture_plan.CaptureError(f"--resume: {args.out} holds no capture to continue")
     spec = layouts.LayoutSpec(
         layout=args.layout, train=args.count, val=args.val_count, test=args.test_count, radius=args.radius,
         elevation_min=args.elevation_min, elevation_max=args.elevation_max, seed=args.seed, rings=args.rings,
         turns=args.turns, frame_step=args.frame_step, focal_length=args.focal_length, target=args.target.upper())
     if args.keep_cameras:
-        kept = layouts.capture_cameras(scene)
+        kept = camera_collection.capture_cameras(scene)
         if not any(kept.values()):
-            raise capture.CaptureError(f"--keep-cameras: scene has no cameras in {layouts.COLLECTION_NAME!r}")
-        problem = layouts.held_out_problem(kept) if kept["train"] else None
+            raise capture_plan.CaptureError(f"--keep-cameras: scene has no cameras in {layouts.COLLECTION_NAME!r}")
+        problem = camera_collection.held_out_problem(kept) if kept["train"] else None
         if problem:
-            raise capture.CaptureError(f"--keep-cameras: {problem}")
+            raise capture_plan.CaptureError(f"--keep-cameras: {problem}")
         layout_record = {"layout": "existing 'NeRF Cameras' collection"}
     else:
-        layouts.create_cameras(scene, spec, res_x, res_y)
+        layout_cameras.create_cameras(scene, spec, res_x, res_y)
         layout_record = spec.to_dict()
-        for note in layouts.layout_notes(scene, spec):
+        for note in layout_notes.layout_notes(scene, spec):
             print(f"capture: note: {note}", file=sys.stderr)
-    settings = capture.CaptureSettings(
+    settings = capture_settings.CaptureSettings(
         out_dir=args.out, engine=args.engine, samples=args.samples, res_x=res_x, res_y=res_y,
         film_transparent=not args.opaque, denoise=args.denoise, depth=args.depth, normals=args.normals,
         masks=args.masks, points=args.points, n_points=args.n_points, overwrite=args.overwrite,
@@ -210,7 +212,7 @@ def main(argv: list[str]) -> int:
         bar.total = total
         bar.set(done, info)
 
-    job = capture.CaptureJob(scene, settings, progress=progress)
+    job = capture_job.CaptureJob(scene, settings, progress=progress)
     job.plan()  # its notes (the cameras' intrinsics) come before any render
     for note in job.notes:
         print(f"capture: note: {note}", file=sys.stderr)
@@ -229,11 +231,13 @@ def main(argv: list[str]) -> int:
 
 
 def run() -> int:
-    from addon import capture, export, layouts, scene_bounds
+    from addon.capture import capture_plan, layouts
+    from addon.dataset.errors import ExportError
+    from addon.scene import scene_bounds
 
-    from addon import passes
+    from addon.scene import passes
 
-    known = (capture.CaptureError, layouts.LayoutError, export.ExportError, scene_bounds.BoundsError,
+    known = (capture_plan.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
              passes.PassError)
     try:
         return main(_bootstrap.script_args())

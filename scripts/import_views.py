@@ -16,7 +16,7 @@ What ``--out`` holds, ready to look at:
   Numpad 0 (or any camera made active) shows the NeRF's image exactly over the frame.
 * ``--layout gallery``: the gallery beside the scene's objects and ``NeRF Gallery Camera``, an
   orthographic camera framing it (headers included), as the scene's camera at the gallery's aspect.
-* ``--images pack`` (default; why: addon/image_storage.py) stores the images inside the .blend,
+* ``--images pack`` (default; why: addon/compare/image_storage.py) stores the images inside the .blend,
   ``relative`` as ``//`` paths relative to ``--out``, ``absolute`` as absolute paths.
 """
 from __future__ import annotations
@@ -82,7 +82,8 @@ def fail(message: str) -> None:
 
 def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> None:
     """Run ``nerf_core render`` with a progress bar counting the PNGs as they appear."""
-    from addon import compare, trainer_process
+    from addon.compare import compare_views as compare
+    from addon.bridge import trainer_process
     from nerf_core.utils.progressbar import ProgressBar
 
     proc = trainer_process.BackgroundProcess(trainer_process.render_command(python, run, cameras, out_dir)).start()
@@ -117,14 +118,16 @@ def check_scene_matches_run(run: str, scene_file: str, force: bool) -> None:
     The capture manifest (DATASET/nerf_capture/manifest.json) records the .blend's path and sha256;
     planes imported into another scene would sit beside renders of something else.
     """
-    from addon import export, runs
+    from addon.dataset import capture_manifest
+    from addon.dataset.errors import ExportError
+    from addon.bridge import runs
 
     dataset = runs.run_dataset(run)
     if not dataset or not scene_file or not os.path.isfile(scene_file):
         return
     try:
-        manifest = export.read_manifest(dataset)
-    except export.ExportError as exc:
+        manifest = capture_manifest.read_manifest(dataset)
+    except ExportError as exc:
         print(f"import_views: warning: {exc}; cannot check that {scene_file} is the captured scene", file=sys.stderr)
         return
     want = (manifest or {}).get("blend_sha256")
@@ -144,7 +147,7 @@ def check_scene_matches_run(run: str, scene_file: str, force: bool) -> None:
 def main(argv) -> int:
     args = parse(argv)
     # Flags are checked before the scene is opened or anything is rendered.
-    from addon import runs, trainer_process
+    from addon.bridge import runs, trainer_process
     from nerf_core import contract
 
     out = os.path.abspath(args.out)
@@ -186,7 +189,7 @@ def main(argv) -> int:
 
     import bpy
 
-    from addon import compare, image_storage, planes
+    from addon.compare import compare_views as compare, image_storage, planes
 
     open_blend(args.blend)
     label = os.path.splitext(os.path.basename(cameras))[0].replace("transforms_", "")

@@ -18,7 +18,7 @@ import _bootstrap  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
-    from addon import demo_scenes
+    from addon.capture import demo_scenes
 
     ap = argparse.ArgumentParser(prog="make_demo_scene.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("name", nargs="?", choices=sorted(demo_scenes.SCENES), help="which scene")

@@ -4,7 +4,7 @@
     blender -b scene.blend --python scripts/render_nerf.py -- --run RUN --out DIR [--frames A:B] [--depth]
 
 For each frame F (``--frames A:B`` inclusive, default the scene's range and step) the scene is rendered
-with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine.py: the active camera's lens, sensor
+with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine/engine.py: the active camera's lens, sensor
 fit, shift and pixel aspect at the scene's resolution x percentage) and written as ``DIR/FFFF.png``
 (RGBA, 8 bit) and, with ``--depth``, ``DIR/FFFF_depth.exr``: Blender's multilayer EXR of the same
 render (float32; layer ``ViewLayer``, passes ``Combined`` and ``Depth``, channel ``ViewLayer.Depth.Z`` =
@@ -71,7 +71,7 @@ def set_format(settings, fmt: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    from addon import render_client, trainer_process
+    from addon.bridge import render_client, trainer_process
 
     run = os.path.abspath(args.run)
     problem = render_client.run_problem(run, os.path.abspath(args.checkpoint) if args.checkpoint else "")
@@ -100,7 +100,7 @@ def main(argv) -> int:
         fail(trainer_process.describe_os_error(exc, out, "creating"))
 
     import addon
-    from addon import render_engine
+    from addon.render_engine import engine as render_engine
 
     if not hasattr(bpy.types.Scene, "nerf_render"):  # an installed copy of the extension may have registered it
         addon.register()

@@ -1,0 +1,9 @@
+"""Compare feature: render a run's views and import them as image planes beside the scene (``compare_ui``,
+``compare_views``, ``planes``). Compare uses the Train feature's settings and job helpers; the Train
+panel never imports Compare."""
+import bpy
+
+from .compare_ui import NERF_OT_clear_views, NERF_OT_render_views, NERF_PT_compare, NERF_UL_view_metrics
+
+classes = (NERF_OT_render_views, NERF_OT_clear_views, NERF_UL_view_metrics, NERF_PT_compare)
+register, unregister = bpy.utils.register_classes_factory(classes)

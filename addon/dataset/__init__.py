@@ -1,0 +1,1 @@
+"""Writing NeRF datasets: transforms files, the capture manifest, point clouds."""

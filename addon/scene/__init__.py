@@ -1,0 +1,1 @@
+"""Reading the Blender scene: bounds, appearance, referenced files, render passes, point normals."""
