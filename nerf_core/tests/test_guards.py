@@ -217,7 +217,7 @@ def test_existing_run_is_never_overwritten(tmp_path, sphere):
 PLUGIN = '''
 """Test-only methods registered through NERF_CORE_PLUGINS: a constant colour that turns NaN on cue."""
 import torch
-from nerf_core.methods.base import RadianceModel, register
+from nerf_core import RadianceModel, register
 
 
 class _Poisoned(RadianceModel):

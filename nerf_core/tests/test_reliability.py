@@ -153,7 +153,7 @@ def test_disk_full_at_checkpoint_is_a_clear_error_and_resume_uses_the_newest_com
 
 
 def test_disk_full_on_rename_is_reported_too(sphere_dataset, tmp_path, monkeypatch):
-    import nerf_core.runs.checkpoints as tr
+    import nerf_core.utils.atomic as tr  # the one home of write-then-rename
 
     real_replace = os.replace
 
