@@ -2,7 +2,6 @@
 place and camera (addon/compare/gallery_frame.py) and how images are kept (addon/compare/image_storage.py)."""
 from __future__ import annotations
 
-import math
 import os
 import shutil
 

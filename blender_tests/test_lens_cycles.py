@@ -4,7 +4,6 @@ import math
 
 import bpy
 import numpy as np
-import pytest
 import torch
 
 from nerf_core.cameras.rays import Cameras, project_points, rays_for_pixels

@@ -222,7 +222,8 @@ def test_image_metrics_against_hand_computed_values(tmp_path):
     assert metrics.psnr(a, b) == pytest.approx(20.0)
     assert metrics.psnr(a, a) == float("inf")
     assert metrics.ssim(b, b) == pytest.approx(1.0)
-    rgba = np.zeros((2, 2, 4)); rgba[..., 3] = 0.25
+    rgba = np.zeros((2, 2, 4))
+    rgba[..., 3] = 0.25
     assert metrics.composite(rgba, (1, 1, 1))[0, 0] == pytest.approx([0.75] * 3)
     heat = metrics.error_heatmap(a, b, vmax=0.1)
     assert heat.shape == (16, 16, 3) and heat[0, 0] == pytest.approx([0.988, 0.998, 0.645], abs=1e-3)

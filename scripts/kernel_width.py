@@ -17,7 +17,6 @@ with ``--python`` (default $NERF_PYTHON), the interpreter that has torch.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import shlex

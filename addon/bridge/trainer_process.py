@@ -24,10 +24,10 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
 
+from ..file_writes import write_atomic
 from .core_contract import contract
 from .core_path import ADDON_DIR, nerf_core_search_path  # noqa: F401 (nerf_core_search_path: re-exported)
 from .progress import LOG_TAIL_LINES, ProgressParser
-from ..file_writes import write_atomic
 
 PREFS_HINT = "Edit > Preferences > Add-ons > NeRF Bridge > Python with torch"
 

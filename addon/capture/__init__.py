@@ -4,8 +4,14 @@ import bpy
 
 from . import capture_ui
 from .capture_props import NerfCaptureSettings
-from .capture_ui import (NERF_OT_add_demo_scene, NERF_OT_capture, NERF_OT_capture_cancel, NERF_OT_clear_cameras,
-                         NERF_OT_generate_cameras, NERF_PT_capture)
+from .capture_ui import (
+    NERF_OT_add_demo_scene,
+    NERF_OT_capture,
+    NERF_OT_capture_cancel,
+    NERF_OT_clear_cameras,
+    NERF_OT_generate_cameras,
+    NERF_PT_capture,
+)
 
 classes = (
     NerfCaptureSettings,

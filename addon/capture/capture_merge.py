@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import os
 
-from . import capture_shards, capture_verify, capture_write
 from ..dataset import capture_manifest
+from . import capture_shards, capture_verify, capture_write
 from .capture_plan import CaptureError, plan_hash, shard_frames
 
 

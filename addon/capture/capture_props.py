@@ -8,7 +8,6 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 from ..common.ui_common import path_options
 from . import capture_settings, layouts
 
-
 _LAYOUT_ITEMS = [
     ("hemisphere", "Hemisphere", "Fibonacci points on the upper hemisphere (elevation range)"),
     ("sphere", "Sphere", "Fibonacci points on the full sphere"),

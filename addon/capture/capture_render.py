@@ -12,8 +12,8 @@ import bpy
 import numpy as np
 
 from ..dataset import points
-from ..scene import passes, point_normals
 from ..file_writes import write_png_gray
+from ..scene import passes, point_normals
 from .capture_plan import CaptureError
 from .capture_shards import unique_suffix
 

@@ -8,7 +8,6 @@ import bpy
 from ..bridge.core_contract import contract
 from .capture_plan import CaptureError
 
-
 ENGINE_ALIASES = {
     "cycles": ("CYCLES",),
     "eevee": ("BLENDER_EEVEE_NEXT", "BLENDER_EEVEE"),  # 4.2-4.4 call it EEVEE Next; 5.0 BLENDER_EEVEE

@@ -7,19 +7,16 @@ frames; Esc or the Cancel button stops it, leaving a folder that resumes on the 
 """
 from __future__ import annotations
 
-
 import bpy
 from bpy.props import BoolProperty, EnumProperty, PointerProperty
 
-from . import demo_scenes, layouts
-from . import capture_job, capture_plan
-from .capture_props import NerfCaptureSettings
-from . import camera_collection, layout_cameras, layout_notes
-from ..dataset.errors import ExportError
 from ..common import jobs
-from .capture_task import CaptureTask
-from ..scene import scene_bounds
 from ..common.ui_common import NerfPanel, draw_wrapped, property_split, report_and_cancel
+from ..dataset.errors import ExportError
+from ..scene import scene_bounds
+from . import camera_collection, capture_job, capture_plan, demo_scenes, layout_cameras, layout_notes, layouts
+from .capture_props import NerfCaptureSettings
+from .capture_task import CaptureTask
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 

@@ -15,7 +15,6 @@ import numpy as np
 from .capture_plan import FRAME_FILE_KEYS
 
 
-
 def sha256_file(path: str) -> str | None:
     """Hex sha256 of the file at ``path``; None when there is no such file."""
     if not path or not os.path.isfile(path):

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import os
 import time
-import tomllib
 
 import numpy as np
+import tomllib
 
-from ..dataset import aabb, capture_manifest, points, transforms
 from ..bridge.core_contract import contract
 from ..bridge.core_path import ADDON_DIR
+from ..dataset import aabb, capture_manifest, points, transforms
 from ..file_writes import write_png_gray
 from ..scene import passes
 from .capture_plan import SHARD_ASSIGNMENT, round6

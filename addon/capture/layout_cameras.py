@@ -16,8 +16,21 @@ from ..scene import scene_bounds
 from ..scene.camera_checks import camera_shape_error
 from . import camera_collection
 from .layout_notes import framing_bounds
-from .layouts import (GENERATED_LAYOUTS, INSIDE_CLIP_START, LAYOUTS, SPLITS, LayoutError, LayoutSpec, assign_splits,
-                      auto_radius, check_distinct_poses, fov_from_lens, inside_poses, layout_positions, look_at)
+from .layouts import (
+    GENERATED_LAYOUTS,
+    INSIDE_CLIP_START,
+    LAYOUTS,
+    SPLITS,
+    LayoutError,
+    LayoutSpec,
+    assign_splits,
+    auto_radius,
+    check_distinct_poses,
+    fov_from_lens,
+    inside_poses,
+    layout_positions,
+    look_at,
+)
 
 
 def _user_cameras(scene, coll):

@@ -15,7 +15,6 @@ import math
 import random
 from dataclasses import dataclass
 
-
 COLLECTION_NAME = "NeRF Cameras"
 SPLITS = ("train", "val", "test")
 GENERATED_LAYOUTS = ("hemisphere", "sphere", "random", "rings", "spiral", "inside")

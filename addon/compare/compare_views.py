@@ -16,11 +16,11 @@ from typing import List, Optional, Tuple
 import bpy
 import mathutils
 
-from ..dataset import cameras
-from . import image_storage, planes
 from ..bridge import runs, trainer_process
 from ..bridge.core_contract import contract
 from ..bridge.trainer_process import SetupError
+from ..dataset import cameras
+from . import image_storage, planes
 
 VIEWS_DIR = "views"  # RUN/views/: cameras files and render folders made by the add-on
 SPLIT_FILES = ("transforms_test.json", "transforms_val.json", "transforms_train.json", "transforms.json")
@@ -140,7 +140,7 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
         return path, len(frames), split
     meta = dataset_meta(run, dataset)
     if not meta.get("w") or not meta.get("h"):
-        raise SetupError(f"The run's dataset has no image size (w, h) in its transforms: cannot match camera aspect.")
+        raise SetupError("The run's dataset has no image size (w, h) in its transforms: cannot match camera aspect.")
     scene = context.scene
     try:
         if source == "SELECTED":

@@ -33,8 +33,8 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from . import gallery_frame, view_cameras
 from ..bridge.core_contract import contract
+from . import gallery_frame, view_cameras
 
 VIEWS_COLLECTION = "NeRF Views"
 VIEW_CAMERAS_COLLECTION = "NeRF View Cameras"  # a child of VIEWS_COLLECTION: hiding the views hides both

@@ -7,7 +7,6 @@ import os
 from ..file_writes import write_atomic
 from .errors import ExportError
 
-
 MANIFEST_DIR = "nerf_capture"
 MANIFEST_NAME = "manifest.json"
 

@@ -13,7 +13,6 @@ import os
 from ..file_writes import write_atomic
 from .errors import ExportError
 
-
 NERFSTUDIO_DIR = "nerfstudio"  # holds nerfstudio's transforms.json; its paths are relative to it ("../train/r_0.png")
 SPLITS = ("train", "val", "test")
 PER_FRAME_INTRINSICS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")  # what a frame may carry

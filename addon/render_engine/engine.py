@@ -27,11 +27,11 @@ import numpy as np
 from bpy.props import IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 
+from ..bridge import render_client, runs, trainer_process
+from ..common import prefs
+from ..common.ui_common import draw_wrapped, path_options
 from ..dataset import cameras
 from ..dataset.errors import ExportError
-from ..common import prefs
-from ..bridge import render_client, runs, trainer_process
-from ..common.ui_common import draw_wrapped, path_options
 
 ENGINE_ID = "NERF_BRIDGE"
 PREVIEW_LEVELS = (8, 4, 2, 1)  # the viewport preview's downscale factors, coarse to fine

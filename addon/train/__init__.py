@@ -4,8 +4,15 @@ import bpy
 
 from . import train_props, train_ui
 from .train_props import NerfRunItem, NerfTrainSettings, NerfViewMetric
-from .train_ui import (NERF_OT_refresh_runs, NERF_OT_run_new_name, NERF_OT_train, NERF_OT_train_cancel, NERF_OT_use_run,
-                       NERF_PT_train, NERF_UL_runs)
+from .train_ui import (
+    NERF_OT_refresh_runs,
+    NERF_OT_run_new_name,
+    NERF_OT_train,
+    NERF_OT_train_cancel,
+    NERF_OT_use_run,
+    NERF_PT_train,
+    NERF_UL_runs,
+)
 
 classes = (
     NerfViewMetric, NerfRunItem, NerfTrainSettings,

@@ -14,15 +14,22 @@ import bpy
 import bpy.utils.previews
 from bpy.props import BoolProperty, EnumProperty
 
-from ..common import jobs, prefs
 from ..bridge import runs, trainer_process
+from ..bridge.core_contract import contract
+from ..bridge.trainer_process import SetupError
+from ..common import jobs, prefs
+from ..common.ui_common import (
+    NerfPanel,
+    abs_path,
+    draw_error,
+    draw_wrapped,
+    format_seconds,
+    property_split,
+    report_and_cancel,
+)
 from . import train_props
 from .train_job import TrainJob
-from ..bridge.core_contract import contract
 from .train_props import settings_of
-from ..bridge.trainer_process import SetupError
-from ..common.ui_common import (NerfPanel, abs_path, draw_error, draw_wrapped, format_seconds, property_split,
-                        report_and_cancel)
 
 TRAIN, RENDER = "train", "render"  # keys in the job registry; Cancel (this module) stops either
 _PREVIEWS = None  # bpy.utils.previews collection holding the latest training preview

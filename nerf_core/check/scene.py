@@ -9,17 +9,7 @@ from typing import Dict, Optional
 import numpy as np
 import torch
 
-from nerf_core.check.frames import (
-    NERFSTUDIO_FILE,
-    REQUIRED_INTRINSICS,
-    check_extras,
-    check_frame_pose,
-    check_image,
-    check_meta_common,
-    frame_entries,
-    load_json,
-    resolved,
-)
+from nerf_core.check import frames as frame_checks
 from nerf_core.check.report import CheckReport, shown_path
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.jsonfile import parse_json_file
@@ -209,7 +199,7 @@ def check_synthetic_scale(report: CheckReport, boxes: Dict[str, object], poses: 
 
 
 def check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str, dict],
-                      name: str = NERFSTUDIO_FILE) -> None:
+                      name: str = frame_checks.NERFSTUDIO_FILE) -> None:
     """nerfstudio-data's file ``name`` (relative to ``root``): ``nerfstudio/transforms.json`` of an export
     of ours, or ``transforms.json`` of the one-file layout. Its frames' images, poses and intrinsics."""
     path = root / name
@@ -218,31 +208,31 @@ def check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str
                                       "(`--data DATASET/nerfstudio`)")
         return
     base = path.parent  # nerfstudio resolves file paths against the JSON's own folder
-    meta = load_json(report, path)
+    meta = frame_checks.load_json(report, path)
     if meta is None:
         return
-    check_meta_common(report, name, meta)
+    frame_checks.check_meta_common(report, name, meta)
     names = set()
     seen: set = set()
-    for k, fr, fp, intr in frame_entries(report, name, meta, seen):
+    for k, fr, fp, intr in frame_checks.frame_entries(report, name, meta, seen):
         names.add(str(Path(fp)))
         if Path(fp).suffix.lower() not in IMAGE_EXTS:
             report.error(name, f"{fp!r} needs its real file name with the extension (nerfstudio does not add one)",
                          k, fp, "file_path")
             continue
         img = base / fp
-        check_image(report, name, img, intr, k, fp, "file_path", rgba=False)
-        check_frame_pose(report, name, fr, k, fp)
-        check_extras(report, name, base, fr, k, fp)
+        frame_checks.check_image(report, name, img, intr, k, fp, "file_path", rgba=False)
+        frame_checks.check_frame_pose(report, name, fr, k, fp)
+        frame_checks.check_extras(report, name, base, fr, k, fp)
         # nerfstudio-data takes a top-level intrinsic for every frame and never reads the frame's own.
-        ignored = [key for key in REQUIRED_INTRINSICS if key in meta and key in fr and fr[key] != meta[key]]
+        ignored = [key for key in frame_checks.REQUIRED_INTRINSICS if key in meta and key in fr and fr[key] != meta[key]]
         if ignored:
             report.error(name, f"{ignored[0]} {fr[ignored[0]]!r} differs from the top-level {meta[ignored[0]]!r}, "
                          "which nerfstudio-data uses for every frame: leave the top-level intrinsics out when the "
                          "frames differ", k, fp, ignored[0])
-        other = split_intrinsics.get(str(resolved(img)))
+        other = split_intrinsics.get(str(frame_checks.resolved(img)))
         if other is not None and intr is not None:
-            diff = [key for key in REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]
+            diff = [key for key in frame_checks.REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]
             if diff:
                 report.error(name, "differs from the transforms_<split>.json entry of the same image "
                              + ", ".join(f"{d}: {intr[d]:g} vs {other[d]:g}" for d in diff), k, fp, diff[0])

@@ -25,6 +25,7 @@ import os
 import re
 from typing import Any, Dict, Optional
 
+from .errors import DatasetError, PoseError  # noqa: F401
 from .film import (  # noqa: F401
     DEFAULT_FILTER_KIND,
     DEFAULT_FILTER_WIDTH,
@@ -39,9 +40,7 @@ from .intrinsics import (  # noqa: F401
     fov_from_focal,
     resolve_intrinsics,
 )
-from .errors import DatasetError, PoseError  # noqa: F401
 from .jsonfile import read_json  # noqa: F401
-from .poses import check_pose, parse_pose  # noqa: F401
 from .lens import DISTORTION_KEYS, LENS_MODELS, Lens, parse_lens  # noqa: F401 (re-exported)
 from .naming import (  # noqa: F401
     ERRORS_DIR,
@@ -55,6 +54,7 @@ from .naming import (  # noqa: F401
     render_files,
     unique_stems,
 )
+from .poses import check_pose, parse_pose  # noqa: F401
 from .transforms import (  # noqa: F401
     EXTRA_FIELDS,
     HOLDOUT_EVERY,

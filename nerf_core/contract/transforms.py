@@ -23,10 +23,10 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
-from .naming import frame_stem
 from .errors import DatasetError, PoseError
 from .jsonfile import read_json
+from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
+from .naming import frame_stem
 from .poses import MAX_COORDINATE, check_pose, short_repr
 
 SPLITS = ("train", "val", "test")

@@ -8,18 +8,8 @@ from typing import Callable, List, Optional
 
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.transforms import SPLITS, FrameInfo, frame_infos
+from nerf_core.data import validation
 from nerf_core.data.loading import load_split
-from nerf_core.data.validation import (
-    black_train_problem,
-    check_duplicate_images,
-    check_near_far,
-    check_train_count,
-    depth_scale,
-    empty_masks_problem,
-    parse_aabb,
-    scene_fields,
-    transparent_train_problem,
-)
 
 
 def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int = 2,
@@ -27,7 +17,7 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
     """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
 
     The one validation pass behind ``train`` and ``check``: it runs the loader's own rules
-    (``frame_infos``, ``scene_fields``, ``check_train_count`` and ``load_split`` frame by frame, which
+    (``frame_infos``, ``validation.scene_fields``, ``validation.check_train_count`` and ``load_split`` frame by frame, which
     decodes every image, depth, normal and mask file and checks its size against the JSON and the
     split), collecting the errors that ``load_dataset`` raises at the first of. An empty list means
     ``train`` accepts the dataset. Pixels are read one frame at a time and dropped; ``visit(split,
@@ -40,16 +30,16 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
     except DatasetError as exc:
         return [str(exc)]
     problems: List[str] = []
-    for check in (lambda: check_train_count(root, infos, min_train_views), lambda: scene_fields(scene),
-                  lambda: check_duplicate_images(infos),
-                  lambda: parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None,
-                  lambda: check_near_far(scene, infos)):
+    for check in (lambda: validation.check_train_count(root, infos, min_train_views), lambda: validation.scene_fields(scene),
+                  lambda: validation.check_duplicate_images(infos),
+                  lambda: validation.parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None,
+                  lambda: validation.check_near_far(scene, infos)):
         try:
             check()
         except DatasetError as exc:
             problems.append(str(exc))
     try:
-        scale = depth_scale(scene)
+        scale = validation.depth_scale(scene)
     except DatasetError as exc:
         problems.append(str(exc))
         scale = 1e-3
@@ -90,9 +80,9 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
             except DatasetError as exc:
                 problems.append(str(exc))
         if name == "train" and infos[name] and not shows_something:
-            problems.append(transparent_train_problem(infos[name]))
+            problems.append(validation.transparent_train_problem(infos[name]))
         elif name == "train" and infos[name] and not lit:
-            problems.append(black_train_problem(infos[name]))
+            problems.append(validation.black_train_problem(infos[name]))
         elif name == "train" and not pixels_left and any(f.mask is not None for f in infos[name]):
-            problems.append(empty_masks_problem(infos[name]))
+            problems.append(validation.empty_masks_problem(infos[name]))
     return problems

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -16,6 +17,8 @@ from nerf_core.evaluation.evaluate import (
     read_metrics_file,
     update_metrics_file,
 )
+from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
+from nerf_core.runs.checkpoints import versions
 from nerf_core.runs.folder import record_written
 
 
@@ -92,3 +95,23 @@ def _set_aside_if_damaged(metrics: Path) -> None:
         aside = metrics.with_name(metrics.name + ".damaged")
         os.replace(metrics, aside)
         print(f"train: {exc.args[0].split(';')[0]}; kept it as {aside} and wrote a new one", file=sys.stderr)
+
+
+def run_config(trainer) -> dict:
+    """What RUN/config.json (and each checkpoint's ``config``) holds: the ``TrainConfig`` plus what the
+    trainer decided (docs/CONTRACTS.md), from a ``Trainer`` whose model is built."""
+    ds, tr = trainer.dataset, trainer.train
+    rec = asdict(trainer.cfg)
+    rec.update({
+        "dataset": str(Path(trainer.cfg.dataset).resolve()), "dataset_hash": getattr(trainer, "dataset_hash", None),
+        "out": str(trainer.run), "method": trainer.method, "model": trainer.model.describe(), "lr": trainer.base_lr,
+        "warmup_steps": trainer.warmup, "background_used": trainer.bg_mode, "background_reason": trainer.bg_reason,
+        "eval_background": trainer.eval_bg, "aabb": trainer.model.aabb.detach().cpu().tolist(),
+        "aabb_source": ds.aabb_source, "near": ds.near, "far": ds.far, "size_reasons": trainer.size_reasons,
+        "dataset_notes": ds.notes, "n_train_views": len(tr), "image_size": [tr.width, tr.height],
+        "device_used": str(trainer.device), "versions": versions(), "world_size": trainer.dist.world_size,
+        "rays_per_step": trainer.cfg.batch_rays * trainer.dist.world_size,
+        # the dataset's film filter at its full resolution: render and eval draw edge pixels from it
+        "pixel_filter": (ds.pixel_filter.full_resolution() if ds.pixel_filter else DEFAULT_FILTER).to_json(),
+    })
+    return rec

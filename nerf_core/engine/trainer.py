@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -44,7 +43,7 @@ from nerf_core.engine.optim import (
 )
 from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
-from nerf_core.engine.report import final_eval
+from nerf_core.engine.report import final_eval, run_config
 from nerf_core.engine.rollback import (
     SNAPSHOT_EVERY,
     gradient_problem,
@@ -56,7 +55,6 @@ from nerf_core.errors import RunError, TrainError
 from nerf_core.fields.environment import prefit_from_split
 from nerf_core.image.losses import backward, masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
-from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
 from nerf_core.runs.checkpoints import (
     read_resume_checkpoint,
     save_checkpoint,
@@ -204,7 +202,7 @@ class Trainer:
                 raise
             self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}"
                           + (f" ({exc})" if str(exc) else "")
-                          + (f"; checkpoint saved, continue with --resume" if path else ""))
+                          + ("; checkpoint saved, continue with --resume" if path else ""))
             raise
         except (TrainError, DatasetError, RunError, ValueError) as exc:
             self.log.emit("error", message=str(exc))
@@ -268,7 +266,7 @@ class Trainer:
             "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
             "optimizer": self.opt.state_dict(), "step": self.step, "elapsed": self.elapsed,
             "lr_scale": self.lr_scale, "rollbacks": self.rollbacks, "loss_ema": self.loss_ema,
-            "rng": rng_state(self.gen), "config": self.config_record(), "size_reasons": self.size_reasons,
+            "rng": rng_state(self.gen), "config": run_config(self), "size_reasons": self.size_reasons,
             "versions": versions(),
         }
         latest = save_checkpoint(self.run, state, self.step, self.cfg.keep_checkpoints)
@@ -278,24 +276,6 @@ class Trainer:
         return latest
 
     # ------------------------------------------------------------------ records
-
-    def config_record(self) -> dict:
-        """What RUN/config.json holds: the config plus what the trainer decided (docs/CONTRACTS.md)."""
-        ds, tr = self.dataset, self.train
-        rec = asdict(self.cfg)
-        rec.update({
-            "dataset": str(Path(self.cfg.dataset).resolve()), "dataset_hash": getattr(self, "dataset_hash", None),
-            "out": str(self.run), "method": self.method, "model": self.model.describe(), "lr": self.base_lr,
-            "warmup_steps": self.warmup, "background_used": self.bg_mode, "background_reason": self.bg_reason,
-            "eval_background": self.eval_bg, "aabb": self.model.aabb.detach().cpu().tolist(),
-            "aabb_source": ds.aabb_source, "near": ds.near, "far": ds.far, "size_reasons": self.size_reasons,
-            "dataset_notes": ds.notes, "n_train_views": len(tr), "image_size": [tr.width, tr.height],
-            "device_used": str(self.device), "versions": versions(), "world_size": self.dist.world_size,
-            "rays_per_step": self.cfg.batch_rays * self.dist.world_size,
-            # the dataset's film filter at its full resolution: render and eval draw edge pixels from it
-            "pixel_filter": (ds.pixel_filter.full_resolution() if ds.pixel_filter else DEFAULT_FILTER).to_json(),
-        })
-        return rec
 
     # ------------------------------------------------------------------ loop
 
@@ -325,7 +305,7 @@ class Trainer:
         if self.dist.is_main:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
-            write_json_atomic(config, self.config_record(), default=str)
+            write_json_atomic(config, run_config(self), default=str)
         self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
                       device=str(self.device), n_params=self.model.num_parameters(), model=self.model.describe(),
                       size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
@@ -492,5 +472,26 @@ class Trainer:
 
 
 def train(cfg: TrainConfig) -> dict:
-    """Train according to ``cfg``; returns a summary (step, elapsed, checkpoint, metrics)."""
+    """Train according to ``cfg``; returns a summary (step, elapsed, checkpoint, metrics).
+
+    Writes RUN = ``cfg.out``: config.json, checkpoints/, progress.jsonl, previews and metrics.json.
+
+    Args:
+        cfg: the run's ``TrainConfig``. With neither ``max_steps`` nor ``max_seconds`` set, training
+            stops at the method's ``default_max_steps``, which is written into ``cfg.max_steps``.
+
+    Returns:
+        dict with ``step`` (steps done), ``elapsed`` (training seconds), ``checkpoint`` (str path of
+        checkpoints/latest.pt), ``metrics`` (the final held-out evaluation, {} when skipped), ``loss``
+        (the last step's loss, or None) and ``rollbacks``. Under torchrun, ranks other than 0 get
+        ``checkpoint`` None and ``metrics`` {}.
+
+    Raises:
+        TrainError: bad settings, a run folder in use or not empty, divergence after ``max_rollbacks``,
+            a full disk, out of memory, or a budget spent before the first step.
+        DatasetError: the dataset cannot be loaded.
+        RunError: ``resume`` without a usable checkpoint.
+        ValueError: a ``device`` that does not exist.
+        KeyboardInterrupt: Ctrl-C or SIGTERM, re-raised after a checkpoint is saved.
+    """
     return Trainer(cfg).fit()

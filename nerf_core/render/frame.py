@@ -100,7 +100,6 @@ def render_view(
     Raises:
         RunError: the view is too large to render in the memory available (``render.memory``).
     """
-    device = model.aabb.device
     h, w = int(cameras.height[view]), int(cameras.width[view])
     check_view_memory(w, h, f"view {view}")
     rays_o, rays_d, z_per_t = rays_for_view(cameras, view)

@@ -620,7 +620,7 @@ def test_cameras_whose_lens_cannot_be_read_are_refused(sphere_dataset, tmp_path,
     meta["frames"][1].update(edit)
     path.write_text(json.dumps(meta))
     proc = _cli("check", sphere_dataset)
-    assert proc.returncode == 1 and f"frame 1 (./train/r_1): field" in proc.stdout and repr(field) in proc.stdout, proc.stdout
+    assert proc.returncode == 1 and "frame 1 (./train/r_1): field" in proc.stdout and repr(field) in proc.stdout, proc.stdout
     _clear_error(_cli("train", sphere_dataset, "--out", tmp_path / "run", "--method", "test-grid", "--max-steps", "2",
                       "--no-bar"), "transforms_train.json", "frame 1", repr(field))
 

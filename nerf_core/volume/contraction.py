@@ -27,7 +27,16 @@ def outer_box(aabb: Tensor) -> Tensor:
 
 
 def contract(pts: Tensor, aabb: Tensor) -> Tensor:
-    """World points (m, 3) -> contracted points (m, 3) inside ``outer_box(aabb)``; unchanged in the box."""
+    """World points (m, 3) -> contracted points (m, 3) inside ``outer_box(aabb)``; unchanged in the box.
+
+    Args:
+        pts: (m, 3) world points (any leading shape (..., 3) works).
+        aabb: (2, 3) scene box [min corner, max corner]; the box kept as it is.
+
+    Returns:
+        (m, 3) contracted points: in the box unchanged, outside it squeezed into the shell between the
+        box and ``outer_box(aabb)`` (the box grown to twice its size about its centre) by the max-norm.
+    """
     centre, half = 0.5 * (aabb[0] + aabb[1]), 0.5 * (aabb[1] - aabb[0])
     offset = pts - centre
     # (2 - 1/r) / r = (2r - 1) / r^2 scales the offset, and is 1 at r = 1: clamping r to 1 leaves the box

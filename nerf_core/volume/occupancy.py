@@ -25,7 +25,17 @@ Tensor = torch.Tensor
 
 
 class OccupancyGrid(nn.Module):
-    """Binary occupancy + density EMA on a ``resolution``^3 grid spanning ``aabb`` (2, 3)."""
+    """Binary occupancy + density EMA on a ``resolution``^3 grid spanning ``aabb`` (2, 3).
+
+    Every cell starts occupied. ``update(density_fn, step_size)`` refreshes the grid from the model's
+    density; ``query(pts)`` maps points (m, 3) to (m,) bool (inside the box and in an occupied cell);
+    ``query_near(pts)`` also says yes near an occupied cell; ``reset()`` marks everything occupied.
+
+    Args:
+        aabb: (2, 3) box [min corner, max corner] the grid spans; kept as the float32 buffer ``aabb``.
+        resolution: cells per axis r; the buffers are ``density_ema`` (r, r, r) float32 and
+            ``binary`` (r, r, r) bool, indexed [x, y, z].
+    """
 
     def __init__(self, aabb: Tensor, resolution: int = 64):
         super().__init__()

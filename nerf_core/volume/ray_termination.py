@@ -36,7 +36,9 @@ def visible_samples(
     """Samples still visible (transmittance > ``t_min``) and their compositing weights.
 
     Args:
-        t_starts, t_ends: (k,) packed sample intervals; ray_indices: (k,) long, sorted by ray then distance.
+        t_starts: (k,) start of each packed sample's interval.
+        t_ends: (k,) end of each interval.
+        ray_indices: (k,) long, the ray of each sample, sorted by ray then distance.
         n_rays: number of rays.
         density_fn: sample positions in the packed arrays (j,) long -> densities (j,); called once
             per round with the samples of the rays not yet opaque.

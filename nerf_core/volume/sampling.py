@@ -15,13 +15,16 @@ def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor, eps: float 
     """Slab-method intersection of rays with an axis-aligned box.
 
     Args:
-        rays_o, rays_d: (n_rays, 3); directions need not be unit (distances are then in units of |d|).
-        aabb: (2, 3) = [min corner, max corner].
+        rays_o: (n_rays, 3) ray origins.
+        rays_d: (n_rays, 3) directions; need not be unit (distances are then in units of |d|).
+        aabb: (2, 3) = [min corner, max corner] (moved to ``rays_o``'s device and dtype).
+        eps: direction components smaller than this in magnitude count as parallel to the slab.
 
     Returns:
-        t_near (n_rays,), t_far (n_rays,), hit (n_rays,) bool. ``t_near`` is clamped at 0 so that a ray
-        starting inside the box begins at its origin. Where ``hit`` is False the values are meaningless
-        (``t_near == t_far``). A ray parallel to a slab hits only if its origin lies between the planes.
+        t_near (n_rays,), t_far (n_rays,) in ``rays_o``'s dtype, hit (n_rays,) bool. ``t_near`` is
+        clamped at 0 so that a ray starting inside the box begins at its origin. Where ``hit`` is False
+        the values are meaningless (``t_near == t_far``). A ray parallel to a slab hits only if its
+        origin lies between the planes.
     """
     aabb = aabb.to(rays_o)
     d = rays_d
@@ -42,11 +45,15 @@ def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool, 
     """Interval edges for ``n_samples`` stratified samples between near and far.
 
     Args:
-        near, far: (n_rays,).
+        near: (n_rays,) start of each ray's interval.
+        far: (n_rays,) end of each ray's interval.
+        n_samples: number of intervals per ray.
         jitter: if True each interior edge moves uniformly inside its stratum (training); else uniform.
+        generator: the random generator for the jitter, or None for torch's global one.
 
     Returns:
-        edges (n_rays, n_samples + 1): interval i is [edges[:, i], edges[:, i+1]].
+        edges (n_rays, n_samples + 1) in ``near``'s dtype, from ``near`` to ``far``: interval i is
+        [edges[:, i], edges[:, i+1]].
     """
     u = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device, dtype=near.dtype).expand(near.shape[0], -1)
     if jitter:
@@ -63,12 +70,16 @@ def importance_samples(edges: Tensor, weights: Tensor, n_samples: int, determini
     """Inverse-CDF sampling of new distances from a piecewise-constant pdf (hierarchical sampling).
 
     Args:
-        edges: (n_rays, n_bins + 1) bin edges; weights: (n_rays, n_bins) non-negative bin weights.
+        edges: (n_rays, n_bins + 1) sorted bin edges along each ray.
+        weights: (n_rays, n_bins) non-negative bin weights (e.g. a coarse pass's compositing weights).
         n_samples: how many distances to draw per ray.
         deterministic: use evenly spaced quantiles instead of random ones (evaluation).
+        generator: the random generator for the quantiles, or None for torch's global one.
+        eps: added to every weight, so that a ray whose weights are all zero samples uniformly.
 
     Returns:
-        (n_rays, n_samples) sorted distances, detached (no gradient flows through sample placement).
+        (n_rays, n_samples) sorted distances in ``edges``' dtype, detached (no gradient flows through
+        sample placement).
     """
     edges = edges.detach()
     weights = weights.detach().float() + eps  # eps keeps a pdf on rays whose weights are all zero
