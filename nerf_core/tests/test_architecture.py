@@ -1,0 +1,122 @@
+"""The shape of the code, checked so that it cannot erode unnoticed (docs/ARCHITECTURE.md):
+
+- nerf_core's layers and the absence of import circles: import-linter's contracts in pyproject.toml;
+- no module over 500 lines; no import of another module's private (``_name``) names;
+- imports at the top of their module, except a few optional dependencies named here;
+- ruff's rule set (pyproject.toml) finds nothing.
+
+The add-on's own feature rules are in blender_tests/test_addon_layers.py.
+"""
+from __future__ import annotations
+
+import ast
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+MAX_LINES = 500
+# The only imports allowed inside functions: optional or version-dependent modules, imported where
+# they are needed so that the library works without them (and in Blender's background mode).
+OPTIONAL_IMPORTS = {
+    "OpenEXR",  # EXR files; a PNG-only user needs no OpenEXR
+    "numpy._core.multiarray", "numpy.core.multiarray",  # numpy 2 / numpy 1 names of one pickle helper
+    "torch.torch_version",  # only to read checkpoints of older runs
+    "gpu", "gpu_extras.presets",  # Blender's GPU modules: absent in background mode
+}
+MAX_LOCAL_IMPORTS = 15
+
+
+def _tool(name: str) -> str:
+    """The console script ``name`` of this interpreter's environment (or on PATH)."""
+    beside = Path(sys.executable).with_name(name)
+    found = str(beside) if beside.exists() else shutil.which(name)
+    if found is None:
+        pytest.fail(f"{name} is not installed: scripts/setup_env.sh installs the dev dependencies")
+    return found
+
+
+def _sources(*roots: str):
+    """Every .py file under ``roots`` that is product code (tests and fixtures are left out)."""
+    for root in roots:
+        for path in sorted((REPO / root).rglob("*.py")):
+            rel = path.relative_to(REPO)
+            if "tests" in rel.parts or rel.parts[0] == "blender_tests" or "__pycache__" in rel.parts:
+                continue
+            yield rel, path
+
+
+def _module_name(rel: Path) -> str:
+    parts = list(rel.with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_layers_and_no_import_circles():
+    proc = subprocess.run([_tool("lint-imports"), "--no-cache"], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, "import-linter's contracts (pyproject.toml) are broken:\n" + proc.stdout[-4000:]
+
+
+def test_ruff_finds_nothing():
+    proc = subprocess.run([_tool("ruff"), "check", "--quiet", "."], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, "ruff check . (rules in pyproject.toml):\n" + proc.stdout[-4000:]
+
+
+def test_no_module_over_500_lines():
+    long = [f"{rel}: {n} lines" for rel, path in _sources("nerf_core", "addon", "scripts")
+            if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_LINES]
+    assert not long, (f"modules over {MAX_LINES} lines; split them by what they own "
+                      "(docs/ARCHITECTURE.md, 'Adding code'):\n" + "\n".join(long))
+
+
+def test_no_private_cross_imports():
+    found = []
+    for rel, path in _sources("nerf_core", "addon", "scripts"):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        me = _module_name(rel)
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ImportFrom) or not node.module:
+                continue
+            source = node.module if node.level == 0 else f"(relative) {node.module}"
+            if node.level == 0 and node.module.split(".")[0] not in ("nerf_core", "addon", "fourier2d", "bench"):
+                continue  # other libraries' private names are their business (numpy's pickle helper)
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__") and source != me:
+                    found.append(f"{rel}:{node.lineno}: from {source} import {alias.name}")
+    assert not found, "imports of another module's private names; make the name public in its one home:\n" + \
+        "\n".join(found)
+
+
+def test_imports_inside_functions_are_only_optional_dependencies():
+    local = []
+    for rel, path in _sources("nerf_core", "addon"):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Import):
+                    local += [(rel, node.lineno, a.name) for a in node.names]
+                elif isinstance(node, ast.ImportFrom):
+                    local.append((rel, node.lineno, "." * node.level + (node.module or "")))
+    unexpected = [f"{rel}:{line}: import {mod}" for rel, line, mod in local if mod not in OPTIONAL_IMPORTS]
+    assert not unexpected, ("imports inside functions; move them to the top of the module (a circle they "
+                            "dodged means the code sits in the wrong layer):\n" + "\n".join(unexpected))
+    assert len(local) <= MAX_LOCAL_IMPORTS, f"{len(local)} function-local imports, at most {MAX_LOCAL_IMPORTS}"
+
+
+def test_every_module_of_nerf_core_is_in_a_layer():
+    """A new top-level package or module must be placed in the layer contract, or nothing checks it."""
+    config = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    contracts = {c["id"]: c for c in config["tool"]["importlinter"]["contracts"]}
+    layered = {name.strip().removeprefix("nerf_core.") for layer in contracts["layers"]["layers"]
+               for name in layer.split("|")}
+    top = {p.stem if p.is_file() else p.name for p in (REPO / "nerf_core").iterdir()
+           if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists()))}
+    outside = top - layered - {"__init__", "__main__", "tests"}
+    assert not outside, (f"nerf_core/{sorted(outside)} is in no layer: put it in a package of "
+                         "docs/ARCHITECTURE.md's layers, or add a layer to pyproject.toml")
+    assert not layered - top, f"layers name packages that do not exist: {sorted(layered - top)}"
