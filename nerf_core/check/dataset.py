@@ -66,29 +66,64 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     root = Path(path)
     if root.is_file() and root.suffix == ".json" and root.name.startswith("transforms"):
         root = root.parent  # DATASET/transforms_train.json, as `train` accepts it: check its dataset
-    ns_folder = Path(NERFSTUDIO_FILE).parent.name
-    if root.name == ns_folder and (root / "transforms.json").is_file() \
-            and any((root.parent / name).is_file() for name in SPLIT_FILES):
-        # Our export's nerfstudio/ copy: its file is one layout of the dataset above, checked with it.
-        # Checked on its own, the folder looked like a dataset missing every file it is not meant to hold.
-        report = check_dataset(root.parent, background, for_training)
-        # nerfstudio reads this folder with its own loader rules (split lists, paths): what train would
-        # refuse in it is an error too, named as the parent's report names the file.
-        own = CheckReport(root)
-        _check_loadable(own, root)
-        known = {str(p) for p in report.errors}
-        for p in own.errors:
-            p.file = f"{root.name}/{p.file}" if not Path(p.file).is_absolute() else p.file
-            if str(p) not in known:
-                report.errors.append(p)
-        report.notes.insert(0, f"{root} holds the nerfstudio-data file of the dataset {root.parent}: checked that "
-                               f"dataset, its {NERFSTUDIO_FILE} included (`--data {root}` is what nerfstudio reads)")
-        return report
+    if _is_nerfstudio_copy(root):
+        return _check_nerfstudio_copy(root, background, for_training)
     report = CheckReport(root)
     if not root.is_dir():
         report.error(str(root), "dataset folder not found" if not root.exists() else "not a folder")
         return report
 
+    one_file = _check_root_json(report, root)
+    poses, frame_intrinsics, boxes = _check_split_files(report, root, one_file)
+    _check_held_out_views(report, poses)
+    check_synthetic_scale(report, boxes, poses)
+    check_nerfstudio(report, root, frame_intrinsics, "transforms.json" if one_file else NERFSTUDIO_FILE)
+    opaque = check_background(report, root, background)
+    if opaque:
+        check_world_coverage(report, root)
+    converted: List[Problem] = []
+    if for_training:
+        converted = [Problem(p.file, f"(conventions of an export) {p.message}", p.frame, p.frame_path, p.field)
+                     for p in report.errors]
+        report.warnings = converted + report.warnings
+        report.errors = []
+    _check_loadable(report, root)
+    if converted:
+        _drop_repeats(report, converted)
+    _check_paths(report, root)
+    if report.ok:
+        training_plan(report, root, background)
+    return report
+
+
+def _is_nerfstudio_copy(root: Path) -> bool:
+    """Whether ``root`` is our export's ``nerfstudio/`` folder (one layout of the dataset above it)."""
+    return (root.name == Path(NERFSTUDIO_FILE).parent.name and (root / "transforms.json").is_file()
+            and any((root.parent / name).is_file() for name in SPLIT_FILES))
+
+
+def _check_nerfstudio_copy(root: Path, background: str, for_training: bool) -> CheckReport:
+    """Check the dataset above our export's ``nerfstudio/`` copy, that file included.
+
+    Checked on its own, the folder looked like a dataset missing every file it is not meant to hold."""
+    report = check_dataset(root.parent, background, for_training)
+    # nerfstudio reads this folder with its own loader rules (split lists, paths): what train would
+    # refuse in it is an error too, named as the parent's report names the file.
+    own = CheckReport(root)
+    _check_loadable(own, root)
+    known = {str(p) for p in report.errors}
+    for p in own.errors:
+        p.file = f"{root.name}/{p.file}" if not Path(p.file).is_absolute() else p.file
+        if str(p) not in known:
+            report.errors.append(p)
+    report.notes.insert(0, f"{root} holds the nerfstudio-data file of the dataset {root.parent}: checked that "
+                           f"dataset, its {NERFSTUDIO_FILE} included (`--data {root}` is what nerfstudio reads)")
+    return report
+
+
+def _check_root_json(report: CheckReport, root: Path) -> bool:
+    """Report JSON files at the root that instant-ngp would load as transforms files. Returns whether
+    the dataset is the one-file layout (transforms.json alone: what nerfstudio-data and instant-ngp read)."""
     # instant-ngp loads every *.json at the root as a transforms file.
     splits_here = any((root / name).is_file() for name in SPLIT_FILES)
     # One transforms.json and no split files: the layout nerfstudio-data and instant-ngp read, where
@@ -104,7 +139,12 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         elif j.name not in SPLIT_FILES:
             report.error(j.name, "stray JSON at the dataset root: instant-ngp loads every *.json here; "
                                  "move it into a subfolder (e.g. nerf_capture/)")
+    return one_file
 
+
+def _check_split_files(report: CheckReport, root: Path, one_file: bool):
+    """Check the three split files and their frames. Returns (poses: split -> [(frame, file_path,
+    c2w (4, 4), resolved image)], image file -> its intrinsics, split file -> its ``aabb``)."""
     poses: Dict[str, List[tuple]] = {}
     frame_intrinsics: Dict[str, dict] = {}  # image file -> intrinsics, to compare with transforms.json
     seen: set = set()
@@ -145,8 +185,11 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         # nerfstudio-data reads every intrinsic itself; the split files feed camera_angle_x-only loaders.
         for field, message in angle_only_caveats(cameras):
             report.warn(fname, message, field=field)
+    return poses, frame_intrinsics, boxes
 
-    # Held-out cameras must be new viewpoints.
+
+def _check_held_out_views(report: CheckReport, poses: Dict[str, List[tuple]]) -> None:
+    """Held-out cameras must be new viewpoints: not a training image, not a training camera."""
     for split in ("val", "test"):
         for k, fp, m, img in poses.get(split, []):
             for k2, fp2, m2, img2 in poses.get("train", []):
@@ -157,25 +200,6 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
                     report.error(f"transforms_{split}.json", f"camera equals train frame {k2} ({fp2}): held-out views must be new viewpoints",
                                  k, fp, "transform_matrix")
                     break
-
-    check_synthetic_scale(report, boxes, poses)
-    check_nerfstudio(report, root, frame_intrinsics, "transforms.json" if one_file else NERFSTUDIO_FILE)
-    opaque = check_background(report, root, background)
-    if opaque:
-        check_world_coverage(report, root)
-    converted: List[Problem] = []
-    if for_training:
-        converted = [Problem(p.file, f"(conventions of an export) {p.message}", p.frame, p.frame_path, p.field)
-                     for p in report.errors]
-        report.warnings = converted + report.warnings
-        report.errors = []
-    _check_loadable(report, root)
-    if converted:
-        _drop_repeats(report, converted)
-    _check_paths(report, root)
-    if report.ok:
-        training_plan(report, root, background)
-    return report
 
 
 def _check_paths(report: CheckReport, root: Path) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 
 from nerf_core.check.report import CheckReport
 from nerf_core.contract.errors import DatasetError, PoseError
-from nerf_core.contract.intrinsics import focal_from_fov
+from nerf_core.contract.intrinsics import declaring, focal_from_fov
 from nerf_core.contract.jsonfile import parse_json_file
 from nerf_core.contract.lens import lens_problem, parse_lens
 from nerf_core.contract.poses import check_pose
@@ -81,7 +81,7 @@ def declared_intrinsics(report: CheckReport, fname: str, meta: dict, fr: dict, k
     vals = {}
     ok = True
     for key in REQUIRED_INTRINSICS + ("camera_angle_x",):
-        src = fr if key in fr else meta if key in meta else None
+        src = declaring(meta, fr, key)
         if src is None:
             if key in REQUIRED_INTRINSICS or need_angle:
                 # Report missing top-level fields once per file, not per frame.

@@ -30,6 +30,18 @@ def fov_from_focal(focal: float, size: float) -> float:
     return 2.0 * math.atan(0.5 * size / focal)
 
 
+def declaring(meta: Optional[dict], frame: Optional[dict], key: str) -> Optional[dict]:
+    """Rule 1: the object whose ``key`` holds for ``frame``: the frame itself when it has the field,
+    else the file's top level ``meta`` when that has it, else None. ``resolve_intrinsics`` applies the
+    same rule to every field at once; ``nerf_core check`` asks field by field to name where a bad
+    value was written."""
+    if frame and key in frame:
+        return frame
+    if meta and key in meta:
+        return meta
+    return None
+
+
 def resolve_intrinsics(meta: Optional[dict], frame: Optional[dict], size: Optional[Sequence[float]] = None,
                        where: str = "transforms") -> Tuple[float, float, float, float, float, float]:
     """(fx, fy, cx, cy, w, h) in pixels of the declared image for one frame (rules in the module doc).

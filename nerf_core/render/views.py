@@ -86,24 +86,7 @@ def render_to_dir(
     gt_frames = list(ground_truth) if ground_truth is not None else [None] * len(stems)
     for v in range(len(stems)):
         check_view_memory(int(cameras.width[v]), int(cameras.height[v]), f"camera {v} ({stems[v]})")
-    targets = [out / "renders.json"]
-    for s, fr in zip(stems, gt_frames):
-        files = render_files(s)
-        targets += [out / files["image"], out / files["depth"]]
-        if fr is not None:
-            targets.append(out / files["error_map"])
-    for t in targets:
-        try:
-            frame = (protected or {}).get(t.resolve())
-        except (OSError, RuntimeError):
-            frame = None
-        if frame is not None:
-            raise RunError(f"--out {out}: would write {t.name} over the dataset's own file ({frame}); "
-                           "renders never replace a dataset's images, even with --overwrite. Choose another --out")
-    existing = [t for t in targets if t.exists()]
-    if existing and not overwrite:
-        names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
-        raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
+    _refuse_targets(out, stems, gt_frames, overwrite, protected)
 
     out.mkdir(parents=True, exist_ok=True)
     # The old renders.json describes the images about to be replaced: an interrupted --overwrite left
@@ -126,39 +109,84 @@ def render_to_dir(
         rgba = straight_rgba(res, opaque)
         write_png(out / files["image"], rgba)
         write_exr(out / files["depth"], {"Z": res["z_depth"].numpy()})
-        entry = {
-            "file_path": files["image"],
-            "depth_file_path": files["depth"],
-            "transform_matrix": cameras.c2w[v].tolist(),
-            "fl_x": float(cameras.fx[v]), "fl_y": float(cameras.fy[v]),
-            "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
-            "w": int(cameras.width[v]), "h": int(cameras.height[v]),
-            "camera_angle_x": float(cameras.fov_x()[v]),
-            "render_seconds": seconds, "rays": res["n_rays"],
-        }
-        lens = cameras.lens(v)
-        if lens is not None:  # the render is as distorted as the camera it was asked for
-            entry.update(lens.fields())
-        gt_split, why_not = ground_truth_split(gt_frames[v], cameras, v, gt_downscale)
-        if gt_split is not None:
-            # What eval sees: the same pixels as rendering onto the background (model.render_rays puts
-            # ``background`` behind the opacity exactly so); a learned world already fills them.
-            pred = res["rgb"] if opaque else composite_background(res["rgb"], res["acc"], bg).clamp(0, 1)
-            try:
-                scores, gt = score_view(pred, gt_split, 0, bg)
-            except ValueError as exc:  # e.g. smaller than SSIM's window: the render itself is fine
-                why_not = f"{gt_frames[v].image}: {exc}"
-            else:
-                (out / files["error_map"]).parent.mkdir(exist_ok=True)
-                write_png(out / files["error_map"], error_heatmap(pred, gt))
-                entry.update(scores, error_map=files["error_map"], ground_truth=str(gt_frames[v].image))
-        if why_not:
-            entry["metrics_skipped"] = why_not
+        entry = _view_entry(files, cameras, v, seconds, res["n_rays"])
+        _score_into(entry, out, files, res, opaque, bg, gt_frames[v], cameras, v, gt_downscale)
         frames.append(entry)
         bar.update(1, info=stem)
         if on_view:
             on_view(v, stem)
     bar.close()
+    meta = _renders_meta(frames, opaque, bg, pixel_filter, render_seconds, rays, extra)
+    write_json_atomic(out / "renders.json", meta)
+    return out / "renders.json"
+
+
+def _refuse_targets(out: Path, stems: List[str], gt_frames: list, overwrite: bool,
+                    protected: Optional[Dict[Path, str]]) -> None:
+    """RunError when a file ``render_to_dir`` would write is a dataset's own (``protected``), or exists
+    and ``overwrite`` is off; nothing is written before this passes."""
+    targets = [out / "renders.json"]
+    for s, fr in zip(stems, gt_frames):
+        files = render_files(s)
+        targets += [out / files["image"], out / files["depth"]]
+        if fr is not None:
+            targets.append(out / files["error_map"])
+    for t in targets:
+        try:
+            frame = (protected or {}).get(t.resolve())
+        except (OSError, RuntimeError):
+            frame = None
+        if frame is not None:
+            raise RunError(f"--out {out}: would write {t.name} over the dataset's own file ({frame}); "
+                           "renders never replace a dataset's images, even with --overwrite. Choose another --out")
+    existing = [t for t in targets if t.exists()]
+    if existing and not overwrite:
+        names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
+        raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
+
+
+def _view_entry(files: dict, cameras: Cameras, v: int, seconds: float, rays: int) -> dict:
+    """renders.json's frame of view ``v``: its files, pose, intrinsics (and lens), and render time."""
+    entry = {
+        "file_path": files["image"],
+        "depth_file_path": files["depth"],
+        "transform_matrix": cameras.c2w[v].tolist(),
+        "fl_x": float(cameras.fx[v]), "fl_y": float(cameras.fy[v]),
+        "cx": float(cameras.cx[v]), "cy": float(cameras.cy[v]),
+        "w": int(cameras.width[v]), "h": int(cameras.height[v]),
+        "camera_angle_x": float(cameras.fov_x()[v]),
+        "render_seconds": seconds, "rays": rays,
+    }
+    lens = cameras.lens(v)
+    if lens is not None:  # the render is as distorted as the camera it was asked for
+        entry.update(lens.fields())
+    return entry
+
+
+def _score_into(entry: dict, out: Path, files: dict, res: dict, opaque: bool, bg: torch.Tensor,
+                frame: Optional[FrameInfo], cameras: Cameras, v: int, gt_downscale: int) -> None:
+    """Add view ``v``'s scores against its ground truth ``frame`` to ``entry`` and write its error
+    heat-map; or say in ``metrics_skipped`` why it has none. ``bg``: (3,) the metrics background."""
+    gt_split, why_not = ground_truth_split(frame, cameras, v, gt_downscale)
+    if gt_split is not None:
+        # What eval sees: the same pixels as rendering onto the background (model.render_rays puts
+        # ``background`` behind the opacity exactly so); a learned world already fills them.
+        pred = res["rgb"] if opaque else composite_background(res["rgb"], res["acc"], bg).clamp(0, 1)
+        try:
+            scores, gt = score_view(pred, gt_split, 0, bg)
+        except ValueError as exc:  # e.g. smaller than SSIM's window: the render itself is fine
+            why_not = f"{frame.image}: {exc}"
+        else:
+            (out / files["error_map"]).parent.mkdir(exist_ok=True)
+            write_png(out / files["error_map"], error_heatmap(pred, gt))
+            entry.update(scores, error_map=files["error_map"], ground_truth=str(frame.image))
+    if why_not:
+        entry["metrics_skipped"] = why_not
+
+
+def _renders_meta(frames: list, opaque: bool, bg: torch.Tensor, pixel_filter: Optional[PixelFilter],
+                  render_seconds: float, rays: int, extra: Optional[dict]) -> dict:
+    """renders.json's content: the frames, what depth and alpha mean, the pixel filter, the render rate."""
     meta = {"frames": frames, "depth": "planar z-depth in scene units, EXR channel Z, 0 where nothing was hit",
             "alpha": ("1: opaque, the learned environment is composited behind the scene" if opaque else
                       "accumulated opacity; colour is straight (not premultiplied)"),
@@ -168,8 +196,7 @@ def render_to_dir(
         meta["metrics_background"] = [float(c) for c in bg.tolist()]
         meta["error_map_vmax"] = HEATMAP_VMAX
     meta.update(extra or {})
-    write_json_atomic(out / "renders.json", meta)
-    return out / "renders.json"
+    return meta
 
 
 def _inside_dataset(path, dataset) -> bool:

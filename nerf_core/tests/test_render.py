@@ -284,7 +284,7 @@ class _Counting(torch.nn.Module):
 
 
 def test_cpu_calls_are_sized_by_the_samples_the_method_reports():
-    from nerf_core.render import views as r
+    from nerf_core.render import frame as r
 
     m = 3000
     rays_d = torch.nn.functional.normalize(torch.randn(m, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
