@@ -4,7 +4,7 @@ separate process (torch never loads inside Blender), and imports its novel views
 Packages, lowest layer first (blender_tests/test_addon_layers.py checks the rules):
 
 - ``file_writes``: atomic file writes and PNG encoding (standard library and numpy only).
-- ``bridge/``: the child trainer process (``trainer_process``), its JSON-line progress (``progress``),
+- ``bridge/``: the child trainer process (``child_process``), its JSON-line progress (``progress``),
   nerf_core's contract loaded without torch (``core_contract``, ``core_path``), the run list (``runs``)
   and the render server client (``render_client``). Never imports bpy.
 - ``scene/``: reading the Blender scene (``scene_bounds``, ``scene_appearance``, ``scene_files``,

@@ -89,7 +89,7 @@ def _where(path: str, line: int) -> str:
 
 
 def test_every_module_is_found():
-    assert len(MODULES) > 30 and "bridge.trainer_process" in NAMES and "capture.layouts" in NAMES
+    assert len(MODULES) > 30 and "bridge.child_process" in NAMES and "capture.layouts" in NAMES
 
 
 def test_bridge_never_imports_bpy():

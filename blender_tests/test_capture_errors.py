@@ -12,7 +12,7 @@ import pytest
 from mathutils import Matrix
 
 from addon import file_writes
-from addon.capture import capture_render, layouts
+from addon.capture import frame_files, layouts
 from addon.capture import capture_job, capture_plan, capture_settings
 from addon.capture import camera_collection, layout_cameras
 from addon.dataset import capture_manifest
@@ -304,7 +304,7 @@ def test_the_layer_the_box_comes_from_is_the_layer_rendered_whatever_its_use_fla
     other = scene.view_layers.new("Other")
     other.layer_collection.children["Subject"].exclude = True  # this layer renders nothing
     capture_job.CaptureJob(scene, settings(tmp_path / "two")).run()
-    alpha = capture_render.read_png_rgba(str(tmp_path / "two" / "train" / "r_0.png"))[..., 3]
+    alpha = frame_files.read_png_rgba(str(tmp_path / "two" / "train" / "r_0.png"))[..., 3]
     assert alpha.max() > 0  # the cube of the active layer, not the empty other layer
     assert active.use is False and other.use is True  # the file's flags are restored
 
@@ -403,7 +403,7 @@ def test_a_view_blender_cannot_render_is_named_with_the_resolution(tmp_path, mon
     def cannot(*args, **kwargs):
         raise RuntimeError("Error: Failed to allocate GPU buffers\n")
 
-    monkeypatch.setattr(capture_render, "render_still", cannot)
+    monkeypatch.setattr(frame_files, "render_still", cannot)
     with pytest.raises(capture_plan.CaptureError, match=r"train/r_1: Blender could not render this view at 24x16 px with "
                                                    r"BLENDER_WORKBENCH \(Failed to allocate GPU buffers\); a lower "
                                                    r"resolution may fit.*resumes"):

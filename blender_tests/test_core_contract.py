@@ -32,7 +32,7 @@ def test_checkout_addon_loads_the_contract_with_torch_blocked(repo_root):
         "import json, bpy, addon\n"
         "addon.register()\n"  # every module of the add-on, registered, as Blender loads it
         "from addon.bridge.core_contract import contract\n"
-        "from addon.bridge import progress, runs, trainer_process\n"
+        "from addon.bridge import progress, runs, child_process\n"
         "from addon.common import jobs\n"
         "from addon.compare import compare_views\n"
         "addon.unregister()\n"

@@ -21,7 +21,7 @@ from addon.capture import capture_job, capture_settings
 from addon.capture import camera_collection, layout_cameras
 from addon.common import jobs
 from addon.compare import planes
-from addon.bridge import runs, trainer_process
+from addon.bridge import runs, child_process
 from addon import compare, train
 from addon.compare import compare_ui
 from addon.train import train_ui, train_job
@@ -197,7 +197,7 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
     s = bpy.context.scene.nerf_train
     s.dataset_dir, s.run_dir = tiny_capture(root), os.path.join(root, "run")
     # The job the Train button starts, minus the dataset check (the loop test above covers it).
-    cmd = trainer_process.train_command(sys.executable, s.dataset_dir, s.run_dir, max_seconds=600)
+    cmd = child_process.train_command(sys.executable, s.dataset_dir, s.run_dir, max_seconds=600)
     job = train_job.TrainJob(bpy.context.scene.name, sys.executable, s.dataset_dir, s.run_dir, cmd, check=False)
     jobs.add(train_ui.TRAIN, job)
     deadline = time.monotonic() + 180
@@ -206,7 +206,7 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
         assert time.monotonic() < deadline, job.process.log_tail()
         time.sleep(0.1)
     pid = job.process.pid
-    assert trainer_process.pid_alive(pid)
+    assert child_process.pid_alive(pid)
     assert bpy.ops.nerf.train_cancel() == {"FINISHED"}  # returns at once; the timer finishes the cancel
     deadline = time.monotonic() + 60
     while job.update() == "running":
@@ -214,6 +214,6 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
         time.sleep(0.1)
     train_ui.sync_train_settings(job)
     assert job.state == "cancelled" and not s.running and s.status.startswith("Training cancelled at step")
-    assert not trainer_process.pid_alive(pid) and trainer_process.group_pids(pid) == []
+    assert not child_process.pid_alive(pid) and child_process.group_pids(pid) == []
     assert "checkpoint saved" in job.message
-    assert trainer_process.run_folder_state(s.run_dir) == "resumable"
+    assert child_process.run_folder_state(s.run_dir) == "resumable"

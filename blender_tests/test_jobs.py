@@ -17,7 +17,7 @@ from addon.capture import capture_job
 from addon.common import jobs, ui_common
 from addon.compare import compare_ui
 from addon.train import train_ui, train_job
-from addon.bridge import trainer_process
+from addon.bridge import child_process
 
 
 @pytest.fixture
@@ -107,7 +107,7 @@ def test_esc_stops_a_capture_but_not_a_training(registered, tmp_path):
     assert tick("ESC") == {"PASS_THROUGH"}  # the capture stopped; the training goes on
     assert task.state == "cancelled" and "resume" in bpy.context.scene.nerf_capture.status
     assert op.reports[-1][0] == {"WARNING"}
-    assert train.state == "running" and trainer_process.pid_alive(pid)
+    assert train.state == "running" and child_process.pid_alive(pid)
     assert tick("ESC") == {"PASS_THROUGH"}  # nothing left that Esc stops
     assert train.state == "running"
     assert bpy.ops.nerf.train_cancel() == {"FINISHED"}
@@ -117,16 +117,16 @@ def test_esc_stops_a_capture_but_not_a_training(registered, tmp_path):
         time.sleep(0.05)
     assert result == {"CANCELLED"} and train.state == "cancelled"
     assert op.reports[-1] == ({"INFO"}, "Training cancelled")
-    assert not trainer_process.pid_alive(pid)
+    assert not child_process.pid_alive(pid)
 
 
 def test_loading_a_file_stops_running_children(registered, tmp_path):
     job = _train_job(_fake_trainer(tmp_path, "while True: time.sleep(0.1)\n"))
     pid = job.process.pid
-    assert trainer_process.pid_alive(pid)
+    assert child_process.pid_alive(pid)
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    assert job.state == "cancelled" and not trainer_process.pid_alive(pid)
-    assert trainer_process.group_pids(pid) == []
+    assert job.state == "cancelled" and not child_process.pid_alive(pid)
+    assert child_process.group_pids(pid) == []
 
 
 def test_headless_there_is_no_follower_to_start(registered):
@@ -138,7 +138,7 @@ def test_a_second_job_under_a_running_key_is_refused(registered, tmp_path):
     _train_job(_fake_trainer(tmp_path, "while True: time.sleep(0.1)\n"))
     other = train_job.TrainJob(bpy.context.scene.name, sys.executable, "", "",
                           _fake_trainer(tmp_path, "pass\n"), check=False)
-    with pytest.raises(trainer_process.SetupError, match="already running"):
+    with pytest.raises(child_process.SetupError, match="already running"):
         jobs.add(train_ui.TRAIN, other)
     other.process.wait(timeout=30)
 

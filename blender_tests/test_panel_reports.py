@@ -12,11 +12,11 @@ import pytest
 import addon
 from addon.compare import compare_views as compare
 from addon.common import jobs, ui_common
-from addon.bridge import render_client, trainer_process
+from addon.bridge import render_client, child_process
 from addon.render_engine import engine as render_engine
 from addon.compare import compare_ui
 from addon.train import train_props, train_ui
-from addon.bridge.trainer_process import SetupError
+from addon.bridge.child_process import SetupError
 from test_register import _draw, _labels
 
 
@@ -120,7 +120,7 @@ def test_compare_renders_the_newest_step_checkpoint_when_latest_is_gone(s, tmp_p
     newest = os.path.join(run, "checkpoints", "step_0000200.pt")
     plan = compare.prepare_render(bpy.context, run, "TEST")
     assert plan.checkpoint == newest
-    cmd = trainer_process.render_command("py", run, plan.cameras, plan.out, checkpoint=plan.checkpoint)
+    cmd = child_process.render_command("py", run, plan.cameras, plan.out, checkpoint=plan.checkpoint)
     assert cmd[-2:] == ["--checkpoint", newest]  # nerf_core render loads latest.pt unless told otherwise
     open(os.path.join(run, "checkpoints", "latest.pt"), "wb").close()
     assert compare.prepare_render(bpy.context, run, "TEST").checkpoint == ""  # the CLI's default

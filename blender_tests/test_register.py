@@ -14,7 +14,7 @@ import bpy
 import pytest
 
 import addon
-from addon.bridge import trainer_process
+from addon.bridge import child_process
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts"))
 import build_addon  # noqa: E402
@@ -64,8 +64,8 @@ def test_built_zip_carries_nerf_core_for_the_trainer(tmp_path, use_bundled):
     assert not [n for n in names if "/tests/" in n or "__pycache__" in n or n.endswith(".pyc")]
     installed = tmp_path / "installed" / "nerf_bridge"
     zipfile.ZipFile(path).extractall(installed)
-    assert trainer_process.nerf_core_search_path(str(installed)) == str(installed / "vendor")
-    env = trainer_process.child_env(str(installed), base={"PATH": os.environ.get("PATH", "")})
+    assert child_process.nerf_core_search_path(str(installed)) == str(installed / "vendor")
+    env = child_process.child_env(str(installed), base={"PATH": os.environ.get("PATH", "")})
     out = subprocess.run([sys.executable, "-c", "import nerf_core; print(nerf_core.__file__)"], env=env,
                          capture_output=True, text=True, timeout=60, cwd=str(tmp_path))
     assert out.returncode == 0, out.stderr

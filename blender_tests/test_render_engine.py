@@ -207,15 +207,15 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
     # 4. Unregistering the add-on ends the render process.
     addon.unregister()
     deadline = time.monotonic() + 10
-    while trainer_process_alive(pid) and time.monotonic() < deadline:
+    while child_process_alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not trainer_process_alive(pid)
+    assert not child_process_alive(pid)
 
 
-def trainer_process_alive(pid):
-    from addon.bridge import trainer_process
+def child_process_alive(pid):
+    from addon.bridge import child_process
 
-    return trainer_process.pid_alive(pid)
+    return child_process.pid_alive(pid)
 
 
 def test_render_errors_are_reported_and_abort_cleanly(engine_scene, tmp_path):

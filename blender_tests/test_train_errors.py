@@ -17,8 +17,8 @@ from addon import file_writes
 from addon.compare import compare_views as compare
 from addon.common import jobs, prefs
 from addon.train import train_ui, train_job
-from addon.bridge import trainer_process
-from addon.bridge.trainer_process import SetupError
+from addon.bridge import child_process
+from addon.bridge.child_process import SetupError
 
 
 @pytest.fixture
@@ -109,17 +109,17 @@ def test_broken_dataset_shows_the_checkers_message(s, tmp_path):
 def test_interpreter_without_torch(s, tmp_path, no_torch_python, monkeypatch):
     os.makedirs(s.dataset_dir)
     with pytest.raises(SetupError) as exc:
-        trainer_process.resolve_interpreter(no_torch_python)
+        child_process.resolve_interpreter(no_torch_python)
     assert "Python with torch" in str(exc.value) and "No module named 'torch'" in str(exc.value)
     monkeypatch.setattr(prefs, "python_preference", lambda context=None: no_torch_python)
     with pytest.raises(RuntimeError, match="cannot run NeRF training"):
         bpy.ops.nerf.train()
     assert "cannot run NeRF training" in s.error
     # No preference set and Blender's own Python lacks torch: say where to set one.
-    monkeypatch.setattr(trainer_process.sys, "executable", no_torch_python)
+    monkeypatch.setattr(child_process.sys, "executable", no_torch_python)
     with pytest.raises(SetupError, match=r"Blender's Python .* cannot import torch .*Preferences > Add-ons > NeRF Bridge"):
-        trainer_process.resolve_interpreter("")
-    assert not trainer_process.probe_interpreter(str(tmp_path / "missing")).ok
+        child_process.resolve_interpreter("")
+    assert not child_process.probe_interpreter(str(tmp_path / "missing")).ok
 
 
 def test_existing_run_folder_is_never_overwritten(s, tmp_path):
@@ -134,7 +134,7 @@ def test_existing_run_folder_is_never_overwritten(s, tmp_path):
     # through (Resume said "press Train instead", and Train said "press Resume").
     os.rename(os.path.join(s.run_dir, "checkpoints", "latest.pt"),
               os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
-    assert trainer_process.run_folder_state(s.run_dir) == "resumable"
+    assert child_process.run_folder_state(s.run_dir) == "resumable"
     with pytest.raises(SetupError, match=r"holds a training run: press Resume"):
         train_ui.start_training(bpy.context)
     os.remove(os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
@@ -176,9 +176,9 @@ def test_disk_full_is_named(s, tmp_path, monkeypatch):
     def no_space(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(trainer_process.json, "dump", no_space)
-    with pytest.raises(trainer_process.DiskFullError, match=r"Disk full while writing .*cameras.json"):
-        trainer_process.write_json_atomic(target, {"frames": []})
+    monkeypatch.setattr(child_process.json, "dump", no_space)
+    with pytest.raises(child_process.DiskFullError, match=r"Disk full while writing .*cameras.json"):
+        child_process.write_json_atomic(target, {"frames": []})
     assert os.listdir(tmp_path / "views") == []  # no truncated or temporary file left behind
     monkeypatch.undo()
 
@@ -272,6 +272,6 @@ time.sleep(0.5)
     assert proc.returncode == 0, proc.stderr
     pid = int(proc.stdout.strip().splitlines()[-1])
     deadline = time.monotonic() + 10
-    while trainer_process.pid_alive(pid) and time.monotonic() < deadline:
+    while child_process.pid_alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not trainer_process.pid_alive(pid), "the trainer outlived Blender"
+    assert not child_process.pid_alive(pid), "the trainer outlived Blender"

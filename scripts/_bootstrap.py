@@ -62,11 +62,11 @@ def fail(prog: str, message: str) -> None:
 def torch_python(prog: str, requested: str) -> str:
     """The interpreter that runs nerf_core for a script: ``requested`` (``--python``), else
     $NERF_PYTHON, else this Python; when it cannot import torch, ``fail`` says what to pass."""
-    from addon.bridge import trainer_process
+    from addon.bridge import child_process
 
     try:
-        return trainer_process.resolve_interpreter(requested, addon_dir=os.path.join(REPO_ROOT, "addon"))
-    except trainer_process.SetupError as exc:
+        return child_process.resolve_interpreter(requested, addon_dir=os.path.join(REPO_ROOT, "addon"))
+    except child_process.SetupError as exc:
         fail(prog, f"{exc} (or pass --python / set NERF_PYTHON)")
 
 

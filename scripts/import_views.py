@@ -83,10 +83,10 @@ def fail(message: str) -> None:
 def render(python: str, run: str, cameras: str, out_dir: str, n_views: int) -> None:
     """Run ``nerf_core render`` with a progress bar counting the PNGs as they appear."""
     from addon.compare import compare_views as compare
-    from addon.bridge import trainer_process
+    from addon.bridge import child_process
     from nerf_core.utils.progressbar import ProgressBar
 
-    proc = trainer_process.BackgroundProcess(trainer_process.render_command(python, run, cameras, out_dir)).start()
+    proc = child_process.BackgroundProcess(child_process.render_command(python, run, cameras, out_dir)).start()
     bar = ProgressBar(total=n_views, label="render views")
     while not proc.finished():
         proc.poll()
@@ -147,7 +147,7 @@ def check_scene_matches_run(run: str, scene_file: str, force: bool) -> None:
 def main(argv) -> int:
     args = parse(argv)
     # Flags are checked before the scene is opened or anything is rendered.
-    from addon.bridge import runs, trainer_process
+    from addon.bridge import runs, child_process
     from nerf_core import contract
 
     out = os.path.abspath(args.out)
@@ -183,8 +183,8 @@ def main(argv) -> int:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         fail(f"{cameras}: not a transforms file with 'frames' ({exc})")
     try:
-        python = trainer_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
-    except trainer_process.SetupError as exc:
+        python = child_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
+    except child_process.SetupError as exc:
         fail(f"{exc} (or pass --python / set NERF_PYTHON)")
 
     import bpy
@@ -200,11 +200,11 @@ def main(argv) -> int:
         try:
             os.makedirs(render_dir, exist_ok=True)
         except OSError as exc:
-            fail(trainer_process.describe_os_error(exc, render_dir, "creating"))
+            fail(child_process.describe_os_error(exc, render_dir, "creating"))
     else:
         try:  # a new RUN/views/<label>_NNN, as the Compare panel makes: earlier renders stay intact
             render_dir = compare.fresh_dir(os.path.join(run, compare.VIEWS_DIR), label)
-        except trainer_process.SetupError as exc:
+        except child_process.SetupError as exc:
             fail(str(exc))
     render(python, run, cameras, render_dir, n_views)
 
@@ -227,13 +227,13 @@ def main(argv) -> int:
     except ValueError as exc:
         fail(str(exc))
     except OSError as exc:
-        fail(trainer_process.describe_os_error(exc, render_dir))
+        fail(child_process.describe_os_error(exc, render_dir))
     try:
         os.makedirs(os.path.dirname(out), exist_ok=True)
         bpy.ops.wm.save_as_mainfile(filepath=out, copy=True, relative_remap=True)
     except (OSError, RuntimeError) as exc:
         if isinstance(exc, OSError):
-            fail(trainer_process.describe_os_error(exc, out))
+            fail(child_process.describe_os_error(exc, out))
         hint = " (is the disk full?)" if "space" in str(exc).lower() else ""
         fail(f"could not save {out}{hint}: {exc}")
 

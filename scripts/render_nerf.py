@@ -71,7 +71,7 @@ def set_format(settings, fmt: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    from addon.bridge import render_client, trainer_process
+    from addon.bridge import render_client, child_process
 
     run = os.path.abspath(args.run)
     problem = render_client.run_problem(run, os.path.abspath(args.checkpoint) if args.checkpoint else "")
@@ -97,7 +97,7 @@ def main(argv) -> int:
     try:
         os.makedirs(out, exist_ok=True)
     except OSError as exc:
-        fail(trainer_process.describe_os_error(exc, out, "creating"))
+        fail(child_process.describe_os_error(exc, out, "creating"))
 
     import addon
     from addon.render_engine import engine as render_engine

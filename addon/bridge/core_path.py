@@ -1,6 +1,6 @@
 """Where the add-on finds nerf_core: the copy vendored into the installed extension, else the
 repository checkout the add-on runs from. The child trainer gets this folder on its PYTHONPATH
-(``trainer_process.child_env``) and ``core_contract`` loads ``nerf_core/contract/`` from it, so both
+(``child_process.child_env``) and ``core_contract`` loads ``nerf_core/contract/`` from it, so both
 sides of the JSON-line seam read the same rules. Standard library only.
 """
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The add-on's side of ``python -m nerf_core serve``: one long-lived render process per run.
 
 The render engine (``render_engine.py``) sends cameras here and gets numpy images back. The process
-is started the way every nerf_core child is (``trainer_process``: which interpreter, where nerf_core
+is started the way every nerf_core child is (``child_process``: which interpreter, where nerf_core
 is found, its own process group) and is kept alive between frames and renders, so the model loads
 once; it is replaced when the run, the checkpoint or the checkpoint file's mtime changes, and shut
 down by ``shutdown_all`` (add-on unregister, Blender exit).
@@ -25,7 +25,7 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from . import trainer_process
+from . import child_process
 
 SERVE_START_TIMEOUT_S = 300.0  # importing torch and loading a checkpoint on a cold disk can be slow
 # The largest image side ``nerf_core serve`` renders (nerf_core.render.server.MAX_SIDE; that module
@@ -75,12 +75,12 @@ class RenderClient:
     """One ``nerf_core serve`` process and the requests sent to it."""
 
     def __init__(self, python: str, run: str, checkpoint: str = "", device: str = "",
-                 addon_dir: str = trainer_process.ADDON_DIR):
+                 addon_dir: str = child_process.ADDON_DIR):
         self.run = os.path.abspath(run)
         self.checkpoint = os.path.abspath(checkpoint) if checkpoint else ""
         self.key = client_key(python, run, checkpoint)
         cmd = serve_command(python, self.run, self.checkpoint, device)
-        self.process = trainer_process.BackgroundProcess(cmd, env=trainer_process.child_env(addon_dir), stdin_pipe=True)
+        self.process = child_process.BackgroundProcess(cmd, env=child_process.child_env(addon_dir), stdin_pipe=True)
         self.tmpdir = tempfile.mkdtemp(prefix="nerf_render_")
         self.info: Optional[dict] = None  # the ``ready`` event
         self.fatal: Optional[str] = None

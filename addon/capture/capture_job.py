@@ -28,7 +28,7 @@ import time
 import bpy
 
 from ..dataset import capture_manifest
-from . import capture_plan, capture_render, capture_shards, capture_verify, capture_write
+from . import capture_plan, capture_shards, capture_verify, capture_write, frame_files
 from .capture_folder import FolderInspection
 from .capture_plan import CaptureError
 from .capture_planning import CapturePlanning
@@ -97,17 +97,17 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
         if sc.frame_current != frame:
             sc.frame_set(frame)
         try:
-            capture_render.render_still()
+            frame_files.render_still()
         except RuntimeError as exc:  # Blender's own refusal, e.g. "Failed to allocate GPU buffers"
             reason = str(exc).replace("Error: ", "").strip()
             raise CaptureError(f"{fr['key']}: Blender could not render this view at {self.s.res_x}x{self.s.res_y} px "
                                f"with {self.engine} ({reason}); a lower resolution may fit. The frames rendered so "
                                "far are kept, and capturing again resumes") from exc
         result = bpy.data.images["Render Result"]
-        capture_render.save_png(sc, result, os.path.join(self.out, fr["image"]))
+        frame_files.save_png(sc, result, os.path.join(self.out, fr["image"]))
         if self._needs_passes():
             n_train = sum(f["split"] == "train" for f in self.frames)
-            capture_render.save_passes(sc, result, fr, self.out, self.s, self.engine,
+            frame_files.save_passes(sc, result, fr, self.out, self.s, self.engine,
                                        os.path.join(self.out, capture_manifest.MANIFEST_DIR),
                                        max(1, self.s.n_points // max(1, n_train)))
         self.file_sha256[fr["key"]] = capture_verify.file_hashes(self.out, fr)
@@ -140,7 +140,7 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
                 mine = capture_shards.unique_suffix()
                 for name in os.listdir(folder):
                     # a shard removes only its own leftovers: the others may be writing theirs
-                    if capture_render.PARTIAL_TAG in name and (not self.shard or mine in name):
+                    if frame_files.PARTIAL_TAG in name and (not self.shard or mine in name):
                         os.remove(os.path.join(folder, name))
                 if self.shard:
                     self._write_record()

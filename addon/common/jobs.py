@@ -21,7 +21,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 
 import bpy
 
-from ..bridge import trainer_process
+from ..bridge import child_process
 from .ui_common import status_bar, tag_redraw
 
 TICK = 0.05  # seconds between timer events; each job says how often it wants updating
@@ -77,11 +77,11 @@ class Job:
 
 
 class ProcessJob(Job):
-    """A job whose work happens in a nerf_core child process (``trainer_process.BackgroundProcess``)."""
+    """A job whose work happens in a nerf_core child process (``child_process.BackgroundProcess``)."""
 
     def __init__(self, scene_name: str):
         super().__init__(scene_name)
-        self.process: Optional[trainer_process.BackgroundProcess] = None
+        self.process: Optional[child_process.BackgroundProcess] = None
 
     def cancel(self, wait: bool = True) -> None:
         """Stop the child. ``wait=False`` (the Cancel button) only asks it to stop, so Blender never
@@ -147,7 +147,7 @@ _HOOKED = {"atexit": False}
 def add(key: str, job: Job) -> Job:
     """Track ``job`` under ``key`` (replacing a finished one); it is stopped on file load and exit."""
     if key in _JOBS and _JOBS[key] is not job and _JOBS[key].state == "running":
-        raise trainer_process.SetupError(f"A {_JOBS[key].kind} job is already running: cancel it first.")
+        raise child_process.SetupError(f"A {_JOBS[key].kind} job is already running: cancel it first.")
     _JOBS[key] = job
     _hook()
     return job

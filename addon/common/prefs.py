@@ -8,7 +8,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import StringProperty
 
-from ..bridge import trainer_process
+from ..bridge import child_process
 from .ui_common import report_and_cancel
 
 # The add-on's own package (its preferences key): this module lives one level below it, in common/.
@@ -37,10 +37,10 @@ class NERF_OT_check_python(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            python = trainer_process.resolve_interpreter(python_preference(context))
-        except trainer_process.SetupError as exc:
+            python = child_process.resolve_interpreter(python_preference(context))
+        except child_process.SetupError as exc:
             return report_and_cancel(self, exc)
-        result = trainer_process.probe_interpreter(python)
+        result = child_process.probe_interpreter(python)
         self.report({"INFO"}, f"{python}: {result.message}")
         return {"FINISHED"}
 

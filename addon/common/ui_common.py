@@ -10,7 +10,7 @@ from typing import Optional
 import bpy
 from bpy.props import StringProperty
 
-from ..bridge.trainer_process import SetupError
+from ..bridge.child_process import SetupError
 
 
 class NerfPanel:

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import bpy
 
-from ..bridge import trainer_process
-from ..bridge.trainer_process import SetupError
+from ..bridge import child_process
+from ..bridge.child_process import SetupError
 from ..common import jobs, prefs
 from ..common.ui_common import NerfPanel, abs_path, property_split
 from ..train import train_ui
@@ -37,7 +37,7 @@ def start_render(context) -> RenderJob:
     s = settings_of(context)
     run = abs_path(s.run_dir)
     compare_views.require_checkpoint(run)  # before the interpreter check: the likelier thing to fix
-    python = trainer_process.resolve_interpreter(prefs.python_preference(context))
+    python = child_process.resolve_interpreter(prefs.python_preference(context))
     plan = compare_views.prepare_render(context, run, s.view_source)
     job = RenderJob(context.scene.name, python, run, plan.cameras, plan.out, s.layout, s.plane_distance,
                          plan.n_views, checkpoint=plan.checkpoint)

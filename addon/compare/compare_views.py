@@ -16,9 +16,9 @@ from typing import List, Optional, Tuple
 import bpy
 import mathutils
 
-from ..bridge import runs, trainer_process
+from ..bridge import child_process, runs
+from ..bridge.child_process import SetupError
 from ..bridge.core_contract import contract
-from ..bridge.trainer_process import SetupError
 from ..dataset import cameras
 from . import image_storage, planes
 
@@ -44,7 +44,7 @@ def require_checkpoint(run: str) -> str:
     SetupError when the run has neither."""
     if run and os.path.isfile(contract.latest_checkpoint(run)):
         return ""
-    steps = trainer_process.step_checkpoints(run) if run else []
+    steps = child_process.step_checkpoints(run) if run else []
     if steps:
         return steps[0]
     raise SetupError(f"Run folder {run or '(not set)'} has no trained checkpoint yet: train first.")
@@ -99,7 +99,7 @@ def fresh_dir(parent: str, label: str) -> str:
     try:
         os.makedirs(path)
     except OSError as exc:
-        raise SetupError(trainer_process.describe_os_error(exc, path, "creating")) from None
+        raise SetupError(child_process.describe_os_error(exc, path, "creating")) from None
     return path
 
 
@@ -163,10 +163,10 @@ def write_cameras_file(context, run: str, source: str) -> Tuple[str, int, str]:
         raise SetupError(str(exc)) from None
     path = os.path.join(views_dir(run), f"cameras_{label}.json")
     try:
-        trainer_process.write_json_atomic(path, data)
+        child_process.write_json_atomic(path, data)
     except OSError as exc:
-        raise SetupError(str(exc) if isinstance(exc, trainer_process.DiskFullError)
-                         else trainer_process.describe_os_error(exc, path)) from None
+        raise SetupError(str(exc) if isinstance(exc, child_process.DiskFullError)
+                         else child_process.describe_os_error(exc, path)) from None
     return path, len(data["frames"]), label
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from typing import List
 
-from ..bridge import trainer_process
+from ..bridge import child_process
 from ..common.jobs import ProcessJob
 from . import compare_views, planes
 
@@ -20,8 +20,8 @@ class RenderJob(ProcessJob):
         super().__init__(scene_name)
         self.run, self.cameras, self.out, self.layout, self.distance = run, cameras, out, layout, distance
         self.n_views, self.checkpoint = n_views, checkpoint
-        self.process = trainer_process.BackgroundProcess(
-            trainer_process.render_command(python, run, cameras, out, checkpoint=checkpoint)).start()
+        self.process = child_process.BackgroundProcess(
+            child_process.render_command(python, run, cameras, out, checkpoint=checkpoint)).start()
         self.views: List[planes.View] = []
 
     def rendered(self) -> int:
@@ -34,7 +34,7 @@ class RenderJob(ProcessJob):
         except (ValueError, RuntimeError, TypeError, KeyError) as exc:  # a damaged renders.json
             return self.fail(f"{os.path.join(self.out, 'renders.json')}: cannot import the views: {exc}")
         except OSError as exc:
-            return self.fail(trainer_process.describe_os_error(exc, self.out))
+            return self.fail(child_process.describe_os_error(exc, self.out))
         self.state = "done"
         self.message = f"Imported {len(self.views)} view(s) from {self.out}" + (f"; {note}" if note else "")
         self.warnings = compare_views.render_notes(self.out)  # e.g. the scores are against a re-captured dataset

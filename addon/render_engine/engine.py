@@ -27,7 +27,7 @@ import numpy as np
 from bpy.props import IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 
-from ..bridge import render_client, runs, trainer_process
+from ..bridge import child_process, render_client, runs
 from ..common import prefs
 from ..common.ui_common import draw_wrapped, path_options
 from ..dataset import cameras
@@ -78,8 +78,8 @@ def _client_for(scene) -> render_client.RenderClient:
     """The scene's render process (started, or the live one reused). Raises SetupError/RenderClientError."""
     problem = settings_problem(scene)
     if problem:
-        raise trainer_process.SetupError(problem)
-    python = trainer_process.resolve_interpreter(prefs.python_preference() or os.environ.get("NERF_PYTHON", ""))
+        raise child_process.SetupError(problem)
+    python = child_process.resolve_interpreter(prefs.python_preference() or os.environ.get("NERF_PYTHON", ""))
     s = scene.nerf_render
     return render_client.get_client(python, _path(s.run_dir), _path(s.checkpoint) if s.checkpoint else "")
 
@@ -293,7 +293,7 @@ class NerfRenderEngine(bpy.types.RenderEngine):
             client = _client_for(scene)
             got = client.render(request, depth=want_depth, should_stop=self.test_break,
                                 on_progress=lambda f, text: (self.update_progress(f), self.update_stats("", text)))
-        except (trainer_process.SetupError, render_client.RenderClientError, ExportError) as exc:
+        except (child_process.SetupError, render_client.RenderClientError, ExportError) as exc:
             self.report({"ERROR"}, f"NeRF render, frame {scene.frame_current}: {exc}")
             return
         if got is None:  # cancelled (Esc)
@@ -338,7 +338,7 @@ class NerfRenderEngine(bpy.types.RenderEngine):
                 key = (tuple(map(tuple, rv3d.view_matrix)), tuple(map(tuple, rv3d.window_matrix)),
                        region.width, region.height, pct, client.key)
                 state.want(client, key, requests)
-        except (trainer_process.SetupError, render_client.RenderClientError) as exc:
+        except (child_process.SetupError, render_client.RenderClientError) as exc:
             state.message = f"NeRF: {exc}"
         self.update_stats("", state.status())
         if state.image is None:

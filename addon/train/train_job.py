@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import List
 
-from ..bridge import trainer_process
+from ..bridge import child_process
 from ..common.jobs import ProcessJob
 
 
@@ -20,11 +20,11 @@ class TrainJob(ProcessJob):
             self.stage = "check"
             # What train refuses stops the job; a dataset of another tool (the original NeRF scenes,
             # instant-ngp, nerfstudio) lacks fields our exports add, and still trains.
-            self.process = trainer_process.BackgroundProcess(
+            self.process = child_process.BackgroundProcess(
                 [python, "-m", "nerf_core", "check", dataset, "--for-training"]).start()
         else:
             self.stage = "train"
-            self.process = trainer_process.BackgroundProcess(command).start()
+            self.process = child_process.BackgroundProcess(command).start()
 
     def child_exited(self) -> str:
         if self.stage != "check":
@@ -34,7 +34,7 @@ class TrainJob(ProcessJob):
             detail = "\n".join(lines[-5:]) or f"exit code {self.process.returncode}"
             return self.fail(f"Dataset {self.dataset} is not usable:\n{detail}")
         self.stage = "train"
-        self.process = trainer_process.BackgroundProcess(self.command).start()
+        self.process = child_process.BackgroundProcess(self.command).start()
         return self.state
 
     def succeeded(self) -> str:

@@ -1,4 +1,4 @@
-"""Process management of the training child (addon/bridge/trainer_process.py), with a fake trainer that
+"""Process management of the training child (addon/bridge/child_process.py), with a fake trainer that
 speaks the JSON-line protocol of docs/CONTRACTS.md: this tests the plumbing, not NeRF training."""
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from addon.bridge import trainer_process
-from addon.bridge.trainer_process import BackgroundProcess, group_pids, pid_alive
+from addon.bridge import child_process
+from addon.bridge.child_process import BackgroundProcess, group_pids, pid_alive
 
 FAKE_TRAINER = textwrap.dedent('''
     import json, subprocess, sys, time
@@ -114,42 +114,42 @@ def test_cancel_kills_the_child_and_its_children(fake, mode):
 def test_child_env_finds_vendored_copy_first_then_checkout(tmp_path, repo_root):
     addon_dir = tmp_path / "nerf_bridge"
     (addon_dir / "vendor" / "nerf_core").mkdir(parents=True)
-    assert trainer_process.nerf_core_search_path(str(addon_dir)) is None  # no __init__.py: not a package
+    assert child_process.nerf_core_search_path(str(addon_dir)) is None  # no __init__.py: not a package
     (addon_dir / "vendor" / "nerf_core" / "__init__.py").write_text("")
-    assert trainer_process.nerf_core_search_path(str(addon_dir)) == str(addon_dir / "vendor")
-    env = trainer_process.child_env(str(addon_dir), base={"PYTHONHOME": "/blender/python", "PATH": "/bin"})
+    assert child_process.nerf_core_search_path(str(addon_dir)) == str(addon_dir / "vendor")
+    env = child_process.child_env(str(addon_dir), base={"PYTHONHOME": "/blender/python", "PATH": "/bin"})
     assert env["PYTHONPATH"] == str(addon_dir / "vendor") and "PYTHONHOME" not in env
     assert env["PYTHONUNBUFFERED"] == "1"
-    assert trainer_process.nerf_core_search_path(os.path.join(repo_root, "addon")) == repo_root
+    assert child_process.nerf_core_search_path(os.path.join(repo_root, "addon")) == repo_root
 
 
 def test_commands_follow_the_cli_contract():
-    cmd = trainer_process.train_command("py", "/d", "/r", method="nerf", max_seconds=5, max_steps=0, seed=1)
+    cmd = child_process.train_command("py", "/d", "/r", method="nerf", max_seconds=5, max_steps=0, seed=1)
     assert cmd == ["py", "-m", "nerf_core", "train", "/d", "--out", "/r", "--method", "nerf",
                    "--max-seconds", "5", "--seed", "1"]
     # A resumed run keeps its seed: train refuses a different one rather than ignore it.
-    cmd = trainer_process.train_command("py", "/d", "/r", method="nerf", max_seconds=5, max_steps=0, seed=1,
+    cmd = child_process.train_command("py", "/d", "/r", method="nerf", max_seconds=5, max_steps=0, seed=1,
                                         resume=True)
     assert cmd == ["py", "-m", "nerf_core", "train", "/d", "--out", "/r", "--method", "nerf",
                    "--max-seconds", "5", "--resume"]
-    assert trainer_process.render_command("py", "/r", "/t.json", "/o") == [
+    assert child_process.render_command("py", "/r", "/t.json", "/o") == [
         "py", "-m", "nerf_core", "render", "/r", "--cameras", "/t.json", "--out", "/o"]
 
 
 def test_run_folder_states_and_new_names(tmp_path):
     run = tmp_path / "run"
-    assert trainer_process.run_folder_state(str(run)) == "new"
+    assert child_process.run_folder_state(str(run)) == "new"
     run.mkdir()
-    assert trainer_process.run_folder_state(str(run)) == "empty"
-    assert trainer_process.suggest_run_name(str(run)) == str(run)
+    assert child_process.run_folder_state(str(run)) == "empty"
+    assert child_process.suggest_run_name(str(run)) == str(run)
     (run / "config.json").write_text("{}")
-    assert trainer_process.run_folder_state(str(run)) == "occupied"
+    assert child_process.run_folder_state(str(run)) == "occupied"
     (run / "checkpoints").mkdir()
     (run / "checkpoints" / "step_0000010.pt").write_bytes(b"x")  # what --resume falls back to
-    assert trainer_process.run_folder_state(str(run)) == "resumable"
+    assert child_process.run_folder_state(str(run)) == "resumable"
     (run / "checkpoints" / "latest.pt").write_bytes(b"x")
-    assert trainer_process.run_folder_state(str(run)) == "resumable"
+    assert child_process.run_folder_state(str(run)) == "resumable"
     (tmp_path / "notes.txt").write_text("mine")
-    assert trainer_process.run_folder_state(str(tmp_path / "notes.txt")) == "file"
+    assert child_process.run_folder_state(str(tmp_path / "notes.txt")) == "file"
     (tmp_path / "run_2").mkdir()
-    assert trainer_process.suggest_run_name(str(run)) == str(tmp_path / "run_3")
+    assert child_process.suggest_run_name(str(run)) == str(tmp_path / "run_3")
