@@ -318,48 +318,66 @@ class VMGrid(RadianceModel):
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         n_rays = rays_o.shape[0]
-        step = self.step_size()
-        with profiling.stage("sampling"):
-            if self.contracted:
-                t0, t1, ridx = sampling.contracted_samples(rays_o, rays_d, near, self.aabb, step,
-                                                           lambda p: self.occupancy.query(self.warp(p)),
-                                                           jitter=training, max_samples=4096)
-            else:
-                t0, t1, ridx = sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
-                                                         jitter=training, max_samples=4096,
-                                                         near_fn=self.occupancy.query_near,
-                                                         near_reach=self.occupancy.near_reach())
-        mids = 0.5 * (t0 + t1)
-        pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, mids))
-        gscale = None
-        color_fn = self.field.color
+        t0, t1, ridx = self._samples(rays_o, rays_d, near, far, training)
+        pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, 0.5 * (t0 + t1)))
         if torch.is_grad_enabled():
-            # Early ray termination: find, without grad, the samples still visible (T > 1e-4), then
-            # recompute their density with grad.
-            with torch.no_grad():
-                sig = torch.cat([self._density(pts[i:i + self.render_step_chunk])
-                                 for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
-                with profiling.stage("rendering"):
-                    trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
-                keep = (trans > 1e-4).nonzero().squeeze(-1)
-            t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
-            sigma = self._density(pts)
-            gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
-                self.aabb, self.options["grad_reach"])) if training else None
-            if gscale is not None:  # cameras inside the box: even out the gradient near each lens
-                sigma = grad_scaling.scale_gradient(sigma, gscale)
-            with profiling.stage("rendering"):
-                weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
+            t0, t1, ridx, pts, weights, gscale = self._visible_with_grad(t0, t1, ridx, pts, n_rays, training)
+            color_fn = self.field.color
         else:
             # Nothing to differentiate (render, eval): the same kept samples and weights, without the
             # density of samples behind opaque surfaces or a second density pass over the survivors,
             # and every lookup from tables laid out for reading (``fields.vm_lookup``).
             lookup = self.field.lookup()
-            color_fn = lookup.color
+            color_fn, gscale = lookup.color, None
             keep, weights = ray_termination.visible_samples(
                 t0, t1, ridx, n_rays, self._density_of(pts, lookup), t_min=1e-4, round_size=self.render_round_size)
             keep = keep.nonzero().squeeze(-1)
             t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
+        out = self._composite(t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_rays, background)
+        if training:
+            acc = out["acc"]
+            self._acc_ema = 0.9 * self._acc_ema + 0.1 * float(acc.detach().mean()) if n_rays else self._acc_ema
+            aux = self._regularisers(weights, t0, t1, ridx, n_rays)
+            if torch.is_tensor(aux):
+                out["aux_loss"] = aux
+        return out
+
+    def _samples(self, rays_o, rays_d, near, far, training):
+        """Samples where the occupancy grid says something may be: (t0, t1, ray index), each (m,)."""
+        step = self.step_size()
+        with profiling.stage("sampling"):
+            if self.contracted:
+                return sampling.contracted_samples(rays_o, rays_d, near, self.aabb, step,
+                                                   lambda p: self.occupancy.query(self.warp(p)),
+                                                   jitter=training, max_samples=4096)
+            return sampling.occupied_samples(rays_o, rays_d, near, far, step, self.occupancy.query,
+                                             jitter=training, max_samples=4096,
+                                             near_fn=self.occupancy.query_near,
+                                             near_reach=self.occupancy.near_reach())
+
+    def _visible_with_grad(self, t0, t1, ridx, pts, n_rays, training):
+        """The samples still visible (T > 1e-4) and their weights, with grad.
+
+        Early ray termination: find the visible samples without grad, then recompute their density
+        with grad. Returns (t0, t1, ridx, pts, weights, gradient scales near the cameras or None)."""
+        with torch.no_grad():
+            sig = torch.cat([self._density(pts[i:i + self.render_step_chunk])
+                             for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
+            with profiling.stage("rendering"):
+                trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
+            keep = (trans > 1e-4).nonzero().squeeze(-1)
+        t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
+        sigma = self._density(pts)
+        gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
+            self.aabb, self.options["grad_reach"])) if training else None
+        if gscale is not None:  # cameras inside the box: even out the gradient near each lens
+            sigma = grad_scaling.scale_gradient(sigma, gscale)
+        with profiling.stage("rendering"):
+            weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
+        return t0, t1, ridx, pts, weights, gscale
+
+    def _composite(self, t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_rays, background) -> dict:
+        """Colour the samples that can matter and add them up: {"rgb", "depth", "acc", "n_samples"}."""
         with profiling.stage("rendering"):
             # Colour only where it can matter: most surviving samples are transparent space before a
             # surface. Rays that are still almost transparent (all of them at initialisation) get colour
@@ -383,27 +401,26 @@ class VMGrid(RadianceModel):
             depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids).squeeze(-1)
             depth = depth / acc.clamp_min(1e-6)
             rgb = volrend.composite_background(rgb, acc, background.to(rgb.dtype))
-        out = {"rgb": rgb, "depth": depth, "acc": acc, "n_samples": int(ridx.shape[0])}
-        if training:
-            self._acc_ema = 0.9 * self._acc_ema + 0.1 * float(acc.detach().mean()) if n_rays else self._acc_ema
-            aux = 0.0
-            # The L1 prior waits until geometry has formed (``formed``: the occupancy grid prunes, or nearly
-            # every ray is stopped). Before that the rendering gradient on the nearly transparent field is
-            # tiny, and Adam scales every
-            # parameter's step to the same size whatever its gradient, so L1 alone would drive both
-            # factors of the VM products to zero: a saddle (d(plane*line) = 0 there) that training
-            # never leaves, seen as a run stuck at its initial PSNR for its whole budget.
-            use_l1 = self.options["l1_weight"] > 0 and self.formed()  # formed() reads the occupancy grid
-            with profiling.stage("field"):
-                if use_l1:
-                    aux = aux + self.options["l1_weight"] * self.field.density_l1()
-                if self.options["tv_weight"] > 0:
-                    aux = aux + self.options["tv_weight"] * self.field.density_tv()
-            if self.options["dist_weight"] > 0:
-                scale = float((self.aabb[1] - self.aabb[0]).norm())
-                with profiling.stage("rendering"):
-                    dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
-                aux = aux + self.options["dist_weight"] * dist.mean()
-            if torch.is_tensor(aux):
-                out["aux_loss"] = aux
-        return out
+        return {"rgb": rgb, "depth": depth, "acc": acc, "n_samples": int(ridx.shape[0])}
+
+    def _regularisers(self, weights, t0, t1, ridx, n_rays):
+        """The training step's extra loss: L1 and TV on the density planes, the distortion loss; 0.0
+        when none applies."""
+        aux = 0.0
+        # The L1 prior waits until geometry has formed (``formed``: the occupancy grid prunes, or nearly
+        # every ray is stopped). Before that the rendering gradient on the nearly transparent field is
+        # tiny, and Adam scales every parameter's step to the same size whatever its gradient, so L1
+        # alone would drive both factors of the VM products to zero: a saddle (d(plane*line) = 0 there)
+        # that training never leaves, seen as a run stuck at its initial PSNR for its whole budget.
+        use_l1 = self.options["l1_weight"] > 0 and self.formed()  # formed() reads the occupancy grid
+        with profiling.stage("field"):
+            if use_l1:
+                aux = aux + self.options["l1_weight"] * self.field.density_l1()
+            if self.options["tv_weight"] > 0:
+                aux = aux + self.options["tv_weight"] * self.field.density_tv()
+        if self.options["dist_weight"] > 0:
+            scale = float((self.aabb[1] - self.aabb[0]).norm())
+            with profiling.stage("rendering"):
+                dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
+            aux = aux + self.options["dist_weight"] * dist.mean()
+        return aux
