@@ -21,15 +21,8 @@ Each package's ``register()``/``unregister()`` registers its own ``classes`` tup
 them in order. Everything but the UI modules is importable by scripts without registering anything.
 """
 from . import capture, common, compare, render_engine, train
+from .common.registration import registrar
 
 _MODULES = (common, capture, train, compare, render_engine)
 
-
-def register():
-    for module in _MODULES:
-        module.register()
-
-
-def unregister():
-    for module in reversed(_MODULES):
-        module.unregister()
+register, unregister = registrar(_MODULES)

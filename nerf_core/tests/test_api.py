@@ -41,18 +41,12 @@ def test_api_page_lists_exactly_the_public_names():
     assert not twice, f"docs/API.md has a heading twice: {twice}"
     public, volume = set(_public()), set(nerf_core.volume.__all__)
     problems = []
-    if public - set(top):
-        problems.append("in nerf_core.__all__ but without a '### `name`' heading in docs/API.md: "
-                        f"{sorted(public - set(top))}")
-    if set(top) - public:
-        problems.append(f"'### ' headings in docs/API.md that are not in nerf_core.__all__: "
-                        f"{sorted(set(top) - public)}")
-    if volume - set(vol):
-        problems.append("in nerf_core.volume.__all__ but without a '#### `volume.name`' heading in docs/API.md: "
-                        f"{sorted(volume - set(vol))}")
-    if set(vol) - volume:
-        problems.append(f"'#### volume.' headings in docs/API.md that are not in nerf_core.volume.__all__: "
-                        f"{sorted(set(vol) - volume)}")
+    for names, headings, heading in ((public, set(top), "'### `name`'"), (volume, set(vol), "'#### `volume.name`'")):
+        where = "nerf_core.volume.__all__" if names is volume else "nerf_core.__all__"
+        if names - headings:
+            problems.append(f"in {where} but without a {heading} heading in docs/API.md: {sorted(names - headings)}")
+        if headings - names:
+            problems.append(f"{heading} headings in docs/API.md that are not in {where}: {sorted(headings - names)}")
     assert not problems, "; ".join(problems)
 
 
