@@ -10,10 +10,11 @@ import torch
 
 from nerf_core.data.scene_box import beyond_box_reason
 from nerf_core.data.split import Dataset
-from nerf_core.errors import TrainError
+from nerf_core.errors import RunError, TrainError
 from nerf_core.fields.environment import size_for_focal
 from nerf_core.methods.registry import build_model, has_option, saved_options
 from nerf_core.methods.sizing import auto_size_dataset
+from nerf_core.runs.checkpoint_checks import check_weights
 from nerf_core.runs.checkpoints import load_state_resizing
 from nerf_core.utils.seeding import seed_everything
 
@@ -70,7 +71,8 @@ def contract_if_beyond_box(method: str, dataset: Dataset, bg_mode: str, options:
                        "(--set contract=false turns it off)")
 
 
-def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt: Optional[dict]) -> torch.nn.Module:
+def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt: Optional[dict],
+                 where: str = "checkpoint") -> torch.nn.Module:
     """Seed every generator with ``seed``, build ``method`` and load a resumed checkpoint's weights.
 
     Returns:
@@ -84,7 +86,11 @@ def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt
     except ValueError as exc:  # unknown method or option values the method rejects
         raise TrainError(str(exc)) from exc
     if ckpt is not None:
-        load_state_resizing(model, ckpt["model"])
+        weights = ckpt.get("model")
+        if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
+            raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors)")
+        check_weights(model, weights, where)  # nothing mis-shaped or NaN reaches the model
+        load_state_resizing(model, weights)
     return model
 
 

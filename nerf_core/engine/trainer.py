@@ -55,6 +55,7 @@ from nerf_core.errors import RunError, TrainError
 from nerf_core.fields.environment import prefit_from_split
 from nerf_core.image.losses import backward, masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
+from nerf_core.runs.checkpoint_checks import check_optimizer_state
 from nerf_core.runs.checkpoints import (
     read_resume_checkpoint,
     save_checkpoint,
@@ -234,7 +235,7 @@ class Trainer:
         self.train = dataset.split("train")
         self.method = cfg.method or default_method()
         options, aabb, self.size_reasons = model_options(cfg, self.method, dataset, ckpt, self.bg_mode)
-        model = build_seeded(self.method, aabb, options, cfg.seed, ckpt)
+        model = build_seeded(self.method, aabb, options, cfg.seed, ckpt, str(getattr(self, "resumed_checkpoint", "")))
         self.model = model.to(self.device).train()
         self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
         if cfg.batch_rays is None:
@@ -248,8 +249,10 @@ class Trainer:
         self.loss_ema = ckpt.get("loss_ema")
         self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
         try:
+            # checked first: the fused Adam kernel trusts the moments' shapes and would write out of bounds
+            check_optimizer_state(ckpt["optimizer"], self.opt, str(self.resumed_checkpoint))
             self.opt.load_state_dict(ckpt["optimizer"])
-        except (ValueError, KeyError) as exc:
+        except (ValueError, KeyError, RunError) as exc:
             print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh", file=sys.stderr)
         rescale_base_lrs(self.opt, self.model, self.base_lr * self.lr_scale)
         set_rng_state(ckpt["rng"], self.gen)

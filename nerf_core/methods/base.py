@@ -100,6 +100,9 @@ class RadianceModel(nn.Module):
     # trained (``saved_options``). New runs get ``defaults``.
     options_before: dict = {}
     environment_lr = 0.02  # Adam step for the environment's texture logits, at the method's default_lr
+    # Weights (state-dict names) that grow during training (coarse-to-fine grids): a checkpoint may hold
+    # them at another size than a fresh build (``runs.checkpoint_checks.check_weights``); no other may.
+    growing: tuple = ()
 
     def __init__(self, aabb: torch.Tensor, **options):
         super().__init__()

@@ -115,6 +115,7 @@ class VMGrid(RadianceModel):
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
                     color_weight=1e-4, occ_probe="max", density_unit="box")
     options_before = {"density_unit": "scene"}
+    growing = ("field.density_planes", "field.density_lines", "field.app_planes", "field.app_lines")
 
     def __init__(self, aabb: Tensor, **options):
         self.validate_options(options)

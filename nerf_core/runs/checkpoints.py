@@ -27,6 +27,7 @@ import torch
 from nerf_core import __version__, contract
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
 from nerf_core.methods.registry import build_model, saved_options
+from nerf_core.runs.checkpoint_checks import check_entries, check_weights
 from nerf_core.runs.folder import (
     WRITTEN_LIST,
     os_reason,
@@ -191,8 +192,10 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
     if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
         raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
                        f"got a {type(weights).__name__}")
+    check_entries(ckpt, where)
     try:
         model = build_model(method, box, **saved_options(method, options))
+        check_weights(model, weights, where)
         load_state_resizing(model, weights)
     except ValueError as exc:  # unknown method name
         raise RunError(f"{where}: {exc}") from exc
@@ -246,6 +249,18 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
     ckpt = read_checkpoint(ck)
     _check_checkpoint_of_run(ckpt, config, ck, run)
     return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+
+
+def check_checkpoint_of_run(ckpt: dict, ck: Path, run: Path) -> None:
+    """Refuse (RunError) a checkpoint that another run wrote, judged by RUN/config.json when the run has
+    one: ``train --resume`` must not continue (and rewrite config.json to) another run's method."""
+    cfg_path = Path(contract.config_path(run))
+    try:
+        config = json.loads(cfg_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return  # no readable config.json: the checkpoint's own record is all there is
+    if isinstance(config, dict):
+        _check_checkpoint_of_run(ckpt, config, ck, run)
 
 
 def _check_checkpoint_of_run(ckpt: dict, config: dict, ck: Path, run: Path) -> None:
@@ -303,6 +318,12 @@ def read_resume_checkpoint(run: Path) -> tuple[Path, dict]:
             ckpt = read_checkpoint(path)
         except CheckpointRefused:
             raise  # a crafted checkpoint is an alarm, not damage to route around
+        except RunError as exc:
+            failures.append(str(exc))
+            continue
+        try:
+            check_entries(ckpt, str(path), for_resume=True)
+            check_checkpoint_of_run(ckpt, path, run)
         except RunError as exc:
             failures.append(str(exc))
             continue

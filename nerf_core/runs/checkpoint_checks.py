@@ -1,0 +1,174 @@
+"""The one validator of what a checkpoint holds, against what it loads into.
+
+``torch.load(weights_only=True)`` (``checkpoints.read_checkpoint``) guarantees that a file runs no
+code; it says nothing about whether its tensors fit. A mis-shaped Adam moment reaches the fused
+optimiser, which writes out of bounds (a segfault or heap corruption); mis-shaped or NaN weights end
+in a matmul traceback or in scores of a broken model. So every reader (``load_run`` for ``render``,
+``eval`` and ``serve``; the resume reader and the trainer for ``train --resume``) passes through here:
+
+- ``check_entries``: every scalar entry (step, elapsed, learning-rate scale, rollbacks, the loss
+  average, the RNG state, the optimiser's layout) is of the kind and range the trainer writes;
+- ``check_weights``: every weight has the name, dtype and shape of the model it loads into (shapes
+  may differ only where the method declares growth, ``RadianceModel.growing``), and is finite;
+- ``check_optimizer_state``: every optimiser moment has its parameter's shape and is finite, and
+  the parameter groups match the optimiser's.
+
+Each problem is a RunError naming the file and the entry.
+"""
+from __future__ import annotations
+
+import math
+from typing import Dict
+
+import torch
+
+from nerf_core.errors import RunError
+from nerf_core.methods.base import MAX_GRID_RES
+
+RNG_KEYS = ("python", "numpy", "torch", "batches")
+
+
+def _whole(value, least: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
+def _finite(value, least: float = 0.0, inclusive: bool = True) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return False
+    return value >= least if inclusive else value > least
+
+
+def _byte_state(value) -> bool:
+    return isinstance(value, torch.Tensor) and value.dtype == torch.uint8 and value.dim() == 1
+
+
+def check_rng(rng, where: str) -> None:
+    """The RNG state ``seeding.rng_state`` writes: python's tuple, numpy's dict, torch's byte tensors."""
+    if not isinstance(rng, dict) or any(k not in rng for k in RNG_KEYS):
+        missing = [k for k in RNG_KEYS if not isinstance(rng, dict) or k not in rng]
+        raise RunError(f"{where}: entry 'rng' must hold the random states {list(RNG_KEYS)}; missing {missing}")
+    py = rng["python"]
+    if not (isinstance(py, tuple) and len(py) == 3 and isinstance(py[1], tuple)
+            and all(isinstance(v, int) for v in py[1])):
+        raise RunError(f"{where}: entry 'rng' field 'python' is not the state of python's random module")
+    nps = rng["numpy"]
+    if isinstance(nps, dict):
+        key = nps.get("key")
+        if not (isinstance(key, torch.Tensor) and key.shape == (624,) and not key.is_floating_point()
+                and isinstance(nps.get("bit_generator"), str) and _whole(nps.get("pos"), 0) and nps["pos"] <= 624
+                and isinstance(nps.get("has_gauss"), int) and isinstance(nps.get("cached_gaussian"), float)):
+            raise RunError(f"{where}: entry 'rng' field 'numpy' is not the state of numpy's random generator")
+    elif not isinstance(nps, tuple):  # checkpoints older than the weights-only format kept numpy's tuple
+        raise RunError(f"{where}: entry 'rng' field 'numpy' is not the state of numpy's random generator")
+    for key in ("torch", "batches"):
+        if not _byte_state(rng[key]):
+            raise RunError(f"{where}: entry 'rng' field {key!r} must be a generator state (a 1-D uint8 tensor)")
+
+
+def check_entries(ckpt: dict, where: str, for_resume: bool = False) -> None:
+    """Refuse (RunError naming ``where`` and the entry) scalar entries the trainer would not write.
+
+    Args:
+        ckpt: the checkpoint dict (from ``read_checkpoint``).
+        where: the file, for messages.
+        for_resume: also require what ``train --resume`` continues from (step, elapsed, the RNG state,
+            the optimiser's state).
+    """
+    def bad(key, want):
+        raise RunError(f"{where}: entry {key!r} must be {want}, got {ckpt[key]!r:.80}")
+
+    needed = ("step", "elapsed", "rng", "optimizer") if for_resume else ()
+    missing = [k for k in needed if k not in ckpt]
+    if missing:
+        raise RunError(f"{where}: missing entries {missing}; `train --resume` needs a checkpoint written by `train`")
+    if "format" in ckpt and ckpt["format"] != 1:
+        bad("format", "1 (the only checkpoint format there is)")
+    if "step" in ckpt and not _whole(ckpt["step"], 0):
+        bad("step", "a whole number >= 0")
+    if "elapsed" in ckpt and not _finite(ckpt["elapsed"]):
+        bad("elapsed", "a finite number of seconds >= 0")
+    if "lr_scale" in ckpt and not (_finite(ckpt["lr_scale"], 0.0, inclusive=False) and ckpt["lr_scale"] <= 1):
+        bad("lr_scale", "a number in (0, 1]")
+    if "rollbacks" in ckpt and not _whole(ckpt["rollbacks"], 0):
+        bad("rollbacks", "a whole number >= 0")
+    if ckpt.get("loss_ema") is not None and not _finite(ckpt["loss_ema"]):
+        bad("loss_ema", "a finite number >= 0 or null")
+    if "config" in ckpt and not isinstance(ckpt["config"], dict):
+        bad("config", "the run's config (a dict)")
+    if "rng" in ckpt:
+        check_rng(ckpt["rng"], where)
+    if "optimizer" in ckpt:
+        opt = ckpt["optimizer"]
+        if not (isinstance(opt, dict) and isinstance(opt.get("state"), dict)
+                and isinstance(opt.get("param_groups"), list)
+                and all(isinstance(g, dict) and isinstance(g.get("params"), list) for g in opt["param_groups"])):
+            raise RunError(f"{where}: entry 'optimizer' must be an optimiser's state_dict "
+                           "({'state': {...}, 'param_groups': [...]})")
+
+
+def _fits_growth(saved: torch.Size, fresh: torch.Size) -> bool:
+    """A grown grid: the same number of dimensions and channels, each size within the grid limits."""
+    return (len(saved) == len(fresh) and saved[:2] == fresh[:2]
+            and all(1 <= s <= MAX_GRID_RES + 1 for s in saved[2:]))  # +1: grids store their corners
+
+
+def check_weights(model: torch.nn.Module, weights: Dict[str, torch.Tensor], where: str) -> None:
+    """Refuse (RunError) weights that do not fit ``model``: names, dtypes, shapes, finite values.
+
+    Args:
+        model: a freshly built model of the checkpoint's method and options.
+        weights: the checkpoint's ``model`` entry, name -> tensor.
+        where: the file, for messages.
+    """
+    own = model.state_dict()
+    missing = sorted(set(own) - set(weights))
+    unexpected = sorted(set(weights) - set(own))
+    if missing or unexpected:
+        raise RunError(f"{where}: the saved weights do not fit method {getattr(model, 'method_name', '?')!r}: "
+                       + (f"missing {missing[:4]}" if missing else "")
+                       + ("; " if missing and unexpected else "")
+                       + (f"unexpected {unexpected[:4]}" if unexpected else ""))
+    growing = tuple(getattr(model, "growing", ()))
+    for name, value in weights.items():
+        fresh = own[name]
+        if value.dtype != fresh.dtype:
+            raise RunError(f"{where}: weight {name!r} is {value.dtype}, the model holds {fresh.dtype}")
+        if value.shape != fresh.shape and not (name in growing and _fits_growth(value.shape, fresh.shape)):
+            raise RunError(f"{where}: weight {name!r} has shape {tuple(value.shape)}; the model holds "
+                           f"{tuple(fresh.shape)}" + (" (a grid may grow, but not so)" if name in growing else ""))
+        if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            raise RunError(f"{where}: weight {name!r} holds NaN or infinite values; the model would render "
+                           "nothing meaningful (a damaged checkpoint, or training that diverged)")
+
+
+def check_optimizer_state(state: dict, optimizer: torch.optim.Optimizer, where: str) -> None:
+    """Refuse (RunError) optimiser state that does not fit ``optimizer`` (built over the model that the
+    checkpoint's weights were loaded into): group layout, moment shapes, finite values.
+
+    Nothing mis-shaped may reach ``optimizer.load_state_dict``: the fused Adam kernel trusts the shapes
+    and would write out of bounds.
+    """
+    groups, mine = state["param_groups"], optimizer.param_groups
+    if len(groups) != len(mine) or any(len(g["params"]) != len(m["params"]) for g, m in zip(groups, mine)):
+        raise RunError(f"{where}: entry 'optimizer' has {[len(g['params']) for g in groups]} parameters per group; "
+                       f"the model's optimiser has {[len(m['params']) for m in mine]}")
+    params = [p for m in mine for p in m["params"]]
+    ids = [i for g in groups for i in g["params"]]
+    if any(not _whole(i, 0) for i in ids) or sorted(ids) != list(range(len(params))):
+        raise RunError(f"{where}: entry 'optimizer' numbers its parameters {ids[:8]}..., not 0..{len(params) - 1}")
+    index = {pid: params[k] for k, pid in enumerate(ids)}
+    for pid, moments in state["state"].items():
+        if pid not in index or not isinstance(moments, dict):
+            raise RunError(f"{where}: entry 'optimizer' has state for parameter {pid!r}, which the model lacks")
+        param = index[pid]
+        for key, value in moments.items():
+            if not isinstance(value, torch.Tensor):
+                raise RunError(f"{where}: optimiser state {key!r} of parameter {pid} must be a tensor")
+            want = () if key == "step" else param.shape
+            if value.shape != want:
+                raise RunError(f"{where}: optimiser state {key!r} of parameter {pid} has shape {tuple(value.shape)}; "
+                               f"it must be {tuple(want)} to fit the model")
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise RunError(f"{where}: optimiser state {key!r} of parameter {pid} holds NaN or infinite values")
+            if key == "step" and float(value) < 0:
+                raise RunError(f"{where}: optimiser state 'step' of parameter {pid} is negative")
