@@ -4,6 +4,8 @@ the seeded build, and the rays per step.
 """
 from __future__ import annotations
 
+import sys
+import time
 from typing import List, Optional, Tuple
 
 import torch
@@ -11,7 +13,7 @@ import torch
 from nerf_core.data.scene_box import beyond_box_reason
 from nerf_core.data.split import Dataset
 from nerf_core.errors import RunError, TrainError
-from nerf_core.fields.environment import size_for_focal
+from nerf_core.fields.environment import prefit_from_split, size_for_focal
 from nerf_core.methods.registry import build_model, has_option, saved_options
 from nerf_core.methods.sizing import auto_size_dataset
 from nerf_core.runs.checkpoint_checks import check_weights
@@ -99,3 +101,15 @@ def default_batch_rays(model, device: torch.device) -> int:
     it has none), ``CUDA_BATCH_SCALE`` times that on a CUDA device."""
     base = int(getattr(model, "default_batch_rays", 0) or 1024)
     return base * CUDA_BATCH_SCALE if device.type == "cuda" else base
+
+
+def prefit_environment(trainer) -> None:
+    """Fit the trainer's learned world to the train rays that miss the scene box, before the first
+    step; the time counts as training time, and a ``note`` event says how many rays missed."""
+    started = time.perf_counter()
+    msg, share = prefit_from_split(trainer.model, trainer.train, trainer.dataset.near, trainer.dataset.far,
+                                   trainer.gen, trainer.device)
+    trainer.elapsed += time.perf_counter() - started
+    if trainer.dist.is_main:
+        print(f"train: {msg}", file=sys.stderr)
+    trainer.log.emit("note", message=msg, miss_share=share)

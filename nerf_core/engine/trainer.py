@@ -33,7 +33,7 @@ from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
 from nerf_core.engine.callbacks import StepInterval, default_callbacks
 from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
-from nerf_core.engine.model_setup import build_seeded, default_batch_rays, model_options
+from nerf_core.engine.model_setup import build_seeded, default_batch_rays, model_options, prefit_environment
 from nerf_core.engine.optim import (
     make_optimizer,
     rebuild_optimizer,
@@ -52,7 +52,6 @@ from nerf_core.engine.rollback import (
     take_snapshot,
 )
 from nerf_core.errors import RunError, TrainError
-from nerf_core.fields.environment import prefit_from_split
 from nerf_core.image.losses import backward, masked_mse
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 from nerf_core.runs.checkpoint_checks import check_optimizer_state
@@ -321,7 +320,7 @@ class Trainer:
 
         if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):
             # (A contracted scene has no ray that misses it: the world beyond the box is geometry too.)
-            self._prefit_environment()
+            prefit_environment(self)
         if self.replicas is not None:  # every rank starts from rank 0's model and the largest elapsed time
             self.elapsed = self.replicas.start(self.model, self.elapsed)
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
@@ -443,17 +442,6 @@ class Trainer:
         self.interval.add(time.perf_counter() - t0, n_samples, loss_value)
         self.last_loss, self.last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
         return True
-
-    def _prefit_environment(self) -> None:
-        """Fit the learned world to the train rays that miss the scene box; counted as training time."""
-
-        started = time.perf_counter()
-        msg, share = prefit_from_split(self.model, self.train, self.dataset.near, self.dataset.far, self.gen,
-                                       self.device)
-        self.elapsed += time.perf_counter() - started
-        if self.dist.is_main:
-            print(f"train: {msg}", file=sys.stderr)
-        self.log.emit("note", message=msg, miss_share=share)
 
     # ------------------------------------------------------------------ reporting
 
