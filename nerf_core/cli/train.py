@@ -13,6 +13,7 @@ from nerf_core.cli.options import (
 from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.trainer import train
+from nerf_core.errors import TrainError
 
 
 def add_parser(sub, fmt) -> None:
@@ -69,10 +70,20 @@ def run(a) -> int:
     cfg = TrainConfig(
         dataset=a.dataset, out=a.out, method=a.method, max_steps=a.max_steps, max_seconds=a.max_seconds, seed=a.seed,
         resume=a.resume, overwrite=a.overwrite, dataset_moved=a.dataset_moved, size=a.size,
-        options={**parse_options(a.options), **({"contract": True} if a.contract else {})}, progress=a.progress,
+        options=_options(a), progress=a.progress,
         device=a.device, lr=a.lr, batch_rays=a.batch_rays, background=a.background, downscale=a.downscale,
         log_every=a.log_every, preview_every=a.preview_every, checkpoint_every=a.checkpoint_every,
         eval_views=a.eval_views, eval_at=a.eval_at, show_bar=not a.no_bar,
     )
     train(cfg)
     return 0
+
+
+def _options(a) -> dict:
+    """``--set`` options, with ``--contract`` as ``contract=true``; the two flags must not disagree."""
+    options = parse_options(a.options)
+    if a.contract:
+        if options.get("contract", True) is not True:
+            raise TrainError(f"--contract and --set contract={options['contract']} disagree; give one of them")
+        options["contract"] = True
+    return options

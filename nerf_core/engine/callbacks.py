@@ -9,6 +9,7 @@ without it. Only rank 0 of a ``torchrun`` job writes; the others keep the same s
 """
 from __future__ import annotations
 
+import sys
 import time
 from typing import List, Sequence
 
@@ -22,6 +23,9 @@ class TrainingCallback:
 
     def start(self, trainer) -> None:
         """Called once, before the first step of this process (also after ``--resume``)."""
+
+    def end(self, trainer) -> None:
+        """Called once, when the budget is spent (not on an interrupt or an error)."""
 
     def after_step(self, trainer, done: bool) -> bool:
         """Called after each optimisation step.
@@ -61,6 +65,16 @@ class EvalAtTimes(TrainingCallback):
             held_out_eval(trainer.log, trainer.model, trainer.dataset, trainer.cfg, trainer.eval_bg, trainer.step,
                           trainer.elapsed, marks=crossed)
         return True
+
+    def end(self, trainer) -> None:
+        if not self.marks or not trainer.dist.is_main:
+            return
+        # --max-steps ran out before these times (a --max-seconds budget refuses marks beyond it)
+        marks = ", ".join(f"{t:g}" for t in self.marks)
+        msg = (f"--eval-at {marks}: training ended after {trainer.elapsed:.1f} s ({trainer.step} steps), before "
+               f"{'this mark' if len(self.marks) == 1 else 'these marks'}: nothing was evaluated there")
+        print(f"train: note: {msg}", file=sys.stderr)
+        trainer.log.emit("note", message=msg)
 
 
 class StepEvents(TrainingCallback):

@@ -151,6 +151,10 @@ class TrainConfig:
         bad = [t for t in self.eval_at if not (math.isfinite(t) and t > 0)]
         if bad:
             raise TrainError(f"--eval-at: training times must be finite numbers of seconds > 0, got {bad[0]}")
+        beyond = [t for t in self.eval_at if self.max_seconds is not None and t > self.max_seconds]
+        if beyond:
+            raise TrainError(f"--eval-at {beyond[0]:g} lies beyond --max-seconds {self.max_seconds:g}: training stops "
+                             "first, so nothing would be evaluated there. Lower the mark or raise the budget")
         if self.method is not None and not self.method.strip():
             raise TrainError("--method is empty; leave it out for the default method, or name one")
 

@@ -117,7 +117,7 @@ class Trainer:
         extra_logs = [cfg.progress] if cfg.progress and main else []
         if cfg.progress:
             try:  # before the file is opened for appending; every rank decides alike
-                check_progress_file(Path(cfg.progress), cfg.dataset)
+                check_progress_file(Path(cfg.progress), cfg.dataset, self.run)
             except TrainError as exc:
                 if main:
                     EventLog([], stdout=cfg.stdout_events).emit("error", message=str(exc))
@@ -375,6 +375,8 @@ class Trainer:
                 self.previews.cost = self.replicas.after_side_work(self.previews.cost)
         last = self.last_loss
         bar.close(info=f"step {self.step} loss {last if last is not None else float('nan'):.4f}")
+        for callback in self.callbacks:
+            callback.end(self)
         return last
 
     def _step(self, batcher: RayBatcher, stop: DeferredInterrupts) -> bool:

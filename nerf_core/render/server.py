@@ -150,6 +150,10 @@ def _save_npy(path: str, array: np.ndarray) -> None:
             os.unlink(tmp)
 
 
+class NotUtf8(str):
+    """An input line that could not be decoded: its text is the error message to send back."""
+
+
 class RenderServer:
     """A loaded run answering render requests (see the module docstring for the protocol)."""
 
@@ -174,10 +178,22 @@ class RenderServer:
         self.out.flush()
 
     # -- input ----------------------------------------------------------------------------------
-    def _read_stdin(self, stream: TextIO) -> None:
-        for line in stream:
-            self._inbox.put(line)
-        self._inbox.put(None)  # end of input
+    def _read_stdin(self, stream) -> None:
+        """Queue each input line, decoded as UTF-8 here: a text stream would raise on the first invalid
+        byte and end this thread, after which no request was answered and EOF no longer stopped the
+        server. A line that is not UTF-8 is answered with an error event, like any bad line."""
+        raw = getattr(stream, "buffer", stream)
+        try:
+            for line in raw:
+                if isinstance(line, bytes):
+                    try:
+                        line = line.decode("utf-8")
+                    except UnicodeDecodeError as exc:
+                        line = NotUtf8(f"input line is not UTF-8 (byte {exc.start}: {line[exc.start:exc.start + 1]!r}): "
+                                       f"{line[:80]!r}")
+                self._inbox.put(line)
+        finally:
+            self._inbox.put(None)  # end of input, also when reading failed
 
     def _drain(self) -> None:
         while True:
@@ -241,6 +257,9 @@ class RenderServer:
     def handle(self, line: str) -> bool:
         """Answer one input line; False when the server should stop."""
 
+        if isinstance(line, NotUtf8):
+            self.emit("error", id=None, message=str(line))
+            return True
         if not line.strip():
             return True
         try:

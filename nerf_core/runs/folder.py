@@ -217,13 +217,18 @@ def check_run_vs_dataset(run: Path, dataset) -> None:
     raise TrainError(f"--out {run}: {overlap}; {why}")
 
 
-def check_progress_file(path: Path, dataset) -> None:
+def check_progress_file(path: Path, dataset, run: Optional[Path] = None) -> None:
     """Refuse a ``--progress`` file that appending events would damage (TrainError): one inside the
-    dataset folder (a transforms file, an image), or an existing file that is not a progress log (its
-    first line is no JSON event). A log of an earlier run is appended to, as ``--resume`` expects."""
-
+    dataset folder (a transforms file, an image), one inside the run folder ``run`` (it would make a
+    new run's folder "not empty" before the run starts, on every retry; the run writes
+    RUN/progress.jsonl itself), or an existing file that is not a progress log (its first line is no
+    JSON event). A log of an earlier run is appended to, as ``--resume`` expects."""
     path = Path(path)
     target = path.resolve()
+    if run is not None and (target == Path(run).resolve() or Path(run).resolve() in target.parents):
+        raise TrainError(f"--progress {path}: lies inside --out {run}; the run writes "
+                         f"{contract.progress_path(Path(run))} itself. Leave --progress out, or name a file "
+                         "outside the run folder")
     ds = Path(dataset).resolve()
     if ds.is_file():
         ds = ds.parent

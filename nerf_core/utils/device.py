@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import torch
 
+SUPPORTED = ("cpu", "cuda", "mps")  # torch names more (meta, xla, hpu...): nothing here runs on them
+
 
 def pick_device(name: str | None = None) -> torch.device:
     """``None``/``"auto"`` -> ``cuda`` if available else ``cpu``; otherwise the named device.
@@ -16,6 +18,9 @@ def pick_device(name: str | None = None) -> torch.device:
         dev = torch.device(name)
     except RuntimeError as exc:
         raise ValueError(f"--device {name!r} is not a torch device name (try cpu, cuda, cuda:1)") from exc
+    if dev.type not in SUPPORTED:
+        raise ValueError(f"--device {name}: nerf_core trains and renders on {', '.join(SUPPORTED)} devices, "
+                         f"not {dev.type!r}")
     if dev.type == "cuda":
         if not torch.cuda.is_available():
             raise ValueError(f"--device {name}: CUDA is not available in this torch build/machine; use --device cpu")

@@ -1,0 +1,78 @@
+"""Flags are checked for what they name and against each other before anything is written, and the
+render server survives bytes that are not UTF-8 (docs/RELIABILITY.md, cases 193-198)."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _cli(*args, stdin=None):
+    env = dict(os.environ, PYTHONPATH=REPO_ROOT, NERF_CORE_PLUGINS="nerf_core.tests.conftest", OMP_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "nerf_core", *args], capture_output=True, cwd=REPO_ROOT, env=env,
+                          timeout=180, input=stdin, text=stdin is None or isinstance(stdin, str))
+
+
+def _refused(proc, *words):
+    err = proc.stderr if isinstance(proc.stderr, str) else proc.stderr.decode()
+    assert proc.returncode == 2 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, err
+
+
+def _train(ds, run, *flags):
+    return _cli("train", str(ds), "--out", str(run), "--method", "test-grid", "--batch-rays", "64", "--no-bar", *flags)
+
+
+def test_devices_nothing_runs_on_are_refused_before_a_run_folder_exists(sphere_dataset, tmp_path):
+    for name in ("meta", "xla", "hpu"):
+        run = tmp_path / f"run_{name}"
+        _refused(_train(sphere_dataset, run, "--max-steps", "2", "--device", name),
+                 f"--device {name}: nerf_core trains and renders on cpu, cuda, mps devices")
+        assert not run.exists()
+    _refused(_cli("eval", str(tmp_path / "nothing"), "--device", "meta"))
+
+
+def test_contract_flag_and_set_contract_false_disagree(sphere_dataset, tmp_path):
+    _refused(_train(sphere_dataset, tmp_path / "run", "--max-steps", "2", "--contract", "--set", "contract=false"),
+             "--contract and --set contract=False disagree")
+    assert not (tmp_path / "run").exists()
+
+
+def test_eval_at_beyond_the_time_budget_is_refused(sphere_dataset, tmp_path):
+    _refused(_train(sphere_dataset, tmp_path / "run", "--max-seconds", "30", "--eval-at", "10,1000"),
+             "--eval-at 1000 lies beyond --max-seconds 30")
+    assert not (tmp_path / "run").exists()
+
+
+def test_eval_at_after_the_step_budget_is_said(sphere_dataset, tmp_path):
+    proc = _train(sphere_dataset, tmp_path / "run", "--max-steps", "3", "--eval-at", "1000", "--eval-views", "0")
+    assert proc.returncode == 0, proc.stderr
+    assert "--eval-at 1000: training ended after" in proc.stderr and "nothing was evaluated there" in proc.stderr
+    notes = [json.loads(x) for x in proc.stdout.splitlines() if '"note"' in x]
+    assert any("--eval-at 1000" in n["message"] for n in notes)
+
+
+def test_progress_inside_the_new_run_folder_is_refused_on_every_try(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    for _ in range(2):  # before, the first try made RUN/progress.jsonl and every retry found RUN not empty
+        _refused(_train(sphere_dataset, run, "--max-steps", "2", "--progress", str(run / "progress.jsonl")),
+                 "lies inside --out", "writes")
+        assert not run.exists()
+
+
+def test_serve_answers_after_a_line_that_is_not_utf8(trained_run, tmp_path):
+    c2w = np.eye(4)
+    c2w[2, 3] = 3.0
+    req = {"id": 2, "c2w": c2w.tolist(), "fx": 22.0, "fy": 20.0, "w": 24, "h": 18, "out": str(tmp_path / "v.npy")}
+    stdin = b'{"id": 1, "c2w": "\xff\xfe"}\n' + json.dumps(req).encode() + b"\n"  # then EOF
+    proc = _cli("serve", str(trained_run["run"]), stdin=stdin)
+    assert proc.returncode == 0, proc.stderr
+    events = [json.loads(x) for x in proc.stdout.decode().splitlines()]
+    errors = [e for e in events if e["event"] == "error"]
+    assert errors and "input line is not UTF-8" in errors[0]["message"]
+    assert any(e["event"] == "result" and e["id"] == 2 for e in events), events
+    assert (tmp_path / "v.npy").is_file()
