@@ -17,6 +17,7 @@ from nerf_core.evaluation.evaluate import (
     read_metrics_file,
     update_metrics_file,
 )
+from nerf_core.image.metrics import SSIM_WINDOW
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
 from nerf_core.runs.checkpoints import versions
 from nerf_core.runs.folder import record_written
@@ -52,6 +53,21 @@ def held_out_eval(log, model, dataset, cfg, background, step: int, at_seconds: f
              n_views=result["n_views"], depth_mae=result.get("depth_mae"), elapsed=at_seconds,
              eval_wall=time.perf_counter() - started, n_params=model.num_parameters(), n_bytes=model.num_bytes(),
              **({"eval_at": [float(t) for t in marks]} if marks else {}))
+
+
+def evaluation_problem(dataset, cfg) -> Optional[str]:
+    """Why the held-out evaluation that training will run cannot score its views, or None: known before
+    the first step, so that a run does not train to its end and then fail (SSIM needs 11x11 px)."""
+    name = dataset.held_out_split(("test", "val"))
+    if name is None or (cfg.eval_views == 0 and not cfg.eval_at):
+        return None
+    split = dataset.split(name)
+    if min(split.width, split.height) >= SSIM_WINDOW:
+        return None
+    at = f" at --downscale {cfg.downscale}" if cfg.downscale > 1 else ""
+    return (f"the {name} images are {split.width}x{split.height} px{at}; evaluating them (SSIM) needs at least "
+            f"{SSIM_WINDOW}x{SSIM_WINDOW}. " + ("Use a smaller --downscale, or pass " if cfg.downscale > 1 else "Pass ")
+            + "--eval-views 0 (and no --eval-at) to train without evaluating")
 
 
 def final_eval(log, model, dataset, cfg, background, run: Path, step: int, elapsed: float) -> dict:

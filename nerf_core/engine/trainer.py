@@ -43,7 +43,7 @@ from nerf_core.engine.optim import (
 )
 from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
-from nerf_core.engine.report import final_eval, run_config
+from nerf_core.engine.report import evaluation_problem, final_eval, run_config
 from nerf_core.engine.rollback import (
     SNAPSHOT_EVERY,
     gradient_problem,
@@ -146,6 +146,9 @@ class Trainer:
                 check_run_vs_dataset(self.run, self.cfg.dataset)
             self.dataset_hash = dataset_hash(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
+            unscorable = evaluation_problem(dataset, self.cfg)
+            if unscorable:
+                raise TrainError(unscorable)
             if main and self._unlock is None:
                 # A new folder is made only now, so that a run that never starts leaves nothing behind.
                 self.run.mkdir(parents=True, exist_ok=True)

@@ -76,3 +76,14 @@ def test_serve_answers_after_a_line_that_is_not_utf8(trained_run, tmp_path):
     assert errors and "input line is not UTF-8" in errors[0]["message"]
     assert any(e["event"] == "result" and e["id"] == 2 for e in events), events
     assert (tmp_path / "v.npy").is_file()
+
+
+def test_images_too_small_to_score_are_refused_before_training(sphere_dataset, tmp_path):
+    # 24x20 px at --downscale 4: 6x5, below SSIM's 11x11 window. Before, training ran to its end and
+    # then failed with "ssim needs 11x11", naming no flag and writing no metrics.
+    run = tmp_path / "run"
+    _refused(_train(sphere_dataset, run, "--max-steps", "2", "--downscale", "4"),
+             "the test images are 6x5 px at --downscale 4", "--eval-views 0")
+    assert not run.exists()
+    proc = _train(sphere_dataset, run, "--max-steps", "2", "--downscale", "4", "--eval-views", "0")
+    assert proc.returncode == 0, proc.stderr  # training without evaluation is fine
