@@ -21,6 +21,8 @@ if REPO_ROOT not in sys.path:
     # Makes ``import addon`` and ``import nerf_core`` work from a checkout without installing.
     sys.path.insert(0, REPO_ROOT)
 
+from nerf_core.contract.paths import file_problem  # noqa: E402  (standard library + numpy: fine in Blender)
+
 
 def inside_blender() -> bool:
     """True when running inside a Blender executable rather than the PyPI ``bpy`` module."""
@@ -74,10 +76,11 @@ def open_blend(path: str | None) -> None:
     """Open ``path`` when given; errors name the file. Under Blender without --blend, keep the open file."""
     if not path:
         return
+    problem = file_problem(path)
+    if problem:
+        raise SystemExit(f"error: --blend {path!r}: {problem}")
     import bpy
 
-    if not os.path.isfile(path):
-        raise SystemExit(f"error: --blend {path!r}: no such file")
     try:
         bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path))
     except RuntimeError as exc:

@@ -11,7 +11,7 @@ Sections:
 Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``contract.latest_checkpoint``):
 - ``transforms``: reading transforms files (frames, the dataset path rule, splits);
 - ``jsonfile``: the JSON of a transforms file; ``poses``: the one camera-matrix parser and its rules;
-- ``errors``: ``DatasetError`` and ``PoseError``;
+- ``errors``: ``DatasetError`` and ``PoseError``; ``paths``: why a path is not a readable file;
 - ``intrinsics``: the one focal-length rule, ``resolve_intrinsics``;
 - ``lens``: the lens models read (OPENCV, OPENCV_FISHEYE) and their fields, ``parse_lens``;
 - ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices;
@@ -54,6 +54,7 @@ from .naming import (  # noqa: F401
     render_files,
     unique_stems,
 )
+from .paths import file_problem, why_not_a_file  # noqa: F401
 from .poses import check_pose, parse_pose  # noqa: F401
 from .transforms import (  # noqa: F401
     EXTRA_FIELDS,

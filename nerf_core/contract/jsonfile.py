@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from .errors import DatasetError
+from .paths import file_problem
 
 
 class _DuplicateKey(ValueError):
@@ -44,6 +45,9 @@ def parse_json_file(path: Path | str):
     (missing, unreadable, not UTF-8, invalid, nested too deeply for the parser, or a key given
     twice with different values). A UTF-8 byte-order mark, which Windows editors write, is skipped."""
     path = Path(path)
+    problem = file_problem(path)
+    if problem:  # before open(): a named pipe would block the reader, /dev/zero fill the memory
+        raise DatasetError(f"{path}: {problem}")
     try:
         with open(path, encoding="utf-8-sig") as f:
             return json.load(f, object_pairs_hook=_no_conflicting_keys, parse_int=_parse_int)

@@ -27,6 +27,7 @@ from .errors import DatasetError, PoseError
 from .jsonfile import read_json
 from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
 from .naming import frame_stem
+from .paths import IMAGE_EXTS, file_problem, not_a_regular_file, why_not_a_file  # noqa: F401  (readers of transforms files use them)
 from .poses import MAX_COORDINATE, check_pose, short_repr
 
 SPLITS = ("train", "val", "test")
@@ -37,7 +38,6 @@ SCENE_KEYS = ("aabb", "near", "far", "depth_unit_scale_factor", "integer_depth_s
               "beyond_box", "pixel_filter")
 HOLDOUT_EVERY = 8  # nerfstudio-style deterministic split when transforms.json lists no split files
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y")
-IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
 # Per-frame extra channels: JSON field -> FrameInfo attribute. Earlier fields win for one attribute
 # (nerfstudio's ``depth_file_path`` before instant-ngp's ``depth_path``).
 EXTRA_FIELDS = (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_file_path", "normal"),
@@ -132,42 +132,6 @@ def resolve_image(root: Path, file_path: str, add_png: bool) -> Path:
     return p
 
 
-def why_not_a_file(path: Path | str, written: Optional[str] = None) -> str:
-    """Why ``path`` (a file a dataset names; ``written``: the value as written in the JSON) cannot be
-    read, as the end of a message after its name: "not found; r_1.PNG exists there (names are
-    case-sensitive)". The hints cover what other tools and operating systems write differently:
-    case, an extension left out or added, Windows separators, a folder, a dangling link."""
-    path = Path(path)
-    if path.is_dir():
-        return "is a folder, not a file"
-    if path.is_symlink():
-        try:
-            target = os.readlink(path)
-        except OSError:
-            target = "?"
-        return f"is a link to {target}, which does not exist"
-    if written is not None and "\\" in written:
-        return f"not found; the path is written with '\\' ({written!r}): write '/' between folders"
-    folder = path.parent
-    if not folder.is_dir():
-        return f"not found (its folder {folder} does not exist)"
-    try:
-        names = [n for n in os.listdir(folder) if not n.startswith(".")]
-    except OSError:
-        return "not found"
-    same_case = [n for n in names if n.lower() == path.name.lower()]
-    if same_case:
-        return f"not found; {same_case[0]} exists there (file names are case-sensitive)"
-    stem = path.name[: -len(path.suffix)] if path.suffix.lower() in IMAGE_EXTS else path.name
-    other_ext = sorted(n for n in names if Path(n).stem.lower() == stem.lower() and n != path.name)
-    files = [n for n in other_ext if not (folder / n).is_dir()]
-    if files:
-        return f"not found; {', '.join(files[:3])} exists there: write the file name with its extension"
-    if other_ext:  # "./train" names the split's folder, not one of its images
-        return f"not found; {other_ext[0]} there is a folder: file_path must name an image in it"
-    return "not found"
-
-
 @dataclass
 class FrameInfo:
     """One frame's metadata before its pixels are read."""
@@ -252,11 +216,15 @@ def detect_layout(path: Path | str) -> tuple[str, Path]:
             return "synthetic", path.parent
         return "nerfstudio", path.parent
     if not path.exists():
-        raise DatasetError(f"{path}: dataset folder not found")
-    if (path / "transforms_train.json").is_file():
-        return "synthetic", path
-    if (path / "transforms.json").is_file():
-        return "nerfstudio", path
+        raise DatasetError(f"{path}: dataset folder {why_not_a_file(path)}")
+    if not path.is_dir():
+        raise DatasetError(f"{path}: {not_a_regular_file(path) or 'is not a dataset folder'}")
+    for name, layout in (("transforms_train.json", "synthetic"), ("transforms.json", "nerfstudio")):
+        if os.path.lexists(path / name):  # a pipe or a dangling link is named below, not "missing"
+            problem = file_problem(path / name)
+            if problem:
+                raise DatasetError(f"{path / name}: {problem}")
+            return layout, path
     raise DatasetError(f"{path}: no transforms_train.json or transforms.json in this folder")
 
 

@@ -121,8 +121,9 @@ def parse_request(req: Any) -> Dict[str, Any]:
         raise RequestError(f"{where}: field 'pixel_filter' must be true or false, got {req.get('pixel_filter')!r}")
     out["pixel_filter"] = bool(req.get("pixel_filter", False))
     for p in filter(None, (out["out"], out["depth_out"])):
-        if os.path.exists(p):
-            raise RequestError(f"{where}: {p} already exists; the server never overwrites a file")
+        if os.path.lexists(p):  # also a dangling link: writing would follow it to wherever it points
+            what = "is a link to a file that does not exist" if not os.path.exists(p) else "already exists"
+            raise RequestError(f"{where}: {p} {what}; the server never overwrites a file or writes through a link")
         if not os.path.isdir(os.path.dirname(p)):
             raise RequestError(f"{where}: folder {os.path.dirname(p)} does not exist")
     return out

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from nerf_core import __version__, contract
+from nerf_core.contract.paths import file_problem, not_a_regular_file
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
 from nerf_core.methods.registry import build_model, saved_options
 from nerf_core.runs.checkpoint_checks import check_entries, check_weights
@@ -105,8 +106,9 @@ def read_checkpoint(path: Path) -> dict:
     if path.is_dir():
         raise RunError(f"{path}: is a folder; give a checkpoint file such as "
                        f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}")
-    if not path.is_file():
-        raise RunError(f"{path}: checkpoint not found")
+    problem = file_problem(path)
+    if problem:
+        raise RunError(f"{path}: checkpoint {problem}")
     kind = _file_kind(path)
     if kind is not None:
         raise RunError(f"{path}: not a checkpoint ({kind}); `python -m nerf_core train` writes "
@@ -232,9 +234,11 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
     run = Path(run)
     cfg_path = Path(contract.config_path(run))
     if not run.is_dir():
-        raise RunError(f"{run}: run folder not found")
-    if not cfg_path.is_file():
-        raise RunError(f"{cfg_path}: not found; is {run} a folder written by `python -m nerf_core train`?")
+        raise RunError(f"{run}: run folder " + (not_a_regular_file(run) or "not found").replace(
+            "is not a regular file", "is not a folder"))
+    problem = file_problem(cfg_path)
+    if problem:
+        raise RunError(f"{cfg_path}: {problem}; is {run} a folder written by `python -m nerf_core train`?")
     try:
         config = json.loads(cfg_path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
