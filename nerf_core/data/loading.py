@@ -40,7 +40,9 @@ from nerf_core.data.validation import (
     check_train_count,
     depth_scale,
     empty_masks_problem,
+    hdr_note,
     parse_aabb,
+    repeated_frames_note,
     scene_fields,
     scene_pixel_filter,
     transparent_train_problem,
@@ -157,6 +159,9 @@ def load_dataset(
     if "train" in splits:
         check_train_count(root, infos, min_train_views)
     check_duplicate_images(infos)
+    repeats = repeated_frames_note(infos["train"])
+    if repeats:
+        notes.append(repeats)
     train_names = {str(f.image) for f in infos["train"]}
     for name in ("val", "test"):
         if name in splits:
@@ -196,10 +201,13 @@ def load_dataset(
         aabb, inside_note = pad_box_for_interior(aabb, loaded["train"].cameras.origins)
         if inside_note:
             notes.append(inside_note)
+            source += "; padded around the cameras standing inside it"
         small = small_subject_note(loaded["train"].images)
         if small:
             notes.append(small)
-            source += "; padded around the cameras standing inside it"
+        hdr = hdr_note(loaded["train"].images, infos["train"])
+        if hdr:
+            notes.append(hdr)
     return Dataset(Path(root), layout, loaded, aabb, source, near, far, notes, film, world,
                    cameras_inside=inside_note is not None, beyond_box=beyond, pixel_filter=pixel_filter)
 

@@ -89,6 +89,45 @@ def check_duplicate_images(infos: Dict[str, List[FrameInfo]]) -> None:
                                    f"({first.file_path}) with another transform_matrix; one image has one camera")
 
 
+def repeated_frames_note(frames: List[FrameInfo]) -> Optional[str]:
+    """A note when train frames repeat another frame's image (``check_duplicate_images`` has refused
+    repeats with another pose): each repeat weighs that view again, and the split has fewer views
+    than frames. None when every frame is its own view."""
+    distinct = len({str(f.image) for f in frames})
+    if distinct == len(frames):
+        return None
+    seen: set = set()
+    first = None
+    for f in frames:
+        if str(f.image) in seen:
+            first = first or f
+        seen.add(str(f.image))
+    return (f"{first.where}: the {len(frames)} train frames show {distinct} distinct view{'s' if distinct != 1 else ''}"
+            f" ({len(frames) - distinct} repeat another frame's image and pose); each repeat weighs its view "
+            "again in training, and adds no viewpoint")
+
+
+def hdr_note(images, frames: List[FrameInfo]) -> Optional[str]:
+    """A note when float (EXR) train images hold colours above 1: the methods' colour heads end in a
+    sigmoid and reach at most 1, so those pixels are learned as 1 (their light above it is lost).
+
+    Args:
+        images: (n, h, w, c) uint8 or float32 pixels of the train split (only float ones can exceed 1).
+        frames: the split's frames, to name the first image.
+    """
+    if not images.is_floating_point() or not len(frames):
+        return None
+    counts = [int((view[..., :3] > 1.0).sum()) for view in images]  # view by view: no full-size mask
+    if not any(counts):
+        return None
+    first = next(k for k, c in enumerate(counts) if c)
+    share = sum(counts) / (images[..., :3].numel())
+    peak = max(float(view[..., :3].max()) for view in images)
+    return (f"{frames[first].image.name}: {100 * share:.2g} % of the train pixels' colours exceed 1.0 (HDR, peak "
+            f"{peak:.3g}); the methods' colours reach at most 1, so they are learned as 1. "
+            "Tone-map the images (or render them with Filmic/AgX and 8-bit PNG) to keep that light")
+
+
 def scene_fields(scene: dict) -> tuple:
     """(near, far, film_transparent, world, beyond_box) of a dataset's top-level fields, validated (raises
     DatasetError). ``beyond_box``: names of objects that reach beyond the scene box ([] when not given).

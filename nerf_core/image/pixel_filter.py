@@ -26,6 +26,7 @@ default. ``{"type": "NONE"}`` renders one centre ray per pixel.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from typing import Optional
 
@@ -188,6 +189,9 @@ def of_run(config: dict, mode: str = "auto", downscale: float = 1) -> PixelFilte
         return POINT
     try:
         film = parse(config.get("pixel_filter"), "config.json")
-    except ValueError:
-        film = DEFAULT  # a hand-edited config: render as Blender would by default rather than fail
+    except ValueError as exc:
+        # a hand-edited config: render as Blender would by default rather than fail, and say so
+        print(f"note: {exc}; rendering through Blender's default filter ({DEFAULT.kind} {DEFAULT.width:g} px)",
+              file=sys.stderr)
+        film = DEFAULT
     return film.downscaled(int(downscale)) if float(downscale).is_integer() and downscale >= 1 else film

@@ -311,6 +311,10 @@ def _check_run_config(config: dict, cfg_path: Path) -> None:
     for key in ("near", "far"):
         if config.get(key) is not None and not (number(config[key]) and config[key] >= 0):
             bad(key, "a number >= 0 (or null)")
+    near, far = config.get("near"), config.get("far")
+    if near is not None and far is not None and far <= near:  # each alone is fine; together no ray has samples
+        raise RunError(f"{cfg_path}: field 'far' ({far}) must be greater than field 'near' ({near}); every view would "
+                       "render empty")
 
 
 def read_resume_checkpoint(run: Path) -> tuple[Path, dict]:

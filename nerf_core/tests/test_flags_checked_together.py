@@ -87,3 +87,48 @@ def test_images_too_small_to_score_are_refused_before_training(sphere_dataset, t
     assert not run.exists()
     proc = _train(sphere_dataset, run, "--max-steps", "2", "--downscale", "4", "--eval-views", "0")
     assert proc.returncode == 0, proc.stderr  # training without evaluation is fine
+
+
+def test_train_frames_that_repeat_one_view_get_a_note(dataset_factory, tmp_path):
+    ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",))
+    meta = json.loads((ds / "transforms_train.json").read_text())
+    meta["frames"] = meta["frames"] + [meta["frames"][0]] * 300
+    (ds / "transforms_train.json").write_text(json.dumps(meta))
+    from nerf_core.data.loading import load_dataset
+
+    notes = load_dataset(ds).notes
+    assert any("the 308 train frames show 8 distinct views (300 repeat another frame's image and pose)" in n
+               for n in notes), notes
+    meta["frames"] = [meta["frames"][0]] * 3000  # one view, many times: still one view
+    (ds / "transforms_train.json").write_text(json.dumps(meta))
+    _refused(_train(ds, tmp_path / "run", "--max-steps", "2"), "the train split has 1 view")
+
+
+def test_hdr_train_images_get_a_note(dataset_factory, tmp_path):
+    from nerf_core.data.loading import load_dataset
+    from nerf_core.image.io import read_exr_rgba, write_exr
+
+    ds = dataset_factory(tmp_path / "ds", layouts=("synthetic",), exr_images=True)
+    img = ds / "train" / "r_0.exr"
+    rgba = read_exr_rgba(img)
+    rgba[..., :3] *= 4.0  # a bright HDR render: values up to 4
+    write_exr(img, {c: rgba[..., j] for j, c in enumerate("RGBA")})
+    notes = load_dataset(ds).notes
+    assert any("r_0.exr" in n and "exceed 1.0 (HDR" in n for n in notes), notes
+    assert not any("HDR" in n for n in load_dataset(dataset_factory(tmp_path / "png")).notes)
+
+
+def test_a_run_config_with_far_before_near_is_refused(run_copy, tmp_path):
+    cfg = json.loads((run_copy / "config.json").read_text())
+    cfg["near"], cfg["far"] = 5.0, 1.0
+    (run_copy / "config.json").write_text(json.dumps(cfg))
+    _refused(_cli("eval", str(run_copy), "--no-bar"), "field 'far' (1.0) must be greater than field 'near' (5.0)")
+
+
+def test_an_unknown_pixel_filter_in_a_run_is_said(run_copy, tmp_path):
+    cfg = json.loads((run_copy / "config.json").read_text())
+    cfg["pixel_filter"] = {"type": "MITCHELL", "width": 1.5}
+    (run_copy / "config.json").write_text(json.dumps(cfg))
+    proc = _cli("render", str(run_copy), "--out", str(tmp_path / "views"), "--no-bar")
+    assert proc.returncode == 0, proc.stderr
+    assert "pixel_filter" in proc.stderr and "rendering through Blender's default filter" in proc.stderr
