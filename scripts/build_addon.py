@@ -178,6 +178,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-bundled", action="store_true",
                     help="without --blender, use Python's zipfile even when bpy's extension tool is installed")
     args = ap.parse_args(argv)
+    if args.out_dir and os.path.exists(args.out_dir) and not os.path.isdir(args.out_dir):
+        print(f"build_addon: error: --out-dir {args.out_dir}: is a file, and a folder is needed there",
+              file=sys.stderr)
+        return 2
     if args.blender and not shutil.which(args.blender):
         print(f"build_addon: error: --blender {args.blender}: not an executable", file=sys.stderr)
         return 2

@@ -41,6 +41,9 @@ def fail(message: str) -> None:
     _bootstrap.fail("render_nerf", message)
 
 
+MAX_FRAME = 1048574  # Blender's MAXFRAME: a larger range was a MemoryError
+
+
 def frame_range(text, scene) -> list:
     """Frames to render: ``A:B`` inclusive (step 1), else the scene's start..end by its frame step."""
     if not text:
@@ -51,6 +54,8 @@ def frame_range(text, scene) -> list:
         fail(f"--frames {text!r}: expected A:B, two whole frame numbers, e.g. 1:48")
     if b < a:
         fail(f"--frames {text!r}: the last frame comes before the first")
+    if max(abs(a), abs(b)) > MAX_FRAME:
+        fail(f"--frames {text!r}: Blender's frames run from -{MAX_FRAME} to {MAX_FRAME}")
     return list(range(a, b + 1))
 
 

@@ -61,6 +61,7 @@ class ProbeResult:
     python: str
     ok: bool
     message: str
+    slow: bool = False  # it did not answer in time: busy, not broken (never cached)
 
 
 _PROBE_CACHE: Dict[tuple, ProbeResult] = {}
@@ -83,7 +84,8 @@ def probe_interpreter(python: str, timeout: float = 60.0, addon_dir: str = ADDON
         )
     except subprocess.TimeoutExpired:
         # Not cached: a cold disk cache can make the first torch import slow.
-        return ProbeResult(python, False, f"{python} took more than {timeout:g} s to import torch")
+        return ProbeResult(python, False, f"{python} is still importing torch after {timeout:g} s (a busy machine "
+                           "or a cold disk); it is slow, not broken: try again in a moment", slow=True)
     except OSError as exc:
         return ProbeResult(python, False, f"{python} could not be started: {exc}")
     if proc.returncode == 0:
@@ -105,6 +107,8 @@ def resolve_interpreter(preference: str = "", addon_dir: str = ADDON_DIR) -> str
     if preference:
         python = os.path.abspath(os.path.expanduser(preference))
         result = probe_interpreter(python, addon_dir=addon_dir)
+        if result.slow:
+            raise SetupError(f"The interpreter set in {PREFS_HINT}: {result.message}.")
         if not result.ok:
             raise SetupError(
                 f"The interpreter set in {PREFS_HINT} ({python}) cannot run NeRF training: "
@@ -115,6 +119,8 @@ def resolve_interpreter(preference: str = "", addon_dir: str = ADDON_DIR) -> str
     result = probe_interpreter(sys.executable, addon_dir=addon_dir)
     if result.ok:
         return sys.executable
+    if result.slow:
+        raise SetupError(f"Blender's Python: {result.message}.")
     raise SetupError(
         f"Blender's Python ({sys.executable}) cannot import torch ({result.message}). Set {PREFS_HINT} "
         f"to a Python that has torch installed, e.g. {_venv_suggestion(addon_dir)}."

@@ -48,7 +48,8 @@ def run_problem(run_dir: str, checkpoint: str = "") -> Optional[str]:
     if not os.path.isfile(os.path.join(run, "config.json")):
         return f"{run} is not a NeRF run (no config.json): choose a folder written by `python -m nerf_core train`"
     ckpt = os.path.abspath(checkpoint) if checkpoint else os.path.join(run, "checkpoints", "latest.pt")
-    if not os.path.isfile(ckpt):
+    # Without latest.pt (a full disk cost it) nerf_core loads the newest step_*.pt, as --resume does.
+    if not os.path.isfile(ckpt) and (checkpoint or not child_process.step_checkpoints(run)):
         return f"{ckpt} not found: train the run first (or choose another checkpoint)"
     return None
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import pickle
 import platform
 import re
@@ -249,7 +250,7 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
         raise RunError(f"{cfg_path}: expected the JSON object that `train` writes, got a {type(config).__name__}; "
                        f"is {run} a run folder?")
     _check_run_config(config, cfg_path)
-    ck = Path(checkpoint) if checkpoint else Path(contract.latest_checkpoint(run))
+    ck = Path(checkpoint) if checkpoint else newest_checkpoint(run)
     ckpt = read_checkpoint(ck)
     _check_checkpoint_of_run(ckpt, config, ck, run)
     return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
@@ -265,6 +266,19 @@ def check_checkpoint_of_run(ckpt: dict, ck: Path, run: Path) -> None:
         return  # no readable config.json: the checkpoint's own record is all there is
     if isinstance(config, dict):
         _check_checkpoint_of_run(ckpt, config, ck, run)
+
+
+def newest_checkpoint(run: Path) -> Path:
+    """RUN/checkpoints/latest.pt, or, when it is gone (a full disk cost it) but a complete step file is
+    there, the newest step_*.pt, as ``train --resume`` would take (a note says so on stderr)."""
+    latest = Path(contract.latest_checkpoint(run))
+    if os.path.lexists(latest):
+        return latest
+    steps = [p for p in resume_candidates(run) if p != latest]
+    if not steps:
+        return latest  # read_checkpoint names it as missing
+    print(f"note: {latest} is missing; using the newest complete checkpoint, {steps[0].name}", file=sys.stderr)
+    return steps[0]
 
 
 def _check_checkpoint_of_run(ckpt: dict, config: dict, ck: Path, run: Path) -> None:

@@ -15,6 +15,18 @@ from typing import IO, Iterable, Iterator, List, Optional
 from nerf_core import contract
 
 
+def _ends_mid_line(path: Path) -> bool:
+    """Whether the regular file ``path`` is non-empty and its last byte is not a newline."""
+    try:
+        if not path.is_file() or path.stat().st_size == 0:
+            return False
+        with open(path, "rb") as fh:
+            fh.seek(-1, 2)
+            return fh.read(1) != b"\n"
+    except OSError:
+        return False
+
+
 class EventLog:
     """Writes events to stdout (optional) and to any number of append-only files."""
 
@@ -31,7 +43,10 @@ class EventLog:
             p.parent.mkdir(parents=True, exist_ok=True)
             # Open the path as given, not as resolved: /dev/stdout resolves to /proc/PID/fd/pipe:[N]
             # when stdout is a pipe, a name that cannot be opened.
-            self._files.append(open(p, "a", encoding="utf-8"))
+            f = open(p, "a", encoding="utf-8")
+            if _ends_mid_line(p):  # a log cut mid-line (a killed trainer): the next event starts a line
+                f.write("\n")
+            self._files.append(f)
         self.events: List[dict] = []  # kept for callers (tests, the trainer's summary)
 
     def emit(self, event: str, **fields) -> dict:

@@ -132,3 +132,21 @@ def test_an_unknown_pixel_filter_in_a_run_is_said(run_copy, tmp_path):
     proc = _cli("render", str(run_copy), "--out", str(tmp_path / "views"), "--no-bar")
     assert proc.returncode == 0, proc.stderr
     assert "pixel_filter" in proc.stderr and "rendering through Blender's default filter" in proc.stderr
+
+
+def test_a_progress_log_cut_mid_line_gets_the_next_event_on_its_own_line(tmp_path):
+    from nerf_core.runs.events import EventLog, read_events
+
+    log = tmp_path / "progress.jsonl"
+    log.write_text('{"event": "start", "time": 1.0}\n{"event": "step", "ti')  # a trainer killed mid-write
+    EventLog([log], stdout=False).emit("start", resumed_from=8)
+    lines = log.read_text().splitlines()
+    assert lines[-2] == '{"event": "step", "ti' and json.loads(lines[-1])["resumed_from"] == 8
+    assert [e["event"] for e in read_events(log)][-1] == "start"
+
+
+def test_a_run_whose_latest_is_gone_renders_from_its_newest_step_file(run_copy, tmp_path):
+    (run_copy / "checkpoints" / "latest.pt").unlink()
+    proc = _cli("eval", str(run_copy), "--no-bar")
+    assert proc.returncode == 0, proc.stderr
+    assert "latest.pt is missing; using the newest complete checkpoint, step_" in proc.stderr
