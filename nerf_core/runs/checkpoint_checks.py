@@ -81,7 +81,7 @@ def check_entries(ckpt: dict, where: str, for_resume: bool = False) -> None:
     missing = [k for k in needed if k not in ckpt]
     if missing:
         raise RunError(f"{where}: missing entries {missing}; `train --resume` needs a checkpoint written by `train`")
-    if "format" in ckpt and ckpt["format"] != 1:
+    if "format" in ckpt and not (_whole(ckpt["format"], 1) and ckpt["format"] == 1):
         bad("format", "1 (the only checkpoint format there is)")
     if "step" in ckpt and not _whole(ckpt["step"], 0):
         bad("step", "a whole number >= 0")

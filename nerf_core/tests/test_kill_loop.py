@@ -1,0 +1,104 @@
+"""Crash safety of a run folder: ``train`` killed with SIGKILL at many points (while a checkpoint's
+temporary file exists, between it and the rename, mid-``progress.jsonl``, mid-preview, at random
+times), then ``train --resume``. Every time the run must resume, or say the truth (exit 2, one line,
+no traceback), and then start again with the flag the message names.
+
+The iterations are seeded; ``NERF_KILL_LOOP=N`` runs N of them (CI: 8, about a minute).
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ITERATIONS = int(os.environ.get("NERF_KILL_LOOP", "8"))
+TRIGGERS = ("checkpoint_tmp", "preview_tmp", "progress_bytes", "random_time")
+
+
+def _env():
+    return dict(os.environ, PYTHONPATH=REPO_ROOT, NERF_CORE_PLUGINS="nerf_core.tests.conftest", OMP_NUM_THREADS="1")
+
+
+def _train(ds, run, *flags):
+    return [sys.executable, "-m", "nerf_core", "train", str(ds), "--out", str(run), "--method", "test-grid",
+            "--batch-rays", "64", "--checkpoint-every", "3", "--preview-every", "2", "--eval-views", "0",
+            "--no-bar", *flags]
+
+
+def _triggered(run: Path, trigger: str, threshold: int) -> bool:
+    if trigger == "checkpoint_tmp":
+        return any((run / "checkpoints").glob("*.tmp")) if (run / "checkpoints").is_dir() else False
+    if trigger == "preview_tmp":
+        return any((run / "previews").glob(".*.tmp*")) if (run / "previews").is_dir() else False
+    if trigger == "progress_bytes":
+        p = run / "progress.jsonl"
+        return p.is_file() and p.stat().st_size >= threshold
+    return False
+
+
+def _kill_somewhere(ds, run, trigger, rng) -> str:
+    """Start a trainer and SIGKILL it when ``trigger`` fires (or at a random time); returns what fired."""
+    proc = subprocess.Popen(_train(ds, run, "--max-steps", "100000"), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env=_env(), cwd=REPO_ROOT)
+    started = time.monotonic()
+    deadline = started + (rng.uniform(1.0, 6.0) if trigger == "random_time" else 25.0)
+    threshold = rng.randint(200, 4000)
+    fired = "timeout"
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if _triggered(run, trigger, threshold):
+                fired = trigger
+                break
+            time.sleep(0.0005)
+        else:
+            fired = "random_time" if trigger == "random_time" else "timeout"
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=30)
+    return fired
+
+
+def _clear_error(proc) -> str:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-1500:])
+    assert "Traceback" not in proc.stderr, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("nerf_core train: error:")]
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_or_tells_the_truth(dataset_factory, tmp_path):
+    ds = dataset_factory(tmp_path / "ds", n_train=6, n_test=1, w=16, h=12)
+    rng = random.Random(0)
+    outcomes = {}
+    for k in range(ITERATIONS):
+        trigger = TRIGGERS[k % len(TRIGGERS)]
+        run = tmp_path / f"run{k}"
+        fired = _kill_somewhere(ds, run, trigger, rng)
+        resumed = subprocess.run(_train(ds, run, "--resume", "--max-steps", "100000", "--max-seconds", "1.5"),
+                                 capture_output=True, text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
+        if resumed.returncode == 0:
+            outcome = "resumed"
+            events = [json.loads(x) for x in (run / "progress.jsonl").read_text().splitlines()
+                      if x.startswith("{") and x.endswith("}")]
+            assert events[-1]["event"] == "done", events[-3:]
+        else:
+            # The truth: nothing to resume from (killed before the first checkpoint), and what to do.
+            message = _clear_error(resumed)
+            assert "--overwrite" in message, message
+            again = subprocess.run(_train(ds, run, "--overwrite", "--max-steps", "5"), capture_output=True,
+                                   text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
+            assert again.returncode == 0, again.stderr[-1500:]
+            outcome = "told, then --overwrite"
+        outcomes.setdefault(f"{fired}: {outcome}", 0)
+        outcomes[f"{fired}: {outcome}"] += 1
+    print("kill loop:", json.dumps(outcomes, sort_keys=True))
+    assert sum(outcomes.values()) == ITERATIONS
