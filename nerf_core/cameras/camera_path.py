@@ -25,6 +25,9 @@ import numpy as np
 from nerf_core.cameras.rays import Cameras
 from nerf_core.contract.errors import PoseError
 from nerf_core.contract.poses import parse_pose
+from nerf_core.contract.transforms import MAX_FOCAL_PX, MIN_FOCAL_PX
+
+MAX_SIDE = 16384  # pixels a side: larger is a unit mistake, not a render (as the render server)
 
 
 class CameraPathError(ValueError):
@@ -39,14 +42,16 @@ def is_camera_path(data) -> bool:
 def _positive_int(data: dict, key: str, src: Path) -> int:
     value = data.get(key)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value < 1 or int(value) != value:
-        raise CameraPathError(f"{src}: field {key!r} must be a positive whole number of pixels, got {value!r}")
+            or not 1 <= value <= MAX_SIDE or int(value) != value:
+        raise CameraPathError(f"{src}: field {key!r} must be a positive whole number of pixels, at most {MAX_SIDE}, got {value!r}")
     return int(value)
 
 
 def camera_path_intrinsics(fov_degrees: float, width: int, height: int) -> Tuple[float, float, float, float]:
-    """(fx, fy, cx, cy) in pixels for a vertical field of view, as nerfstudio computes them."""
-    f = 0.5 * height / math.tan(math.radians(fov_degrees) / 2.0)
+    """(fx, fy, cx, cy) in pixels for a vertical field of view, as nerfstudio computes them (fx = inf
+    for a field of view too small for a float's tangent)."""
+    half = math.tan(math.radians(fov_degrees) / 2.0)
+    f = 0.5 * height / half if half > 0 else math.inf
     return f, f, width / 2.0, height / 2.0
 
 
@@ -79,6 +84,9 @@ def cameras_from_camera_path(data: dict, src: Path | str) -> Tuple[Cameras, List
             raise CameraPathError(f"{where}: field 'fov' must be the vertical field of view in degrees "
                                   f"(0 < fov < 180), got {fov!r}")
         intr = camera_path_intrinsics(float(fov), w, h)
+        if not MIN_FOCAL_PX <= intr[0] <= MAX_FOCAL_PX:  # a fov within a hair of 0 or 180 degrees
+            raise CameraPathError(f"{where}: field 'fov' {fov!r} gives a focal length of {intr[0]:.3g} px for "
+                                  f"{h} px; rays need one in [{MIN_FOCAL_PX:g}, {MAX_FOCAL_PX:g}]")
         for lst, v in zip((fx, fy, cx, cy), intr):
             lst.append(v)
     cams = Cameras.create(np.stack(mats), fx, fy, cx, cy, w, h)
