@@ -3,7 +3,7 @@ temporary file exists, between it and the rename, mid-``progress.jsonl``, mid-pr
 times), then ``train --resume``. Every time the run must resume, or say the truth (exit 2, one line,
 no traceback), and then start again with the flag the message names.
 
-The iterations are seeded; ``NERF_KILL_LOOP=N`` runs N of them (CI: 8, about a minute).
+The iterations are seeded; ``NERF_KILL_LOOP=N`` runs N of them (CI: 6, about a minute).
 """
 from __future__ import annotations
 
@@ -19,8 +19,11 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-ITERATIONS = int(os.environ.get("NERF_KILL_LOOP", "8"))
-TRIGGERS = ("checkpoint_tmp", "preview_tmp", "progress_bytes", "random_time")
+ITERATIONS = int(os.environ.get("NERF_KILL_LOOP", "6"))
+# "_later": only once a complete checkpoint exists, so that the kill lands between a later
+# checkpoint's temporary file and its rename (or mid-preview) of a run that has something to resume
+TRIGGERS = ("checkpoint_tmp_later", "preview_tmp_later", "progress_bytes", "checkpoint_tmp", "random_time",
+            "preview_tmp")
 
 
 def _env():
@@ -34,6 +37,10 @@ def _train(ds, run, *flags):
 
 
 def _triggered(run: Path, trigger: str, threshold: int) -> bool:
+    if trigger.endswith("_later"):
+        if not (run / "checkpoints" / "latest.pt").is_file():
+            return False
+        trigger = trigger[:-len("_later")]
     if trigger == "checkpoint_tmp":
         return any((run / "checkpoints").glob("*.tmp")) if (run / "checkpoints").is_dir() else False
     if trigger == "preview_tmp":
