@@ -14,8 +14,8 @@ from nerf_core.contract.errors import DatasetError, PoseError
 from nerf_core.contract.intrinsics import declaring, focal_from_fov
 from nerf_core.contract.jsonfile import parse_json_file
 from nerf_core.contract.lens import lens_problem, parse_lens
+from nerf_core.contract.paths import why_not_a_file
 from nerf_core.contract.poses import check_pose
-from nerf_core.contract.transforms import why_not_a_file
 from nerf_core.errors import ImageReadError
 from nerf_core.image.io import png_info
 

@@ -14,7 +14,8 @@ from nerf_core.check.report import CheckReport, shown_path
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.jsonfile import parse_json_file
 from nerf_core.contract.naming import evenly_spaced
-from nerf_core.contract.transforms import IMAGE_EXTS, frame_infos, resolve_image
+from nerf_core.contract.paths import IMAGE_EXTS
+from nerf_core.contract.transforms import frame_infos, resolve_image
 from nerf_core.data.backgrounds import (
     BACKGROUNDS,
     FIXED_BACKGROUNDS,

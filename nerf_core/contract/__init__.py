@@ -54,12 +54,11 @@ from .naming import (  # noqa: F401
     render_files,
     unique_stems,
 )
-from .paths import file_problem, why_not_a_file  # noqa: F401
+from .paths import IMAGE_EXTS, file_problem, why_not_a_file  # noqa: F401
 from .poses import check_pose, parse_pose  # noqa: F401
 from .transforms import (  # noqa: F401
     EXTRA_FIELDS,
     HOLDOUT_EVERY,
-    IMAGE_EXTS,
     INTRINSIC_KEYS,
     SPLITS,
     FrameInfo,

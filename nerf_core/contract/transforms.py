@@ -27,7 +27,7 @@ from .errors import DatasetError, PoseError
 from .jsonfile import read_json
 from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
 from .naming import frame_stem
-from .paths import IMAGE_EXTS, file_problem, not_a_regular_file, why_not_a_file  # noqa: F401  (readers of transforms files use them)
+from .paths import IMAGE_EXTS, file_problem, not_a_regular_file, why_not_a_file
 from .poses import MAX_COORDINATE, check_pose, short_repr
 
 SPLITS = ("train", "val", "test")

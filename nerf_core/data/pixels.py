@@ -11,7 +11,8 @@ from nerf_core.cameras.distortion import fold_pixel
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.intrinsics import resolve_intrinsics
 from nerf_core.contract.lens import DISTORTION_KEYS
-from nerf_core.contract.transforms import FrameInfo, why_not_a_file
+from nerf_core.contract.paths import why_not_a_file
+from nerf_core.contract.transforms import FrameInfo
 from nerf_core.errors import ImageReadError
 from nerf_core.image.io import (
     read_depth,

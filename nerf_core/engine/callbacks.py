@@ -128,6 +128,9 @@ class StepInterval:
     """What the steps since the last ``step`` event add up to: seconds, samples, summed loss, steps."""
 
     def __init__(self):
+        self.reset()
+
+    def reset(self) -> None:
         self.t, self.samples, self.loss, self.n = 0.0, 0, 0.0, 0
 
     def add(self, seconds: float, samples: int, loss: float) -> None:
@@ -139,5 +142,5 @@ class StepInterval:
     def pop(self) -> dict:
         """``{"t", "samples", "loss", "n"}`` (what ``report.emit_step`` reads), then start again from zero."""
         out = {"t": self.t, "samples": self.samples, "loss": self.loss, "n": self.n}
-        self.__init__()
+        self.reset()
         return out
