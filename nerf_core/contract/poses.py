@@ -67,10 +67,11 @@ def check_pose(matrix, where: str = "transform_matrix", scale_tol: float = 1e-3)
     if far_out:
         raise PoseError(f"{where}: {far_out}")
     rot = m[:3, :3]
-    det = np.linalg.det(rot)
+    with np.errstate(over="ignore", invalid="ignore"):  # entries near 1e308: inf, then refused as scaled
+        det = np.linalg.det(rot)
+        gram = rot.T @ rot
     if abs(det) < 1e-8:
         raise PoseError(f"{where}: rotation part is singular (determinant {det:.3g})")
-    gram = rot.T @ rot
     if not np.allclose(gram, np.eye(3), atol=scale_tol):
         scales = np.sqrt(np.diag(gram))
         raise PoseError(
