@@ -31,15 +31,24 @@ fi
 "$venv/bin/python" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
     || die "$venv is not a Python 3.11 environment; delete it ('rm -rf .venv') and run again."
 
-# Reinstall only when the dependency spec changed since the last successful install.
+# Reinstall only when the dependency spec (pyproject.toml or the exact pins in constraints.txt)
+# changed since the last successful install.
 stamp="$venv/.nerf_installed"
-want="$(sha256sum "$root/pyproject.toml" | cut -d' ' -f1)"
+want="$(cat "$root/pyproject.toml" "$root/constraints.txt" | sha256sum | cut -d' ' -f1)"
+# Wheels of the library's runtime dependencies, at the pinned versions, for the tests that build a
+# fresh environment with no network: the wheel install test and the add-on's "Set up PyTorch".
+wheelhouse="$venv/wheelhouse"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "setup: installing dependencies into $venv (bpy is ~800 MB on first install)" >&2
     "$venv/bin/python" -m pip install --disable-pip-version-check -q --upgrade pip >&2 || true
-    if ! "$venv/bin/python" -m pip install --disable-pip-version-check -q -e "$root[dev]" >&2; then
+    if ! "$venv/bin/python" -m pip install --disable-pip-version-check -q -e "$root[dev]" -c "$root/constraints.txt" >&2; then
         die "pip install failed (see above). Check your network access to PyPI and that
   'pip install torch==2.13.0' and 'pip install bpy==5.0.1' work for $("$venv/bin/python" --version)."
+    fi
+    rm -rf "$wheelhouse"
+    if ! "$venv/bin/python" -m pip download --disable-pip-version-check -q -d "$wheelhouse" \
+            -c "$root/constraints.txt" torch numpy pillow openexr >&2; then
+        die "could not fetch the dependency wheels into $wheelhouse (see above)."
     fi
     echo "$want" > "$stamp"
 else

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 from typing import Optional
@@ -253,3 +254,25 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+def api_example(dataset, run) -> str:
+    """The example of docs/API.md ('## Example', the first ```python block) with its DATASET and RUN
+    lines pointed at ``dataset`` and ``run``: test_api runs it from the checkout, test_wheel_install
+    from an installed wheel, so the page's example is what both prove."""
+    text = (REPO_ROOT / "docs" / "API.md").read_text(encoding="utf-8")
+    m = re.search(r"^## Example\s*$(.*?)^```python\n(.*?)^```", text, flags=re.M | re.S)
+    assert m, "docs/API.md has no ```python block under '## Example'"
+    assert "\n## " not in m.group(1), "the ```python block is not the first thing under '## Example'"
+    code = m.group(2)
+    for line, value in (('DATASET = "scene_dataset"', f"DATASET = {str(dataset)!r}"),
+                        ('RUN = "runs/scene"', f"RUN = {str(run)!r}")):
+        assert line in code.splitlines(), f"the example must begin with {line!r} (the tests replace it)"
+        code = code.replace(line, value, 1)
+    return code
+
+
+@pytest.fixture
+def api_example_code():
+    """``api_example`` as a fixture (see ``dataset_factory`` for why not an import)."""
+    return api_example

@@ -1,5 +1,6 @@
 """The public API: ``nerf_core.__all__`` and ``nerf_core.volume.__all__`` against docs/API.md, lazy
-loading, docstrings, and the page's example run end to end."""
+loading and docstrings. The page's example runs end to end from an installed wheel
+(test_wheel_install.py)."""
 from __future__ import annotations
 
 import ast
@@ -126,35 +127,9 @@ def test_public_names_have_structured_docstrings():
     assert not problems, "\n".join(problems)
 
 
-def _example() -> str:
-    text = _page()
-    m = re.search(r"^## Example\s*$(.*?)^```python\n(.*?)^```", text, flags=re.M | re.S)
-    assert m, "docs/API.md has no ```python block under '## Example'"
-    assert "\n## " not in m.group(1), "the ```python block is not the first thing under '## Example'"
-    return m.group(2)
-
-
-def test_example_is_short_and_uses_the_public_api():
-    code = _example()
+def test_example_is_short_and_uses_the_public_api(api_example_code):
+    code = api_example_code("scene_dataset", "runs/scene")
     assert len(code.strip().splitlines()) <= 30, "the example must stay within 30 lines"
-    for line in ('DATASET = "scene_dataset"', 'RUN = "runs/scene"'):
-        assert line in code.splitlines(), f"the example must begin with {line!r} (the test replaces it)"
     imported = re.findall(r"^\s*(?:from\s+(\S+)\s+import|import\s+(\S+))", code, flags=re.M)
     modules = {a or b for a, b in imported}
     assert modules <= {"torch", "nerf_core", "pathlib"}, f"the example imports more than the public API: {modules}"
-
-
-def test_example_runs(tmp_path, dataset_factory):
-    dataset = dataset_factory(tmp_path / "ds", n_train=6, n_val=1, n_test=1, w=24, h=20, layouts=("synthetic",))
-    run = tmp_path / "runs" / "scene"
-    code = _example()
-    code = code.replace('DATASET = "scene_dataset"', f"DATASET = {str(dataset)!r}", 1)
-    code = code.replace('RUN = "runs/scene"', f"RUN = {str(run)!r}", 1)
-    script = tmp_path / "example.py"
-    script.write_text(code, encoding="utf-8")
-    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT), OMP_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=tmp_path, env=env,
-                          timeout=300)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "PSNR" in proc.stdout, proc.stdout
-    assert (run / "checkpoints" / "latest.pt").is_file()
