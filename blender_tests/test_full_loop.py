@@ -172,12 +172,16 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
 
     # The camera layout carries a camera per test view, from renders.json alone: the scene's own
     # cameras are not in the file (capture.py does not save them), yet looking through the active
-    # camera shows its plane over the frame. Images as paths relative to the .blend.
+    # camera shows its plane over the frame. Images as paths relative to the .blend. The gallery's
+    # renders are imported again (--renders), not rendered a second time.
     out = os.path.join(root, "compare_camera.blend")
     cmd = [sys.executable, os.path.join(repo_root, "scripts", "import_views.py"), "--blend", scene_blend,
            "--run", os.path.join(root, "run"), "--out", out, "--layout", "camera", "--images", "relative"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=240)
+    refused = subprocess.run(cmd + ["--renders", os.path.join(root, "run")], capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "no renders.json" in refused.stderr and not os.path.exists(out)
+    proc = subprocess.run(cmd + ["--renders", summary["render_dir"]], capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "render views" not in proc.stderr and json.loads(proc.stdout.strip().splitlines()[-1])["psnr"] == summary["psnr"]
     bpy.ops.wm.open_mainfile(filepath=out)
     scene = bpy.context.scene
     assert scene.camera.name == "NeRF Cam r_0" and (scene.render.resolution_x, scene.render.resolution_y) == (RES, RES)

@@ -7,12 +7,16 @@ Steps, each one a real subprocess of the same tools users run (so the demo tests
  2. capture a NeRF dataset from it                     scripts/capture.py
  3. validate the dataset                               python -m nerf_core check
  4. train a NeRF on the CPU for a short budget         python -m nerf_core train
- 5. evaluate on held-out test views                    python -m nerf_core eval
- 6. render novel views and import them as image planes
-    beside Blender's renders of the same cameras       scripts/import_views.py (gallery + camera layouts:
-                                                       each file opens looking through its own camera,
-                                                       the images packed inside it)
+ 5. render the held-out test views once, scoring each
+    against its ground truth (PSNR, SSIM, error map)   python -m nerf_core render
+ 6. import those renders as image planes beside
+    Blender's renders of the same cameras, twice       scripts/import_views.py --renders (gallery and
+                                                       camera layouts: each file opens looking through its
+                                                       own camera, the images packed inside it)
  7. write DIR/metrics.json and print where everything went.
+
+Each test view is rendered once: both imports reuse step 5's folder (its renders.json), and the
+scores come from the same renders.
 
 The output folder is never reused: without --out, a new timestamped folder under demo_out/ is made.
 """
@@ -72,6 +76,21 @@ def last_json(output: str) -> dict:
     raise StepFailed("expected a JSON object on the last line of the output")
 
 
+def scores_of(renders: str) -> dict:
+    """Mean test PSNR and SSIM over the views of ``renders``/renders.json, which ``nerf_core render``
+    scores exactly as ``eval`` does (the same compositing, pixel filter and ground truth)."""
+    try:
+        with open(os.path.join(renders, "renders.json"), encoding="utf-8") as fh:
+            frames = json.load(fh)["frames"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise StepFailed(f"{renders}/renders.json: not readable ({exc})") from None
+    scored = [f for f in frames if isinstance(f.get("psnr"), (int, float)) and isinstance(f.get("ssim"), (int, float))]
+    if not scored:
+        raise StepFailed(f"{renders}/renders.json: no view has ground truth to score against")
+    return {"psnr": sum(f["psnr"] for f in scored) / len(scored), "ssim": sum(f["ssim"] for f in scored) / len(scored),
+            "n_views": len(scored), "renders": renders}
+
+
 def scene_capture_flags(scene: str) -> list[str]:
     """Extra scripts/capture.py flags demo scene ``scene`` needs (addon/capture/demo_capture.py, loaded by path
     because importing the add-on package imports bpy): e.g. --opaque for hdri, --layout inside for interior."""
@@ -88,7 +107,7 @@ def scene_capture_flags(scene: str) -> list[str]:
 
 def missing_pieces() -> list[str]:
     needed = ["scripts/make_demo_scene.py", "scripts/capture.py", "scripts/import_views.py",
-              "nerf_core/engine/trainer.py", "nerf_core/render/views.py", "nerf_core/evaluation/evaluate.py", "nerf_core/check/dataset.py"]
+              "nerf_core/engine/trainer.py", "nerf_core/render/views.py", "nerf_core/check/dataset.py"]
     return [p for p in needed if not os.path.exists(os.path.join(REPO_ROOT, p))]
 
 
@@ -136,11 +155,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.method:
             train_cmd += ["--method", args.method]
         run_step("4 train", train_cmd, logs)
-        metrics = last_json(run_step("5 eval", [py, "-m", "nerf_core", "eval", run, "--split", "test"], logs))
+        renders = os.path.join(run, "views", "test")
+        run_step("5 render test views", [py, "-m", "nerf_core", "render", run, "--split", "test", "--out", renders], logs)
+        metrics = scores_of(renders)
         gallery_out = run_step("6 import gallery", [py, os.path.join(SCRIPTS, "import_views.py"), "--blend", scene, "--run", run,
-                                                    "--out", compare, "--layout", "gallery"], logs)
+                                                    "--renders", renders, "--out", compare, "--layout", "gallery"], logs)
         run_step("7 import camera-aligned", [py, os.path.join(SCRIPTS, "import_views.py"), "--blend", scene, "--run", run,
-                                             "--out", overlay, "--layout", "camera"], logs)
+                                             "--renders", renders, "--out", overlay, "--layout", "camera"], logs)
     except StepFailed as exc:
         print(f"\ndemo: FAILED: {exc}", file=sys.stderr)
         return 1

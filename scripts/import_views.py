@@ -7,7 +7,9 @@ Renders the run's test views (``--split``) or the cameras of ``--cameras T.json`
 ``python -m nerf_core render`` in a child process (a progress bar with an ETA on stderr), imports them
 (camera-aligned planes or a NeRF | Blender | error gallery with PSNR/SSIM), saves ``--out`` and prints
 a JSON summary (mean and per-view PSNR/SSIM) as the last stdout line. Never overwrites the scene
-file, and overwrites an existing ``--out`` only with ``--overwrite``.
+file, and overwrites an existing ``--out`` only with ``--overwrite``. ``--renders DIR`` imports views
+that ``nerf_core render`` already wrote for this run (DIR/renders.json) instead of rendering them again,
+so a gallery and a camera-aligned file can share one set of renders.
 
 What ``--out`` holds, ready to look at:
 * ``--layout camera``: one camera per rendered view (``NeRF Cam <view>``, the view's pose and exact
@@ -48,6 +50,9 @@ def parse(argv):
                     help="how --out keeps the images: inside the .blend (pack, the default: it still shows them "
                          "when the run folder moves), as paths relative to --out, or as absolute paths")
     ap.add_argument("--render-dir", help="where the renders go (default: a new RUN/views/<split>_NNN folder)")
+    ap.add_argument("--renders", metavar="DIR",
+                    help="import the renders already in DIR (its renders.json, written by `nerf_core render` of "
+                         "this run) instead of rendering again; the cameras are the ones DIR was rendered from")
     ap.add_argument("--python", default=os.environ.get("NERF_PYTHON", ""),
                     help="interpreter with torch for nerf_core (default: $NERF_PYTHON, else this Python)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -112,6 +117,30 @@ def _file_sha256(path: str) -> str | None:
     return h.hexdigest()
 
 
+def existing_renders(renders_dir: str, run: str) -> tuple[str, str]:
+    """``(render_dir, cameras)`` of a folder that ``nerf_core render`` wrote for ``run``: import_views then
+    imports those images rather than rendering the same views again. Exits naming the folder when it
+    holds no renders.json or renders.json says another run made it."""
+    render_dir = os.path.abspath(renders_dir)
+    listing = os.path.join(render_dir, "renders.json")
+    try:
+        with open(listing, encoding="utf-8") as fh:
+            meta = json.load(fh)
+    except FileNotFoundError:
+        fail(f"--renders {render_dir}: no renders.json (render the views first with "
+             f"python -m nerf_core render {run} --out {render_dir})")
+    except (OSError, ValueError) as exc:
+        fail(f"--renders {listing}: not readable as JSON ({exc})")
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        fail(f"--renders {listing}: not a renders.json of nerf_core render (no 'frames' list)")
+    made_by = meta.get("run")
+    if not isinstance(made_by, str) or os.path.realpath(made_by) != os.path.realpath(run):
+        fail(f"--renders {listing}: rendered from run {made_by!r}, not --run {run}; render this run's views "
+             "or drop --renders")
+    cameras = meta.get("cameras")
+    return render_dir, cameras if isinstance(cameras, str) and os.path.isfile(cameras) else None
+
+
 def check_scene_matches_run(run: str, scene_file: str, force: bool) -> None:
     """Warn, and refuse unless ``force``, when the run's dataset was captured from another .blend.
 
@@ -166,7 +195,13 @@ def main(argv) -> int:
         fail(f"--run {run}: no {os.path.relpath(contract.latest_checkpoint(run), run)} "
              "(train it first with python -m nerf_core train)")
     check_scene_matches_run(run, scene_file, args.force)
-    if args.cameras:
+    if args.renders and (args.cameras or args.render_dir):
+        fail("--renders imports renders made before: it does not go with --cameras or --render-dir")
+    reused = existing_renders(args.renders, run) if args.renders else None
+    if reused:
+        cameras = reused[1] or os.path.join(reused[0], "renders.json")
+        n_views = 0
+    elif args.cameras:
         cameras = os.path.abspath(args.cameras)
         if not os.path.isfile(cameras):
             fail(f"--cameras {cameras}: no such file")
@@ -177,15 +212,16 @@ def main(argv) -> int:
         cameras = os.path.join(dataset, f"transforms_{args.split}.json")
         if not os.path.isfile(cameras):
             fail(f"dataset {dataset} has no transforms_{args.split}.json; pass --cameras or another --split")
-    try:
-        with open(cameras, encoding="utf-8") as fh:
-            n_views = len(json.load(fh)["frames"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        fail(f"{cameras}: not a transforms file with 'frames' ({exc})")
-    try:
-        python = child_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
-    except child_process.SetupError as exc:
-        fail(f"{exc} (or pass --python / set NERF_PYTHON)")
+    if not reused:
+        try:
+            with open(cameras, encoding="utf-8") as fh:
+                n_views = len(json.load(fh)["frames"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            fail(f"{cameras}: not a transforms file with 'frames' ({exc})")
+        try:
+            python = child_process.resolve_interpreter(args.python, addon_dir=os.path.join(REPO_ROOT, "addon"))
+        except child_process.SetupError as exc:
+            fail(f"{exc} (or pass --python / set NERF_PYTHON)")
 
     import bpy
 
@@ -193,7 +229,9 @@ def main(argv) -> int:
 
     open_blend(args.blend)
     label = os.path.splitext(os.path.basename(cameras))[0].replace("transforms_", "")
-    if args.render_dir:
+    if reused:
+        render_dir = reused[0]
+    elif args.render_dir:
         render_dir = os.path.abspath(args.render_dir)
         if os.path.isdir(render_dir) and os.listdir(render_dir):
             fail(f"--render-dir {render_dir} is not empty; choose an empty or new folder")
@@ -206,7 +244,8 @@ def main(argv) -> int:
             render_dir = compare.fresh_dir(os.path.join(run, compare.VIEWS_DIR), label)
         except child_process.SetupError as exc:
             fail(str(exc))
-    render(python, run, cameras, render_dir, n_views)
+    if not reused:
+        render(python, run, cameras, render_dir, n_views)
 
     try:
         views = planes.views_from_render(render_dir, cameras)
