@@ -14,6 +14,7 @@ from nerf_core.contract.camera_path import (  # noqa: F401  (re-exported: the re
     CameraPathError,
     camera_path_intrinsics,
     is_camera_path,
+    path_range,
     path_views,
 )
 

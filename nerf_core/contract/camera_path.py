@@ -105,7 +105,22 @@ def path_views(data: dict, src: Path | str) -> List[dict]:
     return views
 
 
-def camera_path_document(views: Sequence[dict], fps: float, where: str = "camera") -> dict:
+def path_range(data: dict, src: Path | str) -> tuple:
+    """(near, far) of a parsed camera_path.json, or (None, None): our additive top-level fields, the
+    exporting camera's clip range, which the render engine renders with (nerfstudio ignores them).
+    Raises CameraPathError naming ``src`` for values that are not positive numbers with far > near."""
+    near, far = data.get("near"), data.get("far")
+    if near is None and far is None:
+        return None, None
+    for key, value in (("near", near), ("far", far)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise CameraPathError(f"{src}: field {key!r} must be a positive distance, got {value!r}")
+    if far <= near:
+        raise CameraPathError(f"{src}: field 'far' ({far!r}) must be greater than 'near' ({near!r})")
+    return float(near), float(far)
+
+
+def camera_path_document(views: Sequence[dict], fps: float, where: str = "camera", clip=None) -> dict:
     """A camera_path.json object for ``views`` (one per frame, in order), each a dict with ``c2w``
     (4x4, OpenGL camera-to-world in the dataset's world), ``fx fy cx cy w h`` (pixels) and an optional
     ``label`` naming it in messages (e.g. "frame 12").
@@ -114,6 +129,7 @@ def camera_path_document(views: Sequence[dict], fps: float, where: str = "camera
     (fx = fy) and its principal point at the image centre: the format holds a vertical field of view
     only. Raises CameraPathError naming ``where`` and the frames that break a rule. Each entry gets its
     own ``fov`` (an animated focal length) and ``aspect`` (w / h); ``seconds`` = frames / ``fps``.
+    ``clip`` = (near, far) is written as the top-level ``near``/``far`` (``path_range``).
     """
     if not views:
         raise CameraPathError(f"{where}: no frames to write")
@@ -141,4 +157,4 @@ def camera_path_document(views: Sequence[dict], fps: float, where: str = "camera
                      "fov": fov_degrees(float(v["fy"]), h), "aspect": w / h})
     return {"camera_type": "perspective", "render_width": w, "render_height": h, "camera_path": path,
             "fps": float(fps), "seconds": len(views) / float(fps), "smoothness_value": 0.0, "is_cycle": False,
-            "crop": None}
+            "crop": None, **({"near": float(clip[0]), "far": float(clip[1])} if clip else {})}
