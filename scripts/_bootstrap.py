@@ -87,6 +87,25 @@ def open_blend(path: str | None) -> None:
         raise SystemExit(f"error: --blend {path!r}: Blender could not open it: {exc}")
 
 
+MAX_FRAME = 1048574  # Blender's MAXFRAME: a larger range was a MemoryError
+
+
+def frame_range(prog: str, text, scene) -> list:
+    """``--frames A:B``: frames A..B inclusive (step 1), else the scene's start..end by its frame step.
+    A malformed or out-of-range value ``fail``s naming the flag."""
+    if not text:
+        return list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        fail(prog, f"--frames {text!r}: expected A:B, two whole frame numbers, e.g. 1:48")
+    if b < a:
+        fail(prog, f"--frames {text!r}: the last frame comes before the first")
+    if max(abs(a), abs(b)) > MAX_FRAME:
+        fail(prog, f"--frames {text!r}: Blender's frames run from -{MAX_FRAME} to {MAX_FRAME}")
+    return list(range(a, b + 1))
+
+
 def exit_code(code: int) -> None:
     """Exit with ``code`` in both modes (under Blender, sys.exit inside --python is honoured in -b)."""
     sys.stdout.flush()

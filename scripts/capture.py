@@ -53,7 +53,7 @@ MAX_RESOLUTION = 65536  # Blender clamps render resolution here (the manifest wo
 def argument_errors(args) -> list[str]:
     """Every capture argument outside what Blender accepts, each naming its flag (empty when all are fine)."""
     errors = []
-    res_x, res_y = args.resolution
+    res_x, res_y = args.resolution or (None, None)
     for flag, v in (("--resolution", res_x), ("--resolution", res_y), ("--resolution-y", args.resolution_y)):
         if v is not None and not 1 <= v <= MAX_RESOLUTION:
             errors.append(f"{flag}: {v} px is outside Blender's range 1..{MAX_RESOLUTION} (each axis)")
@@ -120,7 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--count", type=int, default=100, help="train views (generated layouts)")
     ap.add_argument("--val-count", type=int, default=10)
     ap.add_argument("--test-count", type=int, default=20)
-    ap.add_argument("--resolution", type=parse_resolution, default=(200, None), help="R (square) or WxH")
+    ap.add_argument("--resolution", type=parse_resolution, default=None,
+                    help="R (square) or WxH (default 200; with --layout scene-cameras and cameras imported by "
+                         "import_cameras.py, the size of their file's images)")
     ap.add_argument("--resolution-y", type=int, help="image height when --resolution gives only the width")
     ap.add_argument("--engine", default="cycles", choices=("cycles", "eevee", "workbench"))
     ap.add_argument("--samples", type=int, default=16, help="render samples per pixel (Cycles/EEVEE)")
@@ -158,6 +160,17 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def imported_resolution(scene, layout: str):
+    """The scene's render size when ``layout`` re-renders cameras imported from a transforms file
+    (import_cameras.py set it to their images' size), else None."""
+    from addon.capture import camera_import
+
+    if layout != "scene-cameras" or not any(camera_import.is_imported(o) for o in scene.objects):
+        return None
+    r = scene.render
+    return r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100
+
+
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     errors = argument_errors(args)
@@ -178,9 +191,9 @@ def main(argv: list[str]) -> int:
     from addon.dataset import capture_manifest
     from nerf_core.utils.progressbar import ProgressBar
 
-    res_x, res_y = args.resolution
-    res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)
     scene = bpy.context.scene
+    res_x, res_y = args.resolution or (imported_resolution(scene, args.layout) or (200, None))
+    res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)
     if args.resume and capture_manifest.read_manifest(os.path.abspath(args.out)) is None:
         raise capture_plan.CaptureError(f"--resume: {args.out} holds no capture to continue")
     spec = layouts.LayoutSpec(

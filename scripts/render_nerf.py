@@ -41,22 +41,9 @@ def fail(message: str) -> None:
     _bootstrap.fail("render_nerf", message)
 
 
-MAX_FRAME = 1048574  # Blender's MAXFRAME: a larger range was a MemoryError
-
-
 def frame_range(text, scene) -> list:
-    """Frames to render: ``A:B`` inclusive (step 1), else the scene's start..end by its frame step."""
-    if not text:
-        return list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
-    try:
-        a, b = (int(v) for v in text.split(":"))
-    except ValueError:
-        fail(f"--frames {text!r}: expected A:B, two whole frame numbers, e.g. 1:48")
-    if b < a:
-        fail(f"--frames {text!r}: the last frame comes before the first")
-    if max(abs(a), abs(b)) > MAX_FRAME:
-        fail(f"--frames {text!r}: Blender's frames run from -{MAX_FRAME} to {MAX_FRAME}")
-    return list(range(a, b + 1))
+    """Frames to render (``_bootstrap.frame_range``)."""
+    return _bootstrap.frame_range("render_nerf", text, scene)
 
 
 def set_format(settings, fmt: str) -> None:
@@ -118,6 +105,9 @@ def main(argv) -> int:
         print(f"render_nerf: note: {warning}; rendering with Standard (the scene file is not changed)", file=sys.stderr)
     vs = scene.view_settings
     vs.view_transform, vs.look, vs.exposure, vs.gamma = "Standard", "None", 0.0, 1.0
+    # Blender dithers float renders into 8-bit files (noise of about one level); the NeRF's colours are
+    # already the image, so they are written as `nerf_core render` writes them, byte for byte.
+    scene.render.dither_intensity = 0.0
 
     t0 = time.monotonic()
     written = []

@@ -12,6 +12,7 @@ from .capture_ui import (
     NERF_OT_generate_cameras,
     NERF_PT_capture,
 )
+from .import_ui import NERF_OT_import_cameras
 
 classes = (
     NerfCaptureSettings,
@@ -20,6 +21,7 @@ classes = (
     NERF_OT_capture,
     NERF_OT_capture_cancel,
     NERF_OT_add_demo_scene,
+    NERF_OT_import_cameras,
     NERF_PT_capture,
 )
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)

@@ -252,6 +252,7 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         row = col.row(align=True)
         row.operator(NERF_OT_generate_cameras.bl_idname, icon="OUTLINER_OB_CAMERA")
         row.operator(NERF_OT_clear_cameras.bl_idname, text="", icon="TRASH")
+        col.operator("nerf.import_cameras", icon="IMPORT")  # from a transforms file: then Scene Cameras
         cams = camera_collection.capture_cameras(context.scene)
         col.label(text=f"{len(cams['train'])} train, {len(cams['val'])} val, {len(cams['test'])} test cameras")
         stale = camera_collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y, cams)

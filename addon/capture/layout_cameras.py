@@ -15,6 +15,7 @@ from mathutils import Matrix
 from ..scene import scene_bounds
 from ..scene.camera_checks import camera_shape_error
 from . import camera_collection
+from .camera_import import IMPORT_INDEX, IMPORT_SPLIT, is_imported
 from .layout_notes import framing_bounds
 from .layouts import (
     GENERATED_LAYOUTS,
@@ -139,12 +140,25 @@ def _plan_looking_in(scene, spec: LayoutSpec, res_x: int, res_y: int) -> LayoutP
 
 
 def _plan_scene_cameras(scene, spec: LayoutSpec) -> LayoutPlan:
-    """Copies of the scene's own cameras."""
+    """Copies of the scene's own cameras. When some were imported from a transforms file
+    (``camera_import``), exactly those, in the file's order, each in the file's split when the file
+    had splits: a capture then re-renders that file's views."""
     sources = _user_cameras(scene, camera_collection.nerf_collection(scene, create=False))
     if not sources:
         raise LayoutError(f"layout 'scene-cameras': scene {scene.name!r} has no camera of its own")
+    imported = sorted((o for o in sources if is_imported(o)), key=lambda o: int(o[IMPORT_INDEX]))
+    if imported:
+        sources = imported
     with scene_bounds.fresh_matrices(scene, sources):  # a camera disabled in viewports reads as identity
         placed = [(o, o.matrix_world.copy(), None) for o in sources]
+    splits = [o.get(IMPORT_SPLIT) for o in sources]
+    if imported and all(s in SPLITS for s in splits):
+        for obj, _m, _f in placed:
+            err = camera_shape_error(obj)
+            if err:
+                raise LayoutError(err)
+        order = sorted(range(len(placed)), key=lambda k: SPLITS.index(splits[k]))  # stable: file order in a split
+        return LayoutPlan([(splits[k], placed[k][1], placed[k][0], None) for k in order])
     return LayoutPlan(_plan_from_sources(spec, placed))
 
 

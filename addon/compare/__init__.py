@@ -3,7 +3,8 @@
 panel never imports Compare."""
 import bpy
 
+from .camera_path_ui import NERF_OT_export_camera_path
 from .compare_ui import NERF_OT_clear_views, NERF_OT_render_views, NERF_PT_compare, NERF_UL_view_metrics
 
-classes = (NERF_OT_render_views, NERF_OT_clear_views, NERF_UL_view_metrics, NERF_PT_compare)
+classes = (NERF_OT_render_views, NERF_OT_clear_views, NERF_OT_export_camera_path, NERF_UL_view_metrics, NERF_PT_compare)
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -99,5 +99,6 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
         else:
             row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
+        layout.operator("nerf.export_camera_path", icon="EXPORT")  # the active camera's animation
         if len(s.view_metrics):
             layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)

@@ -9,7 +9,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from nerf_core.cameras.camera_path import cameras_from_camera_path, is_camera_path
+from nerf_core.cameras.camera_path import CameraPathError, cameras_from_camera_path, is_camera_path, path_range
 from nerf_core.cameras.rays import Cameras
 from nerf_core.contract.errors import DatasetError, PoseError
 from nerf_core.contract.intrinsics import resolve_intrinsics
@@ -91,6 +91,20 @@ def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[s
             frames = [None] * len(stems)
     # Two frames with one basename (train/r_0 and test/r_0) must not overwrite each other's output.
     return cams, unique_stems(stems), list(frames)
+
+
+def camera_file_range(path: Path | str) -> tuple:
+    """(near, far) a cameras file asks to render with (a camera_path.json's ``near``/``far``), else (None, None)."""
+    path = Path(path)
+    if not path.is_file():
+        return None, None
+    data = parse_json_file(path)
+    if not is_camera_path(data):
+        return None, None
+    try:
+        return path_range(data, path)
+    except CameraPathError as exc:
+        raise DatasetError(str(exc)) from None
 
 
 def cameras_from_file(path: Path | str, split: str = "test") -> tuple[Cameras, List[str]]:

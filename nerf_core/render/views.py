@@ -30,7 +30,7 @@ from nerf_core.image import pixel_filter as pf
 from nerf_core.image.io import write_exr, write_png
 from nerf_core.image.metrics import HEATMAP_VMAX, error_heatmap
 from nerf_core.image.pixel_filter import POINT, PixelFilter
-from nerf_core.render.cameras import camera_views, dataset_files, ground_truth_split
+from nerf_core.render.cameras import camera_file_range, camera_views, dataset_files, ground_truth_split
 from nerf_core.render.frame import render_view, straight_rgba
 from nerf_core.render.memory import check_view_memory, render_rate
 from nerf_core.render.scoring import score_view
@@ -279,6 +279,9 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
             notes.append(changed)
             print(f"render: note: {changed}", file=sys.stderr)
     cams, stems, frames = camera_views(cameras_path, split)
+    near, far = camera_file_range(cameras_path)  # a camera path exported from Blender: its camera's clip
+    if near is None:
+        near, far = config.get("near"), config.get("far")
     smallest = int(torch.minimum(cams.width, cams.height).min())
     if not (math.isfinite(downscale) and 0 < downscale <= smallest):
         raise RunError(f"--downscale {downscale:g}: the smallest camera is {smallest} px across, so the factor must "
@@ -290,7 +293,7 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     # Ground truth is box-filtered like eval's; a fractional downscale has no such image: no metrics.
     gt_downscale = int(downscale) if float(downscale).is_integer() and downscale >= 1 else None
     return render_to_dir(
-        model, cams, stems, out, overwrite=overwrite, near=config.get("near"), far=config.get("far"), chunk=chunk,
+        model, cams, stems, out, overwrite=overwrite, near=near, far=far, chunk=chunk,
         extra={"run": str(Path(run).resolve()), "step": ckpt.get("step"), "method": ckpt.get("method"),
                "cameras": str(Path(cameras_path).resolve()), **({"notes": notes} if notes else {})},
         show_progress=show_progress,

@@ -100,3 +100,39 @@ def test_cli_reports_a_bad_camera_path_in_one_line(tmp_path, trained_run, capsys
     assert main(["render", str(trained_run["run"]), "--cameras", str(p), "--out", str(tmp_path / "o"), "--no-bar"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("nerf_core render: error: ") and "fisheye" in err[0]
+
+
+def test_a_written_camera_path_reads_back_the_same_cameras_and_refuses_what_it_cannot_hold(tmp_path):
+    from nerf_core.contract.camera_path import camera_path_document, path_range, path_views
+
+    c2w = np.eye(4)
+    c2w[:3, 3] = (1.0, 2.0, 3.0)
+    views = [{"c2w": c2w, "fx": f, "fy": f, "cx": 20.0, "cy": 15.0, "w": 40, "h": 30, "label": f"frame {k}"}
+             for k, f in enumerate((30.0, 45.5))]
+    doc = camera_path_document(views, 24.0, clip=(0.1, 50.0))
+    back = path_views(doc, tmp_path / "p.json")
+    assert [v["fy"] for v in back] == pytest.approx([30.0, 45.5], rel=1e-12)
+    assert np.array_equal(back[1]["c2w"], c2w) and path_range(doc, "p") == (0.1, 50.0)
+    assert doc["seconds"] == pytest.approx(2 / 24.0)
+    shifted = [dict(views[0], cx=21.0, label="frame 7"), dict(views[1], fy=44.0, label="frame 8")]
+    with pytest.raises(CameraPathError, match=r"frame 7 have a lens shift.*frame 8 have non-square pixels"):
+        camera_path_document(shifted, 24.0)
+    with pytest.raises(CameraPathError, match="'far'"):
+        path_range({"near": 2.0, "far": 1.0}, "p.json")
+
+
+def test_nerfstudios_dataparser_transform_is_undone_exactly():
+    from nerf_core.contract import nerfstudio_frame as nf
+
+    rng = np.random.default_rng(1)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    rot = q * np.sign(np.linalg.det(q))
+    transform = np.concatenate([rot, rng.normal(size=(3, 1))], 1)
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = np.linalg.qr(rng.normal(size=(3, 3)))[0] * 1.0, (1.0, -2.0, 0.5)
+    there = nf.to_nerfstudio_pose(pose, transform, 0.37)
+    assert np.allclose(nf.to_dataset_pose(there, transform, 0.37), pose, atol=1e-12)
+    pts = rng.normal(size=(5, 3))
+    moved = (nf.dataset_to_nerfstudio_matrix(transform, 0.37) @ np.c_[pts, np.ones(5)].T).T[:, :3]
+    assert np.allclose(nf.to_dataset_points(moved, transform, 0.37), pts, atol=1e-12)
+    assert np.allclose(there[:3, 3], moved[0] * 0 + 0.37 * (rot @ pose[:3, 3] + transform[:, 3]))
