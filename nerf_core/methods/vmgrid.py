@@ -93,6 +93,8 @@ class VMGrid(RadianceModel):
         density_unit: "box" (default): the field's density is per ``scene_box.box_length_unit`` (the box
             rescaled to [-1, 1]^3), so a scene modelled in millimetres trains as one in metres; "scene":
             per scene unit, as every checkpoint before this option was trained (``options_before``).
+        view_dependent: False: the colour ignores the view direction (``encodings.direction_encoding``);
+            ``vmgrid-noview`` is vmgrid with it off, to show what the direction input buys.
         contract: model the world beyond the box too (``nerf_core.volume.contraction``): the grid spans the
             contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
@@ -113,7 +115,7 @@ class VMGrid(RadianceModel):
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-4, occ_probe="max", density_unit="box")
+                    color_weight=1e-4, occ_probe="max", density_unit="box", view_dependent=True)
     options_before = {"density_unit": "scene"}
     growing = ("field.density_planes", "field.density_lines", "field.app_planes", "field.app_lines")
 
@@ -130,7 +132,7 @@ class VMGrid(RadianceModel):
     def validate_options(cls, options: dict) -> None:
         """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
         a run folder is made (``TrainConfig.check``) and when a model is built."""
-        check_options("vmgrid", cls.defaults, options,
+        check_options(cls.method_name, cls.defaults, options,
                       positive=("density_rank", "app_rank", "app_dim", "mlp_width", "occ_every", "step_ratio",
                                 "grid_lr_scale", "budget_steps", "warmup_step_scale"),
                       fractions=("occ_alpha", "alpha_init"), shares=("occ_decay",),
@@ -156,7 +158,7 @@ class VMGrid(RadianceModel):
         self.field = TensorVMField(field_box, resolution=opts["resolution"], density_rank=opts["density_rank"],
                                    app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
                                    view_freqs=opts["view_freqs"], seed=opts["seed"], density_shift=shift,
-                                   density_scale=density_scale)
+                                   density_scale=density_scale, view_dependent=opts["view_dependent"])
         self.occupancy = OccupancyGrid(field_box, opts["occ_res"])
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
@@ -425,3 +427,16 @@ class VMGrid(RadianceModel):
                 dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
             aux = aux + self.options["dist_weight"] * dist.mean()
         return aux
+
+
+@register("vmgrid-noview")
+class VMGridNoView(VMGrid):
+    """``vmgrid`` whose colour ignores the view direction (``view_dependent`` forced off): every point
+    has one colour from every side, so highlights and reflections cannot be reproduced. Nothing else
+    differs, so comparing the two isolates the direction input. Same options as ``vmgrid``."""
+
+    defaults = {**VMGrid.defaults, "view_dependent": False}
+
+    def __init__(self, aabb: Tensor, **options):
+        options["view_dependent"] = False
+        super().__init__(aabb, **options)
