@@ -162,7 +162,7 @@ def summary_markdown(results: dict, crops: Optional[dict]) -> str:
         cells = [f"{a[t] - b[t]:+.2f}" if t in a and t in b else "-" for t in marks]
         lines.append(f"| {scene} | {name} | " + " | ".join(cells) + " |")
     if crops:
-        lines += ["", f"![Highlight crops](highlight_crops.png)", "",
+        lines += ["", "![Highlight crops](highlight_crops.png)", "",
                   f"Crops: {crops['scene']} test view {crops['view']}, a {crops['side']} px window at "
                   f"(top {crops['top']}, left {crops['left']}) centred on the brightest object pixel of all test "
                   "views (chosen from the ground truth alone). PSNR inside the crop: "
