@@ -125,7 +125,7 @@ def main(argv=None) -> int:
         os.makedirs(logs, exist_ok=True)
         cache = args.datasets or os.path.join(args.out, "datasets")
         rows, captured = [], {}
-        t0 = time.monotonic()
+        t0, commit = time.monotonic(), git_commit()  # the code the runs start from, not HEAD at the end
         for scene in args.scene_list:
             print(f"view_dependence: capturing {scene} (cached in {cache})", file=sys.stderr, flush=True)
             captured[scene], _ = datasets.ensure_dataset(scene, cache, capture_settings(args),
@@ -134,7 +134,7 @@ def main(argv=None) -> int:
             for method in args.method_list:
                 rows += run_pair(args, captured[scene], scene, method, logs)
         command = "python scripts/view_dependence.py " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
-        results = {"command": command, "commit": git_commit(), "machine": runner.machine_info(),
+        results = {"command": command, "commit": commit, "machine": runner.machine_info(),
                    "wall_minutes": round((time.monotonic() - t0) / 60, 1), "datasets": captured,
                    "capture": capture_settings(args), "seconds": args.seconds, "marks": args.marks,
                    "eval_views": args.eval_views, "threads_per_run": 1, "runs": rows}
