@@ -69,6 +69,20 @@ class FourierFeatures(nn.Module):
         return torch.cat(parts + [torch.sin(proj), torch.cos(proj)], dim=-1)
 
 
+def direction_encoding(n_freqs: int, view_dependent: bool = True, use_pe: bool = True) -> nn.Module:
+    """The encoding of the view direction that a colour head reads: (..., 3) -> (..., out_dim).
+
+    The one home of the rule that switches view dependence off: with ``view_dependent`` False the
+    encoding has ``out_dim`` 0 and returns an empty (..., 0) tensor, so the colour head has no input
+    that depends on the direction, and its colour is the same from every side by construction (a
+    diffuse, Lambertian-looking model: NeRF's ablation of the direction input). ``n_freqs`` 0 is *not*
+    that: the raw direction still goes in. ``use_pe`` False: the raw direction (``nerf-nope``).
+    """
+    if not view_dependent:
+        return PositionalEncoding(in_dim=3, n_freqs=0, include_input=False)
+    return PositionalEncoding(3, n_freqs) if use_pe else IdentityEncoding(3)
+
+
 def build_encoding(kind: str, in_dim: int, **kw) -> nn.Module:
     """``kind`` in {"none", "pe", "fourier"}; extra keywords go to the encoding's constructor."""
     if kind in ("none", "identity"):

@@ -1,11 +1,12 @@
-"""The classic NeRF MLP: (x, d) -> (sigma, rgb) with a skip connection and a view-dependent head."""
+"""The classic NeRF MLP: (x, d) -> (sigma, rgb) with a skip connection and a view-dependent head
+(or one blind to the direction, ``view_dependent=False``)."""
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from nerf_core.fields.encodings import IdentityEncoding, PositionalEncoding
+from nerf_core.fields.encodings import IdentityEncoding, PositionalEncoding, direction_encoding
 
 Tensor = torch.Tensor
 
@@ -25,21 +26,20 @@ class NeRFMLP(nn.Module):
         length_unit: scene units per unit of length the network's density is measured in (the box
             unit, ``scene_box.box_length_unit``, for scale-free training; 1: per scene unit). The
             returned density is per scene unit either way.
+        view_dependent: False: the colour head gets no direction input (``encodings.direction_encoding``).
     """
 
     def __init__(self, aabb: Tensor, use_pe: bool = True, pos_freqs: int = 10, dir_freqs: int = 4,
                  width: int = 128, depth: int = 4, skip: int = 2, density_activation: str = "softplus",
-                 length_unit: float = 1.0):
+                 length_unit: float = 1.0, view_dependent: bool = True):
         super().__init__()
         self.inv_length_unit = 1.0 / float(length_unit)
         if density_activation not in DENSITY_ACTIVATIONS:
             raise ValueError(f"density_activation must be one of {', '.join(DENSITY_ACTIVATIONS)}, got {density_activation!r}")
         self.density_activation = density_activation
         self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
-        if use_pe:
-            self.pos_enc, self.dir_enc = PositionalEncoding(3, pos_freqs), PositionalEncoding(3, dir_freqs)
-        else:
-            self.pos_enc, self.dir_enc = IdentityEncoding(3), IdentityEncoding(3)
+        self.pos_enc = PositionalEncoding(3, pos_freqs) if use_pe else IdentityEncoding(3)
+        self.dir_enc = direction_encoding(dir_freqs, view_dependent, use_pe)
         self.skip = skip
         layers, d_in = [], self.pos_enc.out_dim
         for i in range(depth):

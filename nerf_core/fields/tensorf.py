@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from nerf_core.fields.encodings import PositionalEncoding
+from nerf_core.fields.encodings import direction_encoding
 from nerf_core.fields.vm_lookup import VMLookup, dense_density
 from nerf_core.image.losses import l1_sparsity, total_variation_2d
 from nerf_core.utils.derived_cache import DerivedCache
@@ -40,14 +40,17 @@ class TensorVMField(nn.Module):
         density_rank, app_rank: components per plane for density and appearance.
         app_dim: width of the appearance feature after the basis matrix.
         mlp_width: hidden width of the colour MLP (two hidden layers).
-        view_freqs: positional-encoding frequencies of the view direction (0: diffuse only).
+        view_freqs: positional-encoding frequencies of the view direction (0: the raw direction only).
+        view_dependent: False: the colour MLP gets no direction input, so colour is the same from every
+            side (``encodings.direction_encoding``).
         density_shift, density_scale: sigma = density_scale * softplus(raw + density_shift); the raw
             features start near 0, so the shift sets the initial density (see ``vmgrid``'s alpha_init).
     """
 
     def __init__(self, aabb: Tensor, resolution: int = 64, density_rank: int = 16, app_rank: int = 48,
                  app_dim: int = 27, mlp_width: int = 64, view_freqs: int = 2, density_shift: float = -10.0,
-                 density_scale: float = 25.0, init_scale: float = 0.1, seed: int = 0):
+                 density_scale: float = 25.0, init_scale: float = 0.1, seed: int = 0,
+                 view_dependent: bool = True):
         super().__init__()
         self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
         self.resolution = int(resolution)
@@ -63,7 +66,7 @@ class TensorVMField(nn.Module):
         self.app_planes = rnd(3, app_rank, n, n)
         self.app_lines = rnd(3, app_rank, n, 1)
         self.basis = nn.Linear(3 * app_rank, app_dim, bias=False)
-        self.view_enc = PositionalEncoding(3, view_freqs)
+        self.view_enc = direction_encoding(view_freqs, view_dependent)
         self.mlp = nn.Sequential(
             nn.Linear(app_dim + self.view_enc.out_dim, mlp_width), nn.ReLU(inplace=True),
             nn.Linear(mlp_width, mlp_width), nn.ReLU(inplace=True),

@@ -1,4 +1,4 @@
-"""``nerf`` and ``nerf-nope``: the classic MLP NeRF, sampled where the scene is.
+"""``nerf``, ``nerf-nope`` and ``nerf-noview``: the classic MLP NeRF, sampled where the scene is.
 
 The network is Mildenhall et al.'s: positional encoding, a ReLU trunk with a skip connection, a density
 head and a view-dependent colour head (``fields.mlp.NeRFMLP``). On a 2-core CPU a sample costs what it
@@ -30,7 +30,8 @@ samples. Two samplers, chosen by the ``sampler`` option:
     ``n_fine`` more by inverse-CDF sampling of its weights through a fine network, both supervised.
 
 ``nerf-nope`` is the same class with raw coordinates instead of the encoding; nothing else differs,
-so comparing the two isolates the encoding.
+so comparing the two isolates the encoding. ``nerf-noview`` is the same class with a colour head blind
+to the view direction, which isolates what the direction input buys (highlights, reflections).
 
 Old checkpoints (before the ``sampler`` option) hold a coarse and a fine network and no grid: they
 load as ``hierarchical`` with the softplus density they were trained with (``load_state_dict``).
@@ -87,6 +88,8 @@ class NeRF(RadianceModel):
         n_coarse, n_fine: samples per ray of the hierarchical sampler's two networks.
         grad_reach: share of the box diagonal within which a camera's samples learn with
             distance-scaled gradients (``nerf_core.volume.grad_scaling``); 0 disables it.
+        view_dependent: False: the colour head gets no view direction (``encodings.direction_encoding``);
+            ``nerf-noview`` is nerf with it off (the paper's ablation of the direction input).
         density_unit: "box" (default): the network's density is per ``scene_box.box_length_unit``, so
             its initial fog and the raw values a surface needs are the same at every scene scale;
             "scene": per scene unit, as checkpoints before this option were trained (``options_before``).
@@ -101,7 +104,8 @@ class NeRF(RadianceModel):
     defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, use_pe=True, density_activation="exp",
                     sampler="occupancy", march_steps=128, warmup_step_scale=4.0, occ_res=48, occ_every=16,
                     occ_decay=0.8, occ_alpha=0.01, train_ert="auto", ert_probe_every=25,
-                    n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE, density_unit="box")
+                    n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE, density_unit="box",
+                    view_dependent=True)
     options_before = {"density_unit": "scene"}
 
     @classmethod
@@ -128,7 +132,8 @@ class NeRF(RadianceModel):
         net = dict(use_pe=opts["use_pe"], pos_freqs=opts["pos_freqs"], dir_freqs=opts["dir_freqs"],
                    width=opts["width"], depth=opts["depth"], skip=opts["skip"],
                    density_activation=opts["density_activation"],
-                   length_unit=density_length(self.aabb, opts["density_unit"]))
+                   length_unit=density_length(self.aabb, opts["density_unit"]),
+                   view_dependent=opts["view_dependent"])
         self._net_options = net
         # ``coarse`` is the only network of the occupancy sampler (the name keeps checkpoints loadable).
         self.coarse = NeRFMLP(self.aabb, **net)
@@ -345,4 +350,16 @@ class NeRFNoPE(NeRF):
 
     def __init__(self, aabb: Tensor, **options):
         options["use_pe"] = False
+        super().__init__(aabb, **options)
+
+
+@register("nerf-noview")
+class NeRFNoView(NeRF):
+    """``nerf`` whose colour ignores the view direction (``view_dependent`` forced off): the paper's
+    ablation showing that the direction input is what reproduces highlights. Same options as ``nerf``."""
+
+    defaults = {**NeRF.defaults, "view_dependent": False}
+
+    def __init__(self, aabb: Tensor, **options):
+        options["view_dependent"] = False
         super().__init__(aabb, **options)

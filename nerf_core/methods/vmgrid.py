@@ -25,6 +25,7 @@ import math
 import torch
 
 from nerf_core.fields.tensorf import TensorVMField
+from nerf_core.methods import growth
 from nerf_core.methods.base import (
     RadianceModel,
     check_density_unit,
@@ -46,6 +47,10 @@ class VMGrid(RadianceModel):
         res_init, res_final: plane size at the start and at the end of growth (cells per axis).
         resolution: current plane size (kept up to date by growth; defaults to res_init).
         upsample_at: fractions of the training budget at which to grow (log-spaced sizes).
+        budget_growth_steps, res_budget_max: the last growth stage goes beyond res_final when the run
+            is predicted to make more than ``budget_growth_steps`` steps (``methods.growth``: steps so
+            far / budget share spent, when that stage is due; 0: never), up to ``res_budget_max``.
+            ``res_final_budget`` records the size so chosen (None until then), for resuming.
         density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
         occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
         occ_alpha, occ_decay, occ_dilate_formed, occ_probe: how tightly the occupancy grid hugs the
@@ -93,6 +98,8 @@ class VMGrid(RadianceModel):
         density_unit: "box" (default): the field's density is per ``scene_box.box_length_unit`` (the box
             rescaled to [-1, 1]^3), so a scene modelled in millimetres trains as one in metres; "scene":
             per scene unit, as every checkpoint before this option was trained (``options_before``).
+        view_dependent: False: the colour ignores the view direction (``encodings.direction_encoding``);
+            ``vmgrid-noview`` is vmgrid with it off, to show what the direction input buys.
         contract: model the world beyond the box too (``nerf_core.volume.contraction``): the grid spans the
             contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
@@ -113,7 +120,8 @@ class VMGrid(RadianceModel):
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
                     contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-4, occ_probe="max", density_unit="box")
+                    color_weight=1e-4, occ_probe="max", density_unit="box", view_dependent=True,
+                    budget_growth_steps=growth.BASE_STEPS, res_budget_max=320, res_final_budget=None)
     options_before = {"density_unit": "scene"}
     growing = ("field.density_planes", "field.density_lines", "field.app_planes", "field.app_lines")
 
@@ -123,6 +131,7 @@ class VMGrid(RadianceModel):
         if opts["resolution"] is None:
             opts["resolution"] = opts["res_init"]
         opts["upsample_at"] = [float(f) for f in opts["upsample_at"]]
+        self._budget_known = True  # False once a hook had no budget fraction: the size rule then stays off
         super().__init__(aabb, **opts)
         self._build(opts)
 
@@ -130,11 +139,11 @@ class VMGrid(RadianceModel):
     def validate_options(cls, options: dict) -> None:
         """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
         a run folder is made (``TrainConfig.check``) and when a model is built."""
-        check_options("vmgrid", cls.defaults, options,
+        check_options(cls.method_name, cls.defaults, options,
                       positive=("density_rank", "app_rank", "app_dim", "mlp_width", "occ_every", "step_ratio",
                                 "grid_lr_scale", "budget_steps", "warmup_step_scale"),
                       fractions=("occ_alpha", "alpha_init"), shares=("occ_decay",),
-                      grids=("res_init", "res_final", "resolution", "occ_res"))
+                      grids=("res_init", "res_final", "resolution", "occ_res", "res_budget_max", "res_final_budget"))
         if any(not 0 < f < 1 for f in options.get("upsample_at", [])):
             raise ValueError(f"vmgrid: option 'upsample_at' holds fractions of the budget in (0, 1), "
                              f"got {options['upsample_at']!r}")
@@ -156,7 +165,7 @@ class VMGrid(RadianceModel):
         self.field = TensorVMField(field_box, resolution=opts["resolution"], density_rank=opts["density_rank"],
                                    app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
                                    view_freqs=opts["view_freqs"], seed=opts["seed"], density_shift=shift,
-                                   density_scale=density_scale)
+                                   density_scale=density_scale, view_dependent=opts["view_dependent"])
         self.occupancy = OccupancyGrid(field_box, opts["occ_res"])
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
@@ -172,7 +181,10 @@ class VMGrid(RadianceModel):
         if k == 0:
             return []
         a, b = math.log(o["res_init"]), math.log(o["res_final"])
-        return [int(round(math.exp(a + (b - a) * (i + 1) / k))) for i in range(k)]
+        sizes = [int(round(math.exp(a + (b - a) * (i + 1) / k))) for i in range(k)]
+        if o["res_final_budget"] is not None:  # a long run's last stage (``growth.budget_resolution``)
+            sizes[-1] = max(sizes[-1], int(o["res_final_budget"]))
+        return sizes
 
     def pruned(self) -> bool:
         """True once the occupancy grid has started skipping space (it starts fully occupied)."""
@@ -219,6 +231,13 @@ class VMGrid(RadianceModel):
             self.update_occupancy()
         if frac is None:  # no budget given: growth follows an assumed ``budget_steps``
             frac = step / o["budget_steps"]
+            self._budget_known = False
+        if o["res_final_budget"] is None and o["upsample_at"] and frac >= o["upsample_at"][-1] and step > 0:
+            # The last stage is due: steps so far over the share spent predicts the run's steps from
+            # the rate measured over a third of it (growth included), far better than a start-up probe.
+            predicted = step / frac if self._budget_known else 0.0
+            o["res_final_budget"] = growth.budget_resolution(o["res_final"], predicted, o["budget_growth_steps"],
+                                                             o["res_budget_max"])
         target = o["res_init"]
         for f, r in zip(o["upsample_at"], self.resolution_schedule()):
             if frac >= f:
@@ -281,10 +300,15 @@ class VMGrid(RadianceModel):
         res_init = int(max(16, min(48, round(res_final * 2 / 3 / 8) * 8)))
         app_rank = int(round((8 + 8 * texture) / 4) * 4)
         rank = cls.AUTO_DENSITY_RANK
-        opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=rank)
+        # A long run may grow up to the pixel footprint's resolution (``fine_res`` undone of the coarse-
+        # texture halving), never finer: cells finer than a pixel footprint are not supervised.
+        footprint_res = fine_res / (0.5 + 0.5 * fine_share)
+        res_max = int(max(res_final, min(320, round(footprint_res / 8) * 8)))
+        opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=rank, res_budget_max=res_max)
         reasons = [f"grid grows {res_init} -> {res_final} cells per axis (no finer than the pixel footprint"
                    + (", coarser for coarse texture" if fine_share < 1 else "") + ")",
-                   f"appearance rank {app_rank} (8-16) from the texture probe, density rank {rank}"]
+                   f"appearance rank {app_rank} (8-16) from the texture probe, density rank {rank}",
+                   growth.explain(res_final, cls.defaults["budget_growth_steps"], res_max)]
         return opts, reasons
 
     # ------------------------------------------------------------------ optimisation
@@ -425,3 +449,16 @@ class VMGrid(RadianceModel):
                 dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
             aux = aux + self.options["dist_weight"] * dist.mean()
         return aux
+
+
+@register("vmgrid-noview")
+class VMGridNoView(VMGrid):
+    """``vmgrid`` whose colour ignores the view direction (``view_dependent`` forced off): every point
+    has one colour from every side, so highlights and reflections cannot be reproduced. Nothing else
+    differs, so comparing the two isolates the direction input. Same options as ``vmgrid``."""
+
+    defaults = {**VMGrid.defaults, "view_dependent": False}
+
+    def __init__(self, aabb: Tensor, **options):
+        options["view_dependent"] = False
+        super().__init__(aabb, **options)
