@@ -10,7 +10,8 @@ Several callers may share a client (the F12 render thread and the viewport's tim
 ``submit`` hold a lock, and results are kept by request id, so no caller steals another's events.
 
 Also here, because the engine and its tests share them: Blender-free pixel conversions
-(``display_to_linear``, ``blender_rect``). Imports numpy and the standard library only (no bpy).
+(``display_to_linear``, ``blender_rect``). Imports numpy, the standard library and nerf_core's
+contract only (no bpy).
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from typing import Callable, Dict, Optional, Tuple
 import numpy as np
 
 from . import child_process
+from .core_contract import contract
 
 SERVE_START_TIMEOUT_S = 300.0  # importing torch and loading a checkpoint on a cold disk can be slow
 # The largest image side ``nerf_core serve`` renders (nerf_core.render.server.MAX_SIDE; that module
@@ -280,11 +282,16 @@ def display_to_linear(rgb: np.ndarray) -> np.ndarray:
 
 def blender_rect(rgba: np.ndarray) -> np.ndarray:
     """(h, w, 4) straight sRGB-encoded RGBA, row 0 at the top -> (h * w, 4) float32 for a Combined pass:
-    scene-linear, premultiplied by alpha (Blender's convention), row 0 at the bottom."""
+    scene-linear, premultiplied by alpha (Blender's convention), row 0 at the bottom.
+
+    Colours a hair from an 8-bit rounding edge are first moved clear of it
+    (``contract.eight_bit.clear_of_8bit_edges``, by at most 2e-5): Blender's colour round trip is
+    approximate, and without this its 8-bit files differ from ``nerf_core render``'s by one level
+    in about one pixel in a thousand."""
     rgba = np.asarray(rgba, dtype=np.float32)
     out = np.empty_like(rgba)
     alpha = np.clip(rgba[..., 3:4], 0.0, 1.0)
-    out[..., :3] = display_to_linear(rgba[..., :3]) * alpha
+    out[..., :3] = display_to_linear(contract.eight_bit.clear_of_8bit_edges(rgba[..., :3])) * alpha
     out[..., 3:4] = alpha
     return np.ascontiguousarray(out[::-1]).reshape(-1, 4)
 

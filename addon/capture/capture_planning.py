@@ -191,7 +191,7 @@ class CapturePlanning:
                     intr = cameras.camera_intrinsics(obj, render)
                 except ExportError as exc:
                     raise CaptureError(str(exc)) from exc
-                c2w = [[float(v) for v in row] for row in obj.matrix_world.normalized()]
+                c2w = [[float(v) for v in row] for row in cameras.scale_free_matrix(obj)]
                 frame = obj.get("nerf_frame")
                 fr = {
                     "index": len(frames), "key": f"{split}/r_{k}", "split": split, "name": f"r_{k}",

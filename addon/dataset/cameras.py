@@ -16,7 +16,7 @@ import bpy
 from mathutils import Matrix
 
 from ..bridge.core_contract import contract
-from ..scene.camera_checks import camera_label, camera_scale_error
+from ..scene.camera_checks import camera_label, camera_scale_error, camera_shape_error
 from .errors import ExportError
 from .transforms import transforms_document
 
@@ -64,13 +64,25 @@ def camera_intrinsics(cam_obj, render) -> dict:
                                   cam.shift_y, res_x, res_y, render.pixel_aspect_x, render.pixel_aspect_y)
 
 
+def scale_free_matrix(cam_obj) -> Matrix:
+    """The camera's pose: ``matrix_world`` with its scale removed (OpenGL axes, never pre-flipped).
+
+    The one rule for every camera we hand to a NeRF (capture, camera-path export, render engine), so
+    that they give the renderer the same float32 matrix bit for bit: columns normalised (a clean pose
+    keeps its rotation as Blender stores it). A sheared or mirrored pose, which only the render engine
+    accepts, becomes its nearest rotation (``decompose``)."""
+    if camera_shape_error(cam_obj):
+        loc, rot, _scale = cam_obj.matrix_world.decompose()
+        return Matrix.LocRotScale(loc, rot, None)
+    return cam_obj.matrix_world.normalized()
+
+
 def camera_to_world(cam_obj) -> list[list[float]]:
-    """``matrix_world`` with scale removed, as 4 rows (OpenGL axes, never pre-flipped)."""
+    """``scale_free_matrix`` as 4 rows; a scaled, sheared or mirrored camera is refused (ExportError)."""
     err = camera_scale_error(cam_obj)
     if err:
         raise ExportError(err)
-    m = cam_obj.matrix_world.normalized()
-    return [[float(v) for v in row] for row in m]
+    return [[float(v) for v in row] for row in scale_free_matrix(cam_obj)]
 
 
 def cameras_transforms(cameras, scene, size, frames=None, base: dict | None = None, prefix: str = "view") -> dict:

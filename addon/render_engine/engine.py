@@ -5,7 +5,7 @@ Render Animation then render the active camera at the scene's resolution (x perc
 range into Blender's own render result (Combined pass; the Depth pass when the view layer's Z pass
 is on), so the usual output formats, video encoding and compositor apply. Cameras come from
 Blender's camera data: the intrinsics from ``cameras.camera_intrinsics`` (the rule the capture
-uses: lens, sensor fit, shift, pixel aspect), the pose from ``matrix_world`` without scale.
+uses: lens, sensor fit, shift, pixel aspect), the pose from ``cameras.scale_free_matrix``.
 
 torch never loads here: cameras go to a ``nerf_core serve`` process (``render_client``) that stays
 alive between frames and renders. Colours: the NeRF learned display-referred (sRGB-encoded) values;
@@ -25,7 +25,6 @@ from typing import Optional
 import bpy
 import numpy as np
 from bpy.props import IntProperty, PointerProperty, StringProperty
-from mathutils import Matrix
 
 from ..bridge import child_process, render_client, runs
 from ..common import prefs
@@ -88,12 +87,11 @@ def _client_for(scene) -> render_client.RenderClient:
 def camera_request(cam_obj, render) -> dict:
     """The render request for a Blender camera object at the scene's render settings.
 
-    Intrinsics: ``cameras.camera_intrinsics`` (one rule with the capture). Pose: ``matrix_world``
-    with scale (and shear) removed. near/far: the camera's clip range, as Blender clips.
+    Intrinsics: ``cameras.camera_intrinsics``, pose: ``cameras.scale_free_matrix`` (one rule each with
+    the capture and the camera-path export, so their renders match pixel for pixel). near/far: the camera's clip range, as Blender clips.
     """
     intr = cameras.camera_intrinsics(cam_obj, render)
-    loc, rot, _scale = cam_obj.matrix_world.decompose()
-    c2w = Matrix.LocRotScale(loc, rot, None)
+    c2w = cameras.scale_free_matrix(cam_obj)  # the capture's and the camera-path export's rule, bit for bit
     cam = cam_obj.data
     # pixel_filter: a final render draws edge pixels through the capture's film filter, as Cycles did
     # for the images the run learnt from (the viewport's previews keep one ray a pixel, for speed)

@@ -17,7 +17,8 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
 - ``naming``: the names of render outputs (de-duplicated) and evenly spaced view indices;
 - ``film``: the ``pixel_filter`` field (the film filter a dataset's images were rendered through);
 - ``camera_path``: nerfstudio's camera_path.json, read and written; ``camera_files``: the cameras of any
-  transforms file (imported into Blender); ``nerfstudio_frame``: nerfstudio's dataparser transform.
+  transforms file (imported into Blender); ``nerfstudio_frame``: nerfstudio's dataparser transform;
+- ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ import os
 import re
 from typing import Any, Dict, Optional
 
-from . import camera_files, camera_path, nerfstudio_frame  # noqa: F401 (the add-on reaches them as contract.X)
+from . import camera_files, camera_path, eight_bit, nerfstudio_frame  # noqa: F401 (the add-on reaches them as contract.X)
 from .errors import DatasetError, PoseError  # noqa: F401
 from .film import (  # noqa: F401
     DEFAULT_FILTER_KIND,

@@ -68,6 +68,21 @@ def fov_degrees(fy: float, height: float) -> float:
     return math.degrees(2.0 * math.atan(0.5 * height / fy))
 
 
+def exact_fov_degrees(fy: float, height: int) -> float:
+    """``fov_degrees(fy, height)``, moved by the few float steps (rarely any) it takes for
+    ``camera_path_intrinsics`` to give back ``fy`` at float32 precision, the renderer's
+    (``cameras.rays.Cameras``): a written camera path renders with the very focal length it was
+    written from, so it draws the same rays as the camera it came from."""
+    fov = fov_degrees(fy, height)
+    want = np.float32(fy)
+    for _ in range(64):
+        got = np.float32(camera_path_intrinsics(fov, height, height)[1])
+        if got == want:
+            break
+        fov = math.nextafter(fov, 0.0 if got < want else 180.0)  # a smaller field of view: a longer focal length
+    return fov
+
+
 def path_views(data: dict, src: Path | str) -> List[dict]:
     """The cameras of a parsed camera_path.json: one dict per ``camera_path`` entry with ``c2w``
     ((4, 4) float64), ``fx fy cx cy`` (pixels), ``w h`` (int) and ``fov`` (degrees, as written).
@@ -154,7 +169,7 @@ def camera_path_document(views: Sequence[dict], fps: float, where: str = "camera
     for v in views:
         c2w = np.asarray(v["c2w"], dtype=np.float64).reshape(4, 4)
         path.append({"camera_to_world": [float(x) for x in c2w.reshape(-1)],
-                     "fov": fov_degrees(float(v["fy"]), h), "aspect": w / h})
+                     "fov": exact_fov_degrees(float(v["fy"]), h), "aspect": w / h})
     return {"camera_type": "perspective", "render_width": w, "render_height": h, "camera_path": path,
             "fps": float(fps), "seconds": len(views) / float(fps), "smoothness_value": 0.0, "is_cycle": False,
             "crop": None, **({"near": float(clip[0]), "far": float(clip[1])} if clip else {})}

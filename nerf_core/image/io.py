@@ -14,6 +14,7 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 from PIL import Image
 
+from nerf_core.contract.eight_bit import to_8bit
 from nerf_core.errors import ImageReadError
 from nerf_core.utils.atomic import atomic_path
 
@@ -285,12 +286,13 @@ def read_mask(path: Path | str) -> np.ndarray:
 
 
 def write_png(path: Path | str, image: np.ndarray) -> None:
-    """Write float [0, 1] or uint8 (h, w, 3|4) / (h, w) as an 8-bit PNG, atomically."""
+    """Write float [0, 1] or uint8 (h, w, 3|4) / (h, w) as an 8-bit PNG, atomically (float values
+    become levels by ``contract.eight_bit.to_8bit``, the render engine's rule too)."""
 
     path = Path(path)
     arr = np.asarray(image)
     if arr.dtype != np.uint8:
-        arr = (np.clip(np.nan_to_num(arr.astype(np.float32)), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        arr = to_8bit(arr)
     with atomic_path(path, _pid_temp(path)) as tmp:
         Image.fromarray(arr).save(tmp, format="PNG")
 

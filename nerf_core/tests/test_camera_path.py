@@ -121,6 +121,23 @@ def test_a_written_camera_path_reads_back_the_same_cameras_and_refuses_what_it_c
         path_range({"near": 2.0, "far": 1.0}, "p.json")
 
 
+def test_a_written_fov_gives_back_the_renderers_float32_focal_length_exactly():
+    """fov in degrees -> tan -> fy loses the last float64 bits; near a float32 rounding midpoint that
+    flipped fy's float32 (the renderer's) in 656 of 20000 such focal lengths, and with it ray directions."""
+    from nerf_core.contract.camera_path import camera_path_intrinsics, exact_fov_degrees, fov_degrees
+
+    rng = np.random.default_rng(1)
+    plain_off = 0
+    for _ in range(2000):
+        h = int(rng.integers(2, 4000))
+        a = np.float32(rng.uniform(0.5, 50) * h)
+        mid = (float(a) + float(np.nextafter(a, np.float32(np.inf)))) / 2  # a float32 rounding midpoint
+        fy = mid + float(rng.integers(-3, 4)) * math.ulp(mid)
+        plain_off += np.float32(camera_path_intrinsics(fov_degrees(fy, h), h, h)[1]) != np.float32(fy)
+        assert np.float32(camera_path_intrinsics(exact_fov_degrees(fy, h), h, h)[1]) == np.float32(fy)
+    assert plain_off > 0  # the case exists: without the correction these focal lengths came back changed
+
+
 def test_nerfstudios_dataparser_transform_is_undone_exactly():
     from nerf_core.contract import nerfstudio_frame as nf
 

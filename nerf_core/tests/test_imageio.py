@@ -174,3 +174,23 @@ def test_check_without_openexr_names_the_depth_file(sphere_dataset):
     out = proc.stdout + proc.stderr
     assert proc.returncode != 0 and "Traceback" not in out
     assert "needs the OpenEXR package" in out and ".exr" in out
+
+
+def test_values_near_an_8_bit_edge_move_clear_of_it_to_the_level_write_png_gives():
+    """The render engine's colours pass Blender's approximate colour round trip (off by up to 0.0024
+    levels): moved at least EDGE_MARGIN levels from every half-level edge, they round as write_png does."""
+    from nerf_core.contract.eight_bit import EDGE_MARGIN, clear_of_8bit_edges, to_8bit
+
+    k = np.arange(256, dtype=np.float64)[:, None]
+    offsets = np.array([-0.02, -EDGE_MARGIN, -1e-3, -1e-6, 0.0, 1e-6, 1e-3, EDGE_MARGIN, 0.02])
+    v = np.clip((k + 0.5 + offsets) / 255.0, 0.0, 1.0).astype(np.float32)
+    v = np.concatenate([v.ravel(), [np.nan, -1.0, 2.0, 0.0, 1.0]]).astype(np.float32)
+    out = clear_of_8bit_edges(v)
+    assert out.dtype == np.float32 and np.array_equal(to_8bit(out), to_8bit(v))
+    x = out.astype(np.float64) * 255.0
+    edge = np.abs(x - np.round(x - 0.5) - 0.5)  # distance to the nearest half-level edge, in levels
+    inside = (x > 0.5) & (x < 254.5)
+    assert edge[inside].min() >= EDGE_MARGIN - 2e-5  # float32 steps near 1 are 1.5e-5 levels
+    far = np.abs(np.nan_to_num(v) * 255.0 - np.round(np.nan_to_num(v) * 255.0 - 0.5) - 0.5) > EDGE_MARGIN
+    assert np.array_equal(out[far & (v >= 0) & (v <= 1)], v[far & (v >= 0) & (v <= 1)])  # others untouched
+    assert np.abs(out - np.clip(np.nan_to_num(v), 0, 1)).max() <= EDGE_MARGIN / 255.0 * 1.001
