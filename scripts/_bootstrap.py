@@ -30,7 +30,10 @@ def inside_blender() -> bool:
         import bpy
     except ImportError:
         return False
-    return not getattr(bpy.app, "module", False)
+    module = getattr(bpy.app, "module", None)  # Blender 4.4+
+    if module is None:  # older: the bpy module has no Blender binary
+        module = not bpy.app.binary_path
+    return not module
 
 
 def script_args() -> list[str]:
