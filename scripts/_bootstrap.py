@@ -90,10 +90,14 @@ def open_blend(path: str | None) -> None:
         raise SystemExit(f"error: --blend {path!r}: Blender could not open it: {exc}")
 
 
-def exit_code(code: int) -> None:
-    """Exit with ``code`` in both modes (under Blender, sys.exit inside --python is honoured in -b)."""
+def exit_code(code: int, skip_finalization: bool = False) -> None:
+    """Exit with ``code`` in both modes (under Blender, sys.exit inside --python is honoured in -b).
+
+    ``skip_finalization``: leave without Python's shutdown also as the bpy module. The bpy modules of
+    Blender 4.2 and 4.5 crash (4.2: SIGSEGV) or hang (4.5) at interpreter exit once a Python render
+    engine has rendered (scripts/render_nerf.py); the work is done and written by then."""
     sys.stdout.flush()
     sys.stderr.flush()
-    if inside_blender():
+    if inside_blender() or skip_finalization:
         os._exit(code)
     sys.exit(code)
