@@ -42,6 +42,7 @@ GROUPS = {
 TORCH_SPEC = os.environ.get("NERF_TORCH_SPEC", "torch==2.13.0")
 TORCH_INDEX = os.environ.get("NERF_TORCH_INDEX", "https://download.pytorch.org/whl/cpu")
 TEST_DEPS = ["numpy>=1.26,<2", "pillow>=10", "openexr>=3.2,<4", "pytest>=8", "plyfile==1.1.2"]
+GROUP_TIMEOUT = float(os.environ.get("NERF_GROUP_TIMEOUT", "1200"))  # seconds per test group
 SUMMARY = re.compile(r"(\d+) (passed|failed|skipped|error|errors|xfailed|xpassed)")
 
 
@@ -85,8 +86,14 @@ def run_group(python: str, files: list, log) -> dict:
         return {"status": "no tests", "seconds": 0.0}
     env = dict(os.environ, PYTHONPATH=REPO_ROOT)
     t0 = time.monotonic()
-    proc = subprocess.run([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", *present], cwd=REPO_ROOT,
-                          env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    cmd = [python, "-m", "pytest", "-q", "-p", "no:cacheprovider", *present]
+    try:
+        proc = subprocess.run(cmd, cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              timeout=GROUP_TIMEOUT)
+    except subprocess.TimeoutExpired as exc:
+        # bpy 4.5's module can hang at interpreter exit after the tests have reported: keep what they said.
+        out = exc.stdout.decode(errors="replace") if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+        proc = subprocess.CompletedProcess(cmd, -9, out + f"\n[blender_versions: killed after {GROUP_TIMEOUT} s]\n")
     log.write(proc.stdout)
     log.flush()
     counts = {}
