@@ -30,7 +30,10 @@ def inside_blender() -> bool:
         import bpy
     except ImportError:
         return False
-    return not getattr(bpy.app, "module", False)
+    module = getattr(bpy.app, "module", None)  # Blender 4.4+
+    if module is None:  # older: the bpy module has no Blender binary
+        module = not bpy.app.binary_path
+    return not module
 
 
 def script_args() -> list[str]:
@@ -106,10 +109,14 @@ def frame_range(prog: str, text, scene) -> list:
     return list(range(a, b + 1))
 
 
-def exit_code(code: int) -> None:
-    """Exit with ``code`` in both modes (under Blender, sys.exit inside --python is honoured in -b)."""
+def exit_code(code: int, skip_finalization: bool = False) -> None:
+    """Exit with ``code`` in both modes (under Blender, sys.exit inside --python is honoured in -b).
+
+    ``skip_finalization``: leave without Python's shutdown also as the bpy module. The bpy modules of
+    Blender 4.2 and 4.5 crash (4.2: SIGSEGV) or hang (4.5) at interpreter exit once a Python render
+    engine has rendered (scripts/render_nerf.py); the work is done and written by then."""
     sys.stdout.flush()
     sys.stderr.flush()
-    if inside_blender():
+    if inside_blender() or skip_finalization:
         os._exit(code)
     sys.exit(code)

@@ -147,4 +147,4 @@ def main(argv) -> int:
 
 
 if __name__ == "__main__":
-    exit_code(main(script_args()))
+    exit_code(main(script_args()), skip_finalization=True)

@@ -74,12 +74,12 @@ def probe_interpreter(python: str, timeout: float = 60.0, addon_dir: str = ADDON
         return ProbeResult(python, False, "no interpreter given")
     if not (os.path.isfile(python) and os.access(python, os.X_OK)):
         return ProbeResult(python, False, f"{python} is not an executable file")
-    key = (os.path.realpath(python), os.path.getmtime(python), nerf_core_search_path(addon_dir))
+    key = _probe_key(python, addon_dir)
     if key in _PROBE_CACHE:
         return _PROBE_CACHE[key]
     try:
         proc = subprocess.run(
-            [python, "-c", _PROBE_CODE], capture_output=True, text=True, timeout=timeout,
+            probe_command(python), capture_output=True, text=True, timeout=timeout,
             env=child_env(addon_dir), stdin=subprocess.DEVNULL,
         )
     except subprocess.TimeoutExpired:
@@ -88,12 +88,30 @@ def probe_interpreter(python: str, timeout: float = 60.0, addon_dir: str = ADDON
                            "or a cold disk); it is slow, not broken: try again in a moment", slow=True)
     except OSError as exc:
         return ProbeResult(python, False, f"{python} could not be started: {exc}")
-    if proc.returncode == 0:
-        result = ProbeResult(python, True, proc.stdout.strip())
+    return remember_probe(python, proc.returncode, (proc.stdout if proc.returncode == 0 else
+                                                    proc.stderr or proc.stdout).splitlines(), addon_dir)
+
+
+def _probe_key(python: str, addon_dir: str) -> tuple:
+    return os.path.realpath(python), os.path.getmtime(python), nerf_core_search_path(addon_dir)
+
+
+def probe_command(python: str) -> List[str]:
+    """The command ``probe_interpreter`` runs (with ``child_env``): a background job may run it too
+    and hand the outcome to ``remember_probe``, so that Blender never waits on a torch import."""
+    return [python, "-c", _PROBE_CODE]
+
+
+def remember_probe(python: str, returncode: int, lines: Sequence[str], addon_dir: str = ADDON_DIR) -> ProbeResult:
+    """The result of a finished probe command (its exit code and output lines: stdout on success, the
+    error output otherwise), cached as ``probe_interpreter`` would have cached it."""
+    lines = [ln.strip() for ln in lines if ln.strip()]
+    if returncode == 0:
+        result = ProbeResult(python, True, next((ln for ln in reversed(lines) if ln.startswith("torch ")),
+                                                "\n".join(lines)))
     else:
-        lines = [ln for ln in (proc.stderr or proc.stdout).splitlines() if ln.strip()]
-        result = ProbeResult(python, False, lines[-1] if lines else f"exit code {proc.returncode}")
-    _PROBE_CACHE[key] = result
+        result = ProbeResult(python, False, lines[-1] if lines else f"exit code {returncode}")
+    _PROBE_CACHE[_probe_key(python, addon_dir)] = result
     return result
 
 
@@ -244,13 +262,14 @@ class BackgroundProcess:
     """
 
     def __init__(self, cmd: Sequence[str], env: Optional[Dict[str, str]] = None, cwd: Optional[str] = None,
-                 tail_lines: int = LOG_TAIL_LINES, stdin_pipe: bool = False):
+                 tail_lines: int = LOG_TAIL_LINES, stdin_pipe: bool = False, parser_class=ProgressParser):
         self.cmd = list(cmd)
         self.stdin_pipe = stdin_pipe  # a request/response child (nerf_core serve) reads its stdin
         self.env = env if env is not None else child_env()
         self.cwd = cwd
         self.tail: deque = deque(maxlen=tail_lines)
-        self.progress = ProgressParser(tail_lines)
+        # parser_class: a ProgressParser subclass that also reads a foreign stdout (torch_setup: pip's)
+        self.progress = parser_class(tail_lines)
         self.progress.log_tail = self.tail  # stdout and stderr lines share one tail, in arrival order
         self._stderr = ProgressParser(tail_lines)
         self._stderr.log_tail = self.tail

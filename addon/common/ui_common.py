@@ -8,7 +8,6 @@ import textwrap
 from typing import Optional
 
 import bpy
-from bpy.props import StringProperty
 
 from ..bridge.child_process import SetupError
 
@@ -75,10 +74,9 @@ def draw_wrapped(layout, text: str, icon: str, width: int = 60) -> None:
 
 def path_options() -> set:
     """StringProperty options for a folder or file setting: Blender 4.5+ warns about "//" paths unless
-    the property says it supports them; older versions lack the flag."""
-    try:
-        StringProperty(options={"PATH_SUPPORTS_BLEND_RELATIVE"})
-    except TypeError:
+    the property says it supports them; older versions lack the flag (and refuse it only when the
+    class registers, so ask RNA whether properties know it)."""
+    if "is_path_supports_blend_relative" not in bpy.types.Property.bl_rna.properties:
         return set()
     return {"PATH_SUPPORTS_BLEND_RELATIVE"}
 
@@ -96,11 +94,12 @@ def abs_path(path: str) -> str:
 
 
 def tag_redraw(context) -> None:
-    """Redraw every 3D viewport, where the NeRF panels live, in every window."""
+    """Redraw every 3D viewport, where the NeRF panels live, and the preferences (Set up PyTorch's
+    progress), in every window."""
     wm = context.window_manager
     for window in getattr(wm, "windows", []):
         for area in window.screen.areas:
-            if area.type == "VIEW_3D":
+            if area.type in ("VIEW_3D", "PREFERENCES"):
                 area.tag_redraw()
 
 
