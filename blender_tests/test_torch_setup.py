@@ -1,8 +1,9 @@
 """Set up PyTorch: the operator builds a private environment with pip from a local folder of wheels
 (``--no-index``: no network), and the Train panel then trains in it.
 
-The wheel folder is ``.wheelhouse/`` at the repository root (``scripts/setup_env.sh`` fills it once with
-``pip download``), or the folder named by $NERF_TORCH_WHEELS. The plan, pip's progress and the failures
+The wheel folder is ``.venv/wheelhouse/`` (``scripts/setup_env.sh`` fills it with ``pip download`` at the
+pinned versions; nerf_core/tests/test_wheel_install.py installs from it too), or the folder named by
+$NERF_WHEELHOUSE. The plan, pip's progress and the failures
 are checked without Blender's event loop in test_torch_setup_plan.py.
 """
 from __future__ import annotations
@@ -20,14 +21,14 @@ from addon.common import jobs, prefs, torch_setup_job
 from addon.train import train_ui
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-WHEELS = os.environ.get("NERF_TORCH_WHEELS") or os.path.join(REPO_ROOT, ".wheelhouse")
+WHEELS = os.environ.get("NERF_WHEELHOUSE") or os.path.join(REPO_ROOT, ".venv", "wheelhouse")
 
 
 def wheel_folder() -> str:
     names = os.listdir(WHEELS) if os.path.isdir(WHEELS) else []
     if not any(n.startswith("torch-") and n.endswith(".whl") for n in names):
         pytest.fail(f"{WHEELS} holds no torch wheel: run `bash scripts/setup_env.sh` (it downloads the wheels "
-                    "this test installs offline), or point NERF_TORCH_WHEELS at a folder of them")
+                    "this test installs offline), or point NERF_WHEELHOUSE at a folder of them")
     return WHEELS
 
 

@@ -30,7 +30,9 @@ READY_FILE = "nerf_bridge_env.json"  # written once the environment imported tor
 PYPI = "https://pypi.org/simple"
 PIP_WITH_RAW_PROGRESS = "pip>=24.1"  # ``--progress-bar raw`` prints "Progress N of M" lines we can read
 # What nerf_core needs at run time (pyproject's dependencies without the development pins).
-REQUIREMENTS = ("torch>=2.1", "numpy>=1.26,<3", "pillow>=10")
+# What the vendored nerf_core needs: the same as pyproject.toml's [project] dependencies and its `exr`
+# extra (blender_tests/test_torch_setup_plan.py holds them equal).
+REQUIREMENTS = ("torch>=2.5", "numpy>=1.24", "pillow>=9.1")
 EXR_REQUIREMENT = "openexr>=3.2,<4"  # optional: only EXR datasets and depth maps need it
 
 
