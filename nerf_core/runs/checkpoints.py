@@ -80,10 +80,12 @@ def _legacy_checkpoint_globals() -> list:
         )
     except ImportError:
         from numpy.core.multiarray import _reconstruct as reconstruct
-    allowed = [np.ndarray, np.dtype, TorchVersion,
-               # numpy 1.x writes numpy.core..., numpy 2.x numpy._core...: one function under either name
-               (reconstruct, "numpy.core.multiarray._reconstruct"),
-               (reconstruct, "numpy._core.multiarray._reconstruct")]
+    allowed = [np.ndarray, np.dtype, TorchVersion, reconstruct]
+    if TorchVersion(torch.__version__) >= (2, 6):
+        # numpy 1.x writes numpy.core..., numpy 2.x numpy._core...: one function under either name.
+        # torch 2.5 takes no (function, name) pairs; there the function counts under its own name only.
+        allowed += [(reconstruct, "numpy.core.multiarray._reconstruct"),
+                    (reconstruct, "numpy._core.multiarray._reconstruct")]
     dtypes = getattr(np, "dtypes", None)  # numpy >= 1.25 pickles a dtype through its class (UInt32DType...)
     if dtypes is not None:
         allowed += [c for c in vars(dtypes).values() if isinstance(c, type) and issubclass(c, np.dtype)]
