@@ -33,7 +33,7 @@ def test_online_plan_uses_the_builds_index_and_says_how_big(tmp_path):
     assert venv.cmd == [PY, "-m", "venv", "--clear", str(tmp_path / "env")]
     assert install.cmd[:3] == [plan.python, "-m", "pip"] and "https://download.pytorch.org/whl/cpu" in install.cmd
     assert "--no-index" not in install.cmd and install.env["PIP_INDEX_URL"] == "https://mirror"  # user's pip config kept
-    assert "torch>=2.1" in install.cmd and "openexr>=3.2,<4" in install.cmd
+    assert "torch>=2.5" in install.cmd and "openexr>=3.2,<4" in install.cmd
     assert verify.cmd[0] == plan.python and "import torch, nerf_core" in verify.cmd[-1]
     assert "about 200 MB" in plan.describe() and str(tmp_path / "env") in plan.describe()
     cuda = torch_setup.plan_setup(str(tmp_path / "env"), PY, "CUDA", openexr=False)
@@ -136,3 +136,15 @@ def test_candidate_interpreters_in_order_each_once(tmp_path):
                                                        "Active conda environment"]
     assert found[0].python == torch_setup.env_python(private)
     assert torch_setup.candidate_interpreters(str(tmp_path / "x" / "addon"), {}, private_env="") == []
+
+
+def test_requirements_are_the_librarys_own():
+    """The private environment gets exactly what pyproject.toml declares for nerf_core (and its `exr`
+    extra): one list of needs, so the add-on never installs a torch the library refuses."""
+    import tomllib
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "pyproject.toml"), "rb") as fh:
+        project = tomllib.load(fh)["project"]
+    assert list(torch_setup.REQUIREMENTS) == project["dependencies"]
+    assert [torch_setup.EXR_REQUIREMENT] == project["optional-dependencies"]["exr"]
