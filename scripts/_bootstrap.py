@@ -64,6 +64,19 @@ def fail(prog: str, message: str) -> None:
     exit_code(2)
 
 
+def out_blend(prog: str, path: str, overwrite: bool) -> str:
+    """``--out OUT.blend`` as an absolute path; ``fail``s naming the flag when it does not end in .blend,
+    already exists (a user's file is replaced only with ``--overwrite``) or its folder does not exist."""
+    out = os.path.abspath(path)
+    if not out.endswith(".blend"):
+        fail(prog, f"--out {path!r}: must name a .blend file")
+    if os.path.lexists(out) and not overwrite:
+        fail(prog, f"--out {out} already exists; pass --overwrite or choose another file")
+    if not os.path.isdir(os.path.dirname(out)):
+        fail(prog, f"--out {out}: folder {os.path.dirname(out)} does not exist")
+    return out
+
+
 def torch_python(prog: str, requested: str) -> str:
     """The interpreter that runs nerf_core for a script: ``requested`` (``--python``), else
     $NERF_PYTHON, else this Python; when it cannot import torch, ``fail`` says what to pass."""

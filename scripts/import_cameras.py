@@ -45,13 +45,7 @@ def fail(message: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    out = os.path.abspath(args.out)
-    if not out.endswith(".blend"):
-        fail(f"--out {args.out!r}: must name a .blend file")
-    if os.path.lexists(out) and not args.overwrite:
-        fail(f"--out {out} already exists; pass --overwrite or choose another file")
-    if not os.path.isdir(os.path.dirname(out)):
-        fail(f"--out {out}: folder {os.path.dirname(out)} does not exist")
+    out = _bootstrap.out_blend("import_cameras", args.out, args.overwrite)
     import bpy
 
     if args.blend:

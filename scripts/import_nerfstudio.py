@@ -44,11 +44,7 @@ def fail(message: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    out = os.path.abspath(args.out)
-    if not out.endswith(".blend"):
-        fail(f"--out {args.out!r}: must name a .blend file")
-    if os.path.lexists(out) and not args.overwrite:
-        fail(f"--out {out} already exists; pass --overwrite or choose another file")
+    out = _bootstrap.out_blend("import_nerfstudio", args.out, args.overwrite)
     if not args.geometry and not args.camera_path:
         fail("nothing to import: pass --geometry FILE and/or --camera-path FILE")
     import bpy
