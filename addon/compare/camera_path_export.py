@@ -1,7 +1,8 @@
 """A Blender camera's animation as nerfstudio's ``camera_path.json`` (``contract.camera_path``).
 
 Each frame of the range becomes one ``camera_path`` entry: the camera's scale-free camera-to-world
-matrix at that frame (``dataset.cameras.camera_to_world``) and its own vertical field of view and
+matrix at that frame (``dataset.cameras.scale_free_matrix``, the render engine's rule, so a scaled
+camera exports as it renders) and its own vertical field of view and
 aspect at the scene's render size (``dataset.cameras.camera_intrinsics``: an animated focal length
 gives a field of view per frame). ``python -m nerf_core render RUN --cameras camera_path.json`` then
 renders the same pixels as ``scripts/render_nerf.py`` over those frames. With nerfstudio's
@@ -14,9 +15,10 @@ import json
 import os
 
 from ..bridge.core_contract import contract
-from ..dataset.cameras import camera_intrinsics, camera_to_world
+from ..dataset.cameras import camera_intrinsics, scale_free_matrix
 from ..dataset.errors import ExportError
 from ..file_writes import write_atomic
+from ..scene.camera_checks import camera_shape_error
 
 
 def path_views(scene, cam, frames) -> list:
@@ -28,8 +30,14 @@ def path_views(scene, cam, frames) -> list:
     try:
         for f in frames:
             scene.frame_set(f)
+            # A scaled camera (a rig's scale, say) renders through the engine with its scale dropped;
+            # the path takes the same scale-free pose. Shear or a mirror is no camera pose: refused.
+            shape = camera_shape_error(cam)
+            if shape:
+                raise ExportError(f"frame {f}: {shape}")
             intr = camera_intrinsics(cam, scene.render)
-            views.append({"c2w": camera_to_world(cam), "fx": intr["fl_x"], "fy": intr["fl_y"], "cx": intr["cx"],
+            c2w = [[float(v) for v in row] for row in scale_free_matrix(cam)]
+            views.append({"c2w": c2w, "fx": intr["fl_x"], "fy": intr["fl_y"], "cx": intr["cx"],
                           "cy": intr["cy"], "w": intr["w"], "h": intr["h"], "label": f"frame {f}"})
     finally:
         scene.frame_set(saved)
