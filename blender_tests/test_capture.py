@@ -27,6 +27,11 @@ PY = sys.executable
 CUBE_HALF = 0.75
 BALL_C, BALL_R = np.array([1.3, 0.4, 0.5]), 0.35
 
+# The lowest 8-bit alpha of a fully covered pixel. Blender 4.5's Workbench writes 254 there (and
+# everywhere with an opaque film; Cycles and 5.0 write 255); nerf_core reads 0.98 and up as opaque.
+OPAQUE_ALPHA = 254
+
+
 
 def build_test_scene():
     # Module fixtures run before conftest's per-test reset, so start from an empty file here too.
@@ -350,7 +355,7 @@ def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
         for _doc, fr, intr in frames(tmp_path, split):
             alpha = np.asarray(Image.open(os.path.join(tmp_path, fr["file_path"] + ".png")))[..., 3]
             u, v, _ = project(np.array([[0.0, 0.0, 0.0], BALL_C]), fr["transform_matrix"], intr)
-            assert all(alpha[int(vv), int(uu)] == 255 for uu, vv in zip(u, v)), fr["file_path"]
+            assert all(alpha[int(vv), int(uu)] >= OPAQUE_ALPHA for uu, vv in zip(u, v)), fr["file_path"]
 
 
 def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
@@ -636,7 +641,7 @@ def test_animation_layout_renders_each_sampled_frame(tmp_path):
             ball_at = np.array([[x, 0.0, 1.2]])
             u, v, _ = project(ball_at, fr["transform_matrix"], intr)
             assert 0 <= u[0] < 40 and 0 <= v[0] < 30
-            assert alpha[int(v[0]), int(u[0])] == 255, f"ball of frame {fr['blender_frame']} not where expected"
+            assert alpha[int(v[0]), int(u[0])] >= OPAQUE_ALPHA, f"ball of frame {fr['blender_frame']} not where expected"
             seen[fr["blender_frame"]] = True
     assert sorted(seen) == [1, 21, 41]
 
