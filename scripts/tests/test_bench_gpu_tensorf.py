@@ -12,7 +12,6 @@ import os
 import numpy as np
 import pytest
 import torch
-from conftest import write_tiny_dataset
 from PIL import Image
 
 import bench_gpu_tensorf as cli
@@ -45,9 +44,9 @@ def test_schedule_halved_for_5000_iterations_and_lists_repeat_their_flag(tmp_pat
         tensorf_config.scaled_schedule(config, 5)
 
 
-def test_dataset_check_names_what_tensorf_cannot_read(tmp_path):
+def test_dataset_check_names_what_tensorf_cannot_read(tmp_path, tiny_dataset):
     ds = tmp_path / "ds"
-    write_tiny_dataset(ds)
+    tiny_dataset(ds)
     assert tensorf_config.check_dataset(str(ds)) == (4, 200.0)
     Image.new("RGB", (4, 4)).save(ds / "train" / "r_0.png")
     with pytest.raises(tensorf_config.ConfigError, match=r"r_0.png: mode RGB.*RGBA"):
@@ -120,9 +119,9 @@ def test_our_events_give_points_speed_and_the_headline():
     assert h["rays_target_met"] is False
 
 
-def test_flags_are_checked_and_report_only_redraws(tmp_path, capsys):
+def test_flags_are_checked_and_report_only_redraws(tmp_path, capsys, tiny_dataset):
     ds = tmp_path / "ds"
-    write_tiny_dataset(ds)
+    tiny_dataset(ds)
     out = tmp_path / "out"
 
     def problem(*flags):
