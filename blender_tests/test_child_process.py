@@ -15,6 +15,11 @@ from addon.bridge.child_process import BackgroundProcess, group_pids, pid_alive
 
 FAKE_TRAINER = textwrap.dedent('''
     import json, subprocess, sys, time
+    # as nerf_core's CLI does (utils.interrupts.honour_interrupts): Ctrl-C reaches us whatever the
+    # test runner's process left ignored or blocked
+    import signal
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     mode = sys.argv[1]
     if mode == "stubborn":  # ignores the polite SIGINT (inherited by its children): needs SIGKILL
         import signal

@@ -20,6 +20,7 @@ from nerf_core.errors import ImageReadError, RunError, TrainError
 from nerf_core.methods import catalog
 from nerf_core.methods.registry import available_methods
 from nerf_core.runs.folder import os_error_text
+from nerf_core.utils.interrupts import honour_interrupts
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -68,6 +69,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     expected = (DatasetError, RunError, TrainError, ImageReadError, ValueError, OSError)
+    honour_interrupts()  # a Cancel (SIGINT/SIGTERM) must stop us cleanly, whatever the parent ignored
     try:
         _load_plugins()
         return args.handler(args)

@@ -10,6 +10,20 @@ import signal
 import threading
 
 
+def honour_interrupts() -> None:
+    """Make Ctrl-C (SIGINT) and SIGTERM reach this process even if its parent left them ignored or
+    blocked: both are inherited across exec, and a parent such as Blender, a farm manager or a test
+    runner may have either in force when it starts us. Without this, Cancel could only end the
+    trainer with SIGKILL, after the add-on's grace period, and no checkpoint would be saved."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if hasattr(signal, "pthread_sigmask"):  # POSIX
+        wanted = {signal.SIGINT} | ({signal.SIGTERM} if hasattr(signal, "SIGTERM") else set())
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, wanted)
+
+
 def terminate_as_interrupt():
     """Treat SIGTERM (what the add-on's Cancel and most job schedulers send) like Ctrl-C, so the run
     stops with a checkpoint it can resume from. Returns a function restoring the previous handler."""
