@@ -91,6 +91,7 @@ def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt
         weights = ckpt.get("model")
         if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
             raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors)")
+        weights, _ = model.upgrade_checkpoint(weights)  # an older version's layout
         check_weights(model, weights, where)  # nothing mis-shaped or NaN reaches the model
         load_state_resizing(model, weights)
     return model

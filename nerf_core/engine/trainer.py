@@ -252,8 +252,9 @@ class Trainer:
         self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
         try:
             # checked first: the fused Adam kernel trusts the moments' shapes and would write out of bounds
-            check_optimizer_state(ckpt["optimizer"], self.opt, str(self.resumed_checkpoint))
-            self.opt.load_state_dict(ckpt["optimizer"])
+            _, opt_state = self.model.upgrade_checkpoint(ckpt["model"], ckpt["optimizer"])  # older layouts
+            check_optimizer_state(opt_state, self.opt, str(self.resumed_checkpoint))
+            self.opt.load_state_dict(opt_state)
         except (ValueError, KeyError, RunError) as exc:
             print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh", file=sys.stderr)
         rescale_base_lrs(self.opt, self.model, self.base_lr * self.lr_scale)
@@ -311,14 +312,17 @@ class Trainer:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
             write_json_atomic(config, run_config(self), default=str)
+        kernels = self.model.kernels(self.device)  # which implementation each hot loop takes, and why
         self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
                       device=str(self.device), n_params=self.model.num_parameters(), model=self.model.describe(),
                       size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
                       dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train),
                       image_size=[train.width, train.height], background=self.bg_mode,
-                      background_reason=self.bg_reason, notes=dataset.notes, world_size=self.dist.world_size)
+                      background_reason=self.bg_reason, notes=dataset.notes, world_size=self.dist.world_size,
+                      kernels=kernels)
+        slow = [f"kernel: {name} runs on {how}" for name, how in kernels.items() if "fallback" in how]
         for line in ([f"size: {r}" for r in self.size_reasons] + [f"background: {self.bg_mode} ({self.bg_reason})"]
-                     + [f"note: {note}" for note in dataset.notes] if self.dist.is_main else []):
+                     + [f"note: {note}" for note in dataset.notes] + slow if self.dist.is_main else []):
             print(f"train: {line}", file=sys.stderr)
 
         if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):

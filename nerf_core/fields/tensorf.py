@@ -5,10 +5,10 @@ A 3D feature grid is written as a sum of outer products of a 2D plane and a 1D l
 which costs O(R N^2) memory instead of O(N^3). Density is the plain sum of its components; colour
 features go through a linear "basis" then a tiny MLP together with the encoded view direction.
 
-Why it suits a 2-core CPU: each sample costs a few bilinear lookups and a small matmul, the optimiser
-touches ~3 R N^2 numbers instead of N^3, and the three planes of a kind are stacked into one tensor
-(3, R, N, N) so that one ``grid_sample`` call (whose CPU backward is parallel over the batch
-dimension only) serves all three.
+Why it suits a 2-core CPU: each sample costs a few bilinear lookups and a small matmul, and the
+optimiser touches ~3 R N^2 numbers instead of N^3. The three planes of a kind are stacked into one
+tensor (3, R, N, N) and read together by ``vm_products`` (a native CPU kernel whose backward is
+parallel over the 3 R component images, or ``grid_sample`` elsewhere).
 
 The grid covers the scene box with ``resolution`` cells per axis (voxels are stretched on a
 non-cubic box; cheaper than ragged planes, see above).
@@ -21,14 +21,39 @@ from torch import nn
 
 from nerf_core.fields.encodings import direction_encoding
 from nerf_core.fields.vm_lookup import VMLookup, dense_density
+from nerf_core.fields.vm_products import vm_products
 from nerf_core.image.losses import l1_sparsity, total_variation_2d
 from nerf_core.utils.derived_cache import DerivedCache
 
 Tensor = torch.Tensor
 
-# Plane i spans axes _PLANE_AXES[i]; its line runs along _LINE_AXIS[i].
-_PLANE_AXES = ((0, 1), (0, 2), (1, 2))
-_LINE_AXIS = (2, 1, 0)
+
+# Parameter names: the grids are stored channels-last under these names (see TensorVMField).
+GRID_NAMES = ("density_planes", "density_lines", "app_planes", "app_lines")
+STORED = {name: name + "_cl" for name in GRID_NAMES}
+
+
+def planes_to_stored(planes: Tensor) -> Tensor:
+    """(3, R, N, N) planes -> (3, N, N, R) contiguous, the stored layout."""
+    return planes.permute(0, 2, 3, 1).contiguous()
+
+
+def lines_to_stored(lines: Tensor) -> Tensor:
+    """(3, R, N, 1) lines -> (3, N, R) contiguous, the stored layout."""
+    return lines[..., 0].permute(0, 2, 1).contiguous()
+
+
+def upgrade_state_dict(state: dict, prefix: str = "") -> dict:
+    """A state dict saved before the grids were stored channels-last (keys ``density_planes`` ...,
+    shapes (3, R, N, N) and (3, R, N, 1)) in the current layout (keys ``density_planes_cl`` ...,
+    shapes (3, N, N, R) and (3, N, R)); a current one is returned unchanged. The old and new keys
+    differ, so the layout is never guessed from shapes (R may equal N). Changes ``state`` in place."""
+    for name in GRID_NAMES:
+        old = state.pop(prefix + name, None)
+        if old is not None and prefix + STORED[name] not in state:
+            convert = planes_to_stored if name.endswith("planes") else lines_to_stored
+            state[prefix + STORED[name]] = convert(old) if old.dim() == 4 else old  # check_weights names odd shapes
+    return state
 
 
 class TensorVMField(nn.Module):
@@ -59,12 +84,12 @@ class TensorVMField(nn.Module):
         n = self.resolution
 
         def rnd(*shape):
-            return nn.Parameter(init_scale * torch.randn(*shape, generator=g))
+            return init_scale * torch.randn(*shape, generator=g)
 
-        self.density_planes = rnd(3, density_rank, n, n)  # (3, Rs, N, N)
-        self.density_lines = rnd(3, density_rank, n, 1)  # (3, Rs, N, 1)
-        self.app_planes = rnd(3, app_rank, n, n)
-        self.app_lines = rnd(3, app_rank, n, 1)
+        # Drawn in tensorf's (3, R, N, N) order, so a seed gives the same numbers as before the layout
+        # change; stored channels-last.
+        self._set_grids(rnd(3, density_rank, n, n), rnd(3, density_rank, n, 1), rnd(3, app_rank, n, n),
+                        rnd(3, app_rank, n, 1))
         self.basis = nn.Linear(3 * app_rank, app_dim, bias=False)
         self.view_enc = direction_encoding(view_freqs, view_dependent)
         self.mlp = nn.Sequential(
@@ -76,9 +101,43 @@ class TensorVMField(nn.Module):
         self._lookup: DerivedCache[VMLookup] = DerivedCache(follow_optimizers=True)  # never saved
 
     # ------------------------------------------------------------------ parameters
+    #
+    # The grids are stored channels-last: ``density_planes_cl`` (3, N, N, Rs), ``density_lines_cl``
+    # (3, N, Rs), ``app_planes_cl``, ``app_lines_cl``, so that the R components of one cell sit side by
+    # side. That is the layout ``vm_products``'s CPU kernel reads and scatters into, and the parameters
+    # stay plain contiguous tensors, which fused Adam needs (it copies any other layout every step).
+    # Everything else reads them through the properties below, in tensorf's (3, R, N, N) and
+    # (3, R, N, 1) order, as views (no copies).
+
+    @property
+    def density_planes(self) -> Tensor:
+        return self.density_planes_cl.permute(0, 3, 1, 2)
+
+    @property
+    def density_lines(self) -> Tensor:
+        return self.density_lines_cl.permute(0, 2, 1).unsqueeze(-1)
+
+    @property
+    def app_planes(self) -> Tensor:
+        return self.app_planes_cl.permute(0, 3, 1, 2)
+
+    @property
+    def app_lines(self) -> Tensor:
+        return self.app_lines_cl.permute(0, 2, 1).unsqueeze(-1)
+
+    def _set_grids(self, density_planes: Tensor, density_lines: Tensor, app_planes: Tensor, app_lines: Tensor):
+        """Replace the four grid Parameters from (3, R, N, N) planes and (3, R, N, 1) lines."""
+        self.density_planes_cl = nn.Parameter(planes_to_stored(density_planes))
+        self.density_lines_cl = nn.Parameter(lines_to_stored(density_lines))
+        self.app_planes_cl = nn.Parameter(planes_to_stored(app_planes))
+        self.app_lines_cl = nn.Parameter(lines_to_stored(app_lines))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        upgrade_state_dict(state_dict, prefix)  # checkpoints saved before the channels-last layout
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def grid_parameters(self) -> list[nn.Parameter]:
-        return [self.density_planes, self.density_lines, self.app_planes, self.app_lines]
+        return [self.density_planes_cl, self.density_lines_cl, self.app_planes_cl, self.app_lines_cl]
 
     def network_parameters(self) -> list[nn.Parameter]:
         return list(self.basis.parameters()) + list(self.mlp.parameters())
@@ -87,12 +146,16 @@ class TensorVMField(nn.Module):
     def upsample(self, resolution: int) -> None:
         """Resample planes and lines to ``resolution`` (bilinear / linear); replaces the Parameters."""
         n = int(resolution)
-        for name in ("density_planes", "app_planes"):
-            p = getattr(self, name)
-            setattr(self, name, nn.Parameter(F.interpolate(p.data, size=(n, n), mode="bilinear", align_corners=True)))
-        for name in ("density_lines", "app_lines"):
-            p = getattr(self, name)
-            setattr(self, name, nn.Parameter(F.interpolate(p.data, size=(n, 1), mode="bilinear", align_corners=True)))
+
+        # From contiguous (3, R, N, N) copies: the same interpolation, to the bit, as before the layout change.
+        def plane(p):
+            return F.interpolate(p.detach().contiguous(), size=(n, n), mode="bilinear", align_corners=True)
+
+        def line(p):
+            return F.interpolate(p.detach().contiguous(), size=(n, 1), mode="bilinear", align_corners=True)
+
+        self._set_grids(plane(self.density_planes), line(self.density_lines), plane(self.app_planes),
+                        line(self.app_lines))
         self.resolution = n
 
     def voxel_size(self) -> float:
@@ -101,36 +164,26 @@ class TensorVMField(nn.Module):
 
     # ------------------------------------------------------------------ evaluation
 
-    def _coords(self, x: Tensor) -> tuple[Tensor, Tensor]:
-        """Plane and line sampling grids for ``grid_sample``: (3, m, 1, 2) each."""
-        u = (x - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1  # (m, 3) in [-1, 1]
-        plane = torch.stack([u[:, list(a)] for a in _PLANE_AXES])  # (3, m, 2)
-        line_c = torch.stack([u[:, a] for a in _LINE_AXIS])  # (3, m)
-        line = torch.stack([torch.zeros_like(line_c), line_c], dim=-1)  # x=0 (width 1), y=coordinate
-        return plane.unsqueeze(2), line.unsqueeze(2)
-
-    @staticmethod
-    def _vm(planes: Tensor, lines: Tensor, pc: Tensor, lc: Tensor) -> Tensor:
-        """(3, R, m): plane * line products of each component at m points."""
-        p = F.grid_sample(planes, pc, mode="bilinear", align_corners=True).squeeze(-1)  # (3, R, m)
-        l_ = F.grid_sample(lines, lc, mode="bilinear", align_corners=True).squeeze(-1)
-        return p * l_
+    def _unit(self, x: Tensor) -> Tensor:
+        """(m, 3) positions -> (m, 3) coordinates in [-1, 1] over the box (grid_sample's convention)."""
+        return (x - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1
 
     def density(self, x: Tensor) -> Tensor:
         """(m, 3) positions -> (m,) density per scene unit."""
         if x.shape[0] == 0:
             return x.new_zeros(0)
-        pc, lc = self._coords(x)
-        raw = self._vm(self.density_planes, self.density_lines, pc, lc).sum(dim=(0, 1))
+        raw = vm_products(self.density_planes, self.density_lines, self._unit(x)).sum(dim=(1, 2))
         return self.density_scale * F.softplus(raw + self.density_shift)
+
+    def app_features(self, x: Tensor) -> Tensor:
+        """(m, 3) positions -> (m, 3 Ra) plane-line products of the appearance grid (the basis input)."""
+        return vm_products(self.app_planes, self.app_lines, self._unit(x)).reshape(x.shape[0], -1)
 
     def color(self, x: Tensor, d: Tensor) -> Tensor:
         """(m, 3) positions and unit directions -> (m, 3) colours in [0, 1]."""
         if x.shape[0] == 0:
             return x.new_zeros(0, 3)
-        pc, lc = self._coords(x)
-        f = self._vm(self.app_planes, self.app_lines, pc, lc)  # (3, Ra, m)
-        feat = self.basis(f.reshape(-1, f.shape[-1]).t())  # (m, app_dim)
+        feat = self.basis(self.app_features(x))  # (m, app_dim)
         return torch.sigmoid(self.mlp(torch.cat([feat, self.view_enc(d)], dim=-1)))
 
     def lookup(self) -> VMLookup:

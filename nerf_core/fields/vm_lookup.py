@@ -23,13 +23,15 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from nerf_core.fields.vm_products import LINE_AXIS, PLANE_AXES
+
 Tensor = torch.Tensor
 
 # Plane k spans axes _PLANE_A[k] (its x, the row's fastest index) and _PLANE_B[k] (its y); its line
-# runs along _LINE_AXIS[k]. The same order as ``tensorf``'s planes.
-_PLANE_A = (0, 0, 1)
-_PLANE_B = (1, 2, 2)
-_LINE_AXIS = (2, 1, 0)
+# runs along _LINE_AXIS[k] (``vm_products``, the one home of this order).
+_PLANE_A = tuple(a for a, _ in PLANE_AXES)
+_PLANE_B = tuple(b for _, b in PLANE_AXES)
+_LINE_AXIS = LINE_AXIS
 
 DENSE_MAX_CELLS = 1 << 25  # 128 MiB of float32 density; res 320 is 32.8M cells
 

@@ -7,7 +7,7 @@ implement ``render_rays`` and register itself with ``@register("name")``.
 from __future__ import annotations
 
 import math
-from typing import Dict
+from typing import Dict, Optional
 
 import torch
 from torch import nn
@@ -100,15 +100,27 @@ class RadianceModel(nn.Module):
     # trained (``saved_options``). New runs get ``defaults``.
     options_before: dict = {}
     environment_lr = 0.02  # Adam step for the environment's texture logits, at the method's default_lr
-    # Weights (state-dict names) that grow during training (coarse-to-fine grids): a checkpoint may hold
-    # them at another size than a fresh build (``runs.checkpoint_checks.check_weights``); no other may.
-    growing: tuple = ()
+    # Weights (state-dict names) that grow during training (coarse-to-fine grids), each with the
+    # dimensions that grow: a checkpoint may hold them at another size than a fresh build along those
+    # dimensions (``runs.checkpoint_checks.check_weights``); no other weight or dimension may.
+    growing: dict = {}
 
     def __init__(self, aabb: torch.Tensor, **options):
         super().__init__()
         self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
         self.options = dict(options)
         self.environment = None  # an EnvironmentMap when the run models a visible world
+
+    def kernels(self, device: torch.device) -> Dict[str, str]:
+        """Which implementation each of the method's hot loops takes on ``device`` (for the ``start``
+        event): name -> a short description, containing "fallback" when a slower path stands in."""
+        return {}
+
+    def upgrade_checkpoint(self, weights: dict, optimizer_state: Optional[dict] = None) -> tuple:
+        """(weights, optimiser state) of a checkpoint saved by an older version, in this version's layout,
+        as new dicts (the inputs are not changed). Called before the weights are checked and loaded.
+        Methods whose stored layout changed override this; by default both come back as they are."""
+        return weights, optimizer_state
 
     def attach_environment(self, env: nn.Module) -> None:
         """Model the background as light from infinity (``nerf_core.fields.environment``); recorded in options."""

@@ -24,6 +24,7 @@ import math
 
 import torch
 
+from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
 from nerf_core.methods import growth
 from nerf_core.methods.base import (
@@ -123,7 +124,9 @@ class VMGrid(RadianceModel):
                     color_weight=1e-4, occ_probe="max", density_unit="box", view_dependent=True,
                     budget_growth_steps=growth.BASE_STEPS, res_budget_max=320, res_final_budget=None)
     options_before = {"density_unit": "scene"}
-    growing = ("field.density_planes", "field.density_lines", "field.app_planes", "field.app_lines")
+    # Stored channels-last (``tensorf``): planes (3, N, N, R) grow along N, N; lines (3, N, R) along N.
+    growing = {"field.density_planes_cl": (1, 2), "field.density_lines_cl": (1,),
+               "field.app_planes_cl": (1, 2), "field.app_lines_cl": (1,)}
 
     def __init__(self, aabb: Tensor, **options):
         self.validate_options(options)
@@ -322,11 +325,43 @@ class VMGrid(RadianceModel):
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         # A checkpoint saved after growth has bigger planes than options["resolution"] may say (older
         # option dicts, or options passed by hand): grow to the stored size before loading.
-        key = "field.density_planes"
-        if key in state_dict and state_dict[key].shape[-1] != self.field.resolution:
-            self.field.upsample(int(state_dict[key].shape[-1]))
+        state_dict = tensorf.upgrade_state_dict(dict(state_dict), "field.")
+        key = "field.density_planes_cl"  # (3, N, N, R)
+        if key in state_dict and state_dict[key].dim() == 4 and state_dict[key].shape[1] != self.field.resolution:
+            self.field.upsample(int(state_dict[key].shape[1]))
             self.options["resolution"] = self.field.resolution
         return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
+    def kernels(self, device: torch.device) -> dict:
+        if device.type != "cpu":
+            return {"vm_products": f"grid_sample ({device.type})"}
+        how, why = vm_products.backend()
+        return {"vm_products": "the native CPU kernel" if how == "native"
+                else f"grid_sample, a slower fallback ({why})"}
+
+    def upgrade_checkpoint(self, weights: dict, optimizer_state=None) -> tuple:
+        """Checkpoints saved before the grids were stored channels-last: keys ``field.density_planes``
+        ... in (3, R, N, N) / (3, R, N, 1) order become ``field.density_planes_cl`` ... in (3, N, N, R) /
+        (3, N, R) order, and so do the Adam moments of the ``grids`` group (same parameter order)."""
+        old = [f"field.{name}" in weights for name in tensorf.GRID_NAMES]
+        if not any(old):
+            return weights, optimizer_state
+        weights = tensorf.upgrade_state_dict(dict(weights), "field.")
+        if not (isinstance(optimizer_state, dict) and isinstance(optimizer_state.get("state"), dict)
+                and isinstance(optimizer_state.get("param_groups"), list)):
+            return weights, optimizer_state
+        state = dict(optimizer_state["state"])
+        for group in optimizer_state["param_groups"]:
+            if not (isinstance(group, dict) and group.get("name") == "grids"):
+                continue
+            for pid, name in zip(group.get("params", []), tensorf.GRID_NAMES):
+                moments = state.get(pid)
+                if not isinstance(moments, dict):
+                    continue
+                convert = tensorf.planes_to_stored if name.endswith("planes") else tensorf.lines_to_stored
+                state[pid] = {k: convert(v) if isinstance(v, torch.Tensor) and v.dim() == 4 else v
+                              for k, v in moments.items()}
+        return weights, {**optimizer_state, "state": state}
 
     # ------------------------------------------------------------------ rendering
 

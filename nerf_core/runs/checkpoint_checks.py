@@ -106,10 +106,21 @@ def check_entries(ckpt: dict, where: str, for_resume: bool = False) -> None:
                            "({'state': {...}, 'param_groups': [...]})")
 
 
-def _fits_growth(saved: torch.Size, fresh: torch.Size) -> bool:
-    """A grown grid: the same number of dimensions and channels, each size within the grid limits."""
-    return (len(saved) == len(fresh) and saved[:2] == fresh[:2]
-            and all(1 <= s <= MAX_GRID_RES + 1 for s in saved[2:]))  # +1: grids store their corners
+def _fits_growth(saved: torch.Size, fresh: torch.Size, grid_dims) -> bool:
+    """A grown grid: the same number of dimensions, the same sizes outside ``grid_dims`` (channels), and
+    each size along ``grid_dims`` within the grid limits."""
+    return (len(saved) == len(fresh)
+            and all(s == f for d, (s, f) in enumerate(zip(saved, fresh)) if d not in grid_dims)
+            and all(1 <= saved[d] <= MAX_GRID_RES + 1 for d in grid_dims))  # +1: grids store their corners
+
+
+def _growing(model) -> dict:
+    """The model's ``growing`` as name -> grid dimensions (a plain tuple of names: all dims after the
+    first two, as (3, C, H, W) planes grow)."""
+    growing = getattr(model, "growing", {}) or {}
+    if isinstance(growing, dict):
+        return {k: tuple(v) for k, v in growing.items()}
+    return {name: None for name in growing}
 
 
 def check_weights(model: torch.nn.Module, weights: Dict[str, torch.Tensor], where: str) -> None:
@@ -128,12 +139,13 @@ def check_weights(model: torch.nn.Module, weights: Dict[str, torch.Tensor], wher
                        + (f"missing {missing[:4]}" if missing else "")
                        + ("; " if missing and unexpected else "")
                        + (f"unexpected {unexpected[:4]}" if unexpected else ""))
-    growing = tuple(getattr(model, "growing", ()))
+    growing = _growing(model)
     for name, value in weights.items():
         fresh = own[name]
         if value.dtype != fresh.dtype:
             raise RunError(f"{where}: weight {name!r} is {value.dtype}, the model holds {fresh.dtype}")
-        if value.shape != fresh.shape and not (name in growing and _fits_growth(value.shape, fresh.shape)):
+        dims = growing.get(name) or tuple(range(2, fresh.dim()))
+        if value.shape != fresh.shape and not (name in growing and _fits_growth(value.shape, fresh.shape, dims)):
             raise RunError(f"{where}: weight {name!r} has shape {tuple(value.shape)}; the model holds "
                            f"{tuple(fresh.shape)}" + (" (a grid may grow, but not so)" if name in growing else ""))
         if value.is_floating_point() and not bool(torch.isfinite(value).all()):

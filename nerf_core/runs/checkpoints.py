@@ -200,6 +200,7 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
     check_entries(ckpt, where)
     try:
         model = build_model(method, box, **saved_options(method, options))
+        weights, _ = model.upgrade_checkpoint(weights)  # an older version's layout
         check_weights(model, weights, where)
         load_state_resizing(model, weights)
     except ValueError as exc:  # unknown method name

@@ -67,7 +67,7 @@ def test_a_contracted_vmgrid_renders_the_world_beyond_the_box_and_trains():
     assert out["n_samples"] > 0 and torch.isfinite(out["rgb"]).all()
     loss = (out["rgb"] - 0.3).square().mean() + out.get("aux_loss", 0.0)
     loss.backward()
-    assert model.field.density_planes.grad is not None and model.field.density_planes.grad.abs().sum() > 0
+    assert model.field.density_planes_cl.grad is not None and model.field.density_planes_cl.grad.abs().sum() > 0
 
 
 def test_a_method_without_contraction_says_so(tmp_path, dataset_factory):

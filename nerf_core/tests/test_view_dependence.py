@@ -57,8 +57,7 @@ def test_vmgrid_noview_colour_is_the_appearance_mlp_alone_by_hand():
     assert f.mlp[0].in_features == 27  # the appearance feature only: no direction columns
     x, dirs = _points_and_directions(m=8)
     with torch.no_grad():
-        pc, lc = f._coords(x)
-        feat = f.basis(f._vm(f.app_planes, f.app_lines, pc, lc).reshape(-1, 8).t())
+        feat = f.basis(f.app_features(x))
         by_hand = torch.sigmoid(f.mlp(feat))
         torch.testing.assert_close(f.color(x, dirs[0]), by_hand, rtol=0, atol=1e-6)
 

@@ -73,7 +73,7 @@ def test_lookup_is_cached_until_a_grid_changes():
     assert lk3 is not lk2 and lk3.n == 17
     with torch.no_grad():
         assert torch.allclose(lk3.density(x), f.density(x), rtol=1e-4, atol=1e-5)
-    state = {k: v + 0.1 if k == "app_planes" else v for k, v in f.state_dict().items()}
+    state = {k: v + 0.1 if k == "app_planes_cl" else v for k, v in f.state_dict().items()}
     f.load_state_dict(state)  # copied in place
     assert f.lookup() is not lk3
     assert "_lookup" not in "".join(f.state_dict())  # never saved in checkpoints

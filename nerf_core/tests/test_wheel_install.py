@@ -100,6 +100,10 @@ def test_wheel_installs_offline_and_trains_outside_the_checkout(tmp_path, datase
                   "print(importlib.util.find_spec('bpy'))"], cwd=work).split()
     assert where[0].startswith(str(venv)) and "site-packages" in where[0], where
     assert where[1] == "None", "the library's environment has no bpy"
+    # The native kernel's C source ships in the wheel, and builds where there is a compiler.
+    backend = _run([py, "-c", "from nerf_core.fields import vm_products; print(vm_products.backend())"], cwd=work)
+    if shutil.which("cc") or shutil.which("gcc"):
+        assert "('native', '')" in backend, backend
 
     for cmd in ([py, "-m", "nerf_core", "--help"], [bindir / "nerf-bridge", "--help"],
                 [bindir / "nerf-core", "--help"]):
