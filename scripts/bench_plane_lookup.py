@@ -15,7 +15,9 @@ a backward of a sum-of-products loss, at realistic shapes, for:
   (one fused weighted gather; its backward is one scatter);
 - ``rowmajor``: ``embedding_bag`` on planes *stored* row-major (no per-step copies), as a field
   that kept its parameters in that layout would run;
-- ``compiled`` (``--compile``): ``torch.compile`` (inductor, C++ on a CPU) of today's ``_vm``.
+- ``compiled`` (``--compile``): ``torch.compile`` (inductor, C++ on a CPU) of today's ``_vm``;
+- ``vm_products_native`` (or ``_grid_sample`` where it does not build): the library's
+  ``nerf_core.fields.vm_products`` on channels-last planes, as ``TensorVMField`` stores them.
 
 The variants are run interleaved (A, B, C, A, B, C, ...) so a machine shared with other jobs slows
 them alike; the median of ``--repeats`` rounds is reported, with each variant's ratio to grid_sample.
@@ -144,6 +146,25 @@ def main(argv=None) -> int:
 
     variants["rowmajor"] = RowMajor()
     steppers = {"rowmajor": rowmajor_step}
+
+    # The library's own path: nerf_core's vm_products on planes stored channels-last, as TensorVMField
+    # keeps them (its native CPU kernel where that builds).
+    from nerf_core.fields import vm_products
+
+    pcl = planes.detach().permute(0, 2, 3, 1).contiguous().requires_grad_()
+    lcl = lines.detach()[..., 0].permute(0, 2, 1).contiguous().requires_grad_()
+
+    def native_step(_fn, _p, _l, uu, go):
+        pcl.grad = lcl.grad = None
+        out = vm_products.vm_products(pcl.permute(0, 3, 1, 2), lcl.permute(0, 2, 1).unsqueeze(-1), uu)
+        out.backward(go.permute(2, 0, 1))
+        planes.grad = pcl.grad.permute(0, 3, 1, 2)
+        lines.grad = lcl.grad.permute(0, 2, 1).unsqueeze(-1)
+        return out.permute(1, 2, 0)  # (3, R, m) as the others
+
+    name = "vm_products_" + vm_products.backend()[0]
+    variants[name] = native_step  # never called directly: its stepper runs it
+    steppers[name] = native_step
     ref = step(grid_sample_vm, planes, lines, u, gout).detach()
     ref_gp, ref_gl = planes.grad.clone(), lines.grad.clone()
     errors = {}
