@@ -120,6 +120,27 @@ class _NativeVMProducts(torch.autograd.Function):
                 gl.permute(0, 2, 1).unsqueeze(-1) if gl is not None else None, None)
 
 
+NO_GRAD_CHUNK = 1 << 16  # points per kernel call without autograd: bounds the scratch taps to 9 MiB
+
+
+def _native_no_grad(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
+    """The forward alone, in chunks of NO_GRAD_CHUNK points, so that a query of millions of points
+    (occupancy probes, mesh export) does not hold 144 bytes of taps per point."""
+    lib = _library()[0]
+    r, n, m = planes.shape[1], planes.shape[-1], u.shape[0]
+    planes_cl = planes.detach().permute(0, 2, 3, 1).contiguous()
+    lines_cl = lines.detach()[..., 0].permute(0, 2, 1).contiguous()
+    u_c = u.detach().contiguous()
+    out = planes.new_empty(m, 3, r)
+    taps = torch.empty(3 * min(m, NO_GRAD_CHUNK) * lib.vm_products_taps_bytes(), dtype=torch.uint8)
+    for a in range(0, m, NO_GRAD_CHUNK):
+        b = min(m, a + NO_GRAD_CHUNK)
+        uc, oc = u_c[a:b], out[a:b]  # contiguous row ranges
+        lib.vm_products_forward(planes_cl.data_ptr(), lines_cl.data_ptr(), uc.data_ptr(), b - a, r, n,
+                                oc.data_ptr(), taps.data_ptr(), _threads())
+    return out
+
+
 def vm_products(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
     """(3, R, N, N) planes, (3, R, N, 1) lines, (m, 3) points in [-1, 1] -> (m, 3, R) products.
 
@@ -128,4 +149,6 @@ def vm_products(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
     """
     if backend(planes, u)[0] != "native" or lines.dtype != torch.float32 or u.dtype != torch.float32:
         return reference(planes, lines, u)
-    return _NativeVMProducts.apply(planes, lines, u)
+    if torch.is_grad_enabled() and (planes.requires_grad or lines.requires_grad):
+        return _NativeVMProducts.apply(planes, lines, u)
+    return _native_no_grad(planes, lines, u)

@@ -72,6 +72,17 @@ def test_native_equals_grid_sample_forward_and_gradients(threads, r, n, m):
     torch.testing.assert_close(gl, ref_gl, rtol=1e-5, atol=1e-4)
 
 
+def test_without_autograd_the_forward_runs_in_chunks(monkeypatch):
+    _native()
+    monkeypatch.setattr(vp, "NO_GRAD_CHUNK", 7)  # 100 points: 15 calls, the last one short
+    g = torch.Generator().manual_seed(3)
+    planes, lines = torch.randn(3, 4, 9, 9, generator=g), torch.randn(3, 4, 9, 1, generator=g)
+    u = torch.rand(100, 3, generator=g) * 2 - 1
+    with torch.no_grad():
+        out = vp.vm_products(planes, lines, u)
+    torch.testing.assert_close(out, vp.reference(planes, lines, u), rtol=1e-5, atol=1e-6)
+
+
 def test_fallbacks_give_grid_sample():
     planes = torch.randn(3, 2, 5, 5, dtype=torch.float64)
     lines = torch.randn(3, 2, 5, 1, dtype=torch.float64)
