@@ -16,7 +16,9 @@ checkout, or a git revision, checked out into a temporary worktree that is remov
 From each run's progress.jsonl it reads the steps made, the steps per second after growth (step
 events from ``--after`` of the budget to the end: vmgrid's last growth stage is at 0.36) and the test
 PSNR of the final evaluation. Writes DIR/results.json and DIR/summary.md (a table with the ratios, the
-command, both commits and the machine). ``--report-only`` rewrites the summary from results.json.
+command, both commits and the machine). ``--report-only`` rewrites the summary from results.json. Run
+again into the same folder (same commits and budget), it keeps the scenes already measured and adds
+the others.
 """
 from __future__ import annotations
 
@@ -180,8 +182,18 @@ def main(argv=None) -> int:
                "baseline_commit": commit_of(baseline), "commit": commit_of(REPO_ROOT),
                "machine": machine_info(),
                "seconds": args.seconds, "eval_views": args.eval_views, "after": args.after, "scenes": {}}
+    if os.path.isfile(path):  # an earlier invocation into the same folder: keep its scenes, add the rest
+        with open(path, encoding="utf-8") as fh:
+            earlier = json.load(fh)
+        if earlier.get("baseline_commit") == results["baseline_commit"] and earlier.get("commit") == results["commit"] \
+                and earlier.get("seconds") == args.seconds:
+            results["scenes"] = earlier.get("scenes", {})
+            results["command"] = earlier.get("command", results["command"]) + "; then " + results["command"]
     try:
         for i, scene in enumerate(scenes, 1):
+            if scene in results["scenes"]:
+                print(f"bench_cpu_speed: [{i}/{len(scenes)}] {scene}: already in {path}", flush=True)
+                continue
             settings = {"resolution": args.resolution, "count": args.views, "val_count": 1,
                         "test_count": args.test_views, "engine": "cycles", "samples": 16}
             ds, _ = datasets.ensure_dataset(scene, cache, settings, log_path=os.path.join(args.out, "capture.log"))
