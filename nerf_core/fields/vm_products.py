@@ -8,11 +8,11 @@ padding outside the grid. Two implementations give the same numbers (to float ro
 
 * :func:`reference`: two ``grid_sample`` calls and a product. Used on GPUs, for float64, when a
   gradient with respect to the points is needed, and wherever the native kernel is not available.
-* the native CPU kernel (``native/vm_products.c``), built at first use by ``utils.native``. Its
-  reads channels-last copies of the planes, so one tap of all R components is one contiguous run,
-  and its backward scatters in parallel over the 3 R (plane, component) pairs; grid_sample's CPU
-  backward is parallel over the 3 planes only, and was the largest single cost of a CPU step
-  (``docs/benchmarks/plane_lookup.md``).
+* the native CPU kernel (``native/vm_products.c``), built at first use by ``utils.native``. It
+  reads the planes channels-last (as ``tensorf`` stores them), so one tap of all R components is
+  one contiguous run, and its backward scatters in parallel over the 3 R (plane, component) pairs;
+  grid_sample's CPU backward is parallel over the 3 planes only, and was the largest single cost of
+  a CPU step (``docs/benchmarks/plane_lookup.md``).
 
 :func:`backend` says which one a call would take (``"native"`` or ``"grid_sample"``) and why.
 """
