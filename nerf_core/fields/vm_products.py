@@ -66,6 +66,14 @@ def _library() -> tuple[ctypes.CDLL | None, str]:
     return _lib, _why_not
 
 
+def _kernel_shapes_ok(planes: Tensor, lines: Tensor, u: Tensor) -> bool:
+    """The shapes the kernel assumes (it indexes raw memory, so anything else goes to grid_sample):
+    planes (3, R, N, N), lines (3, R, N, 1), points (m, 3)."""
+    return (planes.dim() == 4 and planes.shape[0] == 3 and planes.shape[2] == planes.shape[3] >= 1
+            and tuple(lines.shape) == (3, planes.shape[1], planes.shape[2], 1)
+            and u.dim() == 2 and u.shape[1] == 3)
+
+
 def backend(planes: Tensor | None = None, u: Tensor | None = None) -> tuple[str, str]:
     """("native" | "grid_sample", reason) for these tensors (or for float32 CPU tensors when omitted)."""
     lib, why = _library()
@@ -147,7 +155,8 @@ def vm_products(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
     Differentiable in ``planes`` and ``lines``; takes the native CPU kernel when :func:`backend` allows,
     else :func:`reference`.
     """
-    if backend(planes, u)[0] != "native" or lines.dtype != torch.float32 or u.dtype != torch.float32:
+    if (backend(planes, u)[0] != "native" or lines.dtype != torch.float32 or u.dtype != torch.float32
+            or lines.device.type != "cpu" or u.device.type != "cpu" or not _kernel_shapes_ok(planes, lines, u)):
         return reference(planes, lines, u)
     if torch.is_grad_enabled() and (planes.requires_grad or lines.requires_grad):
         return _NativeVMProducts.apply(planes, lines, u)

@@ -151,6 +151,14 @@ def check_weights(model: torch.nn.Module, weights: Dict[str, torch.Tensor], wher
         if value.is_floating_point() and not bool(torch.isfinite(value).all()):
             raise RunError(f"{where}: weight {name!r} holds NaN or infinite values; the model would render "
                            "nothing meaningful (a damaged checkpoint, or training that diverged)")
+    # The grids of a model grow together (one resolution): every growing dimension of every grown weight
+    # has the same size. A checkpoint with non-square planes, or planes and lines of two sizes, is refused
+    # here rather than indexed out of bounds later.
+    sizes = {(name, d): int(weights[name].shape[d]) for name, dims in growing.items() if name in weights
+             for d in (dims or range(2, weights[name].dim())) if d < weights[name].dim()}
+    if len(set(sizes.values())) > 1:
+        shown = ", ".join(f"{name} dim {d}: {n}" for (name, d), n in list(sizes.items())[:6])
+        raise RunError(f"{where}: the grids must all have one resolution, got {shown}")
 
 
 def check_optimizer_state(state: dict, optimizer: torch.optim.Optimizer, where: str) -> None:

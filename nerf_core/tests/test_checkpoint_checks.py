@@ -179,3 +179,21 @@ def test_entries_and_rng_state(trained_run):
         check_entries({k: v for k, v in ckpt.items() if k != "optimizer"}, "ck", for_resume=True)
     with pytest.raises(RunError, match="field 'torch' must be a generator state"):
         check_rng({**ckpt["rng"], "torch": torch.zeros(3)}, "ck")
+
+
+def test_grids_of_two_resolutions_are_refused():
+    """vmgrid's planes are stored (3, N, N, R): a crafted checkpoint with non-square planes, or planes and
+    lines of two sizes, must be refused by name before any kernel indexes it."""
+    from nerf_core.methods.registry import build_model
+
+    model = build_model("vmgrid", torch.tensor([[-1.0] * 3, [1.0] * 3]), resolution=16)
+    weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    r = weights["field.density_planes_cl"].shape[-1]
+    grown = {**weights, "field.density_planes_cl": torch.zeros(3, 24, 24, r), "field.density_lines_cl": torch.zeros(3, 24, r),
+             "field.app_planes_cl": torch.zeros(3, 24, 24, weights["field.app_planes_cl"].shape[-1]),
+             "field.app_lines_cl": torch.zeros(3, 24, weights["field.app_lines_cl"].shape[-1])}
+    check_weights(model, grown, "ck")  # grown together: fine
+    with pytest.raises(RunError, match="one resolution"):
+        check_weights(model, {**grown, "field.density_planes_cl": torch.zeros(3, 24, 30, r)}, "ck")
+    with pytest.raises(RunError, match="one resolution"):
+        check_weights(model, {**grown, "field.app_lines_cl": torch.zeros(3, 20, grown["field.app_lines_cl"].shape[-1])}, "ck")

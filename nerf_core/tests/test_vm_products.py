@@ -93,6 +93,18 @@ def test_fallbacks_give_grid_sample():
     assert vp.backend(planes.float(), u32) == ("grid_sample", "a gradient with respect to the points is needed")
 
 
+def test_shapes_the_kernel_does_not_index_go_to_grid_sample():
+    """The kernel indexes raw memory as (3, N, N, R): non-square planes (a crafted checkpoint) must
+    never reach it."""
+    _native()
+    planes, lines = torch.randn(3, 2, 5, 9), torch.randn(3, 2, 5, 1)
+    u = torch.rand(20, 3) * 2 - 1
+    with torch.no_grad():
+        torch.testing.assert_close(vp.vm_products(planes, lines, u), vp.reference(planes, lines, u), rtol=0, atol=0)
+    assert not vp._kernel_shapes_ok(torch.randn(3, 2, 5, 5), torch.randn(3, 2, 6, 1), u)
+    assert vp._kernel_shapes_ok(torch.randn(3, 2, 5, 5), torch.randn(3, 2, 5, 1), u)
+
+
 def test_turned_off_by_the_environment(monkeypatch):
     monkeypatch.setenv("NERF_CORE_NATIVE", "0")
     assert vp.backend() == ("grid_sample", "turned off by NERF_CORE_NATIVE")
