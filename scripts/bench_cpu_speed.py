@@ -16,7 +16,7 @@ checkout, or a git revision, checked out into a temporary worktree that is remov
 From each run's progress.jsonl it reads the steps made, the steps per second after growth (step
 events from ``--after`` of the budget to the end: vmgrid's last growth stage is at 0.36) and the test
 PSNR of the final evaluation. Writes DIR/results.json and DIR/summary.md (a table with the ratios, the
-command, both commits and the machine). ``--report-only`` rewrites the summary from results.json. Run
+command, both commits and the machine) and DIR/cpu_speed.png (both, per scene). ``--report-only`` rewrites the summary from results.json. Run
 again into the same folder (same commits and budget), it keeps the scenes already measured and adds
 the others.
 """
@@ -152,6 +152,45 @@ def summary(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def chart(results: dict, path: str) -> bool:
+    """DIR/cpu_speed.png: steps per second after growth and final PSNR per scene, baseline beside new.
+    False (and no file) without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    scenes = list(results["scenes"])
+    rows = [results["scenes"][s] for s in scenes]
+    x = list(range(len(scenes)))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, key, label in ((axes[0], "steps_per_s_after_growth", "training steps per second after growth"),
+                           (axes[1], "psnr", f"test PSNR (dB) after {results['seconds']:g} s")):
+        base = [r["baseline"][key] or 0.0 for r in rows]
+        new = [r["new"][key] or 0.0 for r in rows]
+        ax.bar([i - 0.2 for i in x], base, 0.4, label=f"baseline {results['baseline_commit']}", color="#999999")
+        ax.bar([i + 0.2 for i in x], new, 0.4, label=f"this commit {results['commit']}", color="#1f77b4")
+        if key == "psnr":
+            lo = min(v for v in base + new if v) - 2
+            ax.set_ylim(lo, max(base + new) + 1)
+        else:
+            for i, (b, n) in enumerate(zip(base, new)):
+                if b and n:
+                    ax.annotate(f"{n / b:.2f}x", (i + 0.2, n), ha="center", va="bottom", fontsize=8)
+        ax.set_xticks(x)
+        ax.set_xticklabels(scenes, rotation=30)
+        ax.set_title(label, fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(fontsize=8, loc="upper left")
+    fig.suptitle("vmgrid on one CPU thread each, the two runs side by side", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     os.makedirs(args.out, exist_ok=True)
@@ -161,6 +200,7 @@ def main(argv=None) -> int:
             results = json.load(fh)
         with open(os.path.join(args.out, "summary.md"), "w", encoding="utf-8") as fh:
             fh.write(summary(results))
+        chart(results, os.path.join(args.out, "cpu_speed.png"))
         return 0
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     unknown = sorted(set(scenes) - set(datasets.demo_scene_names()))
@@ -214,6 +254,7 @@ def main(argv=None) -> int:
         json.dump(results, fh, indent=1)
     with open(os.path.join(args.out, "summary.md"), "w", encoding="utf-8") as fh:
         fh.write(summary(results))
+    chart(results, os.path.join(args.out, "cpu_speed.png"))
     print(summary(results))
     return 0
 

@@ -48,3 +48,13 @@ def test_bad_flags_are_refused_by_name(capsys, tmp_path):
         assert word in capsys.readouterr().err
     with pytest.raises(SystemExit, match="unknown demo scene"):
         bcs.main(["--baseline", ".", "--out", str(tmp_path / "out"), "--scenes", "nosuchscene"])
+
+
+def test_chart_draws_both_runs_per_scene(tmp_path):
+    pytest.importorskip("matplotlib")
+    base = bcs.run_stats(_run(tmp_path, "b", steps=50, psnr=30.0, step_s=2.0), 0.4)
+    new = bcs.run_stats(_run(tmp_path, "n", steps=100, psnr=31.0, step_s=1.0), 0.4)
+    results = {"baseline_commit": "abc", "commit": "def", "seconds": 100,
+               "scenes": {"diffuse": {"baseline": base, "new": new}, "thin": {"baseline": base, "new": new}}}
+    assert bcs.chart(results, str(tmp_path / "c.png"))
+    assert (tmp_path / "c.png").stat().st_size > 10_000
