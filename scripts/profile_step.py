@@ -6,9 +6,9 @@
 Loads RUN's checkpoint (after growth, so the grids have the size a long run ends with; ``--res``
 resamples them to N cells instead), draws ``--rays`` random training rays of DATASET, and times
 ``--steps`` optimiser steps as the trainer makes them (its fused Adam, the method's own loss terms),
-after 3 warm-up steps: on a CPU with ``time.thread_time`` (CPU time of this thread, which a machine
-shared with other jobs disturbs less than wall time; use ``--threads 1``), on CUDA with wall time
-around ``torch.cuda.synchronize``. Then it profiles 5 more steps with ``torch.profiler`` and prints the
+after 3 warm-up steps: with one CPU thread by ``time.thread_time`` (CPU time of this thread, which a
+machine shared with other jobs disturbs less than wall time), else by wall time (around
+``torch.cuda.synchronize`` on CUDA). Then it profiles 5 more steps with ``torch.profiler`` and prints the
 ops by self time. Set ``NERF_CORE_NATIVE=0`` to time the grid_sample fallback instead of the native
 CPU kernel.
 """
@@ -62,7 +62,9 @@ def main(argv=None) -> int:
     background = torch.ones_like(target)
     opt = make_optimizer(model, 1e-3)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-    clock = time.perf_counter if device.type == "cuda" else time.thread_time
+    # CPU time of this thread is steadier on a shared machine, but counts one thread only: wall time
+    # whenever torch (or the native kernel) may run on more than one.
+    clock = time.thread_time if device.type == "cpu" and args.threads == 1 else time.perf_counter
 
     def step():
         out = model.render_rays(rays_o, rays_d, t_near, t_far, background, training=True)
