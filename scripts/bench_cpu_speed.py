@@ -34,7 +34,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench import datasets  # noqa: E402
 from bench.plan import FULL_SCENES  # noqa: E402
-from bench.runner import REPO_ROOT, machine_info  # noqa: E402
+from bench.runner import REPO_ROOT, git_commit, machine_info  # noqa: E402
 
 
 def parse_args(argv):
@@ -61,14 +61,6 @@ def parse_args(argv):
 
 def _git(*args: str, cwd: str = REPO_ROOT) -> str:
     return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, check=True).stdout.strip()
-
-
-def commit_of(tree: str) -> str:
-    try:
-        return _git("rev-parse", "--short", "HEAD", cwd=tree) + ("+changes" if _git("status", "--porcelain",
-                                                                                    "--untracked-files=no", cwd=tree) else "")
-    except (subprocess.CalledProcessError, OSError):
-        return "unknown"
 
 
 def run_stats(run: str, after: float) -> dict:
@@ -219,7 +211,7 @@ def main(argv=None) -> int:
         baseline = temp
     cache = args.datasets or os.path.join(args.out, "datasets")
     results = {"command": "python scripts/bench_cpu_speed.py " + shlex.join(sys.argv[1:] if argv is None else argv),
-               "baseline_commit": commit_of(baseline), "commit": commit_of(REPO_ROOT),
+               "baseline_commit": git_commit(baseline), "commit": git_commit(REPO_ROOT),
                "machine": machine_info(),
                "seconds": args.seconds, "eval_views": args.eval_views, "after": args.after, "scenes": {}}
     if os.path.isfile(path):  # an earlier invocation into the same folder: keep its scenes, add the rest

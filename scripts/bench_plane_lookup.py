@@ -151,15 +151,15 @@ def main(argv=None) -> int:
     # keeps them (its native CPU kernel where that builds).
     from nerf_core.fields import vm_products
 
-    pcl = planes.detach().permute(0, 2, 3, 1).contiguous().requires_grad_()
-    lcl = lines.detach()[..., 0].permute(0, 2, 1).contiguous().requires_grad_()
+    pcl = vm_products.planes_to_stored(planes.detach()).requires_grad_()
+    lcl = vm_products.lines_to_stored(lines.detach()).requires_grad_()
 
     def native_step(_fn, _p, _l, uu, go):
         pcl.grad = lcl.grad = None
-        out = vm_products.vm_products(pcl.permute(0, 3, 1, 2), lcl.permute(0, 2, 1).unsqueeze(-1), uu)
+        out = vm_products.vm_products(vm_products.planes_from_stored(pcl), vm_products.lines_from_stored(lcl), uu)
         out.backward(go.permute(2, 0, 1))
-        planes.grad = pcl.grad.permute(0, 3, 1, 2)
-        lines.grad = lcl.grad.permute(0, 2, 1).unsqueeze(-1)
+        planes.grad = vm_products.planes_from_stored(pcl.grad)
+        lines.grad = vm_products.lines_from_stored(lcl.grad)
         return out.permute(1, 2, 0)  # (3, R, m) as the others
 
     name = "vm_products_" + vm_products.backend()[0]

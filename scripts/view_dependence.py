@@ -24,7 +24,6 @@ import argparse
 import json
 import os
 import shlex
-import subprocess
 import sys
 import time
 
@@ -80,17 +79,6 @@ def capture_settings(args) -> dict:
     return settings
 
 
-def git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             cwd=runner.REPO_ROOT, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, cwd=runner.REPO_ROOT).stdout.strip()
-        return out + ("+uncommitted changes" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def run_pair(args, dataset: str, scene: str, method: str, logs: str) -> list[dict]:
     """Train ``method`` and its -noview variant at once (one thread each); their result rows."""
     env = runner.thread_env(2)
@@ -125,7 +113,7 @@ def main(argv=None) -> int:
         os.makedirs(logs, exist_ok=True)
         cache = args.datasets or os.path.join(args.out, "datasets")
         rows, captured = [], {}
-        t0, commit = time.monotonic(), git_commit()  # the code the runs start from, not HEAD at the end
+        t0, commit = time.monotonic(), runner.git_commit()  # the code the runs start from, not HEAD at the end
         for scene in args.scene_list:
             print(f"view_dependence: capturing {scene} (cached in {cache})", file=sys.stderr, flush=True)
             captured[scene], _ = datasets.ensure_dataset(scene, cache, capture_settings(args),

@@ -21,7 +21,13 @@ from torch import nn
 
 from nerf_core.fields.encodings import direction_encoding
 from nerf_core.fields.vm_lookup import VMLookup, dense_density
-from nerf_core.fields.vm_products import vm_products
+from nerf_core.fields.vm_products import (
+    lines_from_stored,
+    lines_to_stored,
+    planes_from_stored,
+    planes_to_stored,
+    vm_products,
+)
 from nerf_core.image.losses import l1_sparsity, total_variation_2d
 from nerf_core.utils.derived_cache import DerivedCache
 
@@ -33,14 +39,10 @@ GRID_NAMES = ("density_planes", "density_lines", "app_planes", "app_lines")
 STORED = {name: name + "_cl" for name in GRID_NAMES}
 
 
-def planes_to_stored(planes: Tensor) -> Tensor:
-    """(3, R, N, N) planes -> (3, N, N, R) contiguous, the stored layout."""
-    return planes.permute(0, 2, 3, 1).contiguous()
-
-
-def lines_to_stored(lines: Tensor) -> Tensor:
-    """(3, R, N, 1) lines -> (3, N, R) contiguous, the stored layout."""
-    return lines[..., 0].permute(0, 2, 1).contiguous()
+def _stored_view(name: str, from_stored) -> property:
+    """A read-only property ``name``: the stored Parameter ``STORED[name]`` as a tensorf-order view."""
+    return property(lambda self: from_stored(getattr(self, STORED[name])),
+                    doc=f"{name} in tensorf's order, a view of the stored ``{STORED[name]}``")
 
 
 def upgrade_state_dict(state: dict, prefix: str = "") -> dict:
@@ -109,21 +111,10 @@ class TensorVMField(nn.Module):
     # Everything else reads them through the properties below, in tensorf's (3, R, N, N) and
     # (3, R, N, 1) order, as views (no copies).
 
-    @property
-    def density_planes(self) -> Tensor:
-        return self.density_planes_cl.permute(0, 3, 1, 2)
-
-    @property
-    def density_lines(self) -> Tensor:
-        return self.density_lines_cl.permute(0, 2, 1).unsqueeze(-1)
-
-    @property
-    def app_planes(self) -> Tensor:
-        return self.app_planes_cl.permute(0, 3, 1, 2)
-
-    @property
-    def app_lines(self) -> Tensor:
-        return self.app_lines_cl.permute(0, 2, 1).unsqueeze(-1)
+    density_planes = _stored_view("density_planes", planes_from_stored)
+    density_lines = _stored_view("density_lines", lines_from_stored)
+    app_planes = _stored_view("app_planes", planes_from_stored)
+    app_lines = _stored_view("app_lines", lines_from_stored)
 
     def _set_grids(self, density_planes: Tensor, density_lines: Tensor, app_planes: Tensor, app_lines: Tensor):
         """Replace the four grid Parameters from (3, R, N, N) planes and (3, R, N, 1) lines."""

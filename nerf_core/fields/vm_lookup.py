@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from nerf_core.fields.vm_products import LINE_AXIS, PLANE_AXES
+from nerf_core.fields.vm_products import LINE_AXIS, PLANE_AXES, lines_to_stored, planes_to_stored
 
 Tensor = torch.Tensor
 
@@ -39,8 +39,7 @@ DENSE_MAX_CELLS = 1 << 25  # 128 MiB of float32 density; res 320 is 32.8M cells
 def _channels_last(planes: Tensor, lines: Tensor) -> tuple[Tensor, Tensor]:
     """(3, R, N, N), (3, R, N, 1) -> (3 N^2, R) plane rows (plane, y, x) and (3 N, R) line rows."""
     r, n = planes.shape[1], planes.shape[-1]
-    return (planes.detach().permute(0, 2, 3, 1).reshape(3 * n * n, r).contiguous(),
-            lines.detach()[..., 0].permute(0, 2, 1).reshape(3 * n, r).contiguous())
+    return (planes_to_stored(planes.detach()).view(3 * n * n, r), lines_to_stored(lines.detach()).view(3 * n, r))
 
 
 def dense_density(planes: Tensor, lines: Tensor) -> Tensor:

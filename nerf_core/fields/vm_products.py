@@ -33,6 +33,29 @@ Tensor = torch.Tensor
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))
 LINE_AXIS = (2, 1, 0)
 _SOURCE = Path(__file__).with_name("native") / "vm_products.c"
+
+
+# The channels-last layout the kernel reads, and ``tensorf`` stores its grids in: the one home of the
+# conversions both ways. ``*_to_stored`` copy only when the input is not already that layout in memory;
+# ``*_from_stored`` are views.
+def planes_to_stored(planes: Tensor) -> Tensor:
+    """(3, R, N, N) planes -> (3, N, N, R) contiguous."""
+    return planes.permute(0, 2, 3, 1).contiguous()
+
+
+def lines_to_stored(lines: Tensor) -> Tensor:
+    """(3, R, N, 1) lines -> (3, N, R) contiguous."""
+    return lines[..., 0].permute(0, 2, 1).contiguous()
+
+
+def planes_from_stored(stored: Tensor) -> Tensor:
+    """(3, N, N, R) -> a (3, R, N, N) view."""
+    return stored.permute(0, 3, 1, 2)
+
+
+def lines_from_stored(stored: Tensor) -> Tensor:
+    """(3, N, R) -> a (3, R, N, 1) view."""
+    return stored.permute(0, 2, 1).unsqueeze(-1)
 _lib: ctypes.CDLL | None = None
 _why_not = ""
 _tried = False
@@ -99,8 +122,7 @@ class _NativeVMProducts(torch.autograd.Function):
     def forward(ctx, planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
         lib = _library()[0]
         r, n, m = planes.shape[1], planes.shape[-1], u.shape[0]
-        planes_cl = planes.detach().permute(0, 2, 3, 1).contiguous()  # (3, N, N, R)
-        lines_cl = lines.detach()[..., 0].permute(0, 2, 1).contiguous()  # (3, N, R)
+        planes_cl, lines_cl = planes_to_stored(planes.detach()), lines_to_stored(lines.detach())
         u_c = u.detach().contiguous()
         out = planes.new_empty(m, 3, r)
         taps = torch.empty(3 * m * lib.vm_products_taps_bytes(), dtype=torch.uint8)
@@ -124,8 +146,8 @@ class _NativeVMProducts(torch.autograd.Function):
                                                gl.data_ptr() if gl is not None else None, _threads())
         # Views with channels-last strides: the same strides as the parameters that ``tensorf`` keeps
         # channels-last, so autograd stores them as they are (any other layout gets copied there).
-        return (gp.permute(0, 3, 1, 2) if gp is not None else None,
-                gl.permute(0, 2, 1).unsqueeze(-1) if gl is not None else None, None)
+        return (planes_from_stored(gp) if gp is not None else None,
+                lines_from_stored(gl) if gl is not None else None, None)
 
 
 NO_GRAD_CHUNK = 1 << 16  # points per kernel call without autograd: bounds the scratch taps to 9 MiB
@@ -136,8 +158,7 @@ def _native_no_grad(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
     (occupancy probes, mesh export) does not hold 144 bytes of taps per point."""
     lib = _library()[0]
     r, n, m = planes.shape[1], planes.shape[-1], u.shape[0]
-    planes_cl = planes.detach().permute(0, 2, 3, 1).contiguous()
-    lines_cl = lines.detach()[..., 0].permute(0, 2, 1).contiguous()
+    planes_cl, lines_cl = planes_to_stored(planes.detach()), lines_to_stored(lines.detach())
     u_c = u.detach().contiguous()
     out = planes.new_empty(m, 3, r)
     taps = torch.empty(3 * min(m, NO_GRAD_CHUNK) * lib.vm_products_taps_bytes(), dtype=torch.uint8)

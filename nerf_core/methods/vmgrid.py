@@ -358,7 +358,7 @@ class VMGrid(RadianceModel):
                 moments = state.get(pid)
                 if not isinstance(moments, dict):
                     continue
-                convert = tensorf.planes_to_stored if name.endswith("planes") else tensorf.lines_to_stored
+                convert = vm_products.planes_to_stored if name.endswith("planes") else vm_products.lines_to_stored
                 state[pid] = {k: convert(v) if isinstance(v, torch.Tensor) and v.dim() == 4 else v
                               for k, v in moments.items()}
         return weights, {**optimizer_state, "state": state}

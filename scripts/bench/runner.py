@@ -268,6 +268,19 @@ CONTENDED_NOTE = ("**Contended machine**: the load average says that other jobs 
                   "timings are not speed claims; re-run on a quiet machine.")
 
 
+def git_commit(tree: str = REPO_ROOT) -> str:
+    """Short commit of the checkout at ``tree``, with "+uncommitted changes" when tracked files differ
+    from it; "unknown" outside git."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             cwd=tree, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, cwd=tree).stdout.strip()
+        return out + ("+uncommitted changes" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
 def machine_info() -> dict:
     """Where the numbers came from: CPU model, cores, load, Python/torch versions."""
     info = {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()}
