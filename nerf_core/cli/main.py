@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import os
 import sys
 from typing import List, Optional
@@ -18,7 +19,7 @@ from nerf_core.cli.options import HelpFormatter
 from nerf_core.contract.errors import DatasetError
 from nerf_core.errors import ImageReadError, RunError, TrainError
 from nerf_core.methods import catalog
-from nerf_core.methods.registry import available_methods
+from nerf_core.methods.registry import available_methods, method_class
 from nerf_core.runs.folder import os_error_text
 from nerf_core.utils.interrupts import honour_interrupts
 
@@ -52,14 +53,26 @@ def build_parser() -> argparse.ArgumentParser:
 
     for command in (train, render, evaluate, check, serve):
         command.add_parser(sub, fmt)
-    sub.add_parser("methods", help="list the available methods").set_defaults(handler=_cmd_methods)
+    m = sub.add_parser("methods", help="list the available methods, or one method's options", formatter_class=fmt)
+    m.add_argument("name", nargs="?", metavar="METHOD", help="list this method's options (train --set KEY=VALUE)")
+    m.set_defaults(handler=_cmd_methods)
     return p
 
 
 def _cmd_methods(a) -> int:
-    default = getattr(catalog, "DEFAULT_METHOD", None)
-    for name in available_methods():
-        print(name + ("  (default)" if name == default else ""))
+    if a.name is None:
+        for name in available_methods():
+            print(name + ("  (default)" if name == catalog.DEFAULT_METHOD else ""))
+        return 0
+    cls = method_class(a.name)
+    if cls is None:
+        raise ValueError(f"unknown method {a.name!r}; choose one of {', '.join(available_methods())}")
+    defaults, docs = cls.parse_options({}).to_dict(), cls.Options.docs()
+    if not docs:
+        print(f"{a.name}: declares no options")
+    for key, doc in docs.items():
+        fixed = " (fixed)" if key in cls.forced_options else ""
+        print(f"{key} = {json.dumps(defaults[key])}{fixed}\n    {doc}")
     return 0
 
 

@@ -3,9 +3,11 @@
 checkpoints.
 
 After every optimisation step the trainer calls each callback's ``after_step`` in the order of
-``default_callbacks``. A callback reads the trainer's state (step, elapsed training time, model, log)
-and may write files; it must not draw random numbers, so that a seeded run trains the same with or
-without it. Only rank 0 of a ``torchrun`` job writes; the others keep the same schedule.
+``default_callbacks``; when the budget is spent, each callback's ``end``, which does the run's last
+preview, checkpoint and evaluation. A callback reads the trainer's ``state`` (a ``TrainState``: step,
+elapsed training time), ``model``, ``log`` and ``decisions`` and may write files; it must not draw
+random numbers, so that a seeded run trains the same with or without it. Only rank 0 of a
+``torchrun`` job writes; the others keep the same schedule.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import sys
 import time
 from typing import List, Sequence
 
-from nerf_core.engine.report import emit_step, held_out_eval
+from nerf_core.engine.report import emit_step, final_eval, held_out_eval
 
 STEP_EVENT_SECONDS = 5.0  # slow steps still produce a step event this often
 
@@ -24,16 +26,18 @@ class TrainingCallback:
     def start(self, trainer) -> None:
         """Called once, before the first step of this process (also after ``--resume``)."""
 
-    def end(self, trainer) -> None:
-        """Called once, when the budget is spent (not on an interrupt or an error)."""
+    def end(self, trainer) -> dict:
+        """Called once, when the budget is spent (not on an interrupt or an error), in the order of
+        ``default_callbacks``. Returns entries for the run's summary and ``done`` event (e.g.
+        ``checkpoint``, ``metrics``), or {}."""
+        return {}
 
     def after_step(self, trainer, done: bool) -> bool:
         """Called after each optimisation step.
 
         Args:
-            trainer: the ``Trainer`` (``step``, ``elapsed``, ``model``, ``log``, ``cfg``, ``dist``).
-            done: the budget is spent: this is the last step (the trainer then previews, checkpoints
-                and evaluates once more itself).
+            trainer: the ``Trainer`` (``state``, ``model``, ``log``, ``cfg``, ``decisions``, ``dist``).
+            done: the budget is spent: this is the last step (each callback's ``end`` follows).
         Returns:
             True when it did side work (an evaluation, a preview, a checkpoint) that the other ranks of a
             ``torchrun`` job waited for.
@@ -52,29 +56,31 @@ class EvalAtTimes(TrainingCallback):
         self.marks = sorted(marks)
 
     def start(self, trainer) -> None:
-        self.marks = [t for t in self.marks if t > trainer.elapsed]
+        self.marks = [t for t in self.marks if t > trainer.state.elapsed]
 
     def after_step(self, trainer, done: bool) -> bool:
-        crossed = [t for t in self.marks if trainer.elapsed >= t]
+        crossed = [t for t in self.marks if trainer.state.elapsed >= t]
         if not crossed:
             return False
         # A slow step can cross several marks; the model is the same for all of them, so it is
         # evaluated once and the event names every mark it stands for.
         del self.marks[:len(crossed)]
         if trainer.dist.is_main:
-            held_out_eval(trainer.log, trainer.model, trainer.dataset, trainer.cfg, trainer.eval_bg, trainer.step,
-                          trainer.elapsed, marks=crossed)
+            held_out_eval(trainer.log, trainer.model, trainer.dataset, trainer.cfg,
+                          trainer.decisions.eval_background, trainer.state.step, trainer.state.elapsed, marks=crossed)
         return True
 
-    def end(self, trainer) -> None:
+    def end(self, trainer) -> dict:
         if not self.marks or not trainer.dist.is_main:
-            return
+            return {}
         # --max-steps ran out before these times (a --max-seconds budget refuses marks beyond it)
         marks = ", ".join(f"{t:g}" for t in self.marks)
-        msg = (f"--eval-at {marks}: training ended after {trainer.elapsed:.1f} s ({trainer.step} steps), before "
-               f"{'this mark' if len(self.marks) == 1 else 'these marks'}: nothing was evaluated there")
+        msg = (f"--eval-at {marks}: training ended after {trainer.state.elapsed:.1f} s ({trainer.state.step} "
+               f"steps), before {'this mark' if len(self.marks) == 1 else 'these marks'}: nothing was evaluated "
+               "there")
         print(f"train: note: {msg}", file=sys.stderr)
         trainer.log.emit("note", message=msg)
+        return {}
 
 
 class StepEvents(TrainingCallback):
@@ -82,35 +88,42 @@ class StepEvents(TrainingCallback):
     ``STEP_EVENT_SECONDS`` of wall time (slow steps: big models on a CPU)."""
 
     def start(self, trainer) -> None:
-        self.first_step = trainer.step + 1  # always report the first step (also after --resume)
+        self.first_step = trainer.state.step + 1  # always report the first step (also after --resume)
         self.last_event_wall = time.monotonic()
 
     def after_step(self, trainer, done: bool) -> bool:
-        cfg = trainer.cfg
-        if (trainer.step == self.first_step or trainer.step % cfg.log_every == 0 or done
+        cfg, state = trainer.cfg, trainer.state
+        if (state.step == self.first_step or state.step % cfg.log_every == 0 or done
                 or time.monotonic() - self.last_event_wall >= STEP_EVENT_SECONDS):
             self.last_event_wall = time.monotonic()
-            emit_step(trainer.log, cfg, trainer.opt, trainer.step, trainer.elapsed, trainer.last_loss,
-                      trainer.last_psnr, trainer.interval.pop())
+            emit_step(trainer.log, cfg, trainer.opt, state.step, state.elapsed, state.last_loss,
+                      state.last_psnr, trainer.interval.pop())
         return False
 
 
 class PreviewEvery(TrainingCallback):
-    """A preview image every ``--preview-every`` steps, or every ``preview_seconds`` of training."""
+    """A preview image every ``--preview-every`` steps, or every ``preview_seconds`` of training, and
+    one of the final model."""
 
     def start(self, trainer) -> None:
-        self.last_step, self.last_elapsed = trainer.step, trainer.elapsed
+        self.last_step, self.last_elapsed = trainer.state.step, trainer.state.elapsed
 
     def after_step(self, trainer, done: bool) -> bool:
-        if done or not trainer.previews.due(trainer.step, self.last_step, trainer.elapsed, self.last_elapsed):
+        state = trainer.state
+        if done or not trainer.previews.due(state.step, self.last_step, state.elapsed, self.last_elapsed):
             return False
         trainer.preview()
-        self.last_step, self.last_elapsed = trainer.step, trainer.elapsed
+        self.last_step, self.last_elapsed = state.step, state.elapsed
         return True
+
+    def end(self, trainer) -> dict:
+        trainer.preview()
+        return {}
 
 
 class CheckpointEvery(TrainingCallback):
-    """A checkpoint every ``--checkpoint-every`` steps, or every ``checkpoint_seconds`` of wall time."""
+    """A checkpoint every ``--checkpoint-every`` steps, or every ``checkpoint_seconds`` of wall time,
+    and one of the final model (the summary's ``checkpoint``)."""
 
     def after_step(self, trainer, done: bool) -> bool:
         if done or not trainer.checkpoint_due():
@@ -118,10 +131,27 @@ class CheckpointEvery(TrainingCallback):
         trainer.save_checkpoint()
         return True
 
+    def end(self, trainer) -> dict:
+        latest = trainer.save_checkpoint()
+        return {"checkpoint": str(latest)} if latest is not None else {}
+
+
+class FinalEvaluation(TrainingCallback):
+    """The held-out evaluation of the final model into RUN/metrics.json (``report.final_eval``), on
+    rank 0; the summary's ``metrics``."""
+
+    def end(self, trainer) -> dict:
+        if not trainer.dist.is_main:
+            return {}
+        return {"metrics": final_eval(trainer.log, trainer.model, trainer.dataset, trainer.cfg,
+                                      trainer.decisions.eval_background, trainer.run, trainer.state.step,
+                                      trainer.state.elapsed)}
+
 
 def default_callbacks(cfg) -> List[TrainingCallback]:
-    """The trainer's callbacks for ``cfg`` (a ``TrainConfig``), in the order they run after a step."""
-    return [EvalAtTimes(cfg.eval_at), StepEvents(), PreviewEvery(), CheckpointEvery()]
+    """The trainer's callbacks for ``cfg`` (a ``TrainConfig``), in the order they run after a step and
+    at the end (the final preview, then checkpoint, then evaluation)."""
+    return [EvalAtTimes(cfg.eval_at), StepEvents(), PreviewEvery(), CheckpointEvery(), FinalEvaluation()]
 
 
 class StepInterval:

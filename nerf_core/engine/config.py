@@ -160,13 +160,11 @@ class TrainConfig:
 
         cls = method_class(self.method or default_method())
         if cls is None:
-
             raise TrainError(f"unknown method {self.method!r}; choose one of {', '.join(available_methods())}")
-        if hasattr(cls, "validate_options"):
-            try:
-                cls.validate_options(self.options)
-            except ValueError as exc:
-                raise TrainError(f"--set: {exc}") from None
+        try:
+            cls.parse_options(self.options)  # the method's typed options: the same rules as build_model
+        except (TypeError, ValueError) as exc:
+            raise TrainError(f"--set: {exc}") from None
 
 
 # What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.
@@ -219,7 +217,7 @@ def default_method() -> str:
     """The catalog's DEFAULT_METHOD, else the first registered method (TrainError when none is)."""
 
     names = available_methods()
-    name = getattr(catalog, "DEFAULT_METHOD", None)
+    name = catalog.DEFAULT_METHOD
     if name in names:
         return name
     if not names:

@@ -4,20 +4,19 @@ the seeded build, and the rays per step.
 """
 from __future__ import annotations
 
-import sys
 import time
 from typing import List, Optional, Tuple
 
 import torch
 
 from nerf_core.data.scene_box import beyond_box_reason
-from nerf_core.data.split import Dataset
-from nerf_core.errors import RunError, TrainError
+from nerf_core.data.split import Dataset, Split
+from nerf_core.errors import TrainError
 from nerf_core.fields.environment import prefit_from_split, size_for_focal
+from nerf_core.methods.base import RadianceModel
 from nerf_core.methods.registry import build_model, has_option, saved_options
 from nerf_core.methods.sizing import auto_size_dataset
-from nerf_core.runs.checkpoint_checks import check_weights
-from nerf_core.runs.checkpoints import load_state_resizing
+from nerf_core.runs.weights import load_weights
 from nerf_core.utils.seeding import seed_everything
 
 # A CPU step costs in proportion to its rays; a GPU step at these sizes mostly costs kernel launches,
@@ -74,11 +73,13 @@ def contract_if_beyond_box(method: str, dataset: Dataset, bg_mode: str, options:
 
 
 def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt: Optional[dict],
-                 where: str = "checkpoint") -> torch.nn.Module:
-    """Seed every generator with ``seed``, build ``method`` and load a resumed checkpoint's weights.
+                 where: str = "checkpoint") -> Tuple[RadianceModel, Optional[dict]]:
+    """Seed every generator with ``seed``, build ``method`` and load a resumed checkpoint's weights
+    (``runs.weights.load_weights``, the loaders' own).
 
     Returns:
-        the model, on the CPU. Raises TrainError naming options the method refuses.
+        (the model, on the CPU; the checkpoint's optimiser state in this version's layout, or None).
+        Raises TrainError naming options the method refuses.
     """
     seed_everything(seed)
     try:
@@ -87,30 +88,23 @@ def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt
         raise TrainError(f"method {method!r} does not accept these options {sorted(options)}: {exc}") from exc
     except ValueError as exc:  # unknown method or option values the method rejects
         raise TrainError(str(exc)) from exc
-    if ckpt is not None:
-        weights = ckpt.get("model")
-        if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
-            raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors)")
-        weights, _ = model.upgrade_checkpoint(weights)  # an older version's layout
-        check_weights(model, weights, where)  # nothing mis-shaped or NaN reaches the model
-        load_state_resizing(model, weights)
-    return model
+    opt_state = load_weights(model, ckpt, where) if ckpt is not None else None
+    return model, opt_state
 
 
-def default_batch_rays(model, device: torch.device) -> int:
-    """Rays per step when ``--batch-rays`` is not given: the method's ``default_batch_rays`` (1024 when
-    it has none), ``CUDA_BATCH_SCALE`` times that on a CUDA device."""
-    base = int(getattr(model, "default_batch_rays", 0) or 1024)
+def default_batch_rays(model: RadianceModel, device: torch.device) -> int:
+    """Rays per step when ``--batch-rays`` is not given: the method's ``default_batch_rays``,
+    ``CUDA_BATCH_SCALE`` times that on a CUDA device."""
+    base = int(model.default_batch_rays)
     return base * CUDA_BATCH_SCALE if device.type == "cuda" else base
 
 
-def prefit_environment(trainer) -> None:
-    """Fit the trainer's learned world to the train rays that miss the scene box, before the first
-    step; the time counts as training time, and a ``note`` event says how many rays missed."""
+def prefit_environment(model: RadianceModel, train: Split, near, far, gen: torch.Generator,
+                       device: torch.device) -> Tuple[str, float, float]:
+    """Fit the model's learned world to the train rays that miss the scene box, before the first step.
+
+    Returns:
+        (a note saying how many rays missed, their share, the seconds it took: training time)."""
     started = time.perf_counter()
-    msg, share = prefit_from_split(trainer.model, trainer.train, trainer.dataset.near, trainer.dataset.far,
-                                   trainer.gen, trainer.device)
-    trainer.elapsed += time.perf_counter() - started
-    if trainer.dist.is_main:
-        print(f"train: {msg}", file=sys.stderr)
-    trainer.log.emit("note", message=msg, miss_share=share)
+    msg, share = prefit_from_split(model, train, near, far, gen, device)
+    return msg, share, time.perf_counter() - started

@@ -18,8 +18,7 @@ def make_optimizer(model, lr: float) -> torch.optim.Optimizer:
     groups = model.optimizer_groups(lr)
     for g in groups:
         g["base_lr"] = g["lr"]  # the schedule scales each group's own base rate
-    return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=1e-15 if getattr(model, "adam_eps", None) is None else model.adam_eps,
-                            **fused_adam_kwargs(groups))
+    return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=model.adam_eps, **fused_adam_kwargs(groups))
 
 
 def fused_adam_kwargs(groups) -> dict:
@@ -66,7 +65,7 @@ def rescale_base_lrs(opt: torch.optim.Optimizer, model, lr: float) -> None:
 
 def warmup_steps(model, max_steps: Optional[int]) -> int:
     """Warm-up length: the method's ``warmup_steps``, else 5 % of the step budget, at most 100 steps."""
-    return int(getattr(model, "warmup_steps", 0) or min(100, (max_steps or 2000) // 20))
+    return int(model.warmup_steps or min(100, (max_steps or 2000) // 20))
 
 
 def schedule_factor(step: int, frac: float, warmup_steps: int, final_ratio: float = 0.1) -> float:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from nerf_core import contract
+from nerf_core.engine.state import RunDecisions
 from nerf_core.errors import RunError
 from nerf_core.evaluation.evaluate import (
     evaluate_held_out,
@@ -32,6 +33,26 @@ def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float
              frac=cfg.budget_fraction(step, elapsed), samples_per_s=sps,
              loss_avg=interval["loss"] / max(1, interval["n"]),
              lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(opt.param_groups)})
+
+
+def emit_start(log, cfg, decisions: RunDecisions, model, dataset, run: Path, device, dist,
+               resumed_from: Optional[int]) -> None:
+    """The ``start`` event, and on rank 0's stderr what it says that a person should read (sizes,
+    background, dataset notes, slow kernels)."""
+    train = dataset.split("train")
+    kernels = model.kernels(device)  # which implementation each hot loop takes, and why
+    log.emit("start", run=str(run), method=decisions.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
+             device=str(device), n_params=model.num_parameters(), model=model.describe(),
+             size_reasons=decisions.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
+             dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train), image_size=[train.width, train.height],
+             background=decisions.background, background_reason=decisions.background_reason, notes=dataset.notes,
+             world_size=dist.world_size, kernels=kernels)
+    slow = [f"kernel: {name} runs on {how}" for name, how in kernels.items() if "fallback" in how]
+    lines = ([f"size: {r}" for r in decisions.size_reasons]
+             + [f"background: {decisions.background} ({decisions.background_reason})"]
+             + [f"note: {note}" for note in dataset.notes] + slow)
+    for line in lines if dist.is_main else []:
+        print(f"train: {line}", file=sys.stderr)
 
 
 def held_out_eval(log, model, dataset, cfg, background, step: int, at_seconds: float,
@@ -113,20 +134,28 @@ def _set_aside_if_damaged(metrics: Path) -> None:
         print(f"train: {exc.args[0].split(';')[0]}; kept it as {aside} and wrote a new one", file=sys.stderr)
 
 
-def run_config(trainer) -> dict:
+def run_config(cfg, decisions: RunDecisions, model, dataset, run: Path, device, world_size: int,
+               dataset_hash: Optional[str]) -> dict:
     """What RUN/config.json (and each checkpoint's ``config``) holds: the ``TrainConfig`` plus what the
-    trainer decided (docs/CONTRACTS.md), from a ``Trainer`` whose model is built."""
-    ds, tr = trainer.dataset, trainer.train
-    rec = asdict(trainer.cfg)
+    trainer decided (``RunDecisions``; docs/CONTRACTS.md).
+
+    Args:
+        cfg: the run's ``TrainConfig``; decisions: its ``RunDecisions``; model: the built model;
+        dataset: the loaded ``Dataset``; run: the run folder; device: the torch device trained on;
+        world_size: processes under torchrun (1 without); dataset_hash: ``runs.folder.dataset_hash``.
+    """
+    ds, tr = dataset, dataset.split("train")
+    rec = asdict(cfg)
     rec.update({
-        "dataset": str(Path(trainer.cfg.dataset).resolve()), "dataset_hash": getattr(trainer, "dataset_hash", None),
-        "out": str(trainer.run), "method": trainer.method, "model": trainer.model.describe(), "lr": trainer.base_lr,
-        "warmup_steps": trainer.warmup, "background_used": trainer.bg_mode, "background_reason": trainer.bg_reason,
-        "eval_background": trainer.eval_bg, "aabb": trainer.model.aabb.detach().cpu().tolist(),
-        "aabb_source": ds.aabb_source, "near": ds.near, "far": ds.far, "size_reasons": trainer.size_reasons,
+        "dataset": str(Path(cfg.dataset).resolve()), "dataset_hash": dataset_hash,
+        "out": str(run), "method": decisions.method, "model": model.describe(), "lr": decisions.base_lr,
+        "warmup_steps": decisions.warmup, "background_used": decisions.background,
+        "background_reason": decisions.background_reason, "eval_background": decisions.eval_background,
+        "aabb": model.aabb.detach().cpu().tolist(),
+        "aabb_source": ds.aabb_source, "near": ds.near, "far": ds.far, "size_reasons": decisions.size_reasons,
         "dataset_notes": ds.notes, "n_train_views": len(tr), "image_size": [tr.width, tr.height],
-        "device_used": str(trainer.device), "versions": versions(), "world_size": trainer.dist.world_size,
-        "rays_per_step": trainer.cfg.batch_rays * trainer.dist.world_size,
+        "device_used": str(device), "versions": versions(), "world_size": world_size,
+        "rays_per_step": decisions.batch_rays * world_size,
         # the dataset's film filter at its full resolution: render and eval draw edge pixels from it
         "pixel_filter": (ds.pixel_filter.full_resolution() if ds.pixel_filter else DEFAULT_FILTER).to_json(),
     })

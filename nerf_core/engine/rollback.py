@@ -5,26 +5,36 @@ restores the model and optimiser of the last good in-memory snapshot and halves 
 from __future__ import annotations
 
 import math
-from typing import Optional
+from dataclasses import dataclass
+from typing import Dict, Optional
 
 import torch
 
 from nerf_core.engine.optim import clone_state, make_optimizer, rescale_base_lrs
+from nerf_core.engine.state import TrainState
 from nerf_core.errors import TrainError
-from nerf_core.runs.checkpoints import load_state_resizing
+from nerf_core.runs.weights import load_state_resizing
 
 SNAPSHOT_EVERY = 100  # steps between snapshots (and after every change of the parameter set)
 
 
-def take_snapshot(trainer) -> None:
-    """Keep a copy of the trainer's model and optimiser state, step and loss average in memory."""
-    trainer.snap = {
-        "model": {k: v.detach().clone() for k, v in trainer.model.state_dict().items()},
-        "opt": clone_state(trainer.opt.state_dict()),
-        "step": trainer.step,
-        "elapsed_at": trainer.elapsed,
-        "loss_ema": trainer.loss_ema,
-    }
+@dataclass(frozen=True)
+class Snapshot:
+    """The last good in-memory state a rollback restores: model and optimiser state, step, training
+    time and loss average then."""
+
+    model: Dict[str, torch.Tensor]
+    opt: dict
+    step: int
+    elapsed_at: float
+    loss_ema: Optional[float]
+
+
+def take_snapshot(model, opt: torch.optim.Optimizer, state: TrainState) -> Snapshot:
+    """A copy of the model's and optimiser's state, and of the counters a rollback rewinds."""
+    return Snapshot(model={k: v.detach().clone() for k, v in model.state_dict().items()},
+                    opt=clone_state(opt.state_dict()), step=state.step, elapsed_at=state.elapsed,
+                    loss_ema=state.loss_ema)
 
 
 def loss_problem(loss_value: float, loss_ema: Optional[float], steps_since_rollback: int) -> Optional[str]:
@@ -50,27 +60,30 @@ def gradient_problem(opt: torch.optim.Optimizer) -> Optional[str]:
     return None if torch.isfinite(gnorm) else "gradient is NaN or inf"
 
 
-def roll_back(trainer, reason: str) -> None:
-    """Restore the trainer's last snapshot at half the learning rate; TrainError after too many."""
-    trainer.rollbacks += 1
-    trainer.lr_scale *= 0.5
-    if trainer.rollbacks > trainer.cfg.max_rollbacks:
+def roll_back(model, snap: Snapshot, state: TrainState, base_lr: float, max_rollbacks: int, reason: str,
+              log) -> torch.optim.Optimizer:
+    """Restore ``snap`` at half the learning rate: rewinds ``state`` (step, loss average, lr_scale,
+    rollbacks), emits a ``rollback`` event on ``log`` and returns the new optimiser; TrainError after
+    ``max_rollbacks``."""
+    state.rollbacks += 1
+    state.lr_scale *= 0.5
+    if state.rollbacks > max_rollbacks:
         raise TrainError(
-            f"training diverged: {trainer.rollbacks - 1} rollbacks did not help (last: {reason} at step "
-            f"{trainer.step}); try a lower --lr than {trainer.base_lr * trainer.lr_scale * 2:.3g} or another --method"
+            f"training diverged: {state.rollbacks - 1} rollbacks did not help (last: {reason} at step "
+            f"{state.step}); try a lower --lr than {base_lr * state.lr_scale * 2:.3g} or another --method"
         )
-    snap = trainer.snap
-    load_state_resizing(trainer.model, snap["model"])
-    trainer.opt = make_optimizer(trainer.model, trainer.base_lr * trainer.lr_scale)
+    load_state_resizing(model, snap.model)
+    opt = make_optimizer(model, base_lr * state.lr_scale)
     try:
-        trainer.opt.load_state_dict(clone_state(snap["opt"]))
+        opt.load_state_dict(clone_state(snap.opt))
     except (ValueError, KeyError):
         pass  # parameter set changed since the snapshot: fresh Adam moments
     # the state brought the old rates
-    rescale_base_lrs(trainer.opt, trainer.model, trainer.base_lr * trainer.lr_scale)
-    at = trainer.step
-    trainer.step = snap["step"]
-    trainer.loss_ema = snap["loss_ema"]
-    trainer.steps_since_rollback = 0
-    trainer.log.emit("rollback", step=at, reason=f"{reason}; restored step {trainer.step}",
-                     lr=trainer.base_lr * trainer.lr_scale, restored_step=trainer.step, rollbacks=trainer.rollbacks)
+    rescale_base_lrs(opt, model, base_lr * state.lr_scale)
+    at = state.step
+    state.step = snap.step
+    state.loss_ema = snap.loss_ema
+    state.steps_since_rollback = 0
+    log.emit("rollback", step=at, reason=f"{reason}; restored step {state.step}",
+             lr=base_lr * state.lr_scale, restored_step=state.step, rollbacks=state.rollbacks)
+    return opt

@@ -43,7 +43,7 @@ from nerf_core.engine.optim import (
 )
 from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
-from nerf_core.engine.report import evaluation_problem, final_eval, run_config
+from nerf_core.engine.report import emit_start, evaluation_problem, run_config
 from nerf_core.engine.rollback import (
     SNAPSHOT_EVERY,
     gradient_problem,
@@ -51,9 +51,11 @@ from nerf_core.engine.rollback import (
     roll_back,
     take_snapshot,
 )
+from nerf_core.engine.state import RunDecisions, TrainState
 from nerf_core.errors import RunError, TrainError
-from nerf_core.image.losses import backward, masked_mse
+from nerf_core.image.losses import backward
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
+from nerf_core.methods.base import RadianceModel
 from nerf_core.runs.checkpoint_checks import check_optimizer_state
 from nerf_core.runs.checkpoints import (
     read_resume_checkpoint,
@@ -80,13 +82,21 @@ from nerf_core.utils.seeding import rng_state, set_rng_state
 __all__ = ["TrainConfig", "TrainError", "Trainer", "train", "default_method"]
 
 
-DEFAULT_MAX_STEPS = 5000  # used only when neither budget is given
-
-
 class Trainer:
+    """One training run. ``fit()`` opens the run folder, builds the model and trains it.
+
+    What it holds while training: ``cfg`` (the ``TrainConfig``), ``decisions`` (``RunDecisions``, made
+    once at the start), ``state`` (``TrainState``: step, elapsed, learning-rate scale, rollbacks,
+    loss average), ``model``, ``opt``, ``dataset``, ``log`` (events) and ``dist`` (torchrun)."""
+
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
         self.run = Path(cfg.out).resolve()
+        self.state = TrainState()
+        self.model: Optional[RadianceModel] = None
+        self.opt: Optional[torch.optim.Optimizer] = None
+        self.resumed_checkpoint = ""
+        self.dataset_hash: Optional[str] = None
 
     # The public entry point: never raises for expected problems without first emitting an error event.
     def fit(self) -> dict:
@@ -140,7 +150,8 @@ class Trainer:
             self.device = self.dist.place(pick_device(cfg.device))
             ckpt = None
             if cfg.resume:
-                self.resumed_checkpoint, ckpt = read_resume_checkpoint(self.run)
+                path, ckpt = read_resume_checkpoint(self.run)
+                self.resumed_checkpoint = str(path)
                 self.cfg = merge_resumed_config(self.cfg, ckpt)
                 distributed.note_resume(ckpt, self.dist)
                 check_run_vs_dataset(self.run, self.cfg.dataset)
@@ -198,12 +209,12 @@ class Trainer:
                 # Shielded: a second Ctrl-C (people press it twice) or torchrun's SIGTERM after a lost
                 # rank must not cut the save short and lose every step since the last checkpoint.
                 with DeferredInterrupts(True, reraise=False):
-                    distributed.report_checksum(getattr(self, "model", None), self.dist, getattr(self, "step", 0))
-                    path = self.save_checkpoint() if hasattr(self, "opt") else None
+                    distributed.report_checksum(self.model, self.dist, self.state.step)
+                    path = self.save_checkpoint() if self.opt is not None else None
             except TrainError as err:
-                self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}; {err}")
+                self.log.emit("error", message=f"interrupted at step {self.state.step}; {err}")
                 raise
-            self.log.emit("error", message=f"interrupted at step {getattr(self, 'step', 0)}"
+            self.log.emit("error", message=f"interrupted at step {self.state.step}"
                           + (f" ({exc})" if str(exc) else "")
                           + ("; checkpoint saved, continue with --resume" if path else ""))
             raise
@@ -211,7 +222,7 @@ class Trainer:
             self.log.emit("error", message=str(exc))
             raise
         except OSError as exc:  # a full disk while writing config, previews or metrics: name the file
-            msg = f"{exc.filename or self.run}: {os_reason(exc)} (at step {getattr(self, 'step', 0)})"
+            msg = f"{exc.filename or self.run}: {os_reason(exc)} (at step {self.state.step})"
             try:
                 self.log.emit("error", message=msg)
             except OSError:
@@ -223,65 +234,72 @@ class Trainer:
                 # Name what to turn down: the allocator's byte count alone does not say which setting asked.
                 msg = (f"not enough memory ({msg[:200]}); lower --batch-rays (now {self.cfg.batch_rays}) or the "
                        "method's size options (--set res_final=..., density_rank=..., width=..., occ_res=...)")
-            self.log.emit("error", message=f"training failed at step {getattr(self, 'step', 0)}: {msg}")
-            raise TrainError(f"training failed at step {getattr(self, 'step', 0)}: {msg}") from exc
+            self.log.emit("error", message=f"training failed at step {self.state.step}: {msg}")
+            raise TrainError(f"training failed at step {self.state.step}: {msg}") from exc
         finally:
             restore()
             self.log.close()
 
     # ------------------------------------------------------------------ setup
 
-    def _build(self, dataset: Dataset, ckpt: Optional[dict]) -> None:
-        """The model to train (``model_setup``), its learning rate, warm-up and rays per step."""
+    def _build(self, dataset: Dataset, ckpt: Optional[dict]) -> Optional[dict]:
+        """The model to train (``model_setup``) and the decisions made once: learning rate, rays per
+        step, warm-up, background. Returns the resumed checkpoint's optimiser state (or None)."""
         cfg = self.cfg
-        self.train = dataset.split("train")
-        self.method = cfg.method or default_method()
-        options, aabb, self.size_reasons = model_options(cfg, self.method, dataset, ckpt, self.bg_mode)
-        model = build_seeded(self.method, aabb, options, cfg.seed, ckpt, str(getattr(self, "resumed_checkpoint", "")))
+        background, reason, eval_bg = backgrounds.for_training(cfg.background, ckpt, dataset)
+        method = cfg.method or default_method()
+        options, aabb, size_reasons = model_options(cfg, method, dataset, ckpt, background)
+        model, opt_state = build_seeded(method, aabb, options, cfg.seed, ckpt, self.resumed_checkpoint or "checkpoint")
         self.model = model.to(self.device).train()
-        self.base_lr = float(cfg.lr or getattr(model, "default_lr", 5e-4))
-        if cfg.batch_rays is None:
+        if cfg.batch_rays is None:  # recorded in config.json as the run's own
             cfg.batch_rays = default_batch_rays(model, self.device)
-        self.warmup = warmup_steps(model, cfg.max_steps)
+        warmup = warmup_steps(model, cfg.max_steps)  # from the budget as given (a default budget: 2000 steps)
+        if cfg.max_steps is None and cfg.max_seconds is None:
+            cfg.max_steps = int(model.default_max_steps)
+        self.decisions = RunDecisions(method=method, base_lr=float(cfg.lr or model.default_lr),
+                                      batch_rays=cfg.batch_rays, warmup=warmup, background=background,
+                                      background_reason=reason, eval_background=eval_bg, size_reasons=size_reasons)
+        return opt_state
 
-    def _restore(self, ckpt: dict) -> None:
+    def _restore(self, ckpt: dict, opt_state: Optional[dict]) -> None:
         """Continue from a checkpoint: counters, optimiser (fresh Adam if it does not fit) and RNGs."""
-        self.step, self.elapsed = int(ckpt["step"]), float(ckpt["elapsed"])
-        self.lr_scale, self.rollbacks = float(ckpt.get("lr_scale", 1.0)), int(ckpt.get("rollbacks", 0))
-        self.loss_ema = ckpt.get("loss_ema")
-        self.opt = make_optimizer(self.model, self.base_lr * self.lr_scale)
+        self.state = TrainState.from_checkpoint(ckpt)
+        lr = self.decisions.base_lr * self.state.lr_scale
+        self.opt = make_optimizer(self.model, lr)
         try:
             # checked first: the fused Adam kernel trusts the moments' shapes and would write out of bounds
-            _, opt_state = self.model.upgrade_checkpoint(ckpt["model"], ckpt["optimizer"])  # older layouts
-            check_optimizer_state(opt_state, self.opt, str(self.resumed_checkpoint))
+            check_optimizer_state(opt_state, self.opt, self.resumed_checkpoint)
             self.opt.load_state_dict(opt_state)
         except (ValueError, KeyError, RunError) as exc:
-            print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh", file=sys.stderr)
-        rescale_base_lrs(self.opt, self.model, self.base_lr * self.lr_scale)
+            print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh",
+                  file=sys.stderr)
+        rescale_base_lrs(self.opt, self.model, lr)
         set_rng_state(ckpt["rng"], self.gen)
 
-    # ------------------------------------------------------------------ checkpoints and rollback
+    # ------------------------------------------------------------------ checkpoints
 
     def save_checkpoint(self) -> Optional[Path]:
+        state = self.state
         if not self.dist.is_main:  # the other ranks only keep the schedule (checkpoint_every)
-            self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
+            self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), state.step
             return None
-        state = {
-            "format": 1, "method": self.method, "options": self.model.options,
-            "aabb": self.model.aabb.detach().cpu(),
+        record = {
+            "format": 1, "method": self.decisions.method, "options": self.model.options,
+            "method_state": self.model.run_state(), "aabb": self.model.aabb.detach().cpu(),
             "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
-            "optimizer": self.opt.state_dict(), "step": self.step, "elapsed": self.elapsed,
-            "lr_scale": self.lr_scale, "rollbacks": self.rollbacks, "loss_ema": self.loss_ema,
-            "rng": rng_state(self.gen), "config": run_config(self), "size_reasons": self.size_reasons,
+            "optimizer": self.opt.state_dict(), **state.checkpoint_entries(),
+            "rng": rng_state(self.gen), "config": self._run_config(), "size_reasons": self.decisions.size_reasons,
             "versions": versions(),
         }
-        latest = save_checkpoint(self.run, state, self.step, self.cfg.keep_checkpoints)
-        self.log.emit("checkpoint", step=self.step, path=str(latest))
+        latest = save_checkpoint(self.run, record, state.step, self.cfg.keep_checkpoints)
+        self.log.emit("checkpoint", step=state.step, path=str(latest))
         self._last_ckpt_wall = time.monotonic()
-        self._last_ckpt_step = self.step
+        self._last_ckpt_step = state.step
         return latest
 
-    # ------------------------------------------------------------------ records
+    def _run_config(self) -> dict:
+        return run_config(self.cfg, self.decisions, self.model, self.dataset, self.run, self.device,
+                          self.dist.world_size, self.dataset_hash)
 
     # ------------------------------------------------------------------ loop
 
@@ -289,167 +307,151 @@ class Trainer:
         cfg = self.cfg
         self.dataset = dataset
         train = dataset.split("train")
-        self.bg_mode, self.bg_reason, self.eval_bg = backgrounds.for_training(cfg.background, ckpt, dataset)
-        self._build(dataset, ckpt)
-        if cfg.max_steps is None and cfg.max_seconds is None:
-            cfg.max_steps = int(getattr(self.model, "default_max_steps", DEFAULT_MAX_STEPS))
-
+        opt_state = self._build(dataset, ckpt)
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        self.step, self.elapsed, self.lr_scale, self.rollbacks = 0, 0.0, 1.0, 0
-        self.loss_ema: Optional[float] = None
-        self.opt = make_optimizer(self.model, self.base_lr)
+        self.opt = make_optimizer(self.model, self.decisions.base_lr)
         resumed_from = None
         if ckpt is not None:
-            self._restore(ckpt)
-            resumed_from = self.step
-            spent = ([f"--max-steps {cfg.max_steps}"] if cfg.max_steps is not None and self.step >= cfg.max_steps else []) \
-                + ([f"--max-seconds {cfg.max_seconds:g}"] if cfg.max_seconds is not None and self.elapsed >= cfg.max_seconds else [])
-            if spent:  # refused before anything is rewritten: the checkpoints stay as they are
-                raise TrainError(f"--resume: the run is already at step {self.step} ({self.elapsed:.0f} s trained), "
-                                 f"which meets {' and '.join(spent)}; nothing is left to train. Give a larger budget to "
-                                 "continue it")
+            self._restore(ckpt, opt_state)
+            resumed_from = self.state.step
+            self._refuse_spent_budget()
         if self.dist.is_main:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
-            write_json_atomic(config, run_config(self), default=str)
-        kernels = self.model.kernels(self.device)  # which implementation each hot loop takes, and why
-        self.log.emit("start", run=str(self.run), method=self.method, max_steps=cfg.max_steps, max_seconds=cfg.max_seconds,
-                      device=str(self.device), n_params=self.model.num_parameters(), model=self.model.describe(),
-                      size_reasons=self.size_reasons, resumed_from=resumed_from, seed=cfg.seed,
-                      dataset=str(Path(cfg.dataset).resolve()), n_train_views=len(train),
-                      image_size=[train.width, train.height], background=self.bg_mode,
-                      background_reason=self.bg_reason, notes=dataset.notes, world_size=self.dist.world_size,
-                      kernels=kernels)
-        slow = [f"kernel: {name} runs on {how}" for name, how in kernels.items() if "fallback" in how]
-        for line in ([f"size: {r}" for r in self.size_reasons] + [f"background: {self.bg_mode} ({self.bg_reason})"]
-                     + [f"note: {note}" for note in dataset.notes] + slow if self.dist.is_main else []):
-            print(f"train: {line}", file=sys.stderr)
-
-        if ckpt is None and self.model.environment is not None and not getattr(self.model, "contracted", False):
+            write_json_atomic(config, self._run_config(), default=str)
+        emit_start(self.log, cfg, self.decisions, self.model, dataset, self.run, self.device, self.dist,
+                   resumed_from)
+        if ckpt is None and self.model.models_world and not self.model.contracted:
             # (A contracted scene has no ray that misses it: the world beyond the box is geometry too.)
-            prefit_environment(self)
+            msg, share, seconds = prefit_environment(self.model, train, dataset.near, dataset.far, self.gen,
+                                                     self.device)
+            self.state.elapsed += seconds
+            if self.dist.is_main:
+                print(f"train: {msg}", file=sys.stderr)
+            self.log.emit("note", message=msg, miss_share=share)
         if self.replicas is not None:  # every rank starts from rank 0's model and the largest elapsed time
-            self.elapsed = self.replicas.start(self.model, self.elapsed)
+            self.state.elapsed = self.replicas.start(self.model, self.state.elapsed)
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
-                                 self.eval_bg, cfg.chunk)
+                                 self.decisions.eval_background, cfg.chunk)
         self.callbacks = default_callbacks(cfg)
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
-            last_loss = self._train_loop(RayBatcher(train, self.bg_mode, self.gen, self.device), stop)
-        if self.step == (resumed_from or 0):
+            self._train_loop(RayBatcher(train, self.decisions.background, self.gen, self.device), stop)
+        if self.state.step == (resumed_from or 0):
             # A budget spent before the first step (fitting the world counts as training time): a
             # checkpoint and metrics of an untrained model must not look like a finished run.
-            budget = f"--max-seconds {cfg.max_seconds:g}" if cfg.max_seconds is not None else f"--max-steps {cfg.max_steps}"
+            budget = (f"--max-seconds {cfg.max_seconds:g}" if cfg.max_seconds is not None
+                      else f"--max-steps {cfg.max_steps}")
             raise TrainError(f"nothing was trained: the budget ({budget}) ran out before the "
-                             f"first step, after {self.elapsed:.1f} s" + (" of fitting the world (the background)"
-                                                                           if self.model.environment is not None else "")
+                             f"first step, after {self.state.elapsed:.1f} s"
+                             + (" of fitting the world (the background)" if self.model.models_world else "")
                              + f"; give a larger {budget.split()[0]}")
-        distributed.report_checksum(self.model, self.dist, self.step)
-        summary = dict(step=self.step, elapsed=self.elapsed, checkpoint=None, metrics={}, loss=last_loss, rollbacks=self.rollbacks)
-        if not self.dist.is_main:
-            return summary
-        self.preview()
-        latest = self.save_checkpoint()
-        metrics = final_eval(self.log, self.model, self.dataset, cfg, self.eval_bg, self.run, self.step, self.elapsed)
-        self.log.emit("done", step=self.step, elapsed=self.elapsed, checkpoint=str(latest), metrics=metrics)
-        return summary | {"checkpoint": str(latest), "metrics": metrics}
+        distributed.report_checksum(self.model, self.dist, self.state.step)
+        summary = dict(step=self.state.step, elapsed=self.state.elapsed, checkpoint=None, metrics={},
+                       loss=self.state.last_loss, rollbacks=self.state.rollbacks)
+        for callback in self.callbacks:  # the final preview, checkpoint and evaluation
+            summary.update(callback.end(self))
+        if self.dist.is_main:
+            self.log.emit("done", step=self.state.step, elapsed=self.state.elapsed, checkpoint=summary["checkpoint"],
+                          metrics=summary["metrics"])
+        return summary
 
-    def _train_loop(self, batcher: RayBatcher, stop: DeferredInterrupts) -> Optional[float]:
-        """Train until the budget is spent; returns the last step's loss. Under torchrun, ``stop``
-        holds a SIGINT/SIGTERM until the step's reduce tells every rank to stop."""
-        cfg = self.cfg
-        take_snapshot(self)
-        self.steps_since_rollback = 0
-        self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), self.step
+    def _refuse_spent_budget(self) -> None:
+        """--resume of a run whose budget is met: refused before anything is rewritten."""
+        cfg, state = self.cfg, self.state
+        spent = ([f"--max-steps {cfg.max_steps}"] if cfg.max_steps is not None and state.step >= cfg.max_steps
+                 else []) + ([f"--max-seconds {cfg.max_seconds:g}"] if cfg.max_seconds is not None
+                             and state.elapsed >= cfg.max_seconds else [])
+        if spent:
+            raise TrainError(f"--resume: the run is already at step {state.step} ({state.elapsed:.0f} s trained), "
+                             f"which meets {' and '.join(spent)}; nothing is left to train. Give a larger budget "
+                             "to continue it")
+
+    def _train_loop(self, batcher: RayBatcher, stop: DeferredInterrupts) -> None:
+        """Train until the budget is spent. Under torchrun, ``stop`` holds a SIGINT/SIGTERM until the
+        step's reduce tells every rank to stop."""
+        cfg, state = self.cfg, self.state
+        self.snap = take_snapshot(self.model, self.opt, state)
+        state.steps_since_rollback = 0
+        self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), state.step
         self.interval = StepInterval()
-        self.last_loss = self.last_psnr = None
+        state.last_loss = state.last_psnr = None
         bar_total, bar_unit = cfg.bar_total()
         bar = ProgressBar(total=bar_total, label="train", enabled=cfg.show_bar and self.dist.is_main)
         for callback in self.callbacks:
             callback.start(self)
         self._params_changed = self._ckpt_wall_due = False
-        while not cfg.finished(self.step, self.elapsed):
+        while not cfg.finished(state.step, state.elapsed):
             if not self._step(batcher, stop):
                 continue
-            bar.set(cfg.bar_done(bar_unit, self.step, self.elapsed),
-                    info=f"step {self.step} loss {self.last_loss:.4f} psnr {self.last_psnr:.2f}")
-            if self._params_changed or self.step % SNAPSHOT_EVERY == 0:
-                take_snapshot(self)
+            bar.set(cfg.bar_done(bar_unit, state.step, state.elapsed),
+                    info=f"step {state.step} loss {state.last_loss:.4f} psnr {state.last_psnr:.2f}")
+            if self._params_changed or state.step % SNAPSHOT_EVERY == 0:
+                self.snap = take_snapshot(self.model, self.opt, state)
                 self._params_changed = False
-            done = cfg.finished(self.step, self.elapsed)
+            done = cfg.finished(state.step, state.elapsed)
             # previews, checkpoints and evaluations: rank 0 writes, the others wait (every callback runs)
             side_work = [callback.after_step(self, done) for callback in self.callbacks]
             if any(side_work) and self.replicas is not None:
                 self.previews.cost = self.replicas.after_side_work(self.previews.cost)
-        last = self.last_loss
-        bar.close(info=f"step {self.step} loss {last if last is not None else float('nan'):.4f}")
-        for callback in self.callbacks:
-            callback.end(self)
-        return last
+        last = state.last_loss
+        bar.close(info=f"step {state.step} loss {last if last is not None else float('nan'):.4f}")
 
     def _step(self, batcher: RayBatcher, stop: DeferredInterrupts) -> bool:
         """One optimisation step; False when it was rolled back instead (a bad loss or gradient)."""
-        cfg, dataset, rep = self.cfg, self.dataset, self.replicas
+        cfg, dataset, rep, state, model = self.cfg, self.dataset, self.replicas, self.state, self.model
         t0 = time.perf_counter()
-        frac = cfg.budget_fraction(self.step, self.elapsed)
-        hook_frac = contract.budget_fraction(self.step, self.elapsed, cfg.max_steps, cfg.max_seconds)
+        hook_frac, frac = state.update_budget(cfg.max_steps, cfg.max_seconds)  # once per step
         if rep is not None:  # the hook's random draws (occupancy jitter) must be equal on every rank
-            rep.seed_shared(self.step, self.rollbacks)
-        if self.model.training_hook(self.step, hook_frac):
-            self.opt = rebuild_optimizer(self.model, self.opt, self.base_lr * self.lr_scale)
+            rep.seed_shared(state.step, state.rollbacks)
+        if model.training_hook(state.step, hook_frac):
+            self.opt = rebuild_optimizer(model, self.opt, self.decisions.base_lr * state.lr_scale)
             self._params_changed = True
         if rep is not None:
-            rep.seed_rank(self.gen, self.step, self.rollbacks)
-        factor = schedule_factor(self.step, frac, self.warmup)
+            rep.seed_rank(self.gen, state.step, state.rollbacks)
+        factor = schedule_factor(state.step, frac, self.decisions.warmup)
         for g in self.opt.param_groups:
             g["lr"] = g["base_lr"] * factor
-        rays_o, rays_d, bg, gt, weight = batcher.sample(cfg.batch_rays, frac)
-        if self.model.environment is not None:
-            bg = self.model.background(rays_d, bg)
-        near, far = self.model.ray_interval(rays_o, rays_d, dataset.near, dataset.far)
-        out = self.model.render_rays(rays_o, rays_d, near, far, bg, training=True)
-        mse = masked_mse(out["rgb"], gt, weight)
-        loss = mse
-        if "rgb_coarse" in out:
-            loss = loss + masked_mse(out["rgb_coarse"], gt, weight)
-        if out.get("aux_loss") is not None:
-            loss = loss + out["aux_loss"]
-        n_samples = int(out.get("n_samples", cfg.batch_rays))
+        rays_o, rays_d, bg, gt, weight = batcher.sample(self.decisions.batch_rays, frac)
+        out = model.render_batch(rays_o, rays_d, bg, dataset.near, dataset.far, training=True)
+        loss, mse = model.loss(out, gt, weight)
+        n_samples = int(out.get("n_samples", self.decisions.batch_rays))
         if rep is None:
             loss_value = float(loss.detach())
-            bad = loss_problem(loss_value, self.loss_ema, self.steps_since_rollback)
+            bad = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback)
             if bad is None:
                 self.opt.zero_grad(set_to_none=True)
                 backward(loss)
                 bad = gradient_problem(self.opt)
-            self.elapsed += time.perf_counter() - t0
+            state.elapsed += time.perf_counter() - t0
         else:  # every rank takes the same decisions from the same (reduced) numbers
             self.opt.zero_grad(set_to_none=True)
             backward(loss)
             params = [p for g in self.opt.param_groups for p in g["params"]]
-            shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
+            shared = rep.reduce(params, model, loss, mse, n_samples, t0, stop.requested(),
                                 self.dist.is_main and self.checkpoint_due(wall_clock=True))
-            self.elapsed += shared.seconds
+            state.elapsed += shared.seconds
             if shared.stop:
                 raise KeyboardInterrupt
-            loss_value, mse, n_samples, self._ckpt_wall_due = shared.loss, shared.mse, shared.n_samples, shared.checkpoint_due
-            bad = loss_problem(loss_value, self.loss_ema, self.steps_since_rollback) or gradient_problem(self.opt)
+            loss_value, mse, n_samples = shared.loss, shared.mse, shared.n_samples
+            self._ckpt_wall_due = shared.checkpoint_due
+            bad = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback) or gradient_problem(self.opt)
         if bad is not None:
             if rep is not None:
                 rep.end_step()
             self.opt.zero_grad(set_to_none=True)
-            roll_back(self, bad)
+            self.opt = roll_back(model, self.snap, state, self.decisions.base_lr, cfg.max_rollbacks, bad, self.log)
             return False
         t1 = time.perf_counter()
         self.opt.step()
-        self.step += 1
-        self.steps_since_rollback += 1
-        self.loss_ema = loss_value if self.loss_ema is None else 0.98 * self.loss_ema + 0.02 * loss_value
+        state.step += 1
+        state.steps_since_rollback += 1
+        state.loss_ema = loss_value if state.loss_ema is None else 0.98 * state.loss_ema + 0.02 * loss_value
         if rep is not None:
             rep.end_step()
         else:
-            self.elapsed += time.perf_counter() - t1
+            state.elapsed += time.perf_counter() - t1
         self.interval.add(time.perf_counter() - t0, n_samples, loss_value)
-        self.last_loss, self.last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
+        state.last_loss, state.last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
         return True
 
     # ------------------------------------------------------------------ reporting
@@ -458,7 +460,7 @@ class Trainer:
         """Step-based (``checkpoint_every``) or by rank 0's wall clock, which under torchrun every rank
         learns from the step's reduce (``wall_clock=True``: rank 0 asks its own clock)."""
         if self.cfg.checkpoint_every:
-            return not wall_clock and self.step - self._last_ckpt_step >= self.cfg.checkpoint_every
+            return not wall_clock and self.state.step - self._last_ckpt_step >= self.cfg.checkpoint_every
         if self.replicas is not None and not wall_clock:
             return self._ckpt_wall_due
         return time.monotonic() - self._last_ckpt_wall >= self.cfg.checkpoint_seconds
@@ -466,9 +468,9 @@ class Trainer:
     def preview(self) -> None:
         if not self.dist.is_main:
             return
-        path = self.previews.write(self.model, self.step)
+        path = self.previews.write(self.model, self.state.step)
         if path is not None:
-            self.log.emit("preview", step=self.step, path=str(path))
+            self.log.emit("preview", step=self.state.step, path=str(path))
 
 
 def train(cfg: TrainConfig) -> dict:

@@ -195,7 +195,7 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
     """{view: share of its pixels that look at world directions no train view shows}
     (``nerf_core.fields.world_coverage``), for a model with a learned world; {} otherwise or when the
     train cameras cannot be read."""
-    if getattr(model, "environment", None) is None:
+    if not model.models_world:
         return {}
 
     try:
@@ -203,9 +203,8 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
     except (DatasetError, OSError, ValueError):
         return {}
     covered = covered_directions(train)
-    aabb = getattr(model, "aabb", None)
-    return {v: unseen_world_share(split.cameras, v, covered, None if aabb is None else aabb.detach().cpu().float())
-            for v in views}
+    aabb = model.aabb.detach().cpu().float()
+    return {v: unseen_world_share(split.cameras, v, covered, aabb) for v in views}
 
 
 def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: Optional[int] = None,

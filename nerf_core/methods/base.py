@@ -1,77 +1,25 @@
 """The interface every NeRF method implements (the registry that builds one by name is ``registry``).
 
-A method is a ``RadianceModel``: an ``nn.Module`` that turns a batch of rays into colours. The
-trainer (``nerf_core/engine/trainer.py``) knows nothing else about it, so a new method only has to
-implement ``render_rays`` and register itself with ``@register("name")``.
+A method is a ``RadianceModel``: an ``nn.Module`` that turns a batch of rays into colours. Everything
+the trainer, the renderers and the loaders ask of a method is declared here, with its default: the
+class attributes below, ``Options`` (its typed build options), ``render_batch`` and ``loss``. Nothing
+outside ``nerf_core/methods`` probes a model for attributes, so a new method is one class in one file
+that sets what differs from these defaults, implements ``render_rays`` and registers with
+``@register("name")``.
 """
 from __future__ import annotations
 
-import math
-from typing import Dict, Optional
+from typing import ClassVar, Dict, Mapping, Optional, Tuple
 
 import torch
 from torch import nn
 
 from nerf_core.cameras.rays import ray_bounds
 from nerf_core.data.scene_box import box_length_unit
+from nerf_core.image.losses import masked_mse
+from nerf_core.methods.options import MAX_GRID_RES, MethodOptions, PluginOptions
 
-MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
-
-
-def check_options(name: str, defaults: dict, options: dict, positive=(), fractions=(), shares=(), grids=()) -> None:
-    """Refuse (ValueError naming the option) unknown ``--set`` names and values of the wrong kind.
-
-    The kind comes from the default: a bool option takes true/false, an int option a whole number
-    >= 0, a float option a finite number >= 0, a list of numbers a list of finite numbers. Options in
-    ``positive`` must be > 0, in ``fractions`` lie in (0, 1), in ``shares`` in [0, 1], and in ``grids`` (resolutions, cells
-    per axis) lie in 2..MAX_GRID_RES. String options are checked by their methods.
-    """
-    unknown = set(options) - set(defaults)
-    if unknown:
-        raise ValueError(f"{name}: unknown options {sorted(unknown)}; known: {sorted(defaults)}")
-
-    def bad(key, want):
-        return ValueError(f"{name}: option {key!r} must be {want}, got {options[key]!r}")
-
-    for key, value in options.items():
-        default = defaults[key]
-        if isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise bad(key, "true or false")
-            continue
-        if isinstance(default, int) or (default is None and key in grids):
-            if value is None and default is None:
-                continue
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise bad(key, "a whole number >= 0")
-        elif isinstance(default, float):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise bad(key, "a finite number >= 0")
-        elif isinstance(default, list):
-            if (not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, (int, float))
-                                                   or not math.isfinite(v) for v in value)):
-                raise bad(key, "a list of numbers, e.g. [0.1,0.2]")
-            continue
-        else:
-            continue
-        if key in positive and value <= 0:
-            raise bad(key, "greater than 0")
-        if key in fractions and not 0 < value < 1:
-            raise bad(key, "between 0 and 1 (exclusive)")
-        if key in shares and not 0 <= value <= 1:
-            raise bad(key, "between 0 and 1")
-        if key in grids and not 2 <= value <= MAX_GRID_RES:
-            raise bad(key, f"between 2 and {MAX_GRID_RES} cells per axis")
-
-
-DENSITY_UNITS = ("box", "scene")
-
-
-def check_density_unit(name: str, options: dict) -> None:
-    """Refuse a ``density_unit`` option other than "box" or "scene" (ValueError naming it)."""
-    unit = options.get("density_unit", "box")
-    if unit not in DENSITY_UNITS:
-        raise ValueError(f"{name}: option 'density_unit' must be one of {', '.join(DENSITY_UNITS)}, got {unit!r}")
+__all__ = ["RadianceModel", "MAX_GRID_RES", "density_length"]
 
 
 def density_length(aabb: torch.Tensor, unit: str) -> float:
@@ -81,40 +29,76 @@ def density_length(aabb: torch.Tensor, unit: str) -> float:
 
 
 class RadianceModel(nn.Module):
-    """Base class of every method: an ``nn.Module`` that renders batches of rays (``render_rays``).
+    """Base class of every method: an ``nn.Module`` that renders batches of rays.
 
-    Subclasses store what they need to be rebuilt in ``self.options`` (a JSON-able dict): the trainer
-    saves ``method_name`` and ``options`` in checkpoints and calls ``build_model`` to restore. A new
-    method implements ``render_rays`` (rays_o, rays_d (n_rays, 3), near, far (n_rays,), background
-    (n_rays, 3) -> dict with ``rgb`` (n_rays, 3), ``depth`` (n_rays,), ``acc`` (n_rays,)) and registers
-    itself with ``@register("name")``; the other methods have working defaults.
+    A subclass implements ``render_rays`` and may override the class attributes, ``Options`` and the
+    hooks below; everything else has a working default.
 
     Args:
         aabb: (2, 3) scene box [min corner, max corner] (anything ``torch.as_tensor`` takes); kept as
             the float32 buffer ``self.aabb``.
-        **options: the method's build options, kept in ``self.options``.
+        **options: the method's build options, checked by ``Options.parse`` and kept as ``self.opts``.
+
+    Raises:
+        ValueError: an option the method does not have, or a value out of its bounds.
     """
 
-    method_name = "base"
+    method_name: ClassVar[str] = "base"
+    # The typed build options (``methods.options``). A method that declares none keeps what it is given.
+    Options: ClassVar[type] = PluginOptions
+    # Options a variant fixes whatever it is given (``nerf-nope``: use_pe false).
+    forced_options: ClassVar[Dict[str, object]] = {}
     # Options added after checkpoints existed -> the value that matches how those checkpoints were
-    # trained (``saved_options``). New runs get ``defaults``.
-    options_before: dict = {}
-    environment_lr = 0.02  # Adam step for the environment's texture logits, at the method's default_lr
+    # trained (``registry.saved_options``). New runs get the defaults.
+    options_before: ClassVar[Dict[str, object]] = {}
+
+    # Training defaults, read by the trainer when the run does not set them.
+    default_lr: ClassVar[float] = 5e-4  # base learning rate (``--lr``)
+    default_batch_rays: ClassVar[int] = 1024  # rays per step on a CPU (``--batch-rays``; 4x on CUDA)
+    warmup_steps: ClassVar[Optional[int]] = None  # LR warm-up; None: 5 % of the step budget, at most 100
+    default_max_steps: ClassVar[int] = 5000  # the budget when neither --max-steps nor --max-seconds is given
+    adam_eps: ClassVar[float] = 1e-15
+    environment_lr: ClassVar[float] = 0.02  # Adam step for the environment's texture, at ``default_lr``
+    # Rendering without grad on a CPU: at most this many rays a model call (``render.frame``).
+    cpu_call_rays: ClassVar[int] = 512
     # Weights (state-dict names) that grow during training (coarse-to-fine grids), each with the
     # dimensions that grow: a checkpoint may hold them at another size than a fresh build along those
     # dimensions (``runs.checkpoint_checks.check_weights``); no other weight or dimension may.
-    growing: dict = {}
+    growing: ClassVar[Dict[str, Tuple[int, ...]]] = {}
+    # True when rays run on past the box (scene contraction): no ray misses the scene then.
+    contracted: bool = False
 
     def __init__(self, aabb: torch.Tensor, **options):
         super().__init__()
         self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
-        self.options = dict(options)
-        self.environment = None  # an EnvironmentMap when the run models a visible world
+        self.opts: MethodOptions = self.parse_options(options)
+        self.environment: Optional[nn.Module] = None  # an EnvironmentMap when the run models a visible world
 
-    def kernels(self, device: torch.device) -> Dict[str, str]:
-        """Which implementation each of the method's hot loops takes on ``device`` (for the ``start``
-        event): name -> a short description, containing "fallback" when a slower path stands in."""
+    # ------------------------------------------------------------------ options and state
+
+    @classmethod
+    def parse_options(cls, options: Mapping[str, object]) -> MethodOptions:
+        """The typed options for ``options`` (the ``environment`` entry excluded: ``build_model`` attaches
+        it), with ``forced_options`` applied. Raises ValueError naming a bad option."""
+        given = {k: v for k, v in dict(options).items() if k != "environment"}
+        return cls.Options.parse(cls.method_name, {**given, **cls.forced_options})
+
+    @property
+    def options(self) -> Dict[str, object]:
+        """The build options as the JSON-able dict that checkpoints save and ``build_model`` takes back,
+        with ``environment`` (the learned world's options) when there is one."""
+        out = self.opts.to_dict()
+        if self.environment is not None:
+            out["environment"] = dict(self.environment.options)
+        return out
+
+    def run_state(self) -> Dict[str, object]:
+        """What training changed that the options do not say (vmgrid: its grid size), as JSON-able
+        values; checkpoints save it as ``method_state`` and ``restore_run_state`` takes it back."""
         return {}
+
+    def restore_run_state(self, state: Mapping[str, object]) -> None:
+        """Take back a checkpoint's ``run_state`` before its weights are checked and loaded."""
 
     def upgrade_checkpoint(self, weights: dict, optimizer_state: Optional[dict] = None) -> tuple:
         """(weights, optimiser state) of a checkpoint saved by an older version, in this version's layout,
@@ -122,10 +106,22 @@ class RadianceModel(nn.Module):
         Methods whose stored layout changed override this; by default both come back as they are."""
         return weights, optimizer_state
 
+    def kernels(self, device: torch.device) -> Dict[str, str]:
+        """Which implementation each of the method's hot loops takes on ``device`` (for the ``start``
+        event): name -> a short description, containing "fallback" when a slower path stands in."""
+        return {}
+
+    # ------------------------------------------------------------------ the world behind the scene
+
     def attach_environment(self, env: nn.Module) -> None:
         """Model the background as light from infinity (``nerf_core.fields.environment``); recorded in options."""
         self.environment = env
-        self.options["environment"] = dict(env.options)
+
+    @property
+    def models_world(self) -> bool:
+        """True when the run learned the world behind the scene: renders are then opaque, and the
+        background colour a caller gives is replaced by the learned one."""
+        return self.environment is not None
 
     def background(self, rays_d: torch.Tensor, default: torch.Tensor) -> torch.Tensor:
         """Colour (n_rays, 3) behind each ray: the learned environment when there is one, else ``default``
@@ -134,50 +130,84 @@ class RadianceModel(nn.Module):
             return self.environment(rays_d)
         return default.expand(rays_d.shape[0], 3)
 
-    def render_rays(
-        self,
-        rays_o: torch.Tensor,
-        rays_d: torch.Tensor,
-        near: torch.Tensor,
-        far: torch.Tensor,
-        background: torch.Tensor,
-        training: bool,
-    ) -> Dict[str, torch.Tensor]:
-        """Render a batch of rays.
+    # ------------------------------------------------------------------ rendering and loss
+
+    def render_batch(self, rays_o: torch.Tensor, rays_d: torch.Tensor, background: torch.Tensor,
+                     near: Optional[float] = None, far: Optional[float] = None,
+                     training: bool = False) -> Dict[str, torch.Tensor]:
+        """Render a batch of camera rays: the method's ray interval, its background, then ``render_rays``.
 
         Args:
             rays_o: (n_rays, 3) origins in world space.
             rays_d: (n_rays, 3) unit directions.
-            near, far: (n_rays,) ray interval, already clipped to the scene box by the caller.
+            background: (3,) or (n_rays, 3) colour behind the scene (replaced by the learned world when
+                the model has one).
+            near, far: the dataset's ray bounds in scene units, or None.
+            training: True inside the optimisation loop (jitter, noise, regularisers).
+
+        Returns:
+            what ``render_rays`` returns.
+        """
+        t0, t1 = self.ray_interval(rays_o, rays_d, near, far)
+        bg = self.background(rays_d, background)
+        return self.render_rays(rays_o, rays_d, t0, t1, bg, training)
+
+    def render_rays(self, rays_o: torch.Tensor, rays_d: torch.Tensor, near: torch.Tensor, far: torch.Tensor,
+                    background: torch.Tensor, training: bool) -> Dict[str, torch.Tensor]:
+        """Render a batch of rays over a given interval (``render_batch`` computes it).
+
+        Args:
+            rays_o: (n_rays, 3) origins in world space.
+            rays_d: (n_rays, 3) unit directions.
+            near, far: (n_rays,) ray interval (``ray_interval``).
             background: (n_rays, 3) colour composited behind the accumulated opacity.
             training: True inside the optimisation loop (enables jitter and noise).
 
         Returns:
             dict with ``rgb`` (n_rays, 3), ``depth`` (n_rays,) distance along the ray, ``acc``
-            (n_rays,) opacity, and optionally ``rgb_coarse`` (n_rays, 3), ``aux_loss`` (scalar) and
-            ``n_samples`` (int, samples evaluated for this batch).
+            (n_rays,) opacity, and optionally ``aux_loss`` (scalar, added by ``loss``), ``n_samples``
+            (int, samples evaluated for this batch) and what the method's own ``loss`` reads.
         """
         raise NotImplementedError
 
     def ray_interval(self, rays_o: torch.Tensor, rays_d: torch.Tensor, near: float | None = None,
                      far: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """The (n_rays,), (n_rays,) interval each ray is rendered over, handed back to ``render_rays``:
-        the scene box clipped to the dataset's ``near``/``far``. Methods that model the world beyond the
-        box (scene contraction) override it."""
-
+        """The (n_rays,), (n_rays,) interval each ray is rendered over: the scene box clipped to the
+        dataset's ``near``/``far``. Methods that model the world beyond the box override it."""
         return ray_bounds(rays_o, rays_d, self.aabb, near, far)
+
+    def loss(self, out: Dict[str, torch.Tensor], target: torch.Tensor,
+             weight: Optional[torch.Tensor]) -> Tuple[torch.Tensor, torch.Tensor]:
+        """The training loss of a rendered batch.
+
+        Args:
+            out: what ``render_batch`` returned for the batch (``rgb`` (n, 3), optional ``aux_loss``).
+            target: (n, 3) the pixels' colours.
+            weight: (n,) per-ray weights of the colour error, or None.
+
+        Returns:
+            (loss, mse): scalar tensors; ``mse`` is the colour error that the PSNR is reported from.
+            A method extends the loss by overriding this and adding to ``super().loss(...)``'s.
+        """
+        mse = masked_mse(out["rgb"], target, weight)
+        loss = mse
+        if out.get("aux_loss") is not None:
+            loss = loss + out["aux_loss"]
+        return loss, mse
+
+    # ------------------------------------------------------------------ optimisation
 
     def param_groups(self, lr: float) -> list[dict]:
         """Optimiser parameter groups of the method itself (the environment's group is added by
         ``optimizer_groups``); override to give grids and MLPs different learning rates."""
-        return [{"params": [p for n, p in self.named_parameters() if p.requires_grad and not n.startswith("environment.")],
-                 "lr": lr}]
+        return [{"params": [p for n, p in self.named_parameters() if p.requires_grad
+                            and not n.startswith("environment.")], "lr": lr}]
 
     def optimizer_groups(self, lr: float) -> list[dict]:
         """Every parameter group the trainer optimises: the method's, then the environment's."""
         groups = self.param_groups(lr)
         if self.environment is not None:
-            scale = lr / float(getattr(self, "default_lr", lr) or lr)
+            scale = lr / self.default_lr
             groups.append({"params": list(self.environment.parameters()), "lr": self.environment_lr * scale,
                            "name": "environment"})
         return groups
@@ -220,6 +250,8 @@ class RadianceModel(nn.Module):
         """
         return {}, [f"no sizing rule for method {cls.method_name!r}: using its defaults"]
 
+    # ------------------------------------------------------------------ reporting
+
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())
 
@@ -231,6 +263,9 @@ class RadianceModel(nn.Module):
     def describe(self) -> dict:
         """What was built and why (reported by the trainer in the ``start`` event and config.json)."""
         out = {"method": self.method_name, "options": self.options, "n_params": self.num_parameters()}
+        state = self.run_state()
+        if state:
+            out["state"] = state
         if self.environment is not None:
             out["environment_params"] = sum(p.numel() for p in self.environment.parameters())
         return out

@@ -43,12 +43,9 @@ import math
 import torch
 
 from nerf_core.fields.mlp import NeRFMLP
-from nerf_core.methods.base import (
-    RadianceModel,
-    check_density_unit,
-    check_options,
-    density_length,
-)
+from nerf_core.image.losses import masked_mse
+from nerf_core.methods.base import RadianceModel, density_length
+from nerf_core.methods.nerf_options import NeRFOptions
 from nerf_core.methods.registry import register
 from nerf_core.utils import profiling
 from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
@@ -56,93 +53,36 @@ from nerf_core.volume.occupancy import OccupancyGrid
 
 Tensor = torch.Tensor
 
-SAMPLERS = ("occupancy", "hierarchical")
-
 
 @register("nerf")
 class NeRF(RadianceModel):
-    """Mildenhall et al. 2020. Options (all JSON-able):
-
-        width, depth, skip, pos_freqs, dir_freqs: the network (``NeRFMLP``); ``use_pe`` False feeds raw
-            coordinates (``nerf-nope``).
-        density_activation: ``"exp"`` (default, Instant-NGP's) or ``"softplus"`` (this library's
-            before). On the multi demo scene at 200 px, 5 min of one core: 31.3 dB with exp against
-            28.5 dB with softplus; hard surfaces form sooner, so texture sharpens and the occupancy grid
-            prunes more (3362 against 2097 steps in the same time).
-        sampler: ``"occupancy"`` or ``"hierarchical"`` (see the module docstring).
-        march_steps: marching steps per box diagonal once the occupancy grid prunes (occupancy sampler).
-        warmup_step_scale: the step is this many times coarser until the grid first prunes, when
-            every ray still crosses the whole box.
-        occ_res, occ_every: occupancy grid cells per axis, and training steps between its updates.
-        occ_decay: how much of a cell's remembered density survives an update (the grid keeps the
-            maximum of that and the new value). Lower than a grid method's 0.95: an MLP's initial
-            density is a fog over the whole box (softplus(-1) ~ 0.3 per unit length) that a slow decay
-            would remember for hundreds of steps, while the network has long learnt the space empty.
-        occ_alpha: a cell is occupied when one fine step there would be more opaque than this. nerfacc's
-            0.01 rather than a grid method's 0.001: an MLP's density in empty space sinks only slowly
-            towards zero (softplus), and at 0.001 the grid of the multi demo scene was still 100 %
-            occupied after 120 steps (median empty-space density 0.07, threshold 0.06).
-        train_ert: early ray termination while training: "auto" (measured, see the module docstring),
-            true or false.
-        ert_probe_every: while "auto" has it off, steps between two measurements of what it would keep.
-        n_coarse, n_fine: samples per ray of the hierarchical sampler's two networks.
-        grad_reach: share of the box diagonal within which a camera's samples learn with
-            distance-scaled gradients (``nerf_core.volume.grad_scaling``); 0 disables it.
-        view_dependent: False: the colour head gets no view direction (``encodings.direction_encoding``);
-            ``nerf-noview`` is nerf with it off (the paper's ablation of the direction input).
-        density_unit: "box" (default): the network's density is per ``scene_box.box_length_unit``, so
-            its initial fog and the raw values a surface needs are the same at every scene scale;
-            "scene": per scene unit, as checkpoints before this option were trained (``options_before``).
-    """
+    """Mildenhall et al. 2020; its options are ``NeRFOptions`` (why each default, with measurements:
+    docs/METHODS.md)."""
 
     # 1024 rays a step keeps the per-step overhead (sampling, the optimiser) small against the MLP work
     # of ~20 k samples. The rate is twice the paper's 5e-4 (not A/B-tested against it); on highfreq at
     # 200 px, 5 min of one core, 3e-3 gave 20.1 dB and 4096 rays 19.9 dB against 20.0 dB for these.
+    Options = NeRFOptions
     default_lr = 1e-3
     default_batch_rays = 1024
     warmup_steps = 50
-    defaults = dict(width=128, depth=4, skip=2, pos_freqs=10, dir_freqs=4, use_pe=True, density_activation="exp",
-                    sampler="occupancy", march_steps=128, warmup_step_scale=4.0, occ_res=48, occ_every=16,
-                    occ_decay=0.8, occ_alpha=0.01, train_ert="auto", ert_probe_every=25,
-                    n_coarse=32, n_fine=64, grad_reach=grad_scaling.DEFAULT_REACH_SHARE, density_unit="box",
-                    view_dependent=True)
     options_before = {"density_unit": "scene"}
 
-    @classmethod
-    def validate_options(cls, options: dict) -> None:
-        """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
-        a run folder is made (``TrainConfig.check``) and when a model is built."""
-        check_options(cls.method_name, cls.defaults, options,
-                      positive=("width", "depth", "march_steps", "warmup_step_scale", "occ_every", "n_coarse",
-                                "ert_probe_every"),
-                      fractions=("occ_alpha",), shares=("occ_decay",), grids=("occ_res",))
-        ert = options.get("train_ert", "auto")
-        if not (isinstance(ert, bool) or ert == "auto"):
-            raise ValueError(f"{cls.method_name}: option 'train_ert' must be true, false or \"auto\", "
-                             f"got {options['train_ert']!r}")
-        if options.get("sampler", cls.defaults["sampler"]) not in SAMPLERS:
-            raise ValueError(f"{cls.method_name}: option 'sampler' must be one of {', '.join(SAMPLERS)}, "
-                             f"got {options['sampler']!r}")
-        check_density_unit(cls.method_name, options)
-
     def __init__(self, aabb: Tensor, **options):
-        self.validate_options(options)
-        opts = {**self.defaults, **options}
-        super().__init__(aabb, **opts)
-        net = dict(use_pe=opts["use_pe"], pos_freqs=opts["pos_freqs"], dir_freqs=opts["dir_freqs"],
-                   width=opts["width"], depth=opts["depth"], skip=opts["skip"],
-                   density_activation=opts["density_activation"],
-                   length_unit=density_length(self.aabb, opts["density_unit"]),
-                   view_dependent=opts["view_dependent"])
+        super().__init__(aabb, **options)
+        o: NeRFOptions = self.opts
+        net = dict(use_pe=o.use_pe, pos_freqs=o.pos_freqs, dir_freqs=o.dir_freqs, width=o.width, depth=o.depth,
+                   skip=o.skip, density_activation=o.density_activation,
+                   length_unit=density_length(self.aabb, o.density_unit), view_dependent=o.view_dependent)
         self._net_options = net
         # ``coarse`` is the only network of the occupancy sampler (the name keeps checkpoints loadable).
         self.coarse = NeRFMLP(self.aabb, **net)
         self.fine = None
         self.occupancy = None
-        if opts["sampler"] == "hierarchical":
-            self.fine = NeRFMLP(self.aabb, **net) if opts["n_fine"] > 0 else None
+        if o.sampler == "hierarchical":
+            self.fine = NeRFMLP(self.aabb, **net) if o.n_fine > 0 else None
         else:
-            self.occupancy = OccupancyGrid(self.aabb, opts["occ_res"])
+            self.occupancy = OccupancyGrid(self.aabb, o.occ_res)
         self.render_chunk = 1 << 16  # samples per no-grad network call (bounds activation memory)
         # Samples per ray per front-to-back round of early termination (rendering, and the no-grad pass
         # of training): an MLP sample costs far more than a round's bookkeeping, so rounds are short.
@@ -156,7 +96,7 @@ class NeRF(RadianceModel):
         pos_freqs = int(max(4, min(12, math.ceil(math.log2(max(2.0, fine_res))))))
         width = 64 if texture < 0.35 else 128
         opts, reasons = dict(width=width), []
-        if cls.defaults["use_pe"]:  # without the encoding (nerf-nope) there are no frequencies to size
+        if cls.parse_options({}).use_pe:  # without the encoding (nerf-nope) there are no frequencies to size
             opts["pos_freqs"] = pos_freqs
             reasons.append(f"{pos_freqs} positional-encoding frequencies: the finest period matches ~2 pixel footprints")
         reasons.append(f"MLP width {width} from the texture probe")
@@ -164,10 +104,10 @@ class NeRF(RadianceModel):
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         # A checkpoint from before the occupancy sampler: a coarse and a fine network, no grid.
-        if self.options["sampler"] == "occupancy" and any(k.startswith("fine.") for k in state_dict) \
+        if self.opts.sampler == "occupancy" and any(k.startswith("fine.") for k in state_dict) \
                 and not any(k.startswith("occupancy.") for k in state_dict):
-            self.options["sampler"] = "hierarchical"
-            self.options["density_activation"] = "softplus"  # the only one there was
+            self.opts.sampler = "hierarchical"
+            self.opts.density_activation = "softplus"  # the only one there was
             self._net_options["density_activation"] = "softplus"
             self.occupancy = None
             self.coarse = NeRFMLP(self.aabb, **self._net_options).to(self.aabb.device)
@@ -179,13 +119,12 @@ class NeRF(RadianceModel):
     def step_size(self) -> float:
         """Marching step in scene units: ``march_steps`` per box diagonal, coarser until the grid prunes."""
         diag = float((self.aabb[1] - self.aabb[0]).norm())
-        step = diag / float(self.options["march_steps"])
+        step = diag / float(self.opts.march_steps)
         pruned = self.occupancy is not None and self.occupancy.occupied_fraction < 0.95
-        return step if pruned else step * float(self.options["warmup_step_scale"])
+        return step if pruned else step * float(self.opts.warmup_step_scale)
 
     def training_hook(self, step, frac) -> bool:
-        o = self.options
-        if self.occupancy is not None and step > 0 and step % o["occ_every"] == 0:
+        if self.occupancy is not None and step > 0 and step % self.opts.occ_every == 0:
             self.update_occupancy()
         return False
 
@@ -194,8 +133,8 @@ class NeRF(RadianceModel):
         """Refresh the grid from the network's density at a jittered point in every cell. The threshold
         uses the fine step, so cells whose samples would stay transparent are skipped once pruning starts."""
         diag = float((self.aabb[1] - self.aabb[0]).norm())
-        self.occupancy.update(self._density_chunked, diag / float(self.options["march_steps"]),
-                              alpha_threshold=float(self.options["occ_alpha"]), decay=float(self.options["occ_decay"]))
+        self.occupancy.update(self._density_chunked, diag / float(self.opts.march_steps),
+                              alpha_threshold=float(self.opts.occ_alpha), decay=float(self.opts.occ_decay))
 
     def _density_chunked(self, pts: Tensor) -> Tensor:
         """(m, 3) -> (m,) density without grad, in chunks, marked as the profile's ``field`` stage."""
@@ -221,7 +160,7 @@ class NeRF(RadianceModel):
             dirs = rays_d[ridx]
             with profiling.stage("field"):
                 sigma, rgb = self.coarse(pts, dirs)
-            scale = grad_scaling.near_camera_scales(mids, grad_scaling.reach_for_box(self.aabb, self.options["grad_reach"]))
+            scale = grad_scaling.near_camera_scales(mids, grad_scaling.reach_for_box(self.aabb, self.opts.grad_reach))
             if scale is not None:  # cameras inside the box: even out the gradient near each lens
                 sigma, rgb = grad_scaling.scale_gradient(sigma, scale), grad_scaling.scale_gradient(rgb, scale)
             with profiling.stage("rendering"):
@@ -246,7 +185,7 @@ class NeRF(RadianceModel):
     def _use_ert(self) -> bool:
         """Whether this training render terminates rays early (``train_ert``; "auto": see the module
         docstring). Called once per training render; counts down to the next measurement."""
-        mode = self.options["train_ert"]
+        mode = self.opts.train_ert
         if mode != "auto":
             return bool(mode)
         if self._ert_keep is not None and self._ert_keep < self.ERT_WORTH:
@@ -254,7 +193,7 @@ class NeRF(RadianceModel):
         self._ert_wait -= 1
         if self._ert_wait > 0:
             return False
-        self._ert_wait = int(self.options["ert_probe_every"])
+        self._ert_wait = int(self.opts.ert_probe_every)
         return True
 
     @torch.no_grad()
@@ -312,7 +251,7 @@ class NeRF(RadianceModel):
         # Rays that miss the box have empty intervals at t = 0 and carry no weight: leave them out.
         dist = torch.where(t_ends > t_starts, mids, torch.full_like(mids, float("inf")))
         scale = grad_scaling.near_camera_scales(dist.reshape(-1), grad_scaling.reach_for_box(
-            self.aabb, self.options["grad_reach"])) if training else None
+            self.aabb, self.opts.grad_reach)) if training else None
         if scale is not None:
             sigma, rgb = grad_scaling.scale_gradient(sigma, scale), grad_scaling.scale_gradient(rgb, scale)
         n, s = mids.shape
@@ -320,20 +259,28 @@ class NeRF(RadianceModel):
             return volrend.render_rays_dense(t_starts, t_ends, sigma.reshape(n, s), rgb.reshape(n, s, 3), background)
 
     def _render_hierarchical(self, rays_o, rays_d, near, far, background, training):
-        o = self.options
+        o = self.opts
         with profiling.stage("sampling"):
-            edges = sampling.stratified_samples(near, far, o["n_coarse"], jitter=training)
+            edges = sampling.stratified_samples(near, far, o.n_coarse, jitter=training)
         coarse = self._render_dense(self.coarse, rays_o, rays_d, edges, background, training)
-        n_samples = rays_o.shape[0] * o["n_coarse"]
+        n_samples = rays_o.shape[0] * o.n_coarse
         if self.fine is None:
             return {"rgb": coarse["rgb"], "depth": coarse["depth"], "acc": coarse["acc"], "n_samples": n_samples}
         with profiling.stage("sampling"):
-            new_t = sampling.importance_samples(edges, coarse["weights"], o["n_fine"], deterministic=not training)
+            new_t = sampling.importance_samples(edges, coarse["weights"], o.n_fine, deterministic=not training)
             fine_edges = sampling.merge_edges(edges, new_t)
         fine = self._render_dense(self.fine, rays_o, rays_d, fine_edges, background, training)
         n_samples += rays_o.shape[0] * (fine_edges.shape[1] - 1)
         return {"rgb": fine["rgb"], "depth": fine["depth"], "acc": fine["acc"], "rgb_coarse": coarse["rgb"],
                 "n_samples": n_samples}
+
+    def loss(self, out, target, weight):
+        """The base loss, plus the hierarchical sampler's coarse network's colour error (the paper's)."""
+        if "rgb_coarse" not in out:
+            return super().loss(out, target, weight)
+        mse = masked_mse(out["rgb"], target, weight)
+        loss = mse + masked_mse(out["rgb_coarse"], target, weight)
+        return (loss + out["aux_loss"] if out.get("aux_loss") is not None else loss), mse
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         if self.occupancy is not None:
@@ -346,11 +293,7 @@ class NeRFNoPE(NeRF):
     """``nerf`` fed raw coordinates (no positional encoding): the known-blurry baseline that shows why
     the encoding matters. Same options as ``nerf``; ``use_pe`` is forced off."""
 
-    defaults = {**NeRF.defaults, "use_pe": False}
-
-    def __init__(self, aabb: Tensor, **options):
-        options["use_pe"] = False
-        super().__init__(aabb, **options)
+    forced_options = {"use_pe": False}
 
 
 @register("nerf-noview")
@@ -358,8 +301,4 @@ class NeRFNoView(NeRF):
     """``nerf`` whose colour ignores the view direction (``view_dependent`` forced off): the paper's
     ablation showing that the direction input is what reproduces highlights. Same options as ``nerf``."""
 
-    defaults = {**NeRF.defaults, "view_dependent": False}
-
-    def __init__(self, aabb: Tensor, **options):
-        options["view_dependent"] = False
-        super().__init__(aabb, **options)
+    forced_options = {"view_dependent": False}

@@ -53,7 +53,7 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
     Args:
         name: a registered method (``available_methods()``).
         aabb: (2, 3) float scene box.
-        **options: the method's build options (its ``defaults`` overridden), plus ``environment``.
+        **options: the method's build options (over its ``Options``' defaults), plus ``environment``.
 
     Returns:
         The new model (a ``RadianceModel``, in training mode, on the CPU).
@@ -77,10 +77,27 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
 def saved_options(name: str, options: dict) -> dict:
     """The options a checkpoint of method ``name`` was trained with: ``options`` as saved, plus, for
     each option added after the checkpoint was written, the value that behaviour had before the
-    option existed (the method's ``options_before``). A checkpoint's model must be rebuilt as it
-    was trained, not with today's defaults; ``train --resume`` and every loader go through here."""
-    before = getattr(method_class(name), "options_before", {})
-    return {**before, **options}
+    option existed (the method's ``options_before``), less the run state that older checkpoints kept
+    among the options (``Options.RUN_STATE_KEYS``; ``saved_run_state`` reads it). A checkpoint's
+    model must be rebuilt as it was trained, not with today's defaults; ``train --resume`` and every
+    loader go through here."""
+    cls = method_class(name)
+    if cls is None:
+        return dict(options)
+    state_keys = cls.Options.RUN_STATE_KEYS
+    return {k: v for k, v in {**cls.options_before, **options}.items() if k not in state_keys}
+
+
+def saved_run_state(name: str, ckpt: dict) -> dict:
+    """The run state (``RadianceModel.run_state``) a checkpoint of method ``name`` holds: its
+    ``method_state``, or, in a checkpoint written before that entry, the state keys of its options."""
+    state = ckpt.get("method_state")
+    if isinstance(state, dict):
+        return dict(state)
+    cls, options = method_class(name), ckpt.get("options")
+    if cls is None or not isinstance(options, dict):
+        return {}
+    return {k: options[k] for k in cls.Options.RUN_STATE_KEYS if k in options}
 
 
 def method_class(name: str) -> Optional[type]:
@@ -89,5 +106,6 @@ def method_class(name: str) -> Optional[type]:
 
 
 def has_option(name: str, key: str) -> bool:
-    """Whether the method registered as ``name`` takes option ``key`` (a key of its ``defaults``)."""
-    return key in getattr(method_class(name), "defaults", {})
+    """Whether the method registered as ``name`` declares option ``key`` (a field of its ``Options``)."""
+    cls = method_class(name)
+    return cls is not None and key in cls.Options.declared()

@@ -15,8 +15,8 @@ Rendering without grad (``render``, ``eval``) keeps the same samples, evaluates 
 Coarse-to-fine: the planes start at ``res_init`` and are resampled up to ``res_final`` at fixed fractions
 of the training budget (the fraction the trainer hands to ``training_hook``, ``contract.budget_fraction``);
 ``training_hook`` returns True then so the trainer rebuilds its optimiser.
-``options["resolution"]`` always holds the current size, so ``build_model(name, aabb, **options)``
-rebuilds a model whose shapes match a checkpoint saved after growth.
+The current size is run state, not an option (``run_state``): a model built from a checkpoint's
+options starts at ``res_init`` and grows to the checkpoint's size when its weights load.
 """
 from __future__ import annotations
 
@@ -27,13 +27,9 @@ import torch
 from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
 from nerf_core.methods import growth
-from nerf_core.methods.base import (
-    RadianceModel,
-    check_density_unit,
-    check_options,
-    density_length,
-)
+from nerf_core.methods.base import MAX_GRID_RES, RadianceModel, density_length
 from nerf_core.methods.registry import register
+from nerf_core.methods.vmgrid_options import VMGridOptions
 from nerf_core.utils import profiling
 from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
 from nerf_core.volume.contraction import contract, outer_box
@@ -44,132 +40,49 @@ Tensor = torch.Tensor
 
 @register("vmgrid")
 class VMGrid(RadianceModel):
-    """Options (JSON-able):
-        res_init, res_final: plane size at the start and at the end of growth (cells per axis).
-        resolution: current plane size (kept up to date by growth; defaults to res_init).
-        upsample_at: fractions of the training budget at which to grow (log-spaced sizes).
-        budget_growth_steps, res_budget_max: the last growth stage goes beyond res_final when the run
-            is predicted to make more than ``budget_growth_steps`` steps (``methods.growth``: steps so
-            far / budget share spent, when that stage is due; 0: never), up to ``res_budget_max``.
-            ``res_final_budget`` records the size so chosen (None until then), for resuming.
-        density_rank, app_rank, app_dim, mlp_width, view_freqs: field size (see ``TensorVMField``).
-        occ_res: occupancy grid cells per axis; occ_every: steps between occupancy updates.
-        occ_alpha, occ_decay, occ_dilate_formed, occ_probe: how tightly the occupancy grid hugs the
-            geometry (``OccupancyGrid.update``). A cell stays occupied while one marching step there would
-            be more opaque than ``occ_alpha``; its remembered density keeps ``occ_decay`` of itself per
-            update; the one-cell dilation that lets forming geometry spread continues after ``formed()``
-            only if ``occ_dilate_formed``. ``occ_probe`` is how an update reads a cell's density:
-            "random", at one random point in the cell (nerfacc's way), or "max", a bound that no point in
-            the cell exceeds (``TensorVMField.density_cell_max``: the largest density at the corners of
-            the field cells it overlaps, from the dense density volume; 68 ms at res 160 into 64^3 cells,
-            less than 262k random-point lookups).
-            The defaults are tight: density above alpha 0.01, a short memory (0.5), no shell once
-            formed, read with "max". The old defaults (1e-3, 0.95, a shell, "random") left 63 % of the
-            samples surviving early termination on the multi demo scene nearly transparent (alpha <
-            1e-3), 44 % in shell-only cells. Tight with "random" holed the diffuse sphere (39.64 against
-            41.57 dB): with no shell and a short memory, a cell that a surface only clips dropped out when
-            its one probe missed; "max" cannot miss. Tight against old, 5 min on one core, two runs
-            side by side per scene (200 px demo captures; PSNR dB of ``eval --views 5`` on the final
-            checkpoint, steps; docs/benchmarks/vmgrid200/summary.md):
-                diffuse 42.10 / 41.89 (1954 / 1969)    glossy 36.50 / 36.33 (2051 / 1904)
-                multi 36.67 / 35.77 (2625 / 1594)      thin 36.00 / 35.51 (5030 / 1873)
-                highfreq 32.81 / 32.86 (3029 / 2949)   hdri 30.32 / 29.73 (3218 / 1434)
-                interior 29.61 / 28.39 (520 / 310)
-        color_weight: the colour path runs only at samples whose compositing weight exceeds this (and
-            on rays still almost transparent, see ``render_rays``); skipped samples add no colour, so a
-            larger value darkens rays slightly. With a tight grid ("random" probe), 1e-3 halved the colour
-            work on multi (36.91 against 36.72 dB, 3662 against 2771 steps); it was not measured on the
-            other scenes, so the default stays 1e-4.
-        step_ratio: marching step in voxels; l1_weight, tv_weight: regulariser weights (aux_loss); the
-            density L1 starts once the occupancy grid prunes (see ``render_rays``).
-        alpha_init: opacity of one marching step of the initial grid at initialisation (nearly
-            transparent, like TensoRF's shift of -10: space starts empty and the occupancy grid prunes
-            whatever never gains density, including space no camera sees).
-        grid_lr_scale: grids learn at ``lr * grid_lr_scale`` (TensoRF uses 0.02 vs 1e-3 for networks).
-        budget_steps: steps assumed for the schedule when ``training_hook`` gets no budget fraction (None).
-        dist_weight: weight of the distortion loss (``volrend.distortion_loss_packed``, distances in box
-            diagonals), which pulls each ray's weight into one short stretch (mip-NeRF 360's remedy for
-            floaters). Off by default: on the interior demo scene 0.01 changed nothing, and 0.05 and 0.2
-            wrecked it (14.5 and 9.3 dB against 29.2-29.7 at 5 minutes; vmgrid200/summary.md).
-        grad_reach: samples nearer the camera than this share of the box diagonal learn with their
-            gradient scaled by (distance / reach)^2 (``nerf_core.volume.grad_scaling``). Cameras inside a room
-            otherwise grow fog screens in front of their lenses: on the interior demo scene, 400 steps
-            gave 20.5 dB with the fog and 31.3 dB with the default 0.24 (2 m there; 5 test views).
-            Cameras outside the box rarely have samples that near; then no scaling op is added at all.
-        density_unit: "box" (default): the field's density is per ``scene_box.box_length_unit`` (the box
-            rescaled to [-1, 1]^3), so a scene modelled in millimetres trains as one in metres; "scene":
-            per scene unit, as every checkpoint before this option was trained (``options_before``).
-        view_dependent: False: the colour ignores the view direction (``encodings.direction_encoding``);
-            ``vmgrid-noview`` is vmgrid with it off, to show what the direction input buys.
-        contract: model the world beyond the box too (``nerf_core.volume.contraction``): the grid spans the
-            contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
-    """
+    """The fast method; its options are ``VMGridOptions`` (why each default, with measurements:
+    docs/METHODS.md). Its run state is the current plane size (``field.resolution``, grown by
+    ``training_hook``) and ``res_final_budget``, the size a long run chose for its last stage."""
 
+    Options = VMGridOptions
     default_lr = 1e-3
-    # Read by the trainer: 2048 rays keep a step short enough for frequent occupancy updates and
-    # growth decisions, while amortising the per-step Python overhead; grids need little LR warm-up.
+    # 2048 rays keep a step short enough for frequent occupancy updates and growth decisions, while
+    # amortising the per-step Python overhead; grids need little LR warm-up.
     default_batch_rays = 2048
     warmup_steps = 20
-    # Read by render.render_rays_chunked: evaluation calls of up to 2048 rays on the CPU (and still about
-    # CPU_SAMPLES_PER_CALL samples). With the tight occupancy grid a ray has ~9 samples, so 512-ray calls
-    # were mostly per-call overhead: trained multi, 4 test views, 2048 against 512 rays a call, median
-    # of 3: 86.9k against 78.0k rays/s at one thread, 91.6k against 78.6k at two (images unchanged).
+    # Evaluation calls of up to 2048 rays on the CPU (and still about CPU_SAMPLES_PER_CALL samples,
+    # ``render.frame``). With the tight occupancy grid a ray has ~9 samples, so 512-ray calls were
+    # mostly per-call overhead: trained multi, 4 test views, 2048 against 512 rays a call, median of 3:
+    # 86.9k against 78.0k rays/s at one thread, 91.6k against 78.6k at two (images unchanged).
     cpu_call_rays = 2048
-    defaults = dict(res_init=48, res_final=160, resolution=None, upsample_at=[0.06, 0.14, 0.24, 0.36],
-                    density_rank=16, app_rank=32, app_dim=27, mlp_width=64, view_freqs=2,
-                    occ_res=64, occ_every=16, occ_alpha=1e-2, occ_decay=0.5, occ_dilate_formed=False,
-                    step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
-                    grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
-                    contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
-                    color_weight=1e-4, occ_probe="max", density_unit="box", view_dependent=True,
-                    budget_growth_steps=growth.BASE_STEPS, res_budget_max=320, res_final_budget=None)
     options_before = {"density_unit": "scene"}
     # Stored channels-last (``tensorf``): planes (3, N, N, R) grow along N, N; lines (3, N, R) along N.
     growing = {"field.density_planes_cl": (1, 2), "field.density_lines_cl": (1,),
                "field.app_planes_cl": (1, 2), "field.app_lines_cl": (1,)}
 
     def __init__(self, aabb: Tensor, **options):
-        self.validate_options(options)
-        opts = {**self.defaults, **options}
-        if opts["resolution"] is None:
-            opts["resolution"] = opts["res_init"]
-        opts["upsample_at"] = [float(f) for f in opts["upsample_at"]]
+        super().__init__(aabb, **options)
+        self.opts: VMGridOptions
         self._budget_known = True  # False once a hook had no budget fraction: the size rule then stays off
-        super().__init__(aabb, **opts)
-        self._build(opts)
+        self.res_final_budget = None  # the last stage's size, once a long run chose it (``growth``)
+        self._build(self.opts)
 
-    @classmethod
-    def validate_options(cls, options: dict) -> None:
-        """Refuse unknown options and values of the wrong kind (ValueError naming the option), before
-        a run folder is made (``TrainConfig.check``) and when a model is built."""
-        check_options(cls.method_name, cls.defaults, options,
-                      positive=("density_rank", "app_rank", "app_dim", "mlp_width", "occ_every", "step_ratio",
-                                "grid_lr_scale", "budget_steps", "warmup_step_scale"),
-                      fractions=("occ_alpha", "alpha_init"), shares=("occ_decay",),
-                      grids=("res_init", "res_final", "resolution", "occ_res", "res_budget_max", "res_final_budget"))
-        if any(not 0 < f < 1 for f in options.get("upsample_at", [])):
-            raise ValueError(f"vmgrid: option 'upsample_at' holds fractions of the budget in (0, 1), "
-                             f"got {options['upsample_at']!r}")
-        if options.get("occ_probe", "max") not in ("random", "max"):
-            raise ValueError(f"vmgrid: occ_probe must be 'random' or 'max', got {options['occ_probe']!r}")
-        check_density_unit("vmgrid", options)
-
-    def _build(self, opts: dict) -> None:
+    def _build(self, o: VMGridOptions) -> None:
         # Density shift from alpha_init at the *initial* grid's step, so a rebuilt model gets the same one.
         extent = (self.aabb[1] - self.aabb[0]).double()
-        step0 = opts["step_ratio"] * float((extent / (opts["res_init"] - 1)).mean())
-        sigma0 = -math.log1p(-opts["alpha_init"]) / step0
+        step0 = o.step_ratio * float((extent / (o.res_init - 1)).mean())
+        sigma0 = -math.log1p(-o.alpha_init) / step0
         # 25 per box unit: the grids' raw values stay a few units for an opaque surface at any scale.
-        density_scale = 25.0 / density_length(self.aabb, opts["density_unit"])
+        density_scale = 25.0 / density_length(self.aabb, o.density_unit)
         shift = math.log(math.expm1(sigma0 / density_scale))  # softplus^-1
         # With contraction the grids span the contracted world (twice the box); points are warped into it.
-        self.contracted = bool(opts["contract"])
+        self.contracted = bool(o.contract)
         field_box = outer_box(self.aabb) if self.contracted else self.aabb
-        self.field = TensorVMField(field_box, resolution=opts["resolution"], density_rank=opts["density_rank"],
-                                   app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
-                                   view_freqs=opts["view_freqs"], seed=opts["seed"], density_shift=shift,
-                                   density_scale=density_scale, view_dependent=opts["view_dependent"])
-        self.occupancy = OccupancyGrid(field_box, opts["occ_res"])
+        self.field = TensorVMField(field_box, resolution=o.res_init, density_rank=o.density_rank,
+                                   app_rank=o.app_rank, app_dim=o.app_dim, mlp_width=o.mlp_width,
+                                   view_freqs=o.view_freqs, seed=o.seed, density_shift=shift,
+                                   density_scale=density_scale, view_dependent=o.view_dependent)
+        self.occupancy = OccupancyGrid(field_box, o.occ_res)
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
         self._acc_ema = 0.0  # running mean opacity of training rays (see ``formed``)
@@ -179,14 +92,14 @@ class VMGrid(RadianceModel):
 
     def resolution_schedule(self) -> list[int]:
         """Plane sizes after each growth, log-spaced from res_init to res_final."""
-        o = self.options
-        k = len(o["upsample_at"])
+        o = self.opts
+        k = len(o.upsample_at)
         if k == 0:
             return []
-        a, b = math.log(o["res_init"]), math.log(o["res_final"])
+        a, b = math.log(o.res_init), math.log(o.res_final)
         sizes = [int(round(math.exp(a + (b - a) * (i + 1) / k))) for i in range(k)]
-        if o["res_final_budget"] is not None:  # a long run's last stage (``growth.budget_resolution``)
-            sizes[-1] = max(sizes[-1], int(o["res_final_budget"]))
+        if self.res_final_budget is not None:  # a long run's last stage (``growth.budget_resolution``)
+            sizes[-1] = max(sizes[-1], int(self.res_final_budget))
         return sizes
 
     def pruned(self) -> bool:
@@ -222,37 +135,36 @@ class VMGrid(RadianceModel):
         then makes the first few dozen steps cheap while the field finds the coarse geometry. Density
         is per unit length, so nothing learnt is invalidated when the step refines.
         """
-        s = self.options["step_ratio"] * self.field.voxel_size()
-        return s if self.formed() else s * self.options["warmup_step_scale"]
+        s = self.opts.step_ratio * self.field.voxel_size()
+        return s if self.formed() else s * self.opts.warmup_step_scale
 
     def training_hook(self, step, frac) -> bool:
-        o = self.options
+        o = self.opts
         # Frequent occupancy updates early (geometry appears fast and must not be pruned for long),
         # sparser later when the grid is stable.
-        every = o["occ_every"] if step < 50 * o["occ_every"] else 2 * o["occ_every"]
+        every = o.occ_every if step < 50 * o.occ_every else 2 * o.occ_every
         if step > 0 and step % every == 0:
             self.update_occupancy()
         if frac is None:  # no budget given: growth follows an assumed ``budget_steps``
-            frac = step / o["budget_steps"]
+            frac = step / o.budget_steps
             self._budget_known = False
-        if o["res_final_budget"] is None and o["upsample_at"] and frac >= o["upsample_at"][-1] and step > 0:
+        if self.res_final_budget is None and o.upsample_at and frac >= o.upsample_at[-1] and step > 0:
             # The last stage is due: steps so far over the share spent predicts the run's steps from
             # the rate measured over a third of it (growth included), far better than a start-up probe.
             predicted = step / frac if self._budget_known else 0.0
-            o["res_final_budget"] = growth.budget_resolution(o["res_final"], predicted, o["budget_growth_steps"],
-                                                             o["res_budget_max"])
-        target = o["res_init"]
-        for f, r in zip(o["upsample_at"], self.resolution_schedule()):
+            self.res_final_budget = growth.budget_resolution(o.res_final, predicted, o.budget_growth_steps,
+                                                             o.res_budget_max)
+        target = o.res_init
+        for f, r in zip(o.upsample_at, self.resolution_schedule()):
             if frac >= f:
                 target = r
         # Growing multiplies the cost of every sample's backward pass: wait until empty space is being
         # skipped and each stage has had some steps to fit, even when the time budget says go.
         since = step - self._last_growth_step
-        ready = since >= self.options["min_stage_steps"] and (self.formed() or since >= 4 * self.options["min_stage_steps"])
+        ready = since >= o.min_stage_steps and (self.formed() or since >= 4 * o.min_stage_steps)
         if target > self.field.resolution and ready:
             self._last_growth_step = step
             self.field.upsample(self._next_resolution())
-            self.options["resolution"] = self.field.resolution
             return True
         return False
 
@@ -266,12 +178,13 @@ class VMGrid(RadianceModel):
     @torch.no_grad()
     def update_occupancy(self) -> None:
         cell_max = None
-        if self.options["occ_probe"] == "max":
+        o = self.opts
+        if o.occ_probe == "max":
             with profiling.stage("field"):
                 cell_max = self.field.density_cell_max(self.occupancy.resolution)
         self.occupancy.update(None if cell_max is not None else self._density, self.step_size(),
-                              alpha_threshold=float(self.options["occ_alpha"]), decay=float(self.options["occ_decay"]),
-                              dilate=bool(self.options["occ_dilate_formed"]) or not self.formed(), cell_density=cell_max)
+                              alpha_threshold=float(o.occ_alpha), decay=float(o.occ_decay),
+                              dilate=bool(o.occ_dilate_formed) or not self.formed(), cell_density=cell_max)
 
     def _density_of(self, pts: Tensor, lookup):
         """sample indices (j,) -> density (j,) at those of the field-space points ``pts`` (k, 3), in
@@ -311,25 +224,40 @@ class VMGrid(RadianceModel):
         reasons = [f"grid grows {res_init} -> {res_final} cells per axis (no finer than the pixel footprint"
                    + (", coarser for coarse texture" if fine_share < 1 else "") + ")",
                    f"appearance rank {app_rank} (8-16) from the texture probe, density rank {rank}",
-                   growth.explain(res_final, cls.defaults["budget_growth_steps"], res_max)]
+                   growth.explain(res_final, cls.Options().budget_growth_steps, res_max)]
         return opts, reasons
 
     # ------------------------------------------------------------------ optimisation
 
     def param_groups(self, lr: float) -> list[dict]:
         return [
-            {"params": self.field.grid_parameters(), "lr": lr * self.options["grid_lr_scale"], "name": "grids"},
+            {"params": self.field.grid_parameters(), "lr": lr * self.opts.grid_lr_scale, "name": "grids"},
             {"params": self.field.network_parameters(), "lr": lr, "name": "networks"},
         ]
 
+    def run_state(self) -> dict:
+        return {"resolution": self.field.resolution, "res_final_budget": self.res_final_budget}
+
+    def restore_run_state(self, state) -> None:
+        """Grow to the checkpoint's grid size and take back the last stage's size (both checked: a
+        crafted checkpoint could ask for terabytes)."""
+        res, budget = state.get("resolution"), state.get("res_final_budget")
+        for name, value in (("resolution", res), ("res_final_budget", budget)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                                      or not 2 <= value <= MAX_GRID_RES):
+                raise ValueError(f"vmgrid: run state {name!r} must be a whole number in 2..{MAX_GRID_RES}, "
+                                 f"got {value!r}")
+        if res is not None and res > self.field.resolution:
+            self.field.upsample(int(res))
+        self.res_final_budget = budget
+
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
-        # A checkpoint saved after growth has bigger planes than options["resolution"] may say (older
-        # option dicts, or options passed by hand): grow to the stored size before loading.
+        # A checkpoint saved after growth has bigger planes than a fresh build: grow to the stored size
+        # before loading.
         state_dict = tensorf.upgrade_state_dict(dict(state_dict), "field.")
         key = "field.density_planes_cl"  # (3, N, N, R)
         if key in state_dict and state_dict[key].dim() == 4 and state_dict[key].shape[1] != self.field.resolution:
             self.field.upsample(int(state_dict[key].shape[1]))
-            self.options["resolution"] = self.field.resolution
         return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def kernels(self, device: torch.device) -> dict:
@@ -429,7 +357,7 @@ class VMGrid(RadianceModel):
         t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
         sigma = self._density(pts)
         gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
-            self.aabb, self.options["grad_reach"])) if training else None
+            self.aabb, self.opts.grad_reach)) if training else None
         if gscale is not None:  # cameras inside the box: even out the gradient near each lens
             sigma = grad_scaling.scale_gradient(sigma, gscale)
         with profiling.stage("rendering"):
@@ -444,7 +372,7 @@ class VMGrid(RadianceModel):
             # at every sample: treating unevaluated samples as black would teach the density only to
             # darken rays, and a field on a random background would then never become opaque.
             acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
-        vis = (weights.detach() > self.options["color_weight"]) | (acc_ray.index_select(0, ridx) < 0.05)
+        vis = (weights.detach() > self.opts.color_weight) | (acc_ray.index_select(0, ridx) < 0.05)
         # Gathers stay outside the stage marks: the profile charges them to "other_forward".
         # One index for every gather: boolean masks would each search the mask again.
         vis = vis.nonzero().squeeze(-1)
@@ -472,17 +400,17 @@ class VMGrid(RadianceModel):
         # tiny, and Adam scales every parameter's step to the same size whatever its gradient, so L1
         # alone would drive both factors of the VM products to zero: a saddle (d(plane*line) = 0 there)
         # that training never leaves, seen as a run stuck at its initial PSNR for its whole budget.
-        use_l1 = self.options["l1_weight"] > 0 and self.formed()  # formed() reads the occupancy grid
+        use_l1 = self.opts.l1_weight > 0 and self.formed()  # formed() reads the occupancy grid
         with profiling.stage("field"):
             if use_l1:
-                aux = aux + self.options["l1_weight"] * self.field.density_l1()
-            if self.options["tv_weight"] > 0:
-                aux = aux + self.options["tv_weight"] * self.field.density_tv()
-        if self.options["dist_weight"] > 0:
+                aux = aux + self.opts.l1_weight * self.field.density_l1()
+            if self.opts.tv_weight > 0:
+                aux = aux + self.opts.tv_weight * self.field.density_tv()
+        if self.opts.dist_weight > 0:
             scale = float((self.aabb[1] - self.aabb[0]).norm())
             with profiling.stage("rendering"):
                 dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
-            aux = aux + self.options["dist_weight"] * dist.mean()
+            aux = aux + self.opts.dist_weight * dist.mean()
         return aux
 
 
@@ -492,8 +420,4 @@ class VMGridNoView(VMGrid):
     has one colour from every side, so highlights and reflections cannot be reproduced. Nothing else
     differs, so comparing the two isolates the direction input. Same options as ``vmgrid``."""
 
-    defaults = {**VMGrid.defaults, "view_dependent": False}
-
-    def __init__(self, aabb: Tensor, **options):
-        options["view_dependent"] = False
-        super().__init__(aabb, **options)
+    forced_options = {"view_dependent": False}

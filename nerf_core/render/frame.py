@@ -8,46 +8,53 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 import torch
 
-from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_pixels, rays_for_view
+from nerf_core.cameras.rays import Cameras, rays_for_pixels, rays_for_view
 from nerf_core.image.pixel_filter import DEFAULT_SAMPLES, PixelFilter, edge_pixels
+from nerf_core.methods.base import RadianceModel
 from nerf_core.render.memory import check_view_memory
 
 # On the CPU a model call is fastest when its samples' intermediate tensors stay in cache: measured
 # at one thread on trained runs, vmgrid renders 1.28x faster in calls of 1024 rays than of 8192 and
 # no faster below 512; nerf (128 samples per ray) 1.21x faster at 1024 rays than at 4096, 1.44x again
-# at 512, 1.27x at 256, 1.11x at 128: ~16k samples per call. Calls are at most CPU_MAX_CALL_RAYS rays,
-# fewer when the previous call reported more than CPU_SAMPLES_PER_CALL samples. A method whose samples
-# are cheaper sets its own ray cap as ``cpu_call_rays`` (vmgrid: 2048, see there).
+# at 512, 1.27x at 256, 1.11x at 128: ~16k samples per call. Calls are at most the model's
+# ``cpu_call_rays`` rays (``RadianceModel``: 512; vmgrid, whose samples are cheaper: 2048), fewer when
+# the previous call reported more than CPU_SAMPLES_PER_CALL samples.
 CPU_SAMPLES_PER_CALL = 1 << 14
-
-
-CPU_MAX_CALL_RAYS = 512
 
 
 CPU_MIN_CALL_RAYS = 64  # below this the per-call Python overhead dominates
 
 
 @torch.no_grad()
-def render_rays_chunked(model, rays_o, rays_d, near, far, background, chunk: int = 8192,
+def render_rays_chunked(model: RadianceModel, rays_o, rays_d, background, near=None, far=None, chunk: int = 8192,
                         on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
-    """Evaluation rendering of (m, 3) rays in model calls of at most ``chunk`` rays to bound memory.
+    """Evaluation rendering of (m, 3) camera rays (``model.render_batch``) in model calls of at most
+    ``chunk`` rays to bound memory.
 
-    On the CPU calls are smaller: at most ``CPU_MAX_CALL_RAYS`` rays (or the model's ``cpu_call_rays``)
-    and about ``CPU_SAMPLES_PER_CALL`` samples, from the ``n_samples`` the model returned for the
-    previous call (per-ray results do not depend on the call size).
-    Returns rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
-    ``on_chunk(done, m)`` is called after each call (progress; it may raise to stop early).
+    On the CPU calls are smaller: at most the model's ``cpu_call_rays`` rays and about
+    ``CPU_SAMPLES_PER_CALL`` samples, from the ``n_samples`` the model returned for the previous call
+    (per-ray results do not depend on the call size).
+
+    Args:
+        model: the ``RadianceModel``; rays_o, rays_d: (m, 3) on its device.
+        background: (3,) or (m, 3) colour behind the scene (the learned world replaces it).
+        near, far: the dataset's ray bounds in scene units, or None.
+        chunk: most rays per call; on_chunk: called as ``on_chunk(done, m)`` after each call
+            (progress; it may raise to stop early).
+
+    Returns:
+        rgb (m, 3), depth (m,) (distance along the ray) and acc (m,) on the rays' device.
     """
     out: Dict[str, List[torch.Tensor]] = {"rgb": [], "depth": [], "acc": []}
     m = rays_o.shape[0]
     bg = background.expand(m, 3) if background.dim() == 1 else background
     cpu = rays_o.device.type == "cpu"
-    cap = min(chunk, int(getattr(model, "cpu_call_rays", CPU_MAX_CALL_RAYS))) if cpu else chunk
+    cap = min(chunk, int(model.cpu_call_rays)) if cpu else chunk
     step = cap
     s = 0
     while s < m:
         e = min(s + step, m)
-        res = model.render_rays(rays_o[s:e], rays_d[s:e], near[s:e], far[s:e], bg[s:e], training=False)
+        res = model.render_batch(rays_o[s:e], rays_d[s:e], bg[s:e], near, far, training=False)
         for k in out:
             out[k].append(res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1) if k != "rgb" else res[k].detach().float())
         if cpu and "n_samples" in res:
@@ -124,16 +131,12 @@ def render_view(
 
 def render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk) -> Dict[str, torch.Tensor]:
     """``render_rays_chunked`` of camera rays (origins (m, 3) or (1, 3), unit directions (m, 3)) on the
-    model's device, over the model's own ray interval and its learned world when it has one."""
+    model's device."""
     device = model.aabb.device
     rays_o = rays_o.expand_as(rays_d).to(device)
     rays_d = rays_d.to(device)
-    t0, t1 = model.ray_interval(rays_o, rays_d, near, far) if hasattr(model, "ray_interval") else \
-        ray_bounds(rays_o, rays_d, model.aabb, near, far)
     bg = torch.as_tensor(background, dtype=torch.float32, device=device)
-    if getattr(model, "environment", None) is not None:
-        bg = model.background(rays_d, bg)  # the learned world replaces the fixed colour
-    return render_rays_chunked(model, rays_o, rays_d, t0, t1, bg, chunk, on_chunk)
+    return render_rays_chunked(model, rays_o, rays_d, bg, near, far, chunk, on_chunk)
 
 
 def filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: torch.Tensor, dist: torch.Tensor,
@@ -162,7 +165,7 @@ def filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: tor
     ring = render_rays_of(model, o, d, background, near, far, chunk, None)
     # Edges of the scene itself, premultiplied, whatever fixed colour lies behind it: render (on black)
     # and eval (on white) refine the same pixels. A learned world is part of the picture.
-    behind = None if getattr(model, "environment", None) is not None else torch.as_tensor(background, dtype=torch.float32)
+    behind = None if model.models_world else torch.as_tensor(background, dtype=torch.float32)
 
     def scene_layer(c: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         c = c if behind is None else c - (1 - a).unsqueeze(-1) * behind

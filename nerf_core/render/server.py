@@ -165,7 +165,7 @@ class RenderServer:
         self.chunk = chunk
         self.device = pick_device(device)
         self.model, self.config, ckpt = load_run(run, self.device, checkpoint)
-        self.opaque = getattr(self.model, "environment", None) is not None
+        self.opaque = self.model.models_world
 
         self.film_filter = of_run(self.config)  # for requests with "pixel_filter": true (final renders)
         self.info = {"run": os.path.abspath(run), "method": ckpt.get("method"), "step": ckpt.get("step"),

@@ -95,7 +95,7 @@ def render_to_dir(
     (out / "renders.json").unlink(missing_ok=True)
     frames = []
     bar = ProgressBar(total=len(stems), label="render", enabled=show_progress)
-    opaque = getattr(model, "environment", None) is not None
+    opaque = model.models_world
     bg = torch.as_tensor(metrics_background, dtype=torch.float32)
     render_seconds, rays = 0.0, 0
     for v, stem in enumerate(stems):

@@ -23,7 +23,7 @@ from typing import Dict
 import torch
 
 from nerf_core.errors import RunError
-from nerf_core.methods.base import MAX_GRID_RES
+from nerf_core.methods.base import MAX_GRID_RES, RadianceModel
 
 RNG_KEYS = ("python", "numpy", "torch", "batches")
 
@@ -117,13 +117,13 @@ def _fits_growth(saved: torch.Size, fresh: torch.Size, grid_dims) -> bool:
 def _growing(model) -> dict:
     """The model's ``growing`` as name -> grid dimensions (a plain tuple of names: all dims after the
     first two, as (3, C, H, W) planes grow)."""
-    growing = getattr(model, "growing", {}) or {}
+    growing = model.growing
     if isinstance(growing, dict):
         return {k: tuple(v) for k, v in growing.items()}
     return {name: None for name in growing}
 
 
-def check_weights(model: torch.nn.Module, weights: Dict[str, torch.Tensor], where: str) -> None:
+def check_weights(model: RadianceModel, weights: Dict[str, torch.Tensor], where: str) -> None:
     """Refuse (RunError) weights that do not fit ``model``: names, dtypes, shapes, finite values.
 
     Args:
@@ -135,7 +135,7 @@ def check_weights(model: torch.nn.Module, weights: Dict[str, torch.Tensor], wher
     missing = sorted(set(own) - set(weights))
     unexpected = sorted(set(weights) - set(own))
     if missing or unexpected:
-        raise RunError(f"{where}: the saved weights do not fit method {getattr(model, 'method_name', '?')!r}: "
+        raise RunError(f"{where}: the saved weights do not fit method {model.method_name!r}: "
                        + (f"missing {missing[:4]}" if missing else "")
                        + ("; " if missing and unexpected else "")
                        + (f"unexpected {unexpected[:4]}" if unexpected else ""))

@@ -5,7 +5,7 @@
   ``keep`` step files.
 * ``read_checkpoint`` loads with ``torch.load(weights_only=True)``: a checkpoint holds only tensors
   and plain Python data, and anything else is refused (``CheckpointRefused``) rather than run.
-* ``model_from_checkpoint`` / ``load_run`` rebuild the trained model for ``render`` and ``eval``;
+* ``load_run`` rebuilds the trained model for ``render`` and ``eval`` (``runs.weights``);
   ``read_resume_checkpoint`` picks what ``train --resume`` continues from.
 
 File names come from ``nerf_core.contract``; the run folder's rules live in ``nerf_core.runs.folder``.
@@ -20,7 +20,7 @@ import platform
 import re
 import sys
 from pathlib import Path
-from typing import Dict, Optional
+from typing import Optional
 
 import numpy as np
 import torch
@@ -28,40 +28,18 @@ import torch
 from nerf_core import __version__, contract
 from nerf_core.contract.paths import file_problem, not_a_regular_file
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
-from nerf_core.methods.registry import build_model, saved_options
-from nerf_core.runs.checkpoint_checks import check_entries, check_weights
+from nerf_core.runs.checkpoint_checks import check_entries
 from nerf_core.runs.folder import (
     WRITTEN_LIST,
     os_reason,
     record_written,
     resume_candidates,
 )
+from nerf_core.runs.weights import first_line, model_from_checkpoint
 from nerf_core.utils.atomic import atomic_path
 
 # ----------------------------------------------------------------------------------------------
 # reading
-
-
-def load_state_resizing(model: torch.nn.Module, state: Dict[str, torch.Tensor]) -> None:
-    """``load_state_dict`` that copes with parameters whose saved shape differs from a fresh build.
-
-    Methods that grow during training (coarse-to-fine grids) are rebuilt at their initial size by
-    ``build_model``. A method may handle that in its own ``load_state_dict``; otherwise the
-    mismatched tensors are resized to the saved shapes before loading.
-    """
-    try:
-        model.load_state_dict(state)
-        return
-    except RuntimeError as exc:
-        if "size mismatch" not in str(exc):
-            raise
-    own = dict(model.named_parameters())
-    own.update(dict(model.named_buffers()))
-    for key, value in state.items():
-        cur = own.get(key)
-        if cur is not None and cur.shape != value.shape:
-            cur.data = torch.empty(value.shape, dtype=cur.dtype, device=cur.device)
-    model.load_state_dict(state)
 
 
 def _legacy_checkpoint_globals() -> list:
@@ -131,7 +109,7 @@ def read_checkpoint(path: Path) -> dict:
             "Use a checkpoint written by `python -m nerf_core train`."
         ) from None  # the unpickler's long advice to reload with weights_only=False must not reach the user
     except Exception as exc:  # truncated or foreign file
-        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {_first_line(exc)})") from exc
+        raise RunError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {first_line(exc)})") from exc
     if not isinstance(ckpt, dict):
         raise RunError(f"{path}: not a nerf_core checkpoint (holds a {type(ckpt).__name__}, not a dict)")
     return ckpt
@@ -142,13 +120,6 @@ def _unpickler_detail(exc: BaseException) -> str:
     text = str(exc).split("\n\nCheck the documentation")[0]
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return lines[-1] if lines else type(exc).__name__
-
-
-def _first_line(exc: BaseException) -> str:
-    """The first line of an exception's message, without torch's advice paragraph after it."""
-    lines = [ln for ln in str(exc).splitlines() if ln.strip()]
-    line = lines[0] if lines else type(exc).__name__
-    return line.split(". This is an internal miniz error")[0]  # torch's paragraph on corrupted zips
 
 
 # The first bytes of what ``torch.save`` writes: a zip archive (the default since torch 1.6), or the
@@ -173,43 +144,6 @@ def _file_kind(path: Path) -> Optional[str]:
         return "it holds text"
     except UnicodeDecodeError:
         return "it is not a file written by torch.save"
-
-
-def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint"):
-    """The checkpoint's model, rebuilt with ``build_model`` and its weights, in eval mode on ``device``
-    (raises RunError naming ``where`` when the checkpoint does not describe a model that builds)."""
-
-    for key in ("method", "options", "aabb", "model"):
-        if key not in ckpt:
-            raise RunError(f"{where}: missing entry {key!r} (not a nerf_core checkpoint?)")
-    method, options, aabb, weights = ckpt["method"], ckpt["options"], ckpt["aabb"], ckpt["model"]
-    # A foreign or edited checkpoint must fail here, by name, not deep inside torch with a TypeError.
-    if not isinstance(method, str):
-        raise RunError(f"{where}: entry 'method' must be a method name, got a {type(method).__name__}")
-    if not (isinstance(options, dict) and all(isinstance(k, str) for k in options)):
-        raise RunError(f"{where}: entry 'options' must be a dict of the method's options, got a {type(options).__name__}")
-    try:
-        box = torch.as_tensor(aabb, dtype=torch.float32)
-    except (TypeError, ValueError, RuntimeError, OverflowError):
-        box = None
-    if box is None or box.shape != (2, 3) or not bool(torch.isfinite(box).all()):
-        raise RunError(f"{where}: entry 'aabb' must be the scene box, 2 x 3 finite numbers (min, max)")
-    if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
-        raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
-                       f"got a {type(weights).__name__}")
-    check_entries(ckpt, where)
-    try:
-        model = build_model(method, box, **saved_options(method, options))
-        weights, _ = model.upgrade_checkpoint(weights)  # an older version's layout
-        check_weights(model, weights, where)
-        load_state_resizing(model, weights)
-    except ValueError as exc:  # unknown method name
-        raise RunError(f"{where}: {exc}") from exc
-    except TypeError as exc:  # an option the method does not take
-        raise RunError(f"{where}: entry 'options' does not fit method {method!r}: {_first_line(exc)}") from exc
-    except (RuntimeError, KeyError) as exc:
-        raise RunError(f"{where}: the saved weights do not fit method {method!r}: {_first_line(exc)}") from exc
-    return model.to(device).eval()
 
 
 def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):

@@ -1,0 +1,167 @@
+"""A method's build options as one declared type: a dataclass per method (``VMGridOptions``,
+``NeRFOptions``) whose fields carry their default, a one-line doc and their bounds.
+
+Every rule about an option's value lives in its field (``option(...)``), and ``MethodOptions.parse``
+is the one place that applies them: ``train`` refuses bad ``--set`` values before a run folder is
+made, and ``build_model`` refuses them from the Python API, with the same message.
+
+What a run changes as it trains (vmgrid's grid resolution) is not an option: a method keeps it apart
+(``RadianceModel.run_state``) and checkpoints save it explicitly. Checkpoints written before that kept
+it among the options; ``RUN_STATE_KEYS`` names those keys so that loading moves them out again.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar, Dict, Mapping, Optional, Sequence, Tuple
+
+MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
+
+
+def option(default: Any, doc: str, *, low: Optional[float] = None, high: Optional[float] = None,
+           open_low: bool = False, open_high: bool = False, choices: Optional[Sequence[Any]] = None) -> Any:
+    """A dataclass field of a ``MethodOptions`` subclass: its default, its one-line doc and its bounds.
+
+    Args:
+        default: the value a new run takes (a list is copied per instance). Its type is the option's
+            kind: bool takes true/false, int a whole number, float any finite number, list a list of
+            finite numbers, str one of ``choices``.
+        doc: one line that says what the option does (``python -m nerf_core methods`` prints it).
+        low, high: the value (each entry of a list) must lie in [low, high]; ``open_low``/``open_high``
+            exclude the end. A number option with no ``low`` must be >= 0.
+        choices: the values allowed for a string option (may include ``True``/``False`` for an option
+            that is a string or a bool, such as ``train_ert``).
+    """
+    meta = {"doc": doc, "low": 0 if low is None and choices is None else low, "high": high, "open_low": open_low,
+            "open_high": open_high, "choices": tuple(choices) if choices is not None else None}
+    if isinstance(default, list):
+        return dataclasses.field(default_factory=lambda: list(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def grid_option(default: int, doc: str) -> Any:
+    """An option counting cells per axis: a whole number in 2..MAX_GRID_RES."""
+    return option(default, doc, low=2, high=MAX_GRID_RES)
+
+
+@dataclasses.dataclass
+class MethodOptions:
+    """Base of every method's options. A method with no declared fields (a plugin that takes its
+    options as keyword arguments) keeps whatever it is given, unchecked, in ``extra``."""
+
+    # Keys that older checkpoints stored among the options but that are run state (``run_state``).
+    RUN_STATE_KEYS: ClassVar[Tuple[str, ...]] = ()
+
+    @classmethod
+    def declared(cls) -> Dict[str, dataclasses.Field]:
+        """name -> field of the options the class declares."""
+        return {f.name: f for f in dataclasses.fields(cls) if f.name != "extra"}
+
+    @classmethod
+    def docs(cls) -> Dict[str, str]:
+        """name -> one-line doc of each declared option."""
+        return {name: f.metadata.get("doc", "") for name, f in cls.declared().items()}
+
+    @classmethod
+    def defaults(cls) -> Dict[str, Any]:
+        """name -> default of each declared option."""
+        return cls().to_dict()
+
+    @classmethod
+    def parse(cls, method: str, values: Mapping[str, Any]) -> "MethodOptions":
+        """The options ``values`` asks for, over the defaults, every value checked.
+
+        Raises:
+            ValueError: an option the method does not have, or a value of the wrong kind or out of its
+                bounds; the message names the method, the option and what it must be.
+        """
+        if not isinstance(values, Mapping):
+            raise TypeError(f"{method}: options must be a dict of option name -> value, got {type(values).__name__}")
+        declared = cls.declared()
+        if not declared:
+            return cls(extra=dict(values)) if "extra" in {f.name for f in dataclasses.fields(cls)} else cls()
+        unknown = set(values) - set(declared)
+        if unknown:
+            raise ValueError(f"{method}: unknown options {sorted(unknown)}; known: {sorted(declared)}")
+        for name, value in values.items():
+            _check_value(method, name, value, declared[name])
+        opts = cls(**{k: list(v) if isinstance(v, list) else v for k, v in values.items()})
+        opts.check_together(method)
+        return opts
+
+    def check_together(self, method: str) -> None:
+        """Rules between options (override; raise ValueError naming them)."""
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The options as the JSON-able dict that checkpoints and config.json hold."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"}
+        out.update(getattr(self, "extra", {}) or {})
+        return {k: list(v) if isinstance(v, list) else v for k, v in out.items()}
+
+
+@dataclasses.dataclass
+class PluginOptions(MethodOptions):
+    """The options of a method that declares none: kept as given (its own ``__init__`` checks them)."""
+
+    extra: Dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+def _check_value(method: str, name: str, value: Any, field: dataclasses.Field) -> None:
+    """Refuse ``value`` for option ``name`` when it is not of the default's kind or out of bounds."""
+    meta, default = field.metadata, _default_of(field)
+
+    def bad(want: str) -> ValueError:
+        return ValueError(f"{method}: option {name!r} must be {want}, got {value!r}")
+
+    choices = meta.get("choices")
+    if choices is not None:
+        if not any(value is c or (type(value) is type(c) and value == c) for c in choices):
+            raise bad("one of " + ", ".join(_shown(c) for c in choices))
+        return
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return
+    if isinstance(default, list):
+        if not isinstance(value, list) or any(not _finite_number(v) for v in value):
+            raise bad("a list of numbers, e.g. [0.1,0.2]")
+        for v in value:
+            _check_bounds(v, meta, lambda want: bad(f"a list of numbers {want}"))
+        return
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad("a whole number")
+    elif isinstance(default, float):
+        if not _finite_number(value):
+            raise bad("a finite number")
+    _check_bounds(value, meta, bad)
+
+
+def _check_bounds(value: float, meta: Mapping[str, Any], bad) -> None:
+    low, high = meta.get("low"), meta.get("high")
+    if low is not None and (value < low or (meta.get("open_low") and value == low)):
+        raise bad(_range_text(meta))
+    if high is not None and (value > high or (meta.get("open_high") and value == high)):
+        raise bad(_range_text(meta))
+
+
+def _range_text(meta: Mapping[str, Any]) -> str:
+    low, high = meta.get("low"), meta.get("high")
+    if high is None:
+        return f"greater than {low:g}" if meta.get("open_low") else f">= {low:g}"
+    left, right = "(" if meta.get("open_low") else "[", ")" if meta.get("open_high") else "]"
+    return f"in {left}{low:g}, {high:g}{right}"
+
+
+def _finite_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _default_of(field: dataclasses.Field) -> Any:
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    return field.default_factory()  # type: ignore[misc]
+
+
+def _shown(c: Any) -> str:
+    return ("true" if c else "false") if isinstance(c, bool) else f'"{c}"' if isinstance(c, str) else str(c)
