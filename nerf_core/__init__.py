@@ -7,7 +7,8 @@ its module. Everything else is internal and may change; its layers are in ``docs
     import nerf_core
     ds = nerf_core.load_dataset("scene_dataset")
     nerf_core.train(nerf_core.TrainConfig(dataset="scene_dataset", out="runs/scene", max_seconds=60))
-    model, config, ckpt = nerf_core.load_run("runs/scene", device=torch.device("cpu"))
+    run = nerf_core.open_run("runs/scene")
+    out = run.render(run.dataset.split("test").cameras, 0)
 
 ``nerf_core.volume`` holds the volume-rendering functions, nerfacc-style (flat functions with
 shapes in their docstrings).
@@ -38,6 +39,8 @@ _HOMES = {
     "TrainConfig": "nerf_core.engine.config",
     "train": "nerf_core.engine.trainer",
     # a trained run
+    "open_run": "nerf_core.render.run",
+    "Run": "nerf_core.render.run",
     "load_run": "nerf_core.runs.checkpoints",
     # rendering
     "render_view": "nerf_core.render.frame",

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Sequence
 
 from nerf_core import contract
 from nerf_core.data.backgrounds import BACKGROUNDS
@@ -17,6 +17,31 @@ from nerf_core.methods.registry import available_methods, method_class
 from nerf_core.runs.folder import resume_dataset
 
 MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
+
+
+def flag(default, help: str, *, name: Optional[str] = None, kind: str = "str", metavar: Optional[str] = None,
+         choices: Optional[Sequence[str]] = None, required: bool = False):
+    """A ``TrainConfig`` field that is also a flag of ``python -m nerf_core train``: the flag, its help
+    and its default are declared once, here (``cli.train`` builds the parser from these fields).
+
+    Args:
+        default: the field's default (a list or dict is copied per instance); ``None`` with
+            ``required``/a positional ``name`` for fields without one.
+        help: the flag's help text (argparse's: ``%%`` for a percent sign).
+        name: the flag ("--no-bar", "--set") or, without dashes, a positional argument; default:
+            ``--`` and the field's name with dashes.
+        kind: how the command line's text becomes the value: "str", "int", "positive_int",
+            "nonneg_int", "positive_float", "folder", "seconds_list", "options" (repeatable KEY=VALUE),
+            "switch" (a flag that sets True) or "switch_off" (a flag that sets False).
+        metavar, choices, required: as argparse's.
+    """
+    meta = {"flag": {"name": name, "help": help, "kind": kind, "metavar": metavar,
+                     "choices": tuple(choices) if choices is not None else None, "required": required}}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: type(default)(default), metadata=meta)
+    if default is None and (required or (name is not None and not name.startswith("-"))):
+        return field(metadata=meta)  # no default: the caller must give it
+    return field(default=default, metadata=meta)
 
 
 @dataclass
@@ -69,37 +94,60 @@ class TrainConfig:
         show_bar: show a progress bar on stderr.
     """
 
-    dataset: str
-    out: str
-    method: Optional[str] = None
-    max_steps: Optional[int] = None
-    max_seconds: Optional[float] = None
-    seed: int = 0
-    resume: bool = False
-    overwrite: bool = False
-    dataset_moved: bool = False  # --resume with a DATASET path other than the recorded one (hash checked when recorded)
-    size: Optional[str] = None  # "auto": nerf_core.methods.sizing picks the model size for the dataset
-    options: Dict[str, object] = field(default_factory=dict)  # explicit method options (--set key=value)
-    progress: Optional[str] = None  # extra JSON-lines file
-    device: Optional[str] = None
-    lr: Optional[float] = None  # base learning rate; default: the method's default_lr
-    batch_rays: Optional[int] = None  # None: train.default_batch_rays (the method's; 4x on CUDA)
-    background: str = "auto"  # auto: nerf_core.data.backgrounds.choose (environment for opaque images, random for cut-outs)
-    downscale: int = 1
-    log_every: int = 50
-    preview_every: Optional[int] = None  # steps; None: every preview_seconds of training time
-    preview_seconds: float = 30.0
+    dataset: str = flag(None, "dataset folder (transforms_train.json or transforms.json) or a transforms file",
+                        name="dataset", metavar="DATASET")
+    out: str = flag(None, "run folder to create (refused if it exists and is not empty)", kind="folder",
+                    metavar="RUN", required=True)
+    method: Optional[str] = flag(None, "method name (see `python -m nerf_core methods`); default: the library's "
+                                       "default method", metavar="M")
+    max_steps: Optional[int] = flag(None, "stop after N optimisation steps", kind="positive_int", metavar="N")
+    max_seconds: Optional[float] = flag(None, "stop after S seconds of training (previews, checkpoints and "
+                                              "evaluation not counted)", kind="positive_float", metavar="S")
+    seed: int = flag(0, "random seed (same seed + step budget = the same losses on a CPU; on CUDA equal to about "
+                        "1e-7, since its atomic adds sum gradients in no fixed order)", kind="int", metavar="K")
+    resume: bool = flag(False, "continue RUN from RUN/checkpoints/latest.pt (else its newest step_*.pt); DATASET "
+                               "must hold the dataset the run was trained on (checked by the hash of its "
+                               "transforms files)", kind="switch")
+    overwrite: bool = flag(False, "start RUN again, deleting only files an earlier training wrote", kind="switch")
+    dataset_moved: bool = flag(False, "with --resume: accept a DATASET path other than the recorded one for a run "
+                                      "that recorded no dataset hash (newer runs accept a moved dataset by its hash "
+                                      "without this flag)", kind="switch")
+    size: Optional[str] = flag(None, "let nerf_core.methods.sizing choose the model size for this dataset",
+                               choices=("auto",))
+    options: Dict[str, object] = flag({}, "method option, repeatable (e.g. --set res_final=128; "
+                                          "`python -m nerf_core methods vmgrid` lists them)",
+                                      name="--set", kind="options", metavar="KEY=VALUE")
+    progress: Optional[str] = flag(None, "also append the JSON progress events to FILE", metavar="FILE")
+    device: Optional[str] = flag(None, "torch device (cpu, cuda, cuda:1); default: cuda if available else cpu",
+                                 metavar="DEV")
+    lr: Optional[float] = flag(None, "base learning rate (default: the method's)", kind="positive_float")
+    batch_rays: Optional[int] = flag(None, "rays per step (default: the method's, 1024 for a method without one; "
+                                           "4x that on CUDA)", kind="positive_int", metavar="N")
+    background: str = flag("auto", "what stands behind the scene while training: environment = a learned world "
+                                   "(light from infinity, for opaque captures); random = a random colour per ray "
+                                   "behind the alpha (cut-outs on a transparent film); white-then-random = white for "
+                                   "the first 20%% of the budget, then random. auto picks environment or random from "
+                                   "the dataset's film_transparent and the images' alpha, and says why",
+                           choices=BACKGROUNDS)
+    downscale: int = flag(1, "train on images downscaled by F", kind="positive_int", metavar="F")
+    log_every: int = flag(50, "emit a step event every N steps", kind="positive_int", metavar="N")
+    preview_every: Optional[int] = flag(None, "preview every N steps (default: every 30 s of training)",
+                                        kind="positive_int", metavar="N")
+    preview_seconds: float = 30.0  # training seconds between previews (when preview_every is None)
     preview_size: int = 256  # longest side of preview images
-    checkpoint_every: Optional[int] = None  # steps; None: every checkpoint_seconds of wall time
+    checkpoint_every: Optional[int] = flag(None, "checkpoint every N steps (default: every 5 min)",
+                                           kind="positive_int", metavar="N")
     checkpoint_seconds: float = 300.0
     keep_checkpoints: int = 3  # step_XXXXXXX.pt files kept besides latest.pt
     max_rollbacks: int = 8
-    eval_views: Optional[int] = None  # None: as many as fit in eval_seconds; 0: skip evaluation
+    eval_views: Optional[int] = flag(None, "held-out views to evaluate at the end (0 = none; default: as many as "
+                                           "fit in 25%% of the training time)", kind="nonneg_int", metavar="N")
     eval_seconds: Optional[float] = None  # None: max(30 s, 25 % of the training time)
-    eval_at: List[float] = field(default_factory=list)  # training seconds at which to evaluate held-out views
+    eval_at: List[float] = flag([], "also evaluate held-out views at these training times (seconds), e.g. "
+                                    "60,120,300", kind="seconds_list", metavar="S1,S2,...")
     chunk: int = 8192
     stdout_events: bool = True
-    show_bar: bool = True
+    show_bar: bool = flag(True, "no progress bar on stderr", name="--no-bar", kind="switch_off")
 
     def budget_fraction(self, step: int, elapsed: float) -> float:
         """Share of the budget spent, in [0, 1] (``contract.budget_fraction``; 0 without a budget)."""

@@ -20,7 +20,7 @@ from nerf_core.render.memory import render_rate
 
 # Re-exported: callers and tests have always found the metrics here.
 from nerf_core.render.scoring import score_view
-from nerf_core.runs.checkpoints import load_run
+from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import dataset_changed_note
 from nerf_core.utils.atomic import write_json_atomic
@@ -244,18 +244,18 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
 
     dev = pick_device(device)
     run = Path(run)
-    model, config, ckpt = load_run(run, dev, checkpoint)
-    dataset_path = config.get("dataset")
+    model, record, ckpt = load_trained(run, dev, checkpoint)
+    dataset_path = record.dataset
     if not dataset_path:
         raise RunError(f"{contract.config_path(run)}: no 'dataset' recorded")
     metrics_path = Path(contract.metrics_path(run))
     read_metrics_file(metrics_path)  # a damaged file is refused before the evaluation, not after it
     if Path(contract.progress_path(run)).is_dir():
         raise RunError(f"{contract.progress_path(run)}: is a folder; eval appends its event to this file")
-    changed = dataset_changed_note(config)
+    changed = dataset_changed_note(record.raw)
     if changed:
         print(f"eval: note: {changed}", file=sys.stderr)
-    trained_at = int(config.get("downscale", 1))
+    trained_at = record.downscale
     if downscale is None:
         downscale = trained_at  # score at the resolution the model learnt, as papers report downscaled scenes
     elif int(downscale) != trained_at:
@@ -267,7 +267,7 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     sp = ds.split(split)
     n = len(sp) if not max_views else min(len(sp), int(max_views))
     views = evenly_spaced(len(sp), n)
-    bg = config.get("eval_background", [1.0, 1.0, 1.0])
+    bg = list(record.eval_background)
     unseen = unseen_world_shares(model, dataset_path, sp, views)
     bar = ProgressBar(total=len(views), label=f"eval {split}", enabled=show_progress)
 
@@ -283,7 +283,7 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
         bar.update(1, info=entry["name"])
 
     film_filter = POINT if pixel_filter == "none" else ds.pixel_filter
-    result = evaluate_split(model, sp, views, background=bg, near=config.get("near"), far=config.get("far"), chunk=chunk,
+    result = evaluate_split(model, sp, views, background=bg, near=record.near, far=record.far, chunk=chunk,
                             on_view=show, pixel_filter=film_filter)
     bar.close()
     step = ckpt.get("step")

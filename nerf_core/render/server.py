@@ -45,7 +45,7 @@ from nerf_core.errors import RunError
 from nerf_core.image.pixel_filter import of_run
 from nerf_core.render.frame import render_view, straight_rgba
 from nerf_core.render.memory import check_view_memory
-from nerf_core.runs.checkpoints import load_run
+from nerf_core.runs.checkpoints import load_trained
 from nerf_core.utils.device import pick_device
 
 PROGRESS_EVERY_S = 0.5
@@ -164,13 +164,13 @@ class RenderServer:
         self.out = out
         self.chunk = chunk
         self.device = pick_device(device)
-        self.model, self.config, ckpt = load_run(run, self.device, checkpoint)
+        self.model, self.record, ckpt = load_trained(run, self.device, checkpoint)
         self.opaque = self.model.models_world
 
-        self.film_filter = of_run(self.config)  # for requests with "pixel_filter": true (final renders)
+        self.film_filter = of_run(self.record.raw)  # for requests with "pixel_filter": true (final renders)
         self.info = {"run": os.path.abspath(run), "method": ckpt.get("method"), "step": ckpt.get("step"),
                      "device": str(self.device), "background": "environment" if self.opaque else "transparent",
-                     "near": self.config.get("near"), "far": self.config.get("far")}
+                     "near": self.record.near, "far": self.record.far}
         self._inbox: "queue.Queue[Optional[str]]" = queue.Queue()
         self._pending: list = []  # lines read from the inbox but not handled yet, oldest first
 
@@ -232,8 +232,8 @@ class RenderServer:
         cx = req["cx"] if req["cx"] is not None else w / 2
         cy = req["cy"] if req["cy"] is not None else h / 2
         cams = Cameras.create(req["c2w"][None], req["fx"], req["fy"], cx, cy, w, h)
-        near = req["near"] if req["near"] is not None else self.config.get("near")
-        far = req["far"] if req["far"] is not None else self.config.get("far")
+        near = req["near"] if req["near"] is not None else self.record.near
+        far = req["far"] if req["far"] is not None else self.record.far
         t0 = time.monotonic()
         last = [t0]
 

@@ -34,7 +34,7 @@ from nerf_core.render.cameras import camera_file_range, camera_views, dataset_fi
 from nerf_core.render.frame import render_view, straight_rgba
 from nerf_core.render.memory import check_view_memory, render_rate
 from nerf_core.render.scoring import score_view
-from nerf_core.runs.checkpoints import load_run
+from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.folder import dataset_changed_note
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
@@ -265,23 +265,23 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
 
     refuse_dataset_root_out(out)
     dev = pick_device(device)
-    model, config, ckpt = load_run(run, dev, checkpoint)
+    model, record, ckpt = load_trained(run, dev, checkpoint)
     if cameras_path is None:
-        cameras_path = config.get("dataset")
+        cameras_path = record.dataset
         if not cameras_path:
             raise RunError(f"{config_path(run)}: no 'dataset' recorded; pass --cameras")
     notes = []
-    if _inside_dataset(cameras_path, config.get("dataset")):
+    if _inside_dataset(cameras_path, record.dataset):
         # the run's own dataset, or a file of it (the add-on's Compare passes transforms_test.json):
         # its images are the ground truth of the scores, so say when they are no longer the ones trained on
-        changed = dataset_changed_note(config)
+        changed = dataset_changed_note(record.raw)
         if changed:
             notes.append(changed)
             print(f"render: note: {changed}", file=sys.stderr)
     cams, stems, frames = camera_views(cameras_path, split)
     near, far = camera_file_range(cameras_path)  # a camera path exported from Blender: its camera's clip
     if near is None:
-        near, far = config.get("near"), config.get("far")
+        near, far = record.near, record.far
     smallest = int(torch.minimum(cams.width, cams.height).min())
     if not (math.isfinite(downscale) and 0 < downscale <= smallest):
         raise RunError(f"--downscale {downscale:g}: the smallest camera is {smallest} px across, so the factor must "
@@ -298,8 +298,8 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
                "cameras": str(Path(cameras_path).resolve()), **({"notes": notes} if notes else {})},
         show_progress=show_progress,
         ground_truth=frames if gt_downscale else None,
-        metrics_background=config.get("eval_background", [1.0, 1.0, 1.0]), gt_downscale=gt_downscale or 1,
-        pixel_filter=pf.of_run(config, pixel_filter, downscale),
+        metrics_background=list(record.eval_background), gt_downscale=gt_downscale or 1,
+        pixel_filter=pf.of_run(record.raw, pixel_filter, downscale),
         # and any dataset that --out is or lies in (dataset_files skips folders that hold none)
-        protected=dataset_files(cameras_path, config.get("dataset"), out, *Path(out).resolve().parents),
+        protected=dataset_files(cameras_path, record.dataset, out, *Path(out).resolve().parents),
     )

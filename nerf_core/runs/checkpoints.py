@@ -13,21 +13,21 @@ File names come from ``nerf_core.contract``; the run folder's rules live in ``ne
 from __future__ import annotations
 
 import json
-import math
 import os
 import pickle
 import platform
 import re
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Tuple
 
 import numpy as np
 import torch
 
 from nerf_core import __version__, contract
-from nerf_core.contract.paths import file_problem, not_a_regular_file
+from nerf_core.contract.paths import file_problem
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
+from nerf_core.methods.base import RadianceModel
 from nerf_core.runs.checkpoint_checks import check_entries
 from nerf_core.runs.folder import (
     WRITTEN_LIST,
@@ -35,6 +35,7 @@ from nerf_core.runs.folder import (
     record_written,
     resume_candidates,
 )
+from nerf_core.runs.record import RunRecord, read_run_record
 from nerf_core.runs.weights import first_line, model_from_checkpoint
 from nerf_core.utils.atomic import atomic_path
 
@@ -146,12 +147,31 @@ def _file_kind(path: Path) -> Optional[str]:
         return "it is not a file written by torch.save"
 
 
-def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
-    """(model in eval mode, config dict, checkpoint dict) of a run folder.
+def load_trained(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None
+                 ) -> Tuple[RadianceModel, RunRecord, dict]:
+    """(model in eval mode, the run's typed record, checkpoint dict) of a run folder: what ``eval``,
+    ``render``, ``serve`` and ``open_run`` start from.
 
-    The checkpoint is read safely (``torch.load(weights_only=True)``) and must belong to the run (same
-    method, same dataset hash); the model is rebuilt with ``build_model`` from the checkpoint's method,
-    options and scene box.
+    The record is RUN/config.json, checked (``runs.record``). The checkpoint is read safely
+    (``torch.load(weights_only=True)``) and must belong to the run (same method, same dataset hash);
+    the model is rebuilt from the checkpoint's method, options and scene box (``runs.weights``).
+
+    Raises:
+        RunError: a missing or unreadable run folder, config.json or checkpoint, a checkpoint of another
+            run, or one whose model does not build.
+        CheckpointRefused: a checkpoint that would need code to load (a crafted pickle).
+    """
+    record = read_run_record(Path(run))
+    ck = Path(checkpoint) if checkpoint else newest_checkpoint(Path(run))
+    ckpt = read_checkpoint(ck)
+    _check_checkpoint_of_run(ckpt, record.raw, ck, Path(run))
+    return model_from_checkpoint(ckpt, device, str(ck)), record, ckpt
+
+
+def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | str] = None):
+    """The older form of ``nerf_core.open_run``, kept for compatibility: (model in eval mode, config
+    dict, checkpoint dict) of a run folder. New code uses ``open_run``, whose ``Run`` also renders
+    views with the run's own near, far and background.
 
     Args:
         run: a run folder written by ``train`` (holds ``config.json`` and ``checkpoints/``).
@@ -169,28 +189,8 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
             run, or one whose model does not build.
         CheckpointRefused: a checkpoint that would need code to load (a crafted pickle).
     """
-    run = Path(run)
-    cfg_path = Path(contract.config_path(run))
-    if not run.is_dir():
-        raise RunError(f"{run}: run folder " + (not_a_regular_file(run) or "not found").replace(
-            "is not a regular file", "is not a folder"))
-    problem = file_problem(cfg_path)
-    if problem:
-        raise RunError(f"{cfg_path}: {problem}; is {run} a folder written by `python -m nerf_core train`?")
-    try:
-        config = json.loads(cfg_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
-    except (OSError, UnicodeDecodeError, RecursionError) as exc:
-        raise RunError(f"{cfg_path}: cannot read ({exc.__class__.__name__}: {exc})") from exc
-    if not isinstance(config, dict):
-        raise RunError(f"{cfg_path}: expected the JSON object that `train` writes, got a {type(config).__name__}; "
-                       f"is {run} a run folder?")
-    _check_run_config(config, cfg_path)
-    ck = Path(checkpoint) if checkpoint else newest_checkpoint(run)
-    ckpt = read_checkpoint(ck)
-    _check_checkpoint_of_run(ckpt, config, ck, run)
-    return model_from_checkpoint(ckpt, device, str(ck)), config, ckpt
+    model, record, ckpt = load_trained(run, device, checkpoint)
+    return model, record.raw, ckpt
 
 
 def check_checkpoint_of_run(ckpt: dict, ck: Path, run: Path) -> None:
@@ -239,33 +239,6 @@ def _check_checkpoint_of_run(ckpt: dict, config: dict, ck: Path, run: Path) -> N
         raise RunError(f"{ck}: this checkpoint belongs to another run" + (f" ({origin})" if origin else "")
                        + ": " + "; ".join(problems) + f". {run}'s settings and metrics would be applied to it; "
                        "evaluate or render it through its own run folder")
-
-
-def _check_run_config(config: dict, cfg_path: Path) -> None:
-    """Refuse (RunError naming the field) the values of a run's config.json that ``eval``, ``render``
-    and ``serve`` read, when they are not what ``train`` writes (an edited or damaged file)."""
-    def bad(key, want):
-        raise RunError(f"{cfg_path}: field {key!r} must be {want}, got {config[key]!r}")
-
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-    if "dataset" in config and config["dataset"] is not None and not isinstance(config["dataset"], str):
-        bad("dataset", "the dataset's path (a string)")
-    if "downscale" in config and not (isinstance(config["downscale"], int) and not isinstance(config["downscale"], bool)
-                                      and config["downscale"] >= 1):
-        bad("downscale", "a whole number >= 1")
-    if "eval_background" in config:
-        bg = config["eval_background"]
-        if not (isinstance(bg, list) and len(bg) == 3 and all(number(c) and 0 <= c <= 1 for c in bg)):
-            bad("eval_background", "an RGB colour: 3 numbers in [0, 1]")
-    for key in ("near", "far"):
-        if config.get(key) is not None and not (number(config[key]) and config[key] >= 0):
-            bad(key, "a number >= 0 (or null)")
-    near, far = config.get("near"), config.get("far")
-    if near is not None and far is not None and far <= near:  # each alone is fine; together no ray has samples
-        raise RunError(f"{cfg_path}: field 'far' ({far}) must be greater than field 'near' ({near}); every view would "
-                       "render empty")
 
 
 def read_resume_checkpoint(run: Path) -> tuple[Path, dict]:

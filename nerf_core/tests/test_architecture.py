@@ -120,3 +120,60 @@ def test_every_module_of_nerf_core_is_in_a_layer():
     assert not outside, (f"nerf_core/{sorted(outside)} is in no layer: put it in a package of "
                          "docs/ARCHITECTURE.md's layers, or add a layer to pyproject.toml")
     assert not layered - top, f"layers name packages that do not exist: {sorted(layered - top)}"
+
+
+# ----------------------------------------------------------------------------------------------
+# The model's interface is declared (``methods.base.RadianceModel``), never probed.
+
+# Names under which code outside nerf_core/methods holds a model (or the trainer that holds one).
+MODEL_HOLDERS = {"model", "trainer"}
+PROBES = {"getattr", "hasattr"}
+
+
+def model_probes(source: str, filename: str = "<source>") -> list[str]:
+    """``file:line: getattr(model, ...)`` for each getattr/hasattr whose object is a model: a name or
+    attribute called ``model``/``trainer`` (``self.model``, ``run.model``), or a method's class
+    (``method_class(...)``)."""
+    found = []
+    for node in ast.walk(ast.parse(source, filename)):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in PROBES
+                and node.args):
+            continue
+        target = node.args[0]
+        name = (target.id if isinstance(target, ast.Name) else target.attr if isinstance(target, ast.Attribute)
+                else target.func.id if isinstance(target, ast.Call) and isinstance(target.func, ast.Name) else None)
+        if name in MODEL_HOLDERS or name == "method_class" or (name == "self" and "engine/trainer" in filename):
+            found.append(f"{filename}:{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_no_model_attribute_probing_outside_methods():
+    probes = []
+    for rel, path in _sources("nerf_core", "scripts"):
+        if rel.parts[:2] == ("nerf_core", "methods"):
+            continue  # a method may look at its own attributes
+        probes += model_probes(path.read_text(encoding="utf-8"), str(rel))
+    assert not probes, ("getattr/hasattr on a model outside nerf_core/methods: declare the attribute with a "
+                        "default on RadianceModel (methods/base.py) and read it directly:\n" + "\n".join(probes))
+
+
+def test_the_probing_rule_fails_on_a_probe():
+    # Made to fail on purpose: each form the rule forbids is found, and plain reads are not.
+    bad = ("lr = getattr(model, 'default_lr', 5e-4)\n"
+           "ok = hasattr(self.model, 'ray_interval')\n"
+           "d = getattr(method_class(name), 'defaults', {})\n")
+    assert len(model_probes(bad)) == 3
+    assert model_probes("lr = model.default_lr\nx = getattr(config, 'near', None)\n") == []
+
+
+def test_lines_are_at_most_120_characters():
+    # E501 is in ruff's rule set (test_ruff_finds_nothing enforces it); made to fail on purpose here:
+    # ruff, with this repository's settings, flags a 121-character line and passes a 120-character one.
+    rules = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["ruff"]
+    assert "E501" in rules["lint"]["select"] and rules["line-length"] == 120
+    for length, flagged in ((121, True), (120, False)):
+        line = "x = '" + "a" * (length - 6) + "'\n"
+        proc = subprocess.run([_tool("ruff"), "check", "--quiet", "--select", "E501", "--config",
+                               str(REPO / "pyproject.toml"), "--stdin-filename", "nerf_core/probe.py", "-"],
+                              input=line, cwd=REPO, capture_output=True, text=True)
+        assert (proc.returncode != 0) == flagged, (length, proc.stdout)
