@@ -9,6 +9,7 @@ import math
 from typing import Dict, List
 
 from nerf_core.errors import TrainError
+from nerf_core.render.memory import DEFAULT_CHUNK
 
 
 def seconds_list(text: str) -> list[float]:
@@ -60,7 +61,7 @@ def add_model_args(p, split_help: str, downscale, chunk_help: str) -> None:
     else:
         p.add_argument("--downscale", type=kind, default=kind("1"), metavar="F", help=f"{verb} at 1/F resolution")
     p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    p.add_argument("--chunk", type=positive_int, default=8192, help=chunk_help)
+    p.add_argument("--chunk", type=positive_int, default=DEFAULT_CHUNK, help=chunk_help)
     p.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
     p.add_argument("--pixel-filter", choices=["auto", "none"], default="auto",
                    help="auto: render each pixel as the capture's film did, the mean of several rays drawn from its "

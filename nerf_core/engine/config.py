@@ -14,6 +14,7 @@ from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.errors import TrainError
 from nerf_core.methods import catalog
 from nerf_core.methods.registry import available_methods, method_class
+from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.runs.folder import resume_dataset
 
 MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
@@ -145,7 +146,7 @@ class TrainConfig:
     eval_seconds: Optional[float] = None  # None: max(30 s, 25 % of the training time)
     eval_at: List[float] = flag([], "also evaluate held-out views at these training times (seconds), e.g. "
                                     "60,120,300", kind="seconds_list", metavar="S1,S2,...")
-    chunk: int = 8192
+    chunk: int = DEFAULT_CHUNK
     stdout_events: bool = True
     show_bar: bool = flag(True, "no progress bar on stderr", name="--no-bar", kind="switch_off")
 

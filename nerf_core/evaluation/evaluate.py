@@ -16,7 +16,7 @@ from nerf_core.errors import RunError
 from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 from nerf_core.image.pixel_filter import POINT
 from nerf_core.render.frame import render_view
-from nerf_core.render.memory import render_rate
+from nerf_core.render.memory import DEFAULT_CHUNK, render_rate
 
 # Re-exported: callers and tests have always found the metrics here.
 from nerf_core.render.scoring import score_view
@@ -41,7 +41,7 @@ def evaluate_split(
     background=(1.0, 1.0, 1.0),
     near: Optional[float] = None,
     far: Optional[float] = None,
-    chunk: int = 8192,
+    chunk: int = DEFAULT_CHUNK,
     on_view: Optional[Callable[[dict], None]] = None,
     pixel_filter=None,
 ) -> dict:
@@ -108,7 +108,7 @@ def spread_views(n: int, k: int) -> List[int]:
 
 
 def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = None, background=(1.0, 1.0, 1.0),
-                       near: Optional[float] = None, far: Optional[float] = None, chunk: int = 8192,
+                       near: Optional[float] = None, far: Optional[float] = None, chunk: int = DEFAULT_CHUNK,
                        pixel_filter=None) -> dict:
     """``evaluate_split`` on evenly spread views of ``split``: ``max_views`` of them when given, else
     as many as fit in ``seconds`` at the time view 0 took (at least one). The end-of-training
@@ -138,7 +138,7 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
 
 
 def evaluate_held_out(model, dataset, max_views: Optional[int] = None, seconds: Optional[float] = None,
-                      background=(1.0, 1.0, 1.0), chunk: int = 8192) -> Optional[tuple[str, dict]]:
+                      background=(1.0, 1.0, 1.0), chunk: int = DEFAULT_CHUNK) -> Optional[tuple[str, dict]]:
     """(split name, ``evaluate_split`` result) on the held-out split of a ``data.Dataset`` (test, else
     val), None when it has neither. Views are evenly spread: ``max_views`` of them (all when None or
     0) or, when ``seconds`` is given and ``max_views`` is None, as many as fit in that time
@@ -208,7 +208,7 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
 
 
 def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: Optional[int] = None,
-                 chunk: int = 8192, checkpoint=None, print_fn=print, show_progress: bool = True,
+                 chunk: int = DEFAULT_CHUNK, checkpoint=None, print_fn=print, show_progress: bool = True,
                  pixel_filter: str = "auto") -> dict:
     """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
     view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).

@@ -11,7 +11,7 @@ import torch
 from nerf_core.cameras.rays import Cameras, rays_for_pixels, rays_for_view
 from nerf_core.image.pixel_filter import DEFAULT_SAMPLES, PixelFilter, edge_pixels
 from nerf_core.methods.base import RadianceModel
-from nerf_core.render.memory import check_view_memory
+from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory
 
 # On the CPU a model call is fastest when its samples' intermediate tensors stay in cache: measured
 # at one thread on trained runs, vmgrid renders 1.28x faster in calls of 1024 rays than of 8192 and
@@ -26,7 +26,7 @@ CPU_MIN_CALL_RAYS = 64  # below this the per-call Python overhead dominates
 
 
 @torch.no_grad()
-def render_rays_chunked(model: RadianceModel, rays_o, rays_d, background, near=None, far=None, chunk: int = 8192,
+def render_rays_chunked(model: RadianceModel, rays_o, rays_d, background, near=None, far=None, chunk: int = DEFAULT_CHUNK,
                         on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
     """Evaluation rendering of (m, 3) camera rays (``model.render_batch``) in model calls of at most
     ``chunk`` rays to bound memory.
@@ -74,7 +74,7 @@ def render_view(
     background=(1.0, 1.0, 1.0),
     near: Optional[float] = None,
     far: Optional[float] = None,
-    chunk: int = 8192,
+    chunk: int = DEFAULT_CHUNK,
     on_chunk: Optional[Callable[[int, int], None]] = None,
     pixel_filter: Optional[PixelFilter] = None,
     filter_samples: int = DEFAULT_SAMPLES,

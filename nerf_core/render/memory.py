@@ -12,6 +12,9 @@ from nerf_core.errors import RunError
 # grid, per-ray bounds, the chunk outputs and their concatenation, the RGBA result and its PNG bytes.
 BYTES_PER_PIXEL = 160
 MIN_PIXELS_CHECKED = 4096 * 4096  # views up to 16 Mpx (2.7 GB) are never refused
+# The most rays a model call renders without grad (``--chunk``; fewer on a CPU, see render.frame): the
+# one default of every renderer, evaluator and command.
+DEFAULT_CHUNK = 8192
 
 
 def render_rate(seconds: float, rays: int) -> dict:

@@ -21,6 +21,7 @@ from nerf_core.errors import RunError
 from nerf_core.image import pixel_filter as pf
 from nerf_core.methods.base import RadianceModel
 from nerf_core.render.frame import render_view
+from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.record import RunRecord
 from nerf_core.utils.device import pick_device
@@ -56,7 +57,7 @@ class Run:
         return self._dataset
 
     def render(self, cameras: Cameras, view: int, background: Optional[Sequence[float]] = None,
-               chunk: int = 8192, pixel_filter: Union[str, pf.PixelFilter] = "none",
+               chunk: int = DEFAULT_CHUNK, pixel_filter: Union[str, pf.PixelFilter] = "none",
                on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
         """Render view ``view`` of ``cameras`` over the run's ray bounds (``render_view``).
 

@@ -44,7 +44,7 @@ from nerf_core.contract.transforms import MAX_FOCAL_PX, MIN_FOCAL_PX
 from nerf_core.errors import RunError
 from nerf_core.image.pixel_filter import of_run
 from nerf_core.render.frame import render_view, straight_rgba
-from nerf_core.render.memory import check_view_memory
+from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.utils.device import pick_device
 
@@ -159,7 +159,7 @@ class RenderServer:
     """A loaded run answering render requests (see the module docstring for the protocol)."""
 
     def __init__(self, run: str, checkpoint: Optional[str] = None, device: Optional[str] = None,
-                 chunk: int = 8192, out: TextIO = sys.stdout):
+                 chunk: int = DEFAULT_CHUNK, out: TextIO = sys.stdout):
 
         self.out = out
         self.chunk = chunk

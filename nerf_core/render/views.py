@@ -32,7 +32,7 @@ from nerf_core.image.metrics import HEATMAP_VMAX, error_heatmap
 from nerf_core.image.pixel_filter import POINT, PixelFilter
 from nerf_core.render.cameras import camera_file_range, camera_views, dataset_files, ground_truth_split
 from nerf_core.render.frame import render_view, straight_rgba
-from nerf_core.render.memory import check_view_memory, render_rate
+from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory, render_rate
 from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.folder import dataset_changed_note
@@ -57,7 +57,7 @@ def render_to_dir(
     overwrite: bool = False,
     near: Optional[float] = None,
     far: Optional[float] = None,
-    chunk: int = 8192,
+    chunk: int = DEFAULT_CHUNK,
     extra: Optional[dict] = None,
     show_progress: bool = True,
     on_view: Optional[Callable[[int, str], None]] = None,
@@ -230,7 +230,7 @@ def refuse_dataset_root_out(out) -> None:
 
 
 def render_run(run, cameras_path, out, split="test", overwrite=False, device=None, downscale: float = 1.0,
-               chunk: int = 8192, checkpoint=None, show_progress=True, pixel_filter: str = "auto") -> Path:
+               chunk: int = DEFAULT_CHUNK, checkpoint=None, show_progress=True, pixel_filter: str = "auto") -> Path:
     """The ``render`` subcommand: render a run's latest checkpoint for the cameras of a file, with
     per-view PSNR / SSIM and error heat-maps where the cameras' frames have ground-truth images.
 

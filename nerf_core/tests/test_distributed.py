@@ -82,7 +82,7 @@ def test_two_ranks_train_resume_cancel_and_eval(dataset_factory, tmp_path):
     assert sorted(sums) == [0, 1], p.stderr[-2000:]
     assert sums[0] == sums[1] == (12, _checkpoint_hash(run / "checkpoints" / "latest.pt"))
     ckpt = torch.load(run / "checkpoints" / "latest.pt", map_location="cpu", weights_only=True)
-    assert ckpt["options"]["resolution"] == 24 and ckpt["model"]["field.density_planes_cl"].shape[1] == 24  # grown
+    assert ckpt["method_state"]["resolution"] == 24 and ckpt["model"]["field.density_planes_cl"].shape[1] == 24  # grown
     assert float(ckpt["model"]["occupancy.density_ema"].abs().sum()) > 0  # the occupancy grid was updated
 
     # 2. the checkpoint loads without torchrun

@@ -50,14 +50,15 @@ def test_short_runs_grow_exactly_as_without_the_rule(total):
     with_rule, model = _sizes(total)
     without, _ = _sizes(total, budget_growth_steps=0)
     assert with_rule == without == [16, 23, 23, 32, 32, 32]
-    assert model.options["res_final_budget"] == 32
+    assert model.res_final_budget == 32
 
 
 def test_a_long_run_grows_further_and_records_it():
     sizes, model = _sizes(27000)  # 32 * 1.5 = 48
     assert sizes == [16, 23, 23, 48, 48, 48]
-    assert model.options["res_final_budget"] == 48 and model.options["resolution"] == 48
+    assert model.run_state() == {"resolution": 48, "res_final_budget": 48}
     rebuilt = build_model("vmgrid", BOX, **model.options)  # what resuming does: the same schedule
+    rebuilt.restore_run_state(model.run_state())
     assert rebuilt.resolution_schedule() == [23, 48] and rebuilt.field.resolution == 48
 
 
@@ -70,7 +71,7 @@ def test_no_budget_keeps_res_final():
     model = build_model("vmgrid", BOX, **{**GRID, "budget_steps": 100000})
     for step in (10000, 30000, 60000):
         model.training_hook(step, None)
-    assert model.options["res_final_budget"] == 32 and model.field.resolution == 32
+    assert model.res_final_budget == 32 and model.field.resolution == 32
 
 
 def test_size_auto_explains_the_rule_and_stops_at_the_pixel_footprint():

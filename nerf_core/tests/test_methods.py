@@ -99,7 +99,7 @@ def test_vmgrid_overfits_the_sphere_and_grows():
     model, out, psnr = overfit("vmgrid", 120, 384, **SMALL_GRID)
     print(f"vmgrid {psnr:.2f} dB")
     assert psnr > 24.0
-    assert model.field.resolution == 32 and model.options["resolution"] == 32
+    assert model.field.resolution == 32 and model.run_state()["resolution"] == 32
     assert model.occupancy.occupied_fraction < 0.9  # empty space is being skipped
     assert torch.all((out["acc"] >= 0) & (out["acc"] <= 1 + 1e-5))
 
@@ -185,8 +185,8 @@ def test_grown_vmgrid_checkpoint_reloads_through_build_model():
     state, options = model.state_dict(), json.loads(json.dumps(model.options))
     rebuilt = build_model("vmgrid", BOX, **options)
     rebuilt.load_state_dict(state)
-    # An options dict from before growth also loads (the model grows to the stored size).
-    old = build_model("vmgrid", BOX, **{**options, "resolution": 16})
+    # A model built at another size also loads (it grows to the stored size).
+    old = build_model("vmgrid", BOX, **{**options, "res_init": 12})
     old.load_state_dict(state)
     o, d, near, far, _ = sphere_scene(n_cams=1, size=4)
     outs = [m.render_rays(o, d, near, far, torch.ones(16, 3), False)["rgb"] for m in (model, rebuilt, old)]

@@ -150,9 +150,9 @@ def test_vmgrid_renders_the_same_image_without_grad_with_less_density_work():
     # the method's cpu_call_rays): one call of all 1024 rays against calls of 100.
     from nerf_core.render.frame import render_rays_chunked
     with torch.no_grad():
-        whole = render_rays_chunked(model, o, d, near, far, bg)
+        whole = render_rays_chunked(model, o, d, bg)  # the model's own interval: the box, as near/far here
         model.cpu_call_rays = 100
-        split = render_rays_chunked(model, o, d, near, far, bg)
+        split = render_rays_chunked(model, o, d, bg)
     for k in ("rgb", "acc", "depth"):
         assert (whole[k] - split[k]).abs().max().item() < 1e-5, k
     assert (whole["rgb"] - out["rgb"]).abs().max().item() < 1e-5

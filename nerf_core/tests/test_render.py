@@ -11,6 +11,7 @@ from PIL import Image
 from nerf_core.cameras.rays import Cameras
 from nerf_core.cli.main import main
 from nerf_core.image.io import read_exr
+from nerf_core.methods.base import RadianceModel
 from nerf_core.image.pixel_filter import PixelFilter
 from nerf_core.render.cameras import cameras_from_file
 from nerf_core.render.frame import render_view
@@ -267,16 +268,18 @@ def test_render_and_eval_report_their_rendering_time(trained_run, run_copy, tmp_
     assert last["rays_per_s"] == pytest.approx(last["rays"] / last["render_seconds"])
 
 
-class _Counting(torch.nn.Module):
-    """A fake model reporting ``per_ray`` samples per ray (``None``: no ``n_samples``); records call sizes."""
+class _Counting(RadianceModel):
+    """A fake model reporting ``per_ray`` samples per ray (``None``: no ``n_samples``); records call sizes
+    and the ray intervals ``render_batch`` handed it."""
 
     def __init__(self, per_ray):
-        super().__init__()
-        self.per_ray, self.calls = per_ray, []
+        super().__init__(torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+        self.per_ray, self.calls, self.nears = per_ray, [], []
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         n = rays_o.shape[0]
         self.calls.append(n)
+        self.nears.append(near)
         out = {"rgb": rays_d.abs(), "depth": near + 1.0, "acc": torch.full((n,), 0.5)}
         if self.per_ray is not None:
             out["n_samples"] = n * self.per_ray
@@ -288,34 +291,37 @@ def test_cpu_calls_are_sized_by_the_samples_the_method_reports():
 
     m = 3000
     rays_d = torch.nn.functional.normalize(torch.randn(m, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
-    rays_o, near, far = torch.zeros(m, 3), torch.linspace(0, 1, m), torch.full((m,), 2.0)
+    rays_o = torch.zeros(m, 3)
     bg = torch.ones(3)
-    # 128 samples per ray: after the first call (at most CPU_MAX_CALL_RAYS rays), 16384 / 128 = 128 rays a call.
+    # 128 samples per ray: after the first call (at most cpu_call_rays rays), 16384 / 128 = 128 rays a call.
     heavy = _Counting(128)
-    res = r.render_rays_chunked(heavy, rays_o, rays_d, near, far, bg, chunk=8192)
-    assert heavy.calls[0] == r.CPU_MAX_CALL_RAYS == 512
+    res = r.render_rays_chunked(heavy, rays_o, rays_d, bg, 0.25, 3.0, chunk=8192)
+    assert heavy.calls[0] == RadianceModel.cpu_call_rays == 512
     assert set(heavy.calls[1:-1]) == {r.CPU_SAMPLES_PER_CALL // 128} and sum(heavy.calls) == m
     torch.testing.assert_close(res["rgb"], rays_d.abs())
+    # Each call's interval is the model's (the box clipped to near), for exactly the rays of that call.
+    near = torch.cat(heavy.nears)
+    torch.testing.assert_close(near, torch.full((m,), 0.25))
     torch.testing.assert_close(res["depth"], near + 1.0)
     # Very many samples per ray: never below CPU_MIN_CALL_RAYS; no samples at all: the cap.
     huge = _Counting(10 ** 6)
-    r.render_rays_chunked(huge, rays_o, rays_d, near, far, bg)
+    r.render_rays_chunked(huge, rays_o, rays_d, bg)
     assert set(huge.calls[1:-1]) == {r.CPU_MIN_CALL_RAYS}
     for model in (_Counting(0), _Counting(None)):
-        r.render_rays_chunked(model, rays_o, rays_d, near, far, bg)
+        r.render_rays_chunked(model, rays_o, rays_d, bg)
         assert set(model.calls[:-1]) == {512}
     # ``chunk`` stays the upper bound (memory).
     small = _Counting(1)
-    r.render_rays_chunked(small, rays_o, rays_d, near, far, bg, chunk=100)
+    r.render_rays_chunked(small, rays_o, rays_d, bg, chunk=100)
     assert max(small.calls) == 100
     # A model with cheap samples raises its own ray cap; the samples rule still applies.
     light = _Counting(4)
     light.cpu_call_rays = 2048
-    r.render_rays_chunked(light, rays_o, rays_d, near, far, bg)
+    r.render_rays_chunked(light, rays_o, rays_d, bg)
     assert light.calls[:2] == [2048, 3000 - 2048]
     light8 = _Counting(64)
     light8.cpu_call_rays = 2048
-    r.render_rays_chunked(light8, rays_o, rays_d, near, far, bg)
+    r.render_rays_chunked(light8, rays_o, rays_d, bg)
     assert light8.calls[0] == 2048 and set(light8.calls[1:-1]) == {r.CPU_SAMPLES_PER_CALL // 64}
 
 

@@ -386,16 +386,19 @@ def test_a_run_that_would_train_nothing_is_an_error(sphere_dataset, tmp_path, mo
 def test_the_default_batch_is_the_methods_and_four_times_that_on_cuda():
     from nerf_core.engine.model_setup import CUDA_BATCH_SCALE, default_batch_rays
 
-    class WithDefault:
+    from nerf_core.methods.base import RadianceModel
+
+    class WithDefault(RadianceModel):
         default_batch_rays = 2048
 
-    class WithoutDefault:
+    class WithoutDefault(RadianceModel):
         pass
 
     cpu, cuda = torch.device("cpu"), torch.device("cuda", 0)  # a device name: no GPU is needed
+    BOX_2 = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
     assert CUDA_BATCH_SCALE == 4
-    assert default_batch_rays(WithDefault(), cpu) == 2048 and default_batch_rays(WithDefault(), cuda) == 8192
-    assert default_batch_rays(WithoutDefault(), cpu) == 1024 and default_batch_rays(WithoutDefault(), cuda) == 4096
+    assert default_batch_rays(WithDefault(BOX_2), cpu) == 2048 and default_batch_rays(WithDefault(BOX_2), cuda) == 8192
+    assert default_batch_rays(WithoutDefault(BOX_2), cpu) == 1024 and default_batch_rays(WithoutDefault(BOX_2), cuda) == 4096
 
 
 def test_a_run_records_the_batch_it_chose(sphere_dataset, tmp_path):

@@ -39,7 +39,7 @@ def test_the_variants_are_registered():
 
 @pytest.mark.parametrize("name", ["vmgrid-noview", "nerf-noview"])
 def test_noview_colour_does_not_depend_on_the_direction(name):
-    model = build_model(name, BOX, **({"resolution": 16} if "vmgrid" in name else {"width": 32}))
+    model = build_model(name, BOX, **({"res_init": 16} if "vmgrid" in name else {"width": 32}))
     _randomise(model)
     assert model.options["view_dependent"] is False
     x, dirs = _points_and_directions()
@@ -51,7 +51,7 @@ def test_noview_colour_does_not_depend_on_the_direction(name):
 
 
 def test_vmgrid_noview_colour_is_the_appearance_mlp_alone_by_hand():
-    model = build_model("vmgrid-noview", BOX, resolution=16, app_dim=27)
+    model = build_model("vmgrid-noview", BOX, res_init=16, app_dim=27)
     _randomise(model)
     f = model.field
     assert f.mlp[0].in_features == 27  # the appearance feature only: no direction columns
@@ -64,7 +64,7 @@ def test_vmgrid_noview_colour_is_the_appearance_mlp_alone_by_hand():
 
 @pytest.mark.parametrize("name", ["vmgrid", "nerf"])
 def test_default_colour_depends_on_the_direction(name):
-    model = build_model(name, BOX, **({"resolution": 16} if name == "vmgrid" else {"width": 32}))
+    model = build_model(name, BOX, **({"res_init": 16} if name == "vmgrid" else {"width": 32}))
     _randomise(model)
     assert model.options["view_dependent"] is True
     x, dirs = _points_and_directions()
@@ -75,7 +75,7 @@ def test_default_colour_depends_on_the_direction(name):
 
 def test_the_option_turns_it_off_on_the_plain_methods_too():
     for name in ("vmgrid", "nerf"):
-        model = build_model(name, BOX, view_dependent=False, **({"resolution": 16} if name == "vmgrid" else {"width": 32}))
+        model = build_model(name, BOX, view_dependent=False, **({"res_init": 16} if name == "vmgrid" else {"width": 32}))
         _randomise(model)
         x, dirs = _points_and_directions(m=16, k=2)
         with torch.no_grad():
@@ -86,7 +86,7 @@ def test_the_option_turns_it_off_on_the_plain_methods_too():
 def test_default_networks_keep_their_shapes():
     """The default direction input is as before the option: vmgrid's 2 frequencies (3 * 5 = 15 columns
     beside the 27 appearance features), nerf's 4 (3 * 9 = 27 beside the trunk width)."""
-    assert build_model("vmgrid", BOX, resolution=16).field.mlp[0].in_features == 27 + 15
+    assert build_model("vmgrid", BOX, res_init=16).field.mlp[0].in_features == 27 + 15
     assert build_model("nerf", BOX, width=32).coarse.rgb_head[0].in_features == 32 + 27
     assert build_model("nerf-nope", BOX, width=32).coarse.rgb_head[0].in_features == 32 + 3
     assert build_model("nerf-noview", BOX, width=32).coarse.rgb_head[0].in_features == 32

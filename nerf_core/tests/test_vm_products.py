@@ -176,19 +176,18 @@ def _old_layout(state: dict, prefix: str = "") -> dict:
 
 
 def test_a_checkpoint_from_before_the_layout_change_loads_to_the_same_field():
-    model = build_model("vmgrid", BOX, resolution=16)
+    model = build_model("vmgrid", BOX, res_init=16)
     with torch.no_grad():
         for p in model.field.grid_parameters():
             p.normal_()
     model.field.upsample(20)  # grown: the loader must grow the fresh model from the old key's shape
-    model.options["resolution"] = 20
     x = torch.rand(50, 3) * 2 - 1
     d = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
     with torch.no_grad():
         want = model.field.density(x), model.field.color(x, d)
     old = _old_layout(model.state_dict(), "field.")
     assert "field.density_planes" in old and old["field.density_planes"].shape == (3, 16, 20, 20)
-    fresh = build_model("vmgrid", BOX, resolution=16)
+    fresh = build_model("vmgrid", BOX, res_init=16)
     weights, _ = fresh.upgrade_checkpoint(old)
     assert "field.density_planes" in old  # the caller's dict is not changed
     from nerf_core.runs.checkpoint_checks import check_weights
@@ -203,7 +202,7 @@ def test_old_adam_moments_are_upgraded_for_resume():
     from nerf_core.engine.optim import make_optimizer
     from nerf_core.runs.checkpoint_checks import check_optimizer_state
 
-    model = build_model("vmgrid", BOX, resolution=12)
+    model = build_model("vmgrid", BOX, res_init=12)
     opt = make_optimizer(model, 1e-3)
     x = torch.rand(64, 3) * 2 - 1
     (model.field.density(x).sum() + model.field.color(x, torch.nn.functional.normalize(x, dim=-1)).sum()).backward()
@@ -229,7 +228,7 @@ def test_training_steps_match_between_the_kernel_and_grid_sample(monkeypatch):
     def run(native_on: bool):
         monkeypatch.setenv("NERF_CORE_NATIVE", "1" if native_on else "0")
         torch.manual_seed(0)
-        model = build_model("vmgrid", BOX, resolution=16)
+        model = build_model("vmgrid", BOX, res_init=16)
         opt = make_optimizer(model, 1e-2)
         gen = torch.Generator().manual_seed(1)
         for _ in range(5):
