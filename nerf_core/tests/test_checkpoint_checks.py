@@ -9,6 +9,8 @@ import sys
 import pytest
 import torch
 
+from nerf_core.methods.base import RadianceModel
+
 from nerf_core.errors import RunError
 from nerf_core.runs.checkpoint_checks import check_entries, check_optimizer_state, check_rng, check_weights
 from nerf_core.runs.checkpoints import read_checkpoint
@@ -130,11 +132,11 @@ def test_resume_refuses_a_checkpoint_of_another_method(trained_run, run_copy):
 # -- the checks themselves, against hand-made values -------------------------------------------------
 
 def test_growth_is_allowed_only_where_the_method_declares_it():
-    class Grows(torch.nn.Module):
+    class Grows(RadianceModel):
         growing = ("planes",)
 
         def __init__(self):
-            super().__init__()
+            super().__init__(torch.tensor([[-1.0] * 3, [1.0] * 3]))
             self.planes = torch.nn.Parameter(torch.zeros(3, 8, 16, 16))
             self.mlp = torch.nn.Linear(4, 2)
 
@@ -186,7 +188,7 @@ def test_grids_of_two_resolutions_are_refused():
     lines of two sizes, must be refused by name before any kernel indexes it."""
     from nerf_core.methods.registry import build_model
 
-    model = build_model("vmgrid", torch.tensor([[-1.0] * 3, [1.0] * 3]), resolution=16)
+    model = build_model("vmgrid", torch.tensor([[-1.0] * 3, [1.0] * 3]), res_init=16)
     weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     r = weights["field.density_planes_cl"].shape[-1]
     grown = {**weights, "field.density_planes_cl": torch.zeros(3, 24, 24, r), "field.density_lines_cl": torch.zeros(3, 24, r),

@@ -118,7 +118,7 @@ def test_vmgrid_occupancy_dilation_after_formed_is_an_option():
 
     model.update_occupancy()
     assert torch.equal(occ.binary, holds_density()) and occ.binary.any()  # no dilation once formed
-    model.options["occ_dilate_formed"] = True
+    model.opts.occ_dilate_formed = True
     model.update_occupancy()
     shell = occ.binary & ~holds_density()
     assert shell.sum() > 0.2 * occ.binary.sum()  # the default: a one-cell shell round the density
@@ -178,6 +178,8 @@ def test_render_rays_contract_for_every_method():
 
 
 def test_grown_vmgrid_checkpoint_reloads_through_build_model():
+    from nerf_core.runs.weights import load_weights
+
     model = build_model("vmgrid", BOX, **SMALL_GRID)
     model.occupancy.binary[:2] = False
     assert model.training_hook(25, 25 / 30)  # past upsample_at and min_stage_steps: grows
@@ -185,9 +187,9 @@ def test_grown_vmgrid_checkpoint_reloads_through_build_model():
     state, options = model.state_dict(), json.loads(json.dumps(model.options))
     rebuilt = build_model("vmgrid", BOX, **options)
     rebuilt.load_state_dict(state)
-    # A model built at another size also loads (it grows to the stored size).
-    old = build_model("vmgrid", BOX, **{**options, "res_init": 12})
-    old.load_state_dict(state)
+    # The one loader: run state, check, resize, load (what eval and --resume do).
+    old = build_model("vmgrid", BOX, **options)
+    load_weights(old, {"model": state, "method_state": model.run_state()})
     o, d, near, far, _ = sphere_scene(n_cams=1, size=4)
     outs = [m.render_rays(o, d, near, far, torch.ones(16, 3), False)["rgb"] for m in (model, rebuilt, old)]
     assert torch.allclose(outs[0], outs[1]) and torch.allclose(outs[0], outs[2])
@@ -218,7 +220,7 @@ def test_nerf_early_ray_termination_while_training_changes_only_invisible_sample
     bg = torch.ones(o.shape[0], 3)
     outs = {}
     for ert in (False, True):
-        model.options["train_ert"] = ert
+        model.opts.train_ert = ert
         torch.manual_seed(1)  # the same jittered samples
         outs[ert] = model.render_rays(o, d, near, far, bg, True)
     # Samples behind T < 1e-4 carry less than 1e-4 of a ray's colour: dropping them changes nothing visible,
@@ -261,7 +263,7 @@ def test_nerf_auto_early_termination_follows_what_it_would_drop():
     bg = torch.ones(o.shape[0], 3)
 
     def samples(ert):
-        model.options["train_ert"] = ert
+        model.opts.train_ert = ert
         torch.manual_seed(1)  # the same jittered samples
         return model.render_rays(o, d, near, far, bg, True)["n_samples"]
 
@@ -276,12 +278,12 @@ def test_nerf_auto_early_termination_follows_what_it_would_drop():
     model._ert_keep, model._ert_wait = None, 0
     assert samples("auto") == everything  # it measured: nothing dropped...
     assert model._ert_keep > 0.99
-    model.options["ert_probe_every"], model._ert_wait = 3, 3
+    model.opts.ert_probe_every, model._ert_wait = 3, 3
     # ...so it stays off, and measures again every third training render.
     assert [model._use_ert() for _ in range(6)] == [False, False, True, False, False, True]
     model._ert_keep = 0.5  # a measurement that drops half the samples turns it on while that lasts
     assert all(model._use_ert() for _ in range(5))
-    model.options["train_ert"] = False
+    model.opts.train_ert = False
     assert not model._use_ert()
     with pytest.raises(ValueError, match="train_ert"):
         build_model("nerf", BOX, train_ert="sometimes")

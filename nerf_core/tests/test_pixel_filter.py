@@ -10,6 +10,7 @@ import torch
 from nerf_core.cameras.rays import Cameras, rays_for_pixels
 from nerf_core.cli.main import main
 from nerf_core.image import pixel_filter as pf
+from nerf_core.methods.base import RadianceModel
 from nerf_core.render.frame import render_view
 
 
@@ -89,14 +90,13 @@ def test_sub_pixel_rays_pass_through_the_offset_point():
     torch.testing.assert_close(zero, centre, atol=1e-6, rtol=0)
 
 
-class _HalfPlane(torch.nn.Module):
+class _HalfPlane(RadianceModel):
     """A fake model: opaque white where a ray's camera-space x exceeds ``edge`` (a vertical edge in the
     image), nothing elsewhere."""
 
     def __init__(self, edge: float):
-        super().__init__()
+        super().__init__(torch.tensor([[-10.0, -10, -10], [10, 10, 10]]))
         self.edge = edge
-        self.register_buffer("aabb", torch.tensor([[-10.0, -10, -10], [10, 10, 10]]))
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         x = rays_d[:, 0] / -rays_d[:, 2]

@@ -172,12 +172,11 @@ def test_render_view_chunks_give_the_same_image(trained_run):
     torch.testing.assert_close(a["rgb"], b["rgb"])
 
 
-class _Wall(torch.nn.Module):
+class _Wall(RadianceModel):
     """A fake model: every ray hits at distance 2 (opaque) except rays going left (transparent)."""
 
     def __init__(self):
-        super().__init__()
-        self.register_buffer("aabb", torch.tensor([[-10.0, -10, -10], [10, 10, 10]]))
+        super().__init__(torch.tensor([[-10.0, -10, -10], [10, 10, 10]]))
 
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         n = rays_o.shape[0]
