@@ -4,7 +4,7 @@ Object scenes on a transparent film need nothing; scenes whose background is par
 ``hdri`` shows its world (an opaque film) and ``interior`` is a closed room captured from inside.
 
 This module is plain Python (no bpy, no relative imports) so the scripts that run outside Blender
-(``scripts/demo.py``, ``scripts/bench/datasets.py``) can load it by file path without importing the
+(``scripts/demo.py``, ``benchmarks/bench/datasets.py``) can load it by file path without importing the
 add-on package, whose ``__init__`` imports bpy. ``demo_scenes`` re-exports these names.
 
 Keys are ``scripts/capture.py`` flag names without the dashes, ``_`` for ``-``; ``True`` is a bare flag.
