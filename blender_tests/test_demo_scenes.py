@@ -223,6 +223,7 @@ def test_capture_flags_of_each_scene_parse_as_capture_options(monkeypatch):
 
 def test_benchmark_and_demo_capture_real_scenes_with_their_flags(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(os.path.dirname(SCRIPT))
+    monkeypatch.syspath_prepend(os.path.join(os.path.dirname(os.path.dirname(SCRIPT)), "benchmarks"))
     import demo
     from bench import datasets, runner
 
