@@ -402,7 +402,7 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     assert np.allclose(doc["aabb"], box) and doc["aabb"][1][0] - doc["aabb"][0][0] < 10.0  # not the 200 m floor
     manifest = json.loads((tmp_path / "nerf_capture" / "manifest.json").read_text())
     assert manifest["plan"]["bounds"]["surroundings"] == ["Plane"] == around
-    assert doc["beyond_box"] == ["Plane"]  # so that train models the floor beyond the box (--contract)
+    assert doc["beyond_box"] == ["Plane"]  # so that train models the floor beyond the box (--unbounded)
     # A room captured from inside keeps the whole scene as its box.
     whole = capture_planning.scene_box(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
     assert whole[1] == [] and whole[0][1][0] - whole[0][0][0] == pytest.approx(200.0)

@@ -14,6 +14,7 @@ from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.trainer import train
 from nerf_core.errors import TrainError
+from nerf_core.methods.registry import current_option_names
 
 
 def add_parser(sub, fmt) -> None:
@@ -37,10 +38,10 @@ def add_parser(sub, fmt) -> None:
                         "no dataset hash (newer runs accept a moved dataset by its hash without this flag)")
     t.add_argument("--overwrite", action="store_true", help="start RUN again, deleting only files an earlier training wrote")
     t.add_argument("--size", choices=["auto"], help="let nerf_core.methods.sizing choose the model size for this dataset")
-    t.add_argument("--contract", action="store_true",
+    t.add_argument("--unbounded", "--contract", dest="unbounded", action="store_true",  # --contract: its old name
                    help="scene contraction (mip-NeRF 360 style): also model geometry beyond the scene box, such as a "
-                        "ground plane running to the horizon (vmgrid; the same as --set contract=true). Without it, "
-                        "a cut-out whose opaque pixels look past the box gets it anyway; --set contract=false stops that")
+                        "ground plane running to the horizon (vmgrid; the same as --set unbounded=true). Without it, "
+                        "a cut-out whose opaque pixels look past the box gets it anyway; --set unbounded=false stops that")
     t.add_argument("--progress", metavar="FILE", help="also append the JSON progress events to FILE")
     t.add_argument("--device", metavar="DEV", help="torch device (cpu, cuda, cuda:1); default: cuda if available else cpu")
     t.add_argument("--lr", type=positive_float, help="base learning rate (default: the method's)")
@@ -80,10 +81,14 @@ def run(a) -> int:
 
 
 def _options(a) -> dict:
-    """``--set`` options, with ``--contract`` as ``contract=true``; the two flags must not disagree."""
-    options = parse_options(a.options)
-    if a.contract:
-        if options.get("contract", True) is not True:
-            raise TrainError(f"--contract and --set contract={options['contract']} disagree; give one of them")
-        options["contract"] = True
+    """``--set`` options (old option names mapped to today's), with ``--unbounded`` as ``unbounded=true``;
+    the two flags must not disagree."""
+    try:
+        options = current_option_names(parse_options(a.options))
+    except ValueError as exc:
+        raise TrainError(f"--set: {exc}") from None
+    if a.unbounded:
+        if options.get("unbounded", True) is not True:
+            raise TrainError(f"--unbounded and --set unbounded={options['unbounded']} disagree; give one of them")
+        options["unbounded"] = True
     return options

@@ -13,6 +13,11 @@ from nerf_core.fields.environment import EnvironmentMap
 
 _REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
 
+# Options renamed after checkpoints were written with them: old name -> today's. Checkpoints, run
+# configs and ``--set`` may still use an old name (``contract`` now names only the ``nerf_core.contract``
+# package, so vmgrid's scene-contraction switch is ``unbounded``).
+RENAMED_OPTIONS = {"contract": "unbounded"}
+
 
 def register(name: str):
     """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``.
@@ -80,7 +85,24 @@ def saved_options(name: str, options: dict) -> dict:
     option existed (the method's ``options_before``). A checkpoint's model must be rebuilt as it
     was trained, not with today's defaults; ``train --resume`` and every loader go through here."""
     before = getattr(method_class(name), "options_before", {})
-    return {**before, **options}
+    return {**before, **current_option_names(options)}
+
+
+def current_option_names(options: dict) -> dict:
+    """``options`` with each old option name (``RENAMED_OPTIONS``) replaced by today's name.
+
+    Raises:
+        ValueError: an option given under its old and its new name with two different values.
+    """
+    out = dict(options)
+    for old, new in RENAMED_OPTIONS.items():
+        if old in out:
+            value = out.pop(old)
+            if new in out and out[new] != value:
+                raise ValueError(f"option {old!r} is the old name of {new!r}, and the two disagree "
+                                 f"({old}={value!r}, {new}={out[new]!r}); give one of them")
+            out.setdefault(new, value)
+    return out
 
 
 def method_class(name: str) -> Optional[type]:

@@ -36,7 +36,7 @@ from nerf_core.methods.base import (
 from nerf_core.methods.registry import register
 from nerf_core.utils import profiling
 from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
-from nerf_core.volume.contraction import contract, outer_box
+from nerf_core.volume.contraction import outer_box, squeeze_into_outer_box
 from nerf_core.volume.occupancy import OccupancyGrid
 
 Tensor = torch.Tensor
@@ -101,7 +101,7 @@ class VMGrid(RadianceModel):
             per scene unit, as every checkpoint before this option was trained (``options_before``).
         view_dependent: False: the colour ignores the view direction (``encodings.direction_encoding``);
             ``vmgrid-noview`` is vmgrid with it off, to show what the direction input buys.
-        contract: model the world beyond the box too (``nerf_core.volume.contraction``): the grid spans the
+        unbounded: model the world beyond the box too (``nerf_core.volume.contraction``): the grid spans the
             contracted world, twice the box, and rays run on past the box (``sampling.contracted_samples``).
     """
 
@@ -120,7 +120,7 @@ class VMGrid(RadianceModel):
                     occ_res=64, occ_every=16, occ_alpha=1e-2, occ_decay=0.5, occ_dilate_formed=False,
                     step_ratio=0.5, l1_weight=2e-4, tv_weight=0.0,
                     grid_lr_scale=20.0, budget_steps=10000, min_stage_steps=100, warmup_step_scale=3.0, alpha_init=1e-4, seed=0,
-                    contract=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
+                    unbounded=False, dist_weight=0.0, grad_reach=grad_scaling.DEFAULT_REACH_SHARE,
                     color_weight=1e-4, occ_probe="max", density_unit="box", view_dependent=True,
                     budget_growth_steps=growth.BASE_STEPS, res_budget_max=320, res_final_budget=None)
     options_before = {"density_unit": "scene"}
@@ -163,7 +163,7 @@ class VMGrid(RadianceModel):
         density_scale = 25.0 / density_length(self.aabb, opts["density_unit"])
         shift = math.log(math.expm1(sigma0 / density_scale))  # softplus^-1
         # With contraction the grids span the contracted world (twice the box); points are warped into it.
-        self.contracted = bool(opts["contract"])
+        self.contracted = bool(opts["unbounded"])
         field_box = outer_box(self.aabb) if self.contracted else self.aabb
         self.field = TensorVMField(field_box, resolution=opts["resolution"], density_rank=opts["density_rank"],
                                    app_rank=opts["app_rank"], app_dim=opts["app_dim"], mlp_width=opts["mlp_width"],
@@ -366,8 +366,8 @@ class VMGrid(RadianceModel):
     # ------------------------------------------------------------------ rendering
 
     def warp(self, pts: Tensor) -> Tensor:
-        """World points (m, 3) -> the field's coordinates (contracted when ``contract`` is on)."""
-        return contract(pts, self.aabb) if self.contracted else pts
+        """World points (m, 3) -> the field's coordinates (contracted when ``unbounded`` is on)."""
+        return squeeze_into_outer_box(pts, self.aabb) if self.contracted else pts
 
     def ray_interval(self, rays_o, rays_d, near=None, far=None):
         if not self.contracted:
