@@ -19,11 +19,11 @@ from .runner import REPO_ROOT, BenchError, run_cli, script_cmd
 
 
 def _demo_capture():
-    """``addon/capture/demo_capture.py`` as a module (None when the file is missing), loaded by path:
+    """``addon/capture/demo/capture_flags.py`` as a module (None when the file is missing), loaded by path:
     importing the ``addon`` package would import bpy."""
     import importlib.util
 
-    path = os.path.join(REPO_ROOT, "addon", "capture", "demo_capture.py")
+    path = os.path.join(REPO_ROOT, "addon", "capture", "demo", "capture_flags.py")
     if not os.path.isfile(path):
         return None
     spec = importlib.util.spec_from_file_location("_nerf_bridge_demo_capture", path)
@@ -33,13 +33,13 @@ def _demo_capture():
 
 
 def demo_capture_defaults(scene: str) -> dict:
-    """Capture settings demo scene ``scene`` needs (``addon/capture/demo_capture.py``: e.g. opaque, layout inside)."""
+    """Capture settings demo scene ``scene`` needs (``addon/capture/demo/capture_flags.py``: e.g. opaque, layout inside)."""
     module = _demo_capture()
     return module.capture_defaults(scene) if module else {}
 
 
 def demo_scene_names() -> list[str]:
-    """The demo scenes ``make_demo_scene.py`` builds (``addon/capture/demo_capture.SCENES``; [] when unknown)."""
+    """The demo scenes ``make_demo_scene.py`` builds (``addon/capture/demo/capture_flags.SCENES``; [] when unknown)."""
     module = _demo_capture()
     return list(getattr(module, "SCENES", {})) if module else []
 

@@ -121,7 +121,7 @@ def test_unknown_scenes_and_methods_are_named_before_anything_runs():
 
 
 def test_benchmark_refuses_an_unknown_scene_before_making_its_folder(tmp_path, capsys):
-    """The real lists: the demo scenes of addon/capture/demo_capture.py and `python -m nerf_core methods`."""
+    """The real lists: the demo scenes of addon/capture/demo/capture_flags.py and `python -m nerf_core methods`."""
     from bench import datasets, runner
 
     assert {"diffuse", "interior", "ground"} <= set(datasets.demo_scene_names())

@@ -5,8 +5,8 @@ from dataclasses import dataclass, field
 
 import bpy
 
-from ..bridge.core_contract import contract
-from .capture_plan import CaptureError
+from ...bridge.core_contract import contract
+from .frame_plan import CaptureError
 
 ENGINE_ALIASES = {
     "cycles": ("CYCLES",),
@@ -35,7 +35,7 @@ class CaptureSettings:
     normalize_camera_scale: bool = False
     layout: dict = field(default_factory=dict)  # LayoutSpec.to_dict(), recorded in the manifest
     seed: int = 0
-    shard: tuple | None = None  # (K, N), 1 <= K <= N: render only shard K's share (capture_plan)
+    shard: tuple | None = None  # (K, N), 1 <= K <= N: render only shard K's share (plan.frame_plan)
 
 
 def resolve_engine(name: str) -> str:

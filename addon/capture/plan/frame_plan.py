@@ -86,7 +86,7 @@ def frame_files(split: str, name: str, depth: bool, normals: bool, masks: bool, 
 def make_plan(frames: list[dict], *, settings, render_sig: dict, world: dict, bounds, scene_name: str,
               blender_version: str, surroundings=()) -> dict:
     """The JSON plan of a capture; ``frames`` in plan order, ``settings`` a CaptureSettings.
-    ``surroundings``: objects the scene box leaves out (``capture_planning.scene_box``), recorded when any."""
+    ``surroundings``: objects the scene box leaves out (``plan.planning.scene_box``), recorded when any."""
     keep = FRAME_KEYS + FRAME_FILE_KEYS
     lo, hi = bounds
     plan = {

@@ -5,13 +5,13 @@ Object scenes on a transparent film need nothing; scenes whose background is par
 
 This module is plain Python (no bpy, no relative imports) so the scripts that run outside Blender
 (``scripts/demo.py``, ``benchmarks/bench/datasets.py``) can load it by file path without importing the
-add-on package, whose ``__init__`` imports bpy. ``demo_scenes`` re-exports these names.
+add-on package, whose ``__init__`` imports bpy. ``demo.scenes`` re-exports these names.
 
 Keys are ``scripts/capture.py`` flag names without the dashes, ``_`` for ``-``; ``True`` is a bare flag.
 """
 from __future__ import annotations
 
-# The demo scenes ``demo_scenes.build`` makes, with a line each (here, not there, so that the
+# The demo scenes ``demo.scenes.build`` makes, with a line each (here, not there, so that the
 # benchmark can check ``--scenes`` without bpy).
 SCENES = {
     "cube": "a flat-coloured cube (tiny; for model-sizing tests)",

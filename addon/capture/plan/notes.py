@@ -5,8 +5,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..dataset import aabb
-from ..scene import passes, scene_bounds, scene_files
+from ...dataset import aabb
+from ...scene import passes, scene_bounds, scene_files
 
 
 def _box_depths(fr: dict, corners: np.ndarray) -> tuple[float, float]:
@@ -20,7 +20,7 @@ def _box_depths(fr: dict, corners: np.ndarray) -> tuple[float, float]:
 def clipping_notes(frames: list, bounds) -> list:
     """A warning when cameras' clipping planes cut into the scene box (empty when none).
 
-    Generated layouts set clipping to fit the box (``layout_cameras.create_cameras``); cameras the user set
+    Generated layouts set clipping to fit the box (``layout.cameras.create_cameras``); cameras the user set
     up keep theirs, and a clip_end short of the far side (or a clip_start beyond the near side of a
     box in front of the camera) leaves part of the scene out of some pictures only: views that
     disagree about what is there, which a radiance field turns into floaters or holes. The planes are

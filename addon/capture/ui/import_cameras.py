@@ -1,10 +1,10 @@
-"""The Capture panel's *Import Cameras* operator: a thin wrapper of ``camera_import.import_cameras``."""
+"""The Capture panel's *Import Cameras* operator: a thin wrapper of ``layout.camera_import.import_cameras``."""
 from __future__ import annotations
 
 import bpy
 from bpy.props import StringProperty
 
-from . import camera_import
+from ..layout import camera_import
 
 
 class NERF_OT_import_cameras(bpy.types.Operator):

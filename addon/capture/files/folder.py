@@ -5,11 +5,12 @@ from __future__ import annotations
 import os
 import shutil
 
-from ..dataset import capture_manifest, transforms
-from ..dataset.errors import ExportError
-from . import capture_plan, capture_shards
-from .capture_plan import CaptureError
-from .capture_write import FORMAT
+from ...dataset import capture_manifest, transforms
+from ...dataset.errors import ExportError
+from ..plan import frame_plan
+from ..plan.frame_plan import CaptureError
+from . import shards
+from .write import FORMAT
 
 # Paths a capture owns inside its folder; the only ones --overwrite removes.
 DATASET_PATHS = ("train", "val", "test", "depth", "normals", "masks", "points3d.ply", "transforms.json",
@@ -46,12 +47,12 @@ class FolderInspection:
         entries = sorted(e for e in os.listdir(out) if e != capture_manifest.MANIFEST_DIR and not _empty_tree(os.path.join(out, e)))
         try:
             manifest = capture_manifest.read_manifest(out)
-            states = capture_shards.read_states(out, capture_manifest.MANIFEST_DIR)
+            states = shards.read_states(out, capture_manifest.MANIFEST_DIR)
         except (ExportError, CaptureError) as exc:
             return None, str(exc)
         if manifest is not None and manifest.get("format") != FORMAT:
             manifest = None
-        conflict = capture_shards.conflict(out, capture_manifest.MANIFEST_DIR, self.plan_doc, self.plan_hash, self.shard,
+        conflict = shards.conflict(out, capture_manifest.MANIFEST_DIR, self.plan_doc, self.plan_hash, self.shard,
                                            manifest, states)
         if conflict:
             return manifest, conflict
@@ -76,7 +77,7 @@ class FolderInspection:
                               "(--overwrite) to render them again")
         differing = sorted(k for k, v in old.items() if new.get(k) != v.get("hash"))
         if differing:
-            same_render = manifest.get("render") == capture_plan.round6(self.render_sig)
+            same_render = manifest.get("render") == frame_plan.round6(self.render_sig)
             reason = "cameras changed" if same_render else "render settings changed"
             return manifest, (f"output folder {out} holds a different capture ({reason}: {len(differing)} of "
                               f"{len(old)} frames differ, e.g. {differing[0]}); choose another folder or "
@@ -96,7 +97,7 @@ class FolderInspection:
             raise CaptureError(conflict)
         try:
             os.makedirs(os.path.join(self.out, capture_manifest.MANIFEST_DIR), exist_ok=True)
-            probe = os.path.join(self.out, capture_manifest.MANIFEST_DIR, f".write_probe.{capture_shards.unique_suffix()}")
+            probe = os.path.join(self.out, capture_manifest.MANIFEST_DIR, f".write_probe.{shards.unique_suffix()}")
             with open(probe, "w") as fh:
                 fh.write("ok")
             os.remove(probe)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..scene import scene_bounds
+from ...scene import scene_bounds
 
 
 class RenderSettingsOverride:

@@ -1,7 +1,7 @@
 """Writing a capture's dataset files from its plan: transforms files, point cloud, manifest.
 
 One writer for both ways a capture ends: ``CaptureJob`` (one machine: after every frame, and at
-the end) and ``capture_merge`` (a farm: once, after every shard). Given the same plan and frames
+the end) and ``run.merge`` (a farm: once, after every shard). Given the same plan and frames
 both write the same transforms files and point cloud, byte for byte.
 """
 from __future__ import annotations
@@ -12,12 +12,12 @@ import time
 import numpy as np
 import tomllib
 
-from ..bridge.core_contract import contract
-from ..bridge.core_path import ADDON_DIR
-from ..dataset import aabb, capture_manifest, points, transforms
-from ..file_writes import write_png_gray
-from ..scene import passes
-from .capture_plan import SHARD_ASSIGNMENT, round6
+from ...bridge.core_contract import contract
+from ...bridge.core_path import ADDON_DIR
+from ...dataset import aabb, capture_manifest, points, transforms
+from ...file_writes import write_png_gray
+from ...scene import passes
+from ..plan.frame_plan import SHARD_ASSIGNMENT, round6
 
 FORMAT = "nerf_bridge_capture"
 SPLITS = ("train", "val", "test")

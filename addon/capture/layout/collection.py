@@ -7,7 +7,7 @@ import json
 
 import bpy
 
-from .layouts import COLLECTION_NAME, SPLITS, LayoutError, LayoutSpec
+from .positions import COLLECTION_NAME, SPLITS, LayoutError, LayoutSpec
 
 
 def _is_camera_collection(coll) -> bool:

@@ -1,7 +1,7 @@
 """Camera layouts for a capture: where the train/val/test cameras go. Pure functions, no bpy.
 
-The position generators return lists of (x, y, z) tuples; ``layout_cameras.create_cameras`` turns a
-layout into real camera objects in the "NeRF Cameras" collection (``camera_collection``), which users
+The position generators return lists of (x, y, z) tuples; ``layout.cameras.create_cameras`` turns a
+layout into real camera objects in the "NeRF Cameras" collection (``layout.collection``), which users
 can inspect and edit before capturing (a capture renders whatever cameras that collection holds).
 
 Elevations are in degrees above the target's horizontal plane (+Z up, as in Blender).
@@ -26,7 +26,7 @@ GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 INSIDE_WALL_MARGIN = 0.12
 INSIDE_HEIGHT_BAND = (0.4, 0.6)
 INSIDE_CLIP_START = 0.05
-RINGS_ELEVATION = (10.0, 60.0)  # the Capture panel's default for rings (capture_ui._layout_changed)
+RINGS_ELEVATION = (10.0, 60.0)  # the Capture panel's default for rings (ui.panel._layout_changed)
 INSIDE_ELEVATION = (-25.0, 15.0)  # a room's furniture stands low: more floor than ceiling
 
 

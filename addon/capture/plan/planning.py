@@ -1,21 +1,22 @@
 """A capture's plan: the settings checked against the scene, then one frame per camera of the "NeRF
 Cameras" collection with its pose, intrinsics and hash (``CapturePlanning.plan``), the same on every
-machine of a farm (``capture_plan.make_plan``)."""
+machine of a farm (``frame_plan.make_plan``)."""
 from __future__ import annotations
 
 import os
 
 import bpy
 
-from ..bridge.core_contract import contract
-from ..dataset import cameras, capture_manifest
-from ..dataset.errors import ExportError
-from ..scene import camera_checks, scene_appearance, scene_bounds
-from . import camera_collection, capture_plan, layouts
-from .capture_notes import capture_notes, clipping_notes, depth_png_notes
-from .capture_plan import CaptureError
-from .capture_settings import MAX_RESOLUTION, CaptureSettings, RenderView, film_filter, resolve_engine
-from .capture_world import world_description
+from ...bridge.core_contract import contract
+from ...dataset import cameras, capture_manifest
+from ...dataset.errors import ExportError
+from ...scene import camera_checks, scene_appearance, scene_bounds
+from ..layout import collection, positions
+from . import frame_plan
+from .frame_plan import CaptureError
+from .notes import capture_notes, clipping_notes, depth_png_notes
+from .settings import MAX_RESOLUTION, CaptureSettings, RenderView, film_filter, resolve_engine
+from .world import world_description
 
 
 def scene_box(scene, settings) -> tuple:
@@ -54,7 +55,7 @@ class CapturePlanning:
         if settings.shard is not None:
             k, n = settings.shard
             try:
-                self.shard = capture_plan.parse_shard(f"{k}/{n}")
+                self.shard = frame_plan.parse_shard(f"{k}/{n}")
             except ValueError as exc:
                 raise CaptureError(str(exc)) from exc
             if settings.overwrite:
@@ -104,7 +105,7 @@ class CapturePlanning:
         self.appearance_sig = None  # scene_appearance.appearance_signature at plan(): materials, world, lights
         self.world = None
         self.frames = []
-        self.plan_doc = None  # capture_plan.make_plan: the JSON plan every shard computes alike
+        self.plan_doc = None  # frame_plan.make_plan: the JSON plan every shard computes alike
         self.plan_hash = None
         self.share = set()  # keys of the frames this job renders (all, or its shard's)
         self.pending = []
@@ -135,7 +136,7 @@ class CapturePlanning:
         if film != contract.film_filter_field(contract.DEFAULT_FILTER_KIND):
             # Only a filter other than Blender's default is part of the signature, so the hashes of
             # earlier captures (and the folders they resume) stay what they were; the transforms
-            # always record it (capture_write).
+            # always record it (files.write).
             sig["pixel_filter"] = film
         if not self.s.film_transparent:
             # The world is in every pixel behind the scene. Only opaque captures carry it, so the
@@ -145,9 +146,9 @@ class CapturePlanning:
 
     def plan(self) -> list[dict]:
         """Frames to capture, from the "NeRF Cameras" collection; raises CaptureError on bad cameras."""
-        cams = camera_collection.capture_cameras(self.scene)
+        cams = collection.capture_cameras(self.scene)
         if not cams["train"]:
-            raise CaptureError(f"no train cameras in the {layouts.COLLECTION_NAME!r} collection; "
+            raise CaptureError(f"no train cameras in the {positions.COLLECTION_NAME!r} collection; "
                                "generate a camera layout first")
         self.render_sig = self._render_signature()
         self.scene_sig = scene_bounds.scene_signature(self.scene)
@@ -156,7 +157,7 @@ class CapturePlanning:
         # Intrinsics use the capture resolution, not the scene's: compute on a stand-in render struct.
         render = RenderView(self.scene.render, self.s.res_x, self.s.res_y)
         frames = []
-        with scene_bounds.fresh_matrices(self.scene, [o for split in layouts.SPLITS for o in cams[split]]):
+        with scene_bounds.fresh_matrices(self.scene, [o for split in positions.SPLITS for o in cams[split]]):
             self._plan_frames(cams, render, frames)
         self.frames = frames
         # Legal, and written exactly, but some peer loaders misplace these views: say so before rendering.
@@ -168,18 +169,18 @@ class CapturePlanning:
             # Views at their own frames (the animation layout): the scene at the current frame is not
             # what they show, and resuming at another frame must not look like an edit.
             self.scene_sig = None
-        self.plan_doc = capture_plan.make_plan(frames, settings=self.s, render_sig=self.render_sig, world=self.world,
+        self.plan_doc = frame_plan.make_plan(frames, settings=self.s, render_sig=self.render_sig, world=self.world,
                                                bounds=self.bounds, scene_name=self.scene.name,
                                                blender_version=bpy.app.version_string,
                                                surroundings=self.surroundings)
-        self.plan_hash = capture_plan.plan_hash(self.plan_doc)
-        own = capture_plan.shard_frames(frames, *self.shard) if self.shard else frames
+        self.plan_hash = frame_plan.plan_hash(self.plan_doc)
+        own = frame_plan.shard_frames(frames, *self.shard) if self.shard else frames
         self.share = {fr["key"] for fr in own}
         return frames
 
     def _plan_frames(self, cams: dict, render, frames: list) -> None:
         """Append a frame dict per camera of ``cams`` to ``frames`` (inside ``fresh_matrices``)."""
-        for split in layouts.SPLITS:
+        for split in positions.SPLITS:
             for k, obj in enumerate(cams[split]):
                 err = camera_checks.camera_scale_error(obj)
                 scale_removed = None
@@ -198,8 +199,8 @@ class CapturePlanning:
                     "camera": obj.name, "transform_matrix": c2w, "intrinsics": intr,
                     "frame": int(frame) if frame is not None else None, "scale_removed": scale_removed,
                 }
-                fr["hash"] = capture_plan.stable_hash({"render": self.render_sig, "c2w": c2w, "intr": intr,
+                fr["hash"] = frame_plan.stable_hash({"render": self.render_sig, "c2w": c2w, "intr": intr,
                                                        "frame": fr["frame"]})
-                fr.update(capture_plan.frame_files(split, fr["name"], self.s.depth, self.s.normals, self.s.masks,
+                fr.update(frame_plan.frame_files(split, fr["name"], self.s.depth, self.s.normals, self.s.masks,
                                                    self.s.points, capture_manifest.MANIFEST_DIR))
                 frames.append(fr)

@@ -3,8 +3,8 @@ leaves out of its framing (``framing_note``) and objects that move under the ani
 (``motion_note``)."""
 from __future__ import annotations
 
-from ..scene import scene_bounds
-from .layouts import GENERATED_LAYOUTS, LayoutSpec
+from ...scene import scene_bounds
+from .positions import GENERATED_LAYOUTS, LayoutSpec
 
 
 def framing_bounds(scene, spec: LayoutSpec) -> tuple:

@@ -5,8 +5,9 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from ..common.ui_common import path_options
-from . import capture_settings, layouts
+from ...common.ui_common import path_options
+from ..layout import positions
+from ..plan import settings
 
 _LAYOUT_ITEMS = [
     ("hemisphere", "Hemisphere", "Fibonacci points on the upper hemisphere (elevation range)"),
@@ -34,7 +35,7 @@ def _layout_changed(self, _context):
     elif self.layout == "rings":
         self.elevation_min, self.elevation_max = 10.0, 60.0
     elif self.layout == "inside":
-        self.elevation_min, self.elevation_max = layouts.INSIDE_ELEVATION
+        self.elevation_min, self.elevation_max = positions.INSIDE_ELEVATION
 
 
 class NerfCaptureSettings(bpy.types.PropertyGroup):
@@ -46,7 +47,7 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
         ("SELECTION", "Selection", "Aim at and frame the selected objects (masks cover them only)")], default="SCENE")
     # At least 2: `train` and `check` refuse a train split of one view (there is nothing to triangulate).
     train_count: IntProperty(name="Train", default=100, min=2, soft_max=1000)
-    # At least 1 each: `train` and `check` refuse a dataset with an empty split (camera_collection.held_out_problem).
+    # At least 1 each: `train` and `check` refuse a dataset with an empty split (layout.collection.held_out_problem).
     val_count: IntProperty(name="Val", default=10, min=1, soft_max=200)
     test_count: IntProperty(name="Test", default=20, min=1, soft_max=400)
     radius: FloatProperty(name="Radius", default=0.0, min=0.0, unit="LENGTH",
@@ -78,15 +79,15 @@ class NerfCaptureSettings(bpy.types.PropertyGroup):
     status: StringProperty(default="", options={"SKIP_SAVE"})
     cancel_requested: BoolProperty(default=False, options={"SKIP_SAVE"})
 
-    def layout_spec(self) -> layouts.LayoutSpec:
-        return layouts.LayoutSpec(
+    def layout_spec(self) -> positions.LayoutSpec:
+        return positions.LayoutSpec(
             layout=self.layout, train=self.train_count, val=self.val_count, test=self.test_count,
             radius=self.radius, elevation_min=self.elevation_min, elevation_max=self.elevation_max,
             seed=self.seed, rings=self.rings, turns=self.turns, frame_step=self.frame_step,
             focal_length=self.focal_length, target=self.target)
 
-    def capture_settings(self, overwrite: bool = False) -> capture_settings.CaptureSettings:
-        return capture_settings.CaptureSettings(
+    def capture_settings(self, overwrite: bool = False) -> settings.CaptureSettings:
+        return settings.CaptureSettings(
             out_dir=self.output_dir, engine=self.engine, samples=self.samples,
             res_x=self.resolution_x, res_y=self.resolution_y, film_transparent=self.film_transparent,
             denoise=self.denoise, depth=self.depth, normals=self.normals, masks=self.masks, points=self.points,

@@ -2,7 +2,7 @@
 
 Resume (keep a frame instead of rendering it again) and ``--merge`` (accept a shard's frame) use
 the same test, so a truncated PNG, an empty EXR or a file swapped for another is never taken.
-A frame is a plan entry (``capture_plan``): its file keys map to paths relative to the dataset.
+A frame is a plan entry (``plan.frame_plan``): its file keys map to paths relative to the dataset.
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import os
 import bpy
 import numpy as np
 
-from .capture_plan import FRAME_FILE_KEYS
+from ..plan.frame_plan import FRAME_FILE_KEYS
 
 
 def sha256_file(path: str) -> str | None:

@@ -6,7 +6,7 @@ and ``scripts/capture.py`` (a loop). It never imports nerf_core: progress goes t
 
 Safety rules it enforces:
 - A folder holding anything else (or a capture whose frames differ) is refused unless
-  ``overwrite``; overwrite deletes only the dataset's own paths (``capture_folder.DATASET_PATHS``).
+  ``overwrite``; overwrite deletes only the dataset's own paths (``files.folder.DATASET_PATHS``).
 - Frames are written under a temporary name and renamed, so a frame file is whole or absent.
 - Resume: a frame whose settings hash (render settings + camera pose + intrinsics) is in the
   manifest (or a shard's state) and whose files are the ones written is kept, not re-rendered.
@@ -17,8 +17,8 @@ Safety rules it enforces:
 - The user's render settings, active camera and frame are restored afterwards.
 
 Sharded (``settings.shard = (K, N)``, a render farm): the job renders only shard K's share of the
-plan (``capture_plan``) and records it in its own state file (``capture_shards``); it writes no
-manifest, transforms file or point cloud: ``capture_merge`` does, once every shard is done.
+plan (``plan.frame_plan``) and records it in its own state file (``files.shards``); it writes no
+manifest, transforms file or point cloud: ``run.merge`` does, once every shard is done.
 """
 from __future__ import annotations
 
@@ -27,13 +27,14 @@ import time
 
 import bpy
 
-from ..dataset import capture_manifest
-from . import capture_plan, capture_shards, capture_verify, capture_write, frame_files
-from .capture_folder import FolderInspection
-from .capture_plan import CaptureError
-from .capture_planning import CapturePlanning
-from .capture_render_settings import RenderSettingsOverride
-from .capture_write import FORMAT
+from ...dataset import capture_manifest
+from ..files import frame_files, shards, verify, write
+from ..files.folder import FolderInspection
+from ..files.write import FORMAT
+from ..plan import frame_plan
+from ..plan.frame_plan import CaptureError
+from ..plan.planning import CapturePlanning
+from .render_settings import RenderSettingsOverride
 
 
 class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
@@ -54,22 +55,22 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
         manifest = self._check_folder()
         kept = set()
         self.file_sha256 = {}
-        records = capture_shards.done_records(self.out, capture_manifest.MANIFEST_DIR, self.frames, self.plan_hash, manifest)
+        records = shards.done_records(self.out, capture_manifest.MANIFEST_DIR, self.frames, self.plan_hash, manifest)
         for key, rec in records.items():
             fr = next((f for f in self.frames if f["key"] == key), None)
             if fr is None or key not in self.share or rec["hash"] != fr["hash"]:
                 continue
-            if capture_verify.frame_problem(self.out, fr, rec["sha256"], self.s.res_x, self.s.res_y) is None:
+            if verify.frame_problem(self.out, fr, rec["sha256"], self.s.res_x, self.s.res_y) is None:
                 kept.add(key)
                 # a manifest from before per-file hashes: record them now that the files check out
-                self.file_sha256[key] = dict(rec["sha256"]) if rec["sha256"] else capture_verify.file_hashes(self.out, fr)
+                self.file_sha256[key] = dict(rec["sha256"]) if rec["sha256"] else verify.file_hashes(self.out, fr)
         self.done_keys = set(kept)
         self.kept = len(kept)
         self.pending = [fr for fr in self.frames if fr["key"] in self.share and fr["key"] not in kept]
         for rel in {os.path.dirname(v) for fr in self.frames for k, v in fr.items()
-                    if k in capture_plan.FRAME_FILE_KEYS}:
+                    if k in frame_plan.FRAME_FILE_KEYS}:
             os.makedirs(os.path.join(self.out, rel), exist_ok=True)
-        self.blend_sha256 = capture_verify.sha256_file(bpy.data.filepath)
+        self.blend_sha256 = verify.sha256_file(bpy.data.filepath)
         self.created = (manifest or {}).get("created") or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         self._apply_settings()
         self._started = True
@@ -110,7 +111,7 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
             frame_files.save_passes(sc, result, fr, self.out, self.s, self.engine,
                                        os.path.join(self.out, capture_manifest.MANIFEST_DIR),
                                        max(1, self.s.n_points // max(1, n_train)))
-        self.file_sha256[fr["key"]] = capture_verify.file_hashes(self.out, fr)
+        self.file_sha256[fr["key"]] = verify.file_hashes(self.out, fr)
         self.pending.pop(0)
         self.done_keys.add(fr["key"])
         self._write_record()
@@ -137,7 +138,7 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
         if self._started and not self._finished:
             try:
                 folder = os.path.join(self.out, capture_manifest.MANIFEST_DIR)
-                mine = capture_shards.unique_suffix()
+                mine = shards.unique_suffix()
                 for name in os.listdir(folder):
                     # a shard removes only its own leftovers: the others may be writing theirs
                     if frame_files.PARTIAL_TAG in name and (not self.shard or mine in name):
@@ -180,21 +181,21 @@ class CaptureJob(CapturePlanning, FolderInspection, RenderSettingsOverride):
 
     def _write_dataset(self, complete: bool) -> None:
         self.status = "complete" if complete else "incomplete"
-        self.near, self.far = capture_write.write_dataset(self.out, self.plan_doc, self.done_keys, complete,
+        self.near, self.far = write.write_dataset(self.out, self.plan_doc, self.done_keys, complete,
                                                           self._manifest_info())
 
     def _write_record(self) -> None:
         """After each frame: the manifest (one machine) or this shard's own state file (a farm)."""
         if not self.shard:
-            capture_manifest.write_manifest(self.out, capture_write.manifest(
+            capture_manifest.write_manifest(self.out, write.manifest(
                 self.plan_doc, self.done_keys, dict(self._manifest_info(), status=self.status,
                                                     near=getattr(self, "near", None), far=getattr(self, "far", None))))
             return
         k, n = self.shard
         state = {"format": FORMAT, "shard": k, "shards": n, "status": self.status, "hash": self.plan_hash,
-                 "assignment": capture_plan.SHARD_ASSIGNMENT, "plan": self.plan_doc,
+                 "assignment": frame_plan.SHARD_ASSIGNMENT, "plan": self.plan_doc,
                  "manifest_info": {key: v for key, v in self._manifest_info().items() if key != "file_sha256"},
                  "done": {key: self.file_sha256[key] for key in sorted(self.done_keys) if key in self.file_sha256}}
-        capture_shards.write_state(capture_shards.state_path(self.out, capture_manifest.MANIFEST_DIR, k, n), state)
+        shards.write_state(shards.state_path(self.out, capture_manifest.MANIFEST_DIR, k, n), state)
 
 

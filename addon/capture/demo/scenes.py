@@ -5,13 +5,13 @@ world colour (ambient light) and a sun. Two "real scene" demos carry their backg
 ``hdri`` (objects in a visible photographed world: one of Blender's own studio-light HDRIs) and
 ``interior`` (a closed 6 x 5 x 3 m room with furniture, lit from inside, captured from inside with the
 ``inside`` layout). Both set ``render.film_transparent = False``; ``CAPTURE_DEFAULTS`` /
-``capture_flags(name)`` (from ``demo_capture``) say which ``scripts/capture.py`` flags each scene needs.
+``capture_flags(name)`` (from ``demo.capture_flags``) say which ``scripts/capture.py`` flags each scene needs.
 
 Materials use only Principled BSDF and procedural textures, which Cycles and EEVEE render alike;
 each material's viewport colour is set too so Workbench renders are meaningful.
 
-    from addon import demo_scenes
-    demo_scenes.build("glossy")          # into the current scene, replacing its objects
+    from addon.capture.demo import scenes
+    scenes.build("glossy")               # into the current scene, replacing its objects
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import os
 
 import bpy
 
-from .demo_capture import CAPTURE_DEFAULTS, SCENES, capture_defaults, capture_flags  # noqa: F401  (re-exported)
+from .capture_flags import CAPTURE_DEFAULTS, SCENES, capture_defaults, capture_flags  # noqa: F401  (re-exported)
 
 # Blender's own studio-light worlds ship inside every Blender (and the bpy module): real photographs.
 HDRI_NAME = "forest.exr"

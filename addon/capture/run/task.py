@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from typing import Callable, Optional
 
-from ..common.jobs import Job
-from .capture_job import CaptureJob
+from ...common.jobs import Job
+from .job import CaptureJob
 
 
 class CaptureTask(Job):

@@ -12,12 +12,12 @@ import json
 import bpy
 from mathutils import Matrix
 
-from ..scene import scene_bounds
-from ..scene.camera_checks import camera_shape_error
-from . import camera_collection
+from ...scene import scene_bounds
+from ...scene.camera_checks import camera_shape_error
+from . import collection
 from .camera_import import IMPORT_INDEX, IMPORT_SPLIT, is_imported
-from .layout_notes import framing_bounds
-from .layouts import (
+from .notes import framing_bounds
+from .positions import (
     GENERATED_LAYOUTS,
     INSIDE_CLIP_START,
     LAYOUTS,
@@ -73,8 +73,8 @@ def create_cameras(scene, spec: LayoutSpec, res_x: int, res_y: int) -> list:
     check_distinct_poses([m for _s, m, _src, _f in planned.plan], spec.layout)
     made = _make_cameras(scene, planned, spec.focal_length)
     _fit_clipping(made, planned.radius, planned.clip_start)
-    camera_collection.nerf_collection(scene)[camera_collection.LAYOUT_RECORD] = json.dumps(
-        camera_collection.layout_record(spec, res_x, res_y))
+    collection.nerf_collection(scene)[collection.LAYOUT_RECORD] = json.dumps(
+        collection.layout_record(spec, res_x, res_y))
     return made
 
 
@@ -141,9 +141,9 @@ def _plan_looking_in(scene, spec: LayoutSpec, res_x: int, res_y: int) -> LayoutP
 
 def _plan_scene_cameras(scene, spec: LayoutSpec) -> LayoutPlan:
     """Copies of the scene's own cameras. When some were imported from a transforms file
-    (``camera_import``), exactly those, in the file's order, each in the file's split when the file
+    (``layout.camera_import``), exactly those, in the file's order, each in the file's split when the file
     had splits: a capture then re-renders that file's views."""
-    sources = _user_cameras(scene, camera_collection.nerf_collection(scene, create=False))
+    sources = _user_cameras(scene, collection.nerf_collection(scene, create=False))
     if not sources:
         raise LayoutError(f"layout 'scene-cameras': scene {scene.name!r} has no camera of its own")
     imported = sorted((o for o in sources if is_imported(o)), key=lambda o: int(o[IMPORT_INDEX]))
@@ -165,7 +165,7 @@ def _plan_scene_cameras(scene, spec: LayoutSpec) -> LayoutPlan:
 def _plan_animation(scene, spec: LayoutSpec) -> LayoutPlan:
     """The active camera at every ``frame_step``-th frame, with its lens as it is at that frame."""
     cam = scene.camera
-    existing = camera_collection.nerf_collection(scene, create=False)
+    existing = collection.nerf_collection(scene, create=False)
     if cam is None or (existing is not None and cam.name in existing.all_objects):
         raise LayoutError("layout 'animation': the scene has no active camera of its own (set one with Ctrl+Numpad0)")
     frames = list(range(scene.frame_start, scene.frame_end + 1, max(1, spec.frame_step)))
@@ -185,8 +185,8 @@ def _plan_animation(scene, spec: LayoutSpec) -> LayoutPlan:
 
 def _make_cameras(scene, planned: LayoutPlan, focal_length: float) -> list:
     """Clear the collection's layout cameras and make the plan's, named NeRF_<split>_<nnn>."""
-    coll = camera_collection.nerf_collection(scene)
-    camera_collection.clear_cameras(scene)
+    coll = collection.nerf_collection(scene)
+    collection.clear_cameras(scene)
     counters = {s: 0 for s in SPLITS}
     made = []
     for split, matrix, src, frame in planned.plan:

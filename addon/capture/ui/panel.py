@@ -1,7 +1,7 @@
 """Capture panel (3D viewport > N-panel > NeRF > Capture) and its operators.
 
-Settings live in ``Scene.nerf_capture`` (``capture_props``, saved with the .blend). The Capture operator prepares a
-``capture_job.CaptureJob`` and hands it, as a ``capture_task.CaptureTask``, to the job follower that also
+Settings live in ``Scene.nerf_capture`` (``ui.props``, saved with the .blend). The Capture operator prepares a
+``run_job.CaptureJob`` and hands it, as a ``run.task.CaptureTask``, to the job follower that also
 advances training and rendering: one frame per timer event, so Blender stays responsive between
 frames; Esc or the Cancel button stops it, leaving a folder that resumes on the next capture.
 """
@@ -10,19 +10,22 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, PointerProperty
 
-from ..common import jobs
-from ..common.ui_common import NerfPanel, draw_wrapped, property_split, report_and_cancel
-from ..dataset.errors import ExportError
-from ..scene import scene_bounds
-from . import camera_collection, capture_job, capture_plan, demo_scenes, layout_cameras, layout_notes, layouts
-from .capture_props import NerfCaptureSettings
-from .capture_task import CaptureTask
+from ...common import jobs
+from ...common.ui_common import NerfPanel, draw_wrapped, property_split, report_and_cancel
+from ...dataset.errors import ExportError
+from ...scene import scene_bounds
+from ..demo import scenes
+from ..layout import cameras, collection, notes, positions
+from ..plan import frame_plan
+from ..run import job as run_job
+from ..run.task import CaptureTask
+from .props import NerfCaptureSettings
 
 CAPTURE = "capture"  # this module's key in the job registry (one capture at a time)
 
 
-_ERRORS = (capture_plan.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
-           demo_scenes.DemoSceneError)
+_ERRORS = (frame_plan.CaptureError, positions.LayoutError, ExportError, scene_bounds.BoundsError,
+           scenes.DemoSceneError)
 
 
 class NERF_OT_generate_cameras(bpy.types.Operator):
@@ -35,12 +38,12 @@ class NERF_OT_generate_cameras(bpy.types.Operator):
     def execute(self, context):
         s = context.scene.nerf_capture
         try:
-            made = layout_cameras.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+            made = cameras.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
-        counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in layouts.SPLITS}
+        counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in positions.SPLITS}
         self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
-        for note in layout_notes.layout_notes(context.scene, s.layout_spec()):
+        for note in notes.layout_notes(context.scene, s.layout_spec()):
             self.report({"WARNING"}, note)
         return {"FINISHED"}
 
@@ -53,7 +56,7 @@ class NERF_OT_clear_cameras(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        n = camera_collection.clear_cameras(context.scene)
+        n = collection.clear_cameras(context.scene)
         self.report({"INFO"}, f"removed {n} capture cameras")
         return {"FINISHED"}
 
@@ -75,13 +78,13 @@ class NERF_OT_capture(bpy.types.Operator):
 
     def _make_job(self, context):
         s = context.scene.nerf_capture
-        if self.generate and not any(camera_collection.capture_cameras(context.scene).values()):
-            layout_cameras.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
-        cams = camera_collection.capture_cameras(context.scene)
-        problem = camera_collection.held_out_problem(cams) if cams["train"] else None  # no train: CaptureJob says so
+        if self.generate and not any(collection.capture_cameras(context.scene).values()):
+            cameras.create_cameras(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        cams = collection.capture_cameras(context.scene)
+        problem = collection.held_out_problem(cams) if cams["train"] else None  # no train: CaptureJob says so
         if problem:
-            raise capture_plan.CaptureError(problem)
-        return capture_job.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
+            raise frame_plan.CaptureError(problem)
+        return run_job.CaptureJob(context.scene, s.capture_settings(self.overwrite), progress=self._progress(context))
 
     def _progress(self, context):
         scene_name = context.scene.name
@@ -112,7 +115,7 @@ class NERF_OT_capture(bpy.types.Operator):
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
         s = context.scene.nerf_capture
-        stale = camera_collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        stale = collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y)
         for note in ([stale] if stale else []) + list(job.notes):
             self.report({"WARNING"}, note)
         if context.window is None or bpy.app.background:
@@ -131,7 +134,7 @@ class NERF_OT_capture(bpy.types.Operator):
         return {"FINISHED"}
 
 
-def follow_capture(scene, job: capture_job.CaptureJob) -> CaptureTask:
+def follow_capture(scene, job: run_job.CaptureJob) -> CaptureTask:
     """Hand a prepared capture to the job follower, mirroring it into ``scene.nerf_capture``."""
     name = scene.name
 
@@ -197,16 +200,16 @@ class NERF_OT_add_demo_scene(bpy.types.Operator):
     bl_label = "Add Demo Scene"
     bl_options = {"REGISTER", "UNDO"}
 
-    name: EnumProperty(name="Scene", items=[(k, k.title(), v) for k, v in demo_scenes.SCENES.items()])
+    name: EnumProperty(name="Scene", items=[(k, k.title(), v) for k, v in scenes.SCENES.items()])
 
     def execute(self, context):
         if context.window is None or bpy.app.background:
-            self.report({"ERROR"}, "Add Demo Scene needs a window; scripts call addon.demo_scenes.build()")
+            self.report({"ERROR"}, "Add Demo Scene needs a window; scripts call addon.capture.demo.scenes.build()")
             return {"CANCELLED"}
         scene = bpy.data.scenes.new(f"NeRF demo: {self.name}")
         context.window.scene = scene
         try:
-            demo_scenes.build(self.name, scene)
+            scenes.build(self.name, scene)
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
         return {"FINISHED"}
@@ -229,7 +232,7 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
 
         col = layout.column(heading="Cameras")
         col.prop(s, "layout")
-        if s.layout in layouts.GENERATED_LAYOUTS:
+        if s.layout in positions.GENERATED_LAYOUTS:
             col.prop(s, "target")
             if s.layout != "inside":  # inside cameras stand in the target's box: no distance to choose
                 col.prop(s, "radius")
@@ -244,7 +247,7 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         elif s.layout == "animation":
             col.prop(s, "frame_step")
         sub = col.column(align=True)
-        if s.layout in layouts.GENERATED_LAYOUTS:
+        if s.layout in positions.GENERATED_LAYOUTS:
             sub.prop(s, "train_count")
         sub.prop(s, "val_count")
         sub.prop(s, "test_count")
@@ -253,9 +256,9 @@ class NERF_PT_capture(NerfPanel, bpy.types.Panel):
         row.operator(NERF_OT_generate_cameras.bl_idname, icon="OUTLINER_OB_CAMERA")
         row.operator(NERF_OT_clear_cameras.bl_idname, text="", icon="TRASH")
         col.operator("nerf.import_cameras", icon="IMPORT")  # from a transforms file: then Scene Cameras
-        cams = camera_collection.capture_cameras(context.scene)
+        cams = collection.capture_cameras(context.scene)
         col.label(text=f"{len(cams['train'])} train, {len(cams['val'])} val, {len(cams['test'])} test cameras")
-        stale = camera_collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y, cams)
+        stale = collection.stale_layout_note(context.scene, s.layout_spec(), s.resolution_x, s.resolution_y, cams)
         if stale:
             draw_wrapped(col, "Cameras out of date: " + stale, "ERROR")
 

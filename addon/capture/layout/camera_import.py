@@ -7,7 +7,7 @@ fit, lens shift from the principal point; the scene's resolution and pixel aspec
 Optionally the poses are first brought back from nerfstudio's world (``dataparser_transforms.json``).
 
 Each camera records where it came from (``IMPORT_*`` custom properties): its split, its place in the
-file and its name. The ``scene-cameras`` layout (``layout_cameras``) then re-renders exactly these
+file and its name. The ``scene-cameras`` layout (``layout.cameras``) then re-renders exactly these
 cameras, keeping the file's split and order, so a capture of them reproduces the file's images.
 """
 from __future__ import annotations
@@ -17,8 +17,8 @@ import os
 
 import bpy
 
-from ..bridge.core_contract import contract
-from ..dataset.cameras import camera_params, make_view_camera, use_view_resolution
+from ...bridge.core_contract import contract
+from ...dataset.cameras import camera_params, make_view_camera, use_view_resolution
 
 COLLECTION = "Imported Cameras"
 COLLECTION_TAG = "nerf_imported_cameras"  # the collection's own tag: the file it holds

@@ -1,7 +1,7 @@
 """Saving one rendered frame: the RGBA PNG and the per-pass files (depth, normals, mask, points).
 
 Every file is written under a temporary name and renamed, so it is whole or absent. Temporary
-names carry the host and process (``capture_shards.unique_suffix``): shards of one capture may run
+names carry the host and process (``files.shards.unique_suffix``): shards of one capture may run
 at once on machines sharing the folder, and none may touch another's files.
 """
 from __future__ import annotations
@@ -11,11 +11,11 @@ import os
 import bpy
 import numpy as np
 
-from ..dataset import points
-from ..file_writes import write_png_gray
-from ..scene import passes, point_normals
-from .capture_plan import CaptureError
-from .capture_shards import unique_suffix
+from ...dataset import points
+from ...file_writes import write_png_gray
+from ...scene import passes, point_normals
+from ..plan.frame_plan import CaptureError
+from .shards import unique_suffix
 
 PARTIAL_TAG = ".partial"
 

@@ -14,8 +14,8 @@ import re
 import socket
 import time
 
-from ..file_writes import write_atomic
-from .capture_plan import CaptureError, shard_settings_error
+from ...file_writes import write_atomic
+from ..plan.frame_plan import CaptureError, shard_settings_error
 
 SHARD_DIR = "shards"  # inside the dataset's manifest folder
 _STATE_RE = re.compile(r"shard-(\d+)-of-(\d+)\.json")
