@@ -3,8 +3,8 @@
 Layers, lowest first: ``file_writes`` (and the other root modules but ``__init__``), ``bridge`` (the child
 process; never bpy), ``scene``, ``dataset`` and ``common``, then the features ``capture``, ``train``,
 ``compare`` and ``render_engine``. A module imports its own package and lower layers only; features do
-not import each other, except compare -> train. No module is over 500 lines, and none imports another
-module's ``_private`` names.
+not import each other, except compare -> train. Inside ``capture`` the subpackages are layers too
+(``CAPTURE_RANK``). No module is over 500 lines, and none imports another module's ``_private`` names.
 """
 from __future__ import annotations
 
@@ -19,12 +19,15 @@ FEATURES = ("capture", "train", "compare", "render_engine")
 ALLOWED_FEATURE_IMPORTS = {("compare", "train")}
 # Rank of each lower layer; "" is the add-on root (file_writes). A lower module may import lower ranks.
 LOWER_RANK = {"": 0, "bridge": 1, "scene": 2, "dataset": 3, "common": 3}
+# The capture feature's subpackages, lowest first: where cameras go (layout), what a capture will render (plan),
+# its files on disk (files), running it (run) and the panel (ui). The demo scenes stand beside layout.
+CAPTURE_RANK = {"layout": 0, "demo": 0, "plan": 1, "files": 2, "run": 3, "ui": 4}
 BLENDER_MODULES = ("bpy", "mathutils", "gpu", "gpu_extras", "bmesh", "bl_math", "blf", "aud")
 MAX_LINES = 500
 
 
 def _modules() -> List[Tuple[str, str]]:
-    """(path, dotted name below ``addon``) of every module, e.g. ("addon/capture/layouts.py", "capture.layouts")."""
+    """(path, dotted name below ``addon``) of every module, e.g. ("addon/capture/layout/positions.py", "capture.layout.positions")."""
     found = []
     for root, dirs, files in os.walk(ADDON):
         dirs[:] = sorted(d for d in dirs if d not in ("__pycache__", "vendor"))
@@ -51,7 +54,7 @@ def _is_package(path: str) -> bool:
 def _imports(path: str, name: str) -> Iterator[Tuple[int, str, Optional[str], str]]:
     """(line, imported add-on module or external module, imported name or None, source text) for every
     import in the file, function-local ones included. Add-on modules are dotted below ``addon``
-    ("capture.layouts"); external ones are prefixed with "!" ("!bpy.props")."""
+    ("capture.layout.positions"); external ones are prefixed with "!" ("!bpy.props")."""
     tree = ast.parse(open(path, encoding="utf-8").read(), path)
     own = name if _is_package(path) else name.rpartition(".")[0]  # the package relative imports start from
     for node in ast.walk(tree):
@@ -89,7 +92,7 @@ def _where(path: str, line: int) -> str:
 
 
 def test_every_module_is_found():
-    assert len(MODULES) > 30 and "bridge.child_process" in NAMES and "capture.layouts" in NAMES
+    assert len(MODULES) > 30 and "bridge.child_process" in NAMES and "capture.layout.positions" in NAMES
 
 
 def test_bridge_never_imports_bpy():
@@ -190,22 +193,39 @@ def test_imports_are_at_the_top_of_their_module():
     assert not bad, "function-local imports (move them to the top, or allow one with its reason):\n" + "\n".join(bad)
 
 
-@pytest.mark.parametrize("rule", ["feature", "bpy", "upward", "private"])
+def test_capture_subpackages_import_only_lower_ones():
+    bad = []
+    for path, name in MODULES:
+        parts = name.split(".")
+        if parts[0] != "capture" or len(parts) < 3:
+            continue
+        for line, mod, _, text in _imports(path, name):
+            target = mod.split(".")
+            if mod.startswith("!") or target[0] != "capture" or len(target) < 2 or target[1] == parts[1]:
+                continue
+            if target[1] not in CAPTURE_RANK or CAPTURE_RANK[target[1]] >= CAPTURE_RANK[parts[1]]:
+                bad.append(f"{_where(path, line)}: {text}  (capture.{parts[1]} -> capture.{target[1]}, not lower)")
+    assert not bad, "capture's subpackages import only lower ones (CAPTURE_RANK):\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("rule", ["feature", "bpy", "upward", "private", "capture"])
 def test_the_checks_catch_a_violation(tmp_path, monkeypatch, rule):
     """Each check fails on a module written to break it (a copy of the tree, not the real add-on)."""
     import shutil
 
     copy = tmp_path / "addon"
     shutil.copytree(ADDON, copy, ignore=shutil.ignore_patterns("__pycache__"))
-    line = {"feature": ("train/train_ui.py", "from ..capture import layouts\n"),
+    line = {"feature": ("train/train_ui.py", "from ..capture.layout import positions\n"),
             "bpy": ("bridge/progress.py", "def f():\n    import bpy\n"),
             "upward": ("scene/scene_bounds.py", "from ..compare import planes\n"),
-            "private": ("compare/planes.py", "from ..capture.layout_cameras import _new_camera\n")}[rule]
+            "private": ("compare/planes.py", "from ..capture.layout.cameras import _new_camera\n"),
+            "capture": ("capture/layout/positions.py", "from ..run import job\n")}[rule]
     with open(copy / line[0], "a", encoding="utf-8") as fh:
         fh.write("\n" + line[1])
     monkeypatch.setitem(globals(), "ADDON", str(copy))
     monkeypatch.setitem(globals(), "MODULES", _modules())
     check = {"feature": test_features_do_not_import_each_other, "bpy": test_bridge_never_imports_bpy,
-             "upward": test_lower_layers_never_import_upward, "private": test_no_private_names_across_modules}[rule]
+             "upward": test_lower_layers_never_import_upward, "private": test_no_private_names_across_modules,
+             "capture": test_capture_subpackages_import_only_lower_ones}[rule]
     with pytest.raises(AssertionError, match=line[0].replace("/", "[/\\\\]").replace(".", r"\.")):
         check()

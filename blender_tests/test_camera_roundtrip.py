@@ -1,4 +1,4 @@
-"""Round trips with other tools' camera files (addon/capture/camera_import.py, scripts/import_cameras.py,
+"""Round trips with other tools' camera files (addon/capture/layout/camera_import.py, scripts/import_cameras.py,
 addon/compare/nerfstudio_results.py): a capture's cameras imported back from every format are the same
 cameras; re-capturing them reproduces the images; nerfstudio's re-oriented world comes back exactly.
 
@@ -19,7 +19,9 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from addon.capture import camera_import, capture_job, capture_settings, layout_cameras, layouts
+from addon.capture.layout import camera_import, cameras, positions
+from addon.capture.run import job
+from addon.capture.plan import settings as plan_settings
 from addon.compare import nerfstudio_results
 from addon.dataset import cameras as dataset_cameras
 from nerf_core.contract import nerfstudio_frame
@@ -34,7 +36,7 @@ CAMERAS = [(50.0, 0.1, -0.05, "VERTICAL", (6, -5, 3)), (35.0, 0.0, 0.0, "HORIZON
 
 
 def _look_at(loc):
-    return Matrix(layouts.look_at(loc, (0.0, 0.0, 0.0)))
+    return Matrix(positions.look_at(loc, (0.0, 0.0, 0.0)))
 
 
 def _build_scene(scene):
@@ -51,12 +53,12 @@ def _build_scene(scene):
 
 
 def _capture(scene, out, spec=None):
-    spec = spec or layouts.LayoutSpec(layout="scene-cameras", train=3, val=1, test=1, seed=3)
-    layout_cameras.create_cameras(scene, spec, *RES)
-    settings = capture_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=2, res_x=RES[0],
+    spec = spec or positions.LayoutSpec(layout="scene-cameras", train=3, val=1, test=1, seed=3)
+    cameras.create_cameras(scene, spec, *RES)
+    settings = plan_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=2, res_x=RES[0],
                                                 res_y=RES[1], layout=spec.to_dict(), seed=0,
                                                 depth=True, normals=True, masks=True)
-    summary = capture_job.CaptureJob(scene, settings).run()
+    summary = job.CaptureJob(scene, settings).run()
     assert summary["status"] == "complete"
 
 
@@ -140,7 +142,7 @@ def test_the_script_imports_into_an_empty_blend_and_the_recapture_reproduces_the
     scene = bpy.context.scene
     _check_cameras(scene, captured["dataset"])
     # The scene-cameras layout re-renders exactly these cameras in the file's splits and order.
-    _capture(scene, tmp_path / "again", layouts.LayoutSpec(layout="scene-cameras", train=1, val=2, test=2, seed=9))
+    _capture(scene, tmp_path / "again", positions.LayoutSpec(layout="scene-cameras", train=1, val=2, test=2, seed=9))
     for split, fr in _frames(captured["dataset"]):
         a = _pixels(os.path.join(captured["dataset"], fr["file_path"] + ".png"))
         b = _pixels(os.path.join(str(tmp_path / "again"), fr["file_path"] + ".png"))

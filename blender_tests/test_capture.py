@@ -19,9 +19,10 @@ import OpenEXR
 import pytest
 from PIL import Image
 
-from addon.capture import layouts
-from addon.capture import capture_job, capture_notes, capture_plan, capture_planning, capture_settings
-from addon.capture import camera_collection, layout_cameras
+from addon.capture.layout import positions as layout_positions
+from addon.capture.run import job as run_job
+from addon.capture.plan import notes as plan_notes, frame_plan, planning, settings as plan_settings
+from addon.capture.layout import collection, cameras
 
 PY = sys.executable
 CUBE_HALF = 0.75
@@ -45,14 +46,14 @@ def build_test_scene():
 def do_capture(out, res, engine, spec, tweak=None, **kw):
     build_test_scene()
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, spec, *res)
+    cameras.create_cameras(scene, spec, *res)
     if tweak:
-        for split in camera_collection.capture_cameras(scene).values():
+        for split in collection.capture_cameras(scene).values():
             for cam in split:
                 tweak(cam)
-    settings = capture_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=res[0], res_y=res[1],
+    settings = plan_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=res[0], res_y=res[1],
                                        layout=spec.to_dict(), **kw)
-    return capture_job.CaptureJob(scene, settings).run()
+    return run_job.CaptureJob(scene, settings).run()
 
 
 def shifted_vertical_fit(cam):
@@ -65,7 +66,7 @@ def shifted_vertical_fit(cam):
 def cycles_dataset(tmp_path_factory):
     """Non-square Cycles capture with depth, normals, masks and a point cloud."""
     out = tmp_path_factory.mktemp("cyc") / "ds"
-    spec = layouts.LayoutSpec(layout="sphere", train=6, val=2, test=3, radius=7.0, seed=4)
+    spec = layout_positions.LayoutSpec(layout="sphere", train=6, val=2, test=3, radius=7.0, seed=4)
     summary = do_capture(out, (48, 32), "cycles", spec, depth=True, normals=True, masks=True, points=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     return out, summary
@@ -75,7 +76,7 @@ def cycles_dataset(tmp_path_factory):
 def shifted_dataset(tmp_path_factory):
     """Portrait Workbench capture whose cameras have lens shift and a vertical sensor fit."""
     out = tmp_path_factory.mktemp("shift") / "ds"
-    spec = layouts.LayoutSpec(layout="hemisphere", train=5, val=1, test=2, radius=8.0, elevation_min=10)
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=5, val=1, test=2, radius=8.0, elevation_min=10)
     summary = do_capture(out, (30, 44), "workbench", spec, tweak=shifted_vertical_fit, depth=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     return out, summary
@@ -106,12 +107,12 @@ def ray_misses(cam_pos, point, centre, radius):
 
 INSIDE = np.array([[0, 0, 0], *(0.85 * CUBE_HALF * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1)
                                                                   for z in (-1, 1)])), BALL_C])
-PROBES = np.array(layouts.fibonacci_positions(200, 2.6, (0.3, 0.1, 0.0)))
+PROBES = np.array(layout_positions.fibonacci_positions(200, 2.6, (0.3, 0.1, 0.0)))
 
 
 def check_alpha_geometry(out):
     n_opaque = n_clear = 0
-    for split in layouts.SPLITS:
+    for split in layout_positions.SPLITS:
         for doc, fr, intr in frames(out, split):
             rgba = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))
             assert rgba.shape == (intr["h"], intr["w"], 4) and rgba.dtype == np.uint8
@@ -171,7 +172,7 @@ def test_shifted_vertical_fit_intrinsics_are_exported(shifted_dataset):
 def test_depth_backprojects_onto_the_surfaces(cycles_dataset, shifted_dataset):
     for out, _ in (cycles_dataset, shifted_dataset):
         n = 0
-        for split in layouts.SPLITS:
+        for split in layout_positions.SPLITS:
             for _doc, fr, intr in frames(out, split):
                 pts, depth = backprojected(out, fr, intr)
                 alpha = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))[..., 3]
@@ -246,20 +247,20 @@ def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path)
     np.testing.assert_array_equal(passes.planar_depth(z), np.array([[2.0, 100.5, np.inf], [np.inf, 99.95, 50.0]], np.float32))
     build_test_scene()
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="sphere", train=3, val=0, test=1, radius=7.0)
-    layout_cameras.create_cameras(scene, spec, 16, 16)
+    spec = layout_positions.LayoutSpec(layout="sphere", train=3, val=0, test=1, radius=7.0)
+    cameras.create_cameras(scene, spec, 16, 16)
     for engine in ("workbench", "eevee"):
-        settings = capture_settings.CaptureSettings(out_dir=str(tmp_path / engine), engine=engine, res_x=16, res_y=16,
+        settings = plan_settings.CaptureSettings(out_dir=str(tmp_path / engine), engine=engine, res_x=16, res_y=16,
                                            film_transparent=False, masks=True, layout=spec.to_dict())
-        with pytest.raises(capture_plan.CaptureError, match="opaque film need Cycles"):
-            capture_job.CaptureJob(scene, settings)
+        with pytest.raises(frame_plan.CaptureError, match="opaque film need Cycles"):
+            run_job.CaptureJob(scene, settings)
 
 
 def test_splits_are_disjoint_and_every_file_exists(cycles_dataset):
     out, summary = cycles_dataset
     assert summary["status"] == "complete" and summary["frames"] == 11
     positions = {}
-    for split in layouts.SPLITS:
+    for split in layout_positions.SPLITS:
         for doc, fr, _ in frames(out, split):
             assert not fr["file_path"].endswith(".png") and fr["file_path"].startswith(f"./{split}/")
             assert os.path.isfile(os.path.join(out, fr["file_path"] + ".png"))
@@ -330,10 +331,10 @@ def test_scene_cameras_with_different_lenses_get_per_frame_intrinsics(tmp_path):
         cam = bpy.data.objects.new(f"User{k}", bpy.data.cameras.new(f"User{k}"))
         cam.data.lens = lens
         scene.collection.objects.link(cam)
-        cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
-    spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
-    job = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+        cam.matrix_world = Matrix(layout_positions.look_at(pos, (0.3, 0.2, 0.0)))
+    spec = layout_positions.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
+    cameras.create_cameras(scene, spec, 40, 30)
+    job = run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
                                                             res_y=30, layout=spec.to_dict()))
     job.plan()  # says, before rendering, that one camera_angle_x cannot hold three lenses
     assert any("3 different cameras" in n and "3DGS" in n for n in job.notes), job.notes
@@ -369,15 +370,15 @@ def test_depth_of_field_is_off_while_capturing_and_restored_after(tmp_path):
     for k, pos in enumerate([(6, -6, 3), (-7, -5, 2)]):
         cam = bpy.data.objects.new(f"User{k}", bpy.data.cameras.new(f"User{k}"))
         scene.collection.objects.link(cam)
-        cam.matrix_world = Matrix(layouts.look_at(pos, (0.3, 0.2, 0.0)))
+        cam.matrix_world = Matrix(layout_positions.look_at(pos, (0.3, 0.2, 0.0)))
         cams.append(cam)
-    spec = layouts.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
-    made = layout_cameras.create_cameras(scene, spec, 40, 30)
+    spec = layout_positions.LayoutSpec(layout="scene-cameras", val=0, test=1, seed=1)
+    made = cameras.create_cameras(scene, spec, 40, 30)
     settings = dict(engine="cycles", samples=4, res_x=40, res_y=30, layout=spec.to_dict())
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "sharp"), **settings)).run()
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "sharp"), **settings)).run()
     for obj in made:
         obj.data.dof.use_dof, obj.data.dof.aperture_fstop, obj.data.dof.focus_distance = True, 0.1, 100.0
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "dof"), **settings)).run()
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "dof"), **settings)).run()
     assert all(obj.data.dof.use_dof for obj in made)  # restored
     for split in ("train", "test"):
         for (_d, fr, _i), (_d2, fr2, _i2) in zip(frames(tmp_path / "sharp", split), frames(tmp_path / "dof", split)):
@@ -392,9 +393,9 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     build_test_scene()
     bpy.ops.mesh.primitive_plane_add(size=200.0, location=(0, 0, -CUBE_HALF))
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
+    cameras.create_cameras(scene, spec, 40, 30)
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi, around = scene_bounds.subject_bounds(scene)
     box = [list(v) for v in scene_bounds.subject_box(scene, lo, hi)]
@@ -402,9 +403,9 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     assert np.allclose(doc["aabb"], box) and doc["aabb"][1][0] - doc["aabb"][0][0] < 10.0  # not the 200 m floor
     manifest = json.loads((tmp_path / "nerf_capture" / "manifest.json").read_text())
     assert manifest["plan"]["bounds"]["surroundings"] == ["Plane"] == around
-    assert doc["beyond_box"] == ["Plane"]  # so that train models the floor beyond the box (--contract)
+    assert doc["beyond_box"] == ["Plane"]  # so that train models the floor beyond the box (--unbounded)
     # A room captured from inside keeps the whole scene as its box.
-    whole = capture_planning.scene_box(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
+    whole = planning.scene_box(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), layout={"layout": "inside"}))
     assert whole[1] == [] and whole[0][1][0] - whole[0][0][0] == pytest.approx(200.0)
 
 
@@ -416,9 +417,9 @@ def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
 
     bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.3))
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
+    cameras.create_cameras(scene, spec, 40, 30)
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi = np.array(json.loads((tmp_path / "transforms_train.json").read_text())["aabb"])
     thick = scene_bounds.MIN_THICKNESS * math.sqrt(8.0)  # of the plane's 2 x 2 x 0 diagonal
@@ -435,9 +436,9 @@ def test_a_tiny_or_huge_subject_is_captured_whole(tmp_path, size):
     # image was empty. A 2 km one is framed from 5.9 km and must not be cut by clip_end either.
     bpy.ops.mesh.primitive_monkey_add(size=size)
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
-    made = layout_cameras.create_cameras(scene, spec, 40, 30)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
+    made = cameras.create_cameras(scene, spec, 40, 30)
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     for split in ("train", "val", "test"):
         for _doc, fr, _intr in frames(tmp_path, split):
@@ -452,9 +453,9 @@ def test_masks_of_a_selection_cover_only_it(tmp_path):
     scene = bpy.context.scene
     for obj in scene.objects:
         obj.select_set(obj.name == "Sphere")
-    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=1, radius=7.0, elevation_min=20)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="cycles", samples=1, res_x=40,
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=0, test=1, radius=7.0, elevation_min=20)
+    cameras.create_cameras(scene, spec, 40, 30)
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="cycles", samples=1, res_x=40,
                                                       res_y=30, masks=True, target="SELECTION")).run()
     assert bpy.data.objects["Cube"].pass_index == 0 and bpy.data.objects["Sphere"].pass_index == 0  # restored
     for split in ("train", "test"):
@@ -485,11 +486,11 @@ def test_masks_cover_objects_shown_by_a_collection_instance(tmp_path):
     empty = bpy.data.objects.new("Props instance", None)
     empty.instance_type, empty.instance_collection = "COLLECTION", props
     scene.collection.objects.link(empty)
-    spec = layouts.LayoutSpec(layout="hemisphere", train=3, val=0, test=0, radius=7.0, elevation_min=20)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=0, test=0, radius=7.0, elevation_min=20)
+    cameras.create_cameras(scene, spec, 40, 30)
 
     def masks(out, target):
-        capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
+        run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
                                                           res_y=30, masks=True, target=target)).run()
         assert ball.pass_index == 7
         for _doc, fr, intr in frames(out, "train"):
@@ -513,13 +514,13 @@ def test_holdouts_are_named_before_a_capture(tmp_path):
     # adding no alpha, which no radiance field can be. The capture names each kind of holdout.
     build_test_scene()
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0, elevation_min=20)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
+    spec = layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0, elevation_min=20)
+    cameras.create_cameras(scene, spec, 40, 30)
 
     def notes():
-        settings = capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="cycles", samples=1, res_x=40,
+        settings = plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="cycles", samples=1, res_x=40,
                                            res_y=30, film_transparent=False)
-        return capture_job.CaptureJob(scene, settings).notes
+        return run_job.CaptureJob(scene, settings).notes
 
     assert notes() == []
     ball = bpy.data.objects["Sphere"]
@@ -542,7 +543,7 @@ def test_holdouts_are_named_before_a_capture(tmp_path):
     assert "'Sphere' render(s) as holdout" in notes()[0]
     # What the note is about: on an opaque film, the hole has alpha 0 where the ball is.
     out = tmp_path / "ds"
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(out), engine="cycles", samples=1, res_x=40,
                                                       res_y=30, film_transparent=False)).run()
     _doc, fr, intr = next(iter(frames(out, "train")))
     alpha = np.asarray(Image.open(os.path.join(out, fr["file_path"] + ".png")))[..., 3]
@@ -555,10 +556,10 @@ def test_missing_textures_and_libraries_are_named_before_a_capture(tmp_path):
     # a word: the capture was "complete" and check said "valid" for a dataset of the wrong scene.
     build_test_scene()
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    cameras.create_cameras(scene, layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
 
     def notes():
-        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
+        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
 
     assert notes() == []
     tex = tmp_path / "wood.png"
@@ -597,14 +598,14 @@ def test_masks_refuse_what_the_object_index_pass_never_marks(tmp_path):
     # the drawing marked "ignore".
     build_test_scene()
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    cameras.create_cameras(scene, layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
     bpy.ops.object.grease_pencil_add(type="MONKEY", location=(0, 0, 1))
 
     def job(engine, target="ALL"):
-        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine=engine, res_x=40,
+        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine=engine, res_x=40,
                                                                  res_y=30, masks=True, target=target))
 
-    with pytest.raises(capture_plan.CaptureError, match=r"never marks 'Suzanne \(Grease Pencil\)'.*alpha"):
+    with pytest.raises(frame_plan.CaptureError, match=r"never marks 'Suzanne \(Grease Pencil\)'.*alpha"):
         job("cycles")
     job("workbench")  # masks from the alpha, which the drawing has
     for obj in scene.objects:
@@ -627,9 +628,9 @@ def test_animation_layout_renders_each_sampled_frame(tmp_path):
         ball.keyframe_insert("location", frame=f)
     cam.rotation_euler = (np.radians(80), 0, 0)
     scene.frame_set(5)
-    spec = layouts.LayoutSpec(layout="animation", frame_step=20, val=0, test=1, seed=0)
-    layout_cameras.create_cameras(scene, spec, 40, 30)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
+    spec = layout_positions.LayoutSpec(layout="animation", frame_step=20, val=0, test=1, seed=0)
+    cameras.create_cameras(scene, spec, 40, 30)
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40,
                                                       res_y=30)).run()
     assert scene.frame_current == 5 and scene.camera == cam
     seen = {}
@@ -655,10 +656,10 @@ def test_depth_beyond_what_nerfstudio_pngs_hold_is_named():
     def box(half):
         return (-half, -half, -half), (half, half, half)
 
-    assert capture_notes.depth_png_notes(frames_at(5.0), box(1.0)) == []
-    huge = capture_notes.depth_png_notes(frames_at(900.0), box(250.0))
+    assert plan_notes.depth_png_notes(frames_at(5.0), box(1.0)) == []
+    huge = plan_notes.depth_png_notes(frames_at(900.0), box(250.0))
     assert len(huge) == 1 and "reaches 1150 units" in huge[0] and "written there as 0" in huge[0]
-    tiny = capture_notes.depth_png_notes(frames_at(0.004), box(0.001))
+    tiny = plan_notes.depth_png_notes(frames_at(0.004), box(0.001))
     assert len(tiny) == 1 and "at most 5 steps" in tiny[0]
 
 
@@ -666,7 +667,7 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
     """Every transforms file names the film filter the images went through (nerf_core renders edge
     pixels through it); a filter other than Blender's default is part of the render signature, so a
     changed filter re-renders on resume instead of mixing two films in one dataset."""
-    spec = layouts.LayoutSpec(layout="sphere", train=2, val=0, test=1, radius=7.0, seed=4)
+    spec = layout_positions.LayoutSpec(layout="sphere", train=2, val=0, test=1, radius=7.0, seed=4)
     default = tmp_path / "default"
     do_capture(default, (16, 12), "cycles", spec)
     gauss = tmp_path / "gauss"
@@ -674,10 +675,10 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
     bpy.context.scene.cycles.pixel_filter_type = "GAUSSIAN"
     bpy.context.scene.cycles.filter_width = 2.25
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, spec, 16, 12)
-    settings = capture_settings.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
+    cameras.create_cameras(scene, spec, 16, 12)
+    settings = plan_settings.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
                                        layout=spec.to_dict())
-    capture_job.CaptureJob(scene, settings).run()
+    run_job.CaptureJob(scene, settings).run()
     for out, want in ((default, {"type": "BLACKMAN_HARRIS", "width": 1.5}), (gauss, {"type": "GAUSSIAN", "width": 2.25})):
         for name in ("transforms_train.json", "transforms_test.json", "nerfstudio/transforms.json"):
             with open(out / name) as fh:
@@ -687,9 +688,9 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
         assert render.get("pixel_filter") == (None if out == default else want)
     # Workbench and EEVEE: Film > Filter Size, Blackman-Harris; Workbench without anti-aliasing: none
     scene.render.filter_size = 0.75
-    assert capture_settings.film_filter(scene, "BLENDER_EEVEE_NEXT") == {"type": "BLACKMAN_HARRIS", "width": 0.75}
+    assert plan_settings.film_filter(scene, "BLENDER_EEVEE_NEXT") == {"type": "BLACKMAN_HARRIS", "width": 0.75}
     scene.display.render_aa = "OFF"
-    assert capture_settings.film_filter(scene, "BLENDER_WORKBENCH") == {"type": "NONE"}
+    assert plan_settings.film_filter(scene, "BLENDER_WORKBENCH") == {"type": "NONE"}
     # and nerf_core reads it back
     proc = subprocess.run([PY, "-c", "import sys; from nerf_core.data.loading import load_dataset; "
                            "print(load_dataset(sys.argv[1]).pixel_filter)", str(gauss)],

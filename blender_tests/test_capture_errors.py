@@ -12,9 +12,11 @@ import pytest
 from mathutils import Matrix
 
 from addon import file_writes
-from addon.capture import frame_files, layouts
-from addon.capture import capture_job, capture_plan, capture_settings
-from addon.capture import camera_collection, layout_cameras
+from addon.capture.files import frame_files
+from addon.capture.layout import positions
+from addon.capture.run import job as run_job
+from addon.capture.plan import frame_plan, settings as plan_settings
+from addon.capture.layout import collection, cameras as layout_cameras
 from addon.dataset import capture_manifest
 
 PY = sys.executable
@@ -23,14 +25,14 @@ SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))
 
 def scene_with_cameras(train=4, val=1, test=1):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
-    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=train, val=val, test=test), 24, 16)
+    layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(train=train, val=val, test=test), 24, 16)
     return bpy.context.scene
 
 
 def settings(out, **kw):
     base = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
     base.update(kw)
-    return capture_settings.CaptureSettings(**base)
+    return plan_settings.CaptureSettings(**base)
 
 
 def mtimes(folder):
@@ -45,26 +47,26 @@ def manifest(out):
 
 def test_no_visible_objects(tmp_path):
     bpy.ops.object.light_add(type="SUN")
-    with pytest.raises(capture_plan.CaptureError, match="no visible objects"):
-        capture_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
+    with pytest.raises(frame_plan.CaptureError, match="no visible objects"):
+        run_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
     hidden = bpy.data.objects.new("Hidden", bpy.data.meshes.new("Hidden"))
     bpy.context.scene.collection.objects.link(hidden)
     hidden.hide_render = True
-    with pytest.raises(capture_plan.CaptureError, match="no visible objects"):
-        capture_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
+    with pytest.raises(frame_plan.CaptureError, match="no visible objects"):
+        run_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds"))
     assert not (tmp_path / "ds").exists()
 
 
 def test_no_capture_cameras(tmp_path):
     bpy.ops.mesh.primitive_cube_add()
-    with pytest.raises(capture_plan.CaptureError, match="no train cameras.*generate a camera layout"):
-        capture_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds")).run()
+    with pytest.raises(frame_plan.CaptureError, match="no train cameras.*generate a camera layout"):
+        run_job.CaptureJob(bpy.context.scene, settings(tmp_path / "ds")).run()
 
 
 @pytest.mark.parametrize("kind", ["scale", "shear"])
 def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
     scene = scene_with_cameras()
-    cam = camera_collection.capture_cameras(scene)["train"][1]
+    cam = collection.capture_cameras(scene)["train"][1]
     if kind == "scale":
         cam.scale = (2.0, 2.0, 2.0)
         pattern = "NeRF_train_001.*has scale"
@@ -78,17 +80,17 @@ def test_scaled_or_sheared_camera_is_refused(tmp_path, kind):
         bpy.context.view_layer.update()
         pattern = "NeRF_train_001"
     bpy.context.view_layer.update()
-    with pytest.raises(capture_plan.CaptureError, match=pattern):
-        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    with pytest.raises(frame_plan.CaptureError, match=pattern):
+        run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     assert not (tmp_path / "ds").exists()
 
 
 def test_scaled_camera_normalised_on_request_and_recorded(tmp_path):
     scene = scene_with_cameras(train=2, val=0, test=0)
-    cam = camera_collection.capture_cameras(scene)["train"][0]
+    cam = collection.capture_cameras(scene)["train"][0]
     cam.scale = (0.5, 0.5, 0.5)
     bpy.context.view_layer.update()
-    capture_job.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
     m = manifest(tmp_path / "ds")
     assert m["frames"]["train/r_0"]["camera_scale_removed"] == [0.5, 0.5, 0.5]
     with open(tmp_path / "ds" / "transforms_train.json") as fh:
@@ -120,11 +122,11 @@ def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
     # refused before rendering now. A scale from a parent named the camera, whose own scale is 1.
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="scene-cameras", val=1, test=1)
+    spec = positions.LayoutSpec(layout="scene-cameras", val=1, test=1)
     cams = _ring_of_scene_cameras(scene)
     cams[2].scale = (-1.0, 1.0, 1.0)
     bpy.context.view_layer.update()
-    with pytest.raises(layouts.LayoutError, match="camera 'Cam2' is mirrored by its own scale"):
+    with pytest.raises(positions.LayoutError, match="camera 'Cam2' is mirrored by its own scale"):
         layout_cameras.create_cameras(scene, spec, 24, 16)
     for cam in cams:
         bpy.data.objects.remove(cam)
@@ -133,15 +135,15 @@ def test_scene_cameras_that_are_mirrored_or_scaled_by_a_parent(tmp_path):
     rig.scale = (2.0, 2.0, 2.0)
     _ring_of_scene_cameras(scene, parent=rig)
     layout_cameras.create_cameras(scene, spec, 24, 16)  # a scale alone waits for the capture
-    with pytest.raises(capture_plan.CaptureError, match=r"\(the copy of 'Cam\d'\) has scale \(2.0, 2.0, 2.0\) from the "
+    with pytest.raises(frame_plan.CaptureError, match=r"\(the copy of 'Cam\d'\) has scale \(2.0, 2.0, 2.0\) from the "
                                                    r"scale of its parent 'Rig'; clear that scale, or let the capture"):
-        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+        run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     assert not (tmp_path / "ds").exists()
-    capture_job.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "ds", normalize_camera_scale=True)).run()
     assert manifest(tmp_path / "ds")["frames"]["train/r_0"]["camera_scale_removed"] == [2.0, 2.0, 2.0]
     rig.scale = (-2.0, 2.0, 2.0)  # mirrored by the parent: no normalising fixes that
     bpy.context.view_layer.update()
-    with pytest.raises(layouts.LayoutError, match="mirrored by the scale of its parent 'Rig'"):
+    with pytest.raises(positions.LayoutError, match="mirrored by the scale of its parent 'Rig'"):
         layout_cameras.create_cameras(scene, spec, 24, 16)
 
 
@@ -151,13 +153,13 @@ def test_a_scale_a_constraint_brings_is_named_as_the_constraints(tmp_path):
     rig = bpy.data.objects.new("Rig", None)
     scene.collection.objects.link(rig)
     rig.scale = (1.5, 1.5, 1.5)
-    camera = next(o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA")
+    camera = next(o for o in collection.nerf_collection(scene).objects if o.type == "CAMERA")
     constraint = camera.constraints.new("CHILD_OF")
     constraint.target = rig
     constraint.set_inverse_pending = False
     bpy.context.view_layer.update()
-    with pytest.raises(capture_plan.CaptureError, match=r"from its constraint 'Child Of'; turn off its scale"):
-        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    with pytest.raises(frame_plan.CaptureError, match=r"from its constraint 'Child Of'; turn off its scale"):
+        run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
 def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
@@ -165,9 +167,9 @@ def test_an_orthographic_scene_camera_is_named_in_the_error(tmp_path):
     scene = bpy.context.scene
     for cam in _ring_of_scene_cameras(scene):
         cam.data.type = "ORTHO"
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
-    with pytest.raises(capture_plan.CaptureError, match=r"camera 'NeRF_train_000' \(the copy of 'Cam\d'\) is ortho"):
-        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="scene-cameras", val=1, test=1), 24, 16)
+    with pytest.raises(frame_plan.CaptureError, match=r"camera 'NeRF_train_000' \(the copy of 'Cam\d'\) is ortho"):
+        run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
 def test_stereoscopy_is_turned_off_for_the_capture(tmp_path):
@@ -176,7 +178,7 @@ def test_stereoscopy_is_turned_off_for_the_capture(tmp_path):
     scene = scene_with_cameras(train=2)
     scene.render.use_multiview = True
     scene.render.views_format = "STEREO_3D"
-    capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     names = sorted(f for _d, _s, files in os.walk(tmp_path / "ds" / "train") for f in files)
     assert names == ["r_0.png", "r_1.png"]
     assert scene.render.use_multiview  # the user's setting comes back
@@ -196,7 +198,7 @@ def test_a_camera_bound_to_a_marker_does_not_take_over_the_views(tmp_path):
     marker.camera = shot
     scene.camera = shot
     scene.render.image_settings.file_format = "JPEG"  # and the output format comes back, passes or not
-    capture_job.CaptureJob(scene, settings(tmp_path / "ds", depth=True)).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "ds", depth=True)).run()
     images = [np.asarray(Image.open(tmp_path / "ds" / "train" / f"r_{k}.png")) for k in range(3)]
     assert not np.array_equal(images[0], images[1]) and not np.array_equal(images[1], images[2])
     assert marker.camera == shot and scene.camera == shot
@@ -208,7 +210,7 @@ def test_views_render_at_the_frame_the_capture_started_at(tmp_path):
     # the views at another moment of an animated scene.
     scene = scene_with_cameras(train=2)
     scene.frame_set(5)
-    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = run_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.prepare()
     scene.frame_set(30)
     job.step()
@@ -220,16 +222,16 @@ def test_resuming_after_the_scene_changed_is_a_conflict(tmp_path):
     # Frame hashes cover cameras and render settings only: after an edit, a resume kept pictures of the
     # old scene beside an aabb and near/far computed for the new one.
     scene = scene_with_cameras(train=2)
-    capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     manifest_before = manifest(tmp_path / "ds")
     assert manifest_before["scene_signature"]
-    _, conflict = capture_job.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
+    _, conflict = run_job.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
     assert conflict is None  # nothing changed: resumes (keeps every frame)
     bpy.data.objects["Cube"].scale = (0.3, 0.3, 0.3)
     bpy.context.view_layer.update()
-    with pytest.raises(capture_plan.CaptureError, match="holds frames of this scene as it was before it changed"):
-        capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
-    summary = capture_job.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
+    with pytest.raises(frame_plan.CaptureError, match="holds frames of this scene as it was before it changed"):
+        run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    summary = run_job.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
     assert summary["rendered"] == summary["frames"]
 
 
@@ -244,21 +246,21 @@ def test_resuming_after_the_look_changed_is_a_conflict_but_moving_a_node_is_not(
     if scene.world is None:
         scene.world = bpy.data.worlds.new("World")
     background = next(n for n in scene.world.node_tree.nodes if n.type == "BACKGROUND")
-    capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
     assert manifest(tmp_path / "ds")["appearance_signature"]
     bsdf = material.node_tree.nodes["Principled BSDF"]
     bsdf.location.x += 200  # tidying the node editor changes no pixel
-    _, conflict = capture_job.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
+    _, conflict = run_job.CaptureJob(scene, settings(tmp_path / "ds")).inspect_folder()
     assert conflict is None
     edits = [lambda: setattr(bsdf.inputs["Base Color"], "default_value", (1.0, 0.0, 0.0, 1.0)),
              lambda: setattr(background.inputs["Strength"], "default_value", 3.0),
              lambda: setattr(lamp.data, "energy", 5000.0),
              lambda: setattr(scene.world, "color", (0.9, 0.1, 0.1))]  # the background Workbench shows
     for edit in edits:
-        capture_job.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
+        run_job.CaptureJob(scene, settings(tmp_path / "ds", overwrite=True)).run()
         edit()
-        with pytest.raises(capture_plan.CaptureError, match="as it looked before it changed"):
-            capture_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
+        with pytest.raises(frame_plan.CaptureError, match="as it looked before it changed"):
+            run_job.CaptureJob(scene, settings(tmp_path / "ds")).run()
 
 
 def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reopening(tmp_path):
@@ -268,7 +270,7 @@ def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reop
     scene = scene_with_cameras(train=3, val=0, test=1)
     cube = bpy.data.objects["Cube"]
     cube.location = (1.5, 0.5, 0.25)
-    cameras = [o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras = [o for o in collection.nerf_collection(scene).objects if o.type == "CAMERA"]
     poses = {o.name: [v for row in o.matrix_world.normalized() for v in row] for o in cameras}
     for obj in cameras + [cube]:
         obj.hide_viewport = True
@@ -278,7 +280,7 @@ def test_cameras_and_subjects_disabled_in_viewports_keep_their_places_after_reop
     scene = bpy.context.scene
     assert bpy.data.objects["Cube"].matrix_world.translation.length < 1e-6  # what the capture used to read
     homes = {o.name: sorted(c.name for c in o.users_collection) for o in bpy.data.objects}
-    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = run_job.CaptureJob(scene, settings(tmp_path / "ds"))
     for fr in job.plan():
         assert sum(fr["transform_matrix"], []) == pytest.approx(poses[fr["camera"]], abs=1e-5), fr["camera"]
     lo, hi = job.bounds
@@ -299,11 +301,11 @@ def test_the_layer_the_box_comes_from_is_the_layer_rendered_whatever_its_use_fla
     subject.objects.link(cube)
     active = bpy.context.view_layer
     active.use = False
-    summary = capture_job.CaptureJob(scene, settings(tmp_path / "one")).run()  # its only layer: rendered anyway
+    summary = run_job.CaptureJob(scene, settings(tmp_path / "one")).run()  # its only layer: rendered anyway
     assert summary["rendered"] == summary["frames"]
     other = scene.view_layers.new("Other")
     other.layer_collection.children["Subject"].exclude = True  # this layer renders nothing
-    capture_job.CaptureJob(scene, settings(tmp_path / "two")).run()
+    run_job.CaptureJob(scene, settings(tmp_path / "two")).run()
     alpha = frame_files.read_png_rgba(str(tmp_path / "two" / "train" / "r_0.png"))[..., 3]
     assert alpha.max() > 0  # the cube of the active layer, not the empty other layer
     assert active.use is False and other.use is True  # the file's flags are restored
@@ -313,12 +315,12 @@ def test_cameras_whose_clipping_cuts_the_scene_box_are_named(tmp_path):
     # Generated layouts fit their clipping to the box; a user's own clip_end short of the scene left
     # parts of it out of some views only, with no word.
     scene = scene_with_cameras(train=3, val=0, test=1)
-    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = run_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
     assert not any("clip the scene box" in n for n in job.notes)
-    cameras = [o for o in camera_collection.nerf_collection(scene).objects if o.type == "CAMERA"]
+    cameras = [o for o in collection.nerf_collection(scene).objects if o.type == "CAMERA"]
     cameras[0].data.clip_end = 0.5
-    job = capture_job.CaptureJob(scene, settings(tmp_path / "ds"))
+    job = run_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
     assert any(n.startswith(f"1 camera(s) clip the scene box, e.g. {cameras[0].name!r}: clip") for n in job.notes), job.notes
 
@@ -329,7 +331,7 @@ def test_an_overwrite_says_what_it_would_delete(tmp_path):
     (out / "test").mkdir(parents=True)
     (out / "test" / "test_shading.py").write_text("user code")
     (out / "notes.txt").write_text("user notes")
-    _, conflict = capture_job.CaptureJob(scene, settings(out)).inspect_folder()
+    _, conflict = run_job.CaptureJob(scene, settings(out)).inspect_folder()
     assert "holds no capture of ours (notes.txt, test)" in conflict
     assert conflict.endswith("overwrite deletes test (the dataset's names) and keeps the rest")
 
@@ -338,10 +340,10 @@ def test_output_folder_not_writable(tmp_path):
     scene = scene_with_cameras()
     blocker = tmp_path / "a_file"
     blocker.write_text("user data")
-    with pytest.raises(capture_plan.CaptureError, match="not a folder"):
-        capture_job.CaptureJob(scene, settings(blocker)).run()
-    with pytest.raises(capture_plan.CaptureError, match="not writable"):
-        capture_job.CaptureJob(scene, settings(blocker / "ds")).run()
+    with pytest.raises(frame_plan.CaptureError, match="not a folder"):
+        run_job.CaptureJob(scene, settings(blocker)).run()
+    with pytest.raises(frame_plan.CaptureError, match="not writable"):
+        run_job.CaptureJob(scene, settings(blocker / "ds")).run()
     assert blocker.read_text() == "user data"
 
 
@@ -351,11 +353,11 @@ def test_foreign_folder_refused_then_overwrite_keeps_unrelated_files(tmp_path):
     (out / "train").mkdir(parents=True)
     (out / "train" / "holiday.png").write_bytes(b"precious")
     (out / "notes.txt").write_text("mine")
-    with pytest.raises(capture_plan.CaptureError, match="not empty and holds no capture.*notes.txt.*--overwrite"):
-        capture_job.CaptureJob(scene, settings(out)).run()
+    with pytest.raises(frame_plan.CaptureError, match="not empty and holds no capture.*notes.txt.*--overwrite"):
+        run_job.CaptureJob(scene, settings(out)).run()
     assert (out / "train" / "holiday.png").read_bytes() == b"precious"
     assert not (out / "transforms_train.json").exists()
-    capture_job.CaptureJob(scene, settings(out, overwrite=True)).run()
+    run_job.CaptureJob(scene, settings(out, overwrite=True)).run()
     assert (out / "notes.txt").read_text() == "mine"  # only the dataset's own paths are replaced
     assert not (out / "train" / "holiday.png").exists() and (out / "train" / "r_0.png").exists()
 
@@ -363,31 +365,31 @@ def test_foreign_folder_refused_then_overwrite_keeps_unrelated_files(tmp_path):
 def test_different_capture_refused_unless_overwrite(tmp_path):
     scene = scene_with_cameras()
     out = tmp_path / "ds"
-    capture_job.CaptureJob(scene, settings(out)).run()
+    run_job.CaptureJob(scene, settings(out)).run()
     before = mtimes(out)
-    with pytest.raises(capture_plan.CaptureError, match="different capture.*render settings changed.*--overwrite"):
-        capture_job.CaptureJob(scene, settings(out, res_x=32)).run()
-    camera_collection.capture_cameras(scene)["train"][0].location.x += 0.5
+    with pytest.raises(frame_plan.CaptureError, match="different capture.*render settings changed.*--overwrite"):
+        run_job.CaptureJob(scene, settings(out, res_x=32)).run()
+    collection.capture_cameras(scene)["train"][0].location.x += 0.5
     bpy.context.view_layer.update()
-    with pytest.raises(capture_plan.CaptureError, match="cameras changed.*train/r_0"):
-        capture_job.CaptureJob(scene, settings(out)).run()
+    with pytest.raises(frame_plan.CaptureError, match="cameras changed.*train/r_0"):
+        run_job.CaptureJob(scene, settings(out)).run()
     assert mtimes(out) == before
-    capture_job.CaptureJob(scene, settings(out, res_x=32, overwrite=True)).run()
+    run_job.CaptureJob(scene, settings(out, res_x=32, overwrite=True)).run()
     assert manifest(out)["render"]["resolution"] == [32, 16]
 
 
 def test_resume_keeps_finished_frames(tmp_path):
     scene = scene_with_cameras()
     out = tmp_path / "ds"
-    first = capture_job.CaptureJob(scene, settings(out)).run()
+    first = run_job.CaptureJob(scene, settings(out)).run()
     assert first["rendered"] == 6
     before = mtimes(out)
-    again = capture_job.CaptureJob(scene, settings(out)).run()
+    again = run_job.CaptureJob(scene, settings(out)).run()
     assert (again["rendered"], again["kept"]) == (0, 6)
     pngs = {k: v for k, v in mtimes(out).items() if k.endswith(".png")}
     assert pngs == {k: v for k, v in before.items() if k.endswith(".png")}
     os.remove(out / "val" / "r_0.png")
-    third = capture_job.CaptureJob(scene, settings(out)).run()
+    third = run_job.CaptureJob(scene, settings(out)).run()
     assert (third["rendered"], third["kept"]) == (1, 5) and (out / "val" / "r_0.png").exists()
 
 
@@ -396,7 +398,7 @@ def test_a_view_blender_cannot_render_is_named_with_the_resolution(tmp_path, mon
     # allows: a traceback reached the user, or "capture stopped: Error: ..." that named no resolution.
     scene = scene_with_cameras()
     out = tmp_path / "ds"
-    job = capture_job.CaptureJob(scene, settings(out))
+    job = run_job.CaptureJob(scene, settings(out))
     job.prepare()
     assert job.step()  # one frame is rendered before the failure
 
@@ -404,7 +406,7 @@ def test_a_view_blender_cannot_render_is_named_with_the_resolution(tmp_path, mon
         raise RuntimeError("Error: Failed to allocate GPU buffers\n")
 
     monkeypatch.setattr(frame_files, "render_still", cannot)
-    with pytest.raises(capture_plan.CaptureError, match=r"train/r_1: Blender could not render this view at 24x16 px with "
+    with pytest.raises(frame_plan.CaptureError, match=r"train/r_1: Blender could not render this view at 24x16 px with "
                                                    r"BLENDER_WORKBENCH \(Failed to allocate GPU buffers\); a lower "
                                                    r"resolution may fit.*resumes"):
         job.step()
@@ -419,7 +421,7 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
     scene.camera = user_camera
     scene.render.resolution_x, scene.render.engine = 1234, "CYCLES"
     out = tmp_path / "ds"
-    job = capture_job.CaptureJob(scene, settings(out, depth=True))
+    job = run_job.CaptureJob(scene, settings(out, depth=True))
     job.prepare()
     for _ in range(3):
         assert job.step()
@@ -434,7 +436,7 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
     for fr in done:
         assert (out / (fr["file_path"] + ".png")).is_file() and (out / fr["depth_file_path"]).is_file()
     assert not [p for p in mtimes(out) if ".partial" in p]
-    resumed = capture_job.CaptureJob(scene, settings(out, depth=True)).run()
+    resumed = run_job.CaptureJob(scene, settings(out, depth=True)).run()
     assert (resumed["kept"], resumed["rendered"], resumed["status"]) == (3, 3, "complete")
     with open(out / "nerfstudio" / "transforms.json") as fh:
         assert len(json.load(fh)["frames"]) == 6
@@ -442,17 +444,17 @@ def test_cancel_leaves_consistent_resumable_folder(tmp_path):
 
 def test_normals_with_workbench_and_bad_engine(tmp_path):
     scene = scene_with_cameras()
-    with pytest.raises(capture_plan.CaptureError, match="normals need the Cycles or EEVEE"):
-        capture_job.CaptureJob(scene, settings(tmp_path, normals=True))
-    with pytest.raises(capture_plan.CaptureError, match="unknown render engine 'povray'"):
-        capture_job.CaptureJob(scene, settings(tmp_path, engine="povray"))
+    with pytest.raises(frame_plan.CaptureError, match="normals need the Cycles or EEVEE"):
+        run_job.CaptureJob(scene, settings(tmp_path, normals=True))
+    with pytest.raises(frame_plan.CaptureError, match="unknown render engine 'povray'"):
+        run_job.CaptureJob(scene, settings(tmp_path, engine="povray"))
 
 
 def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
     bpy.ops.mesh.primitive_monkey_add(location=(0.2, 0.1, 0.0))
     cam = bpy.data.objects.new("LooksAway", bpy.data.cameras.new("LooksAway"))
     bpy.context.scene.collection.objects.link(cam)
-    cam.matrix_world = Matrix(layouts.look_at((0, -5, 0), (0, -20, 0)))  # the scene is behind it
+    cam.matrix_world = Matrix(positions.look_at((0, -5, 0), (0, -20, 0)))  # the scene is behind it
     bpy.context.scene.camera = cam
     blend = tmp_path / "scene.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -485,8 +487,8 @@ def test_script_default_layout_leaves_user_camera_and_file_alone(tmp_path):
 
 def test_script_keep_cameras_captures_the_edited_collection(tmp_path):
     scene = scene_with_cameras(train=3, val=1, test=1)
-    cam = camera_collection.capture_cameras(scene)["train"][0]
-    cam.matrix_world = Matrix(layouts.look_at((0.5, -4.0, 1.0), (0, 0, 0)))  # a user edit
+    cam = collection.capture_cameras(scene)["train"][0]
+    cam.matrix_world = Matrix(positions.look_at((0.5, -4.0, 1.0), (0, 0, 0)))  # a user edit
     blend = tmp_path / "cams.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     out = tmp_path / "ds"

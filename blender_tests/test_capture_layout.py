@@ -15,9 +15,10 @@ import sys
 
 import bpy
 
-from addon.capture import layouts
-from addon.capture import capture_job, capture_settings
-from addon.capture import layout_cameras
+from addon.capture.layout import positions
+from addon.capture.run import job
+from addon.capture.plan import settings
+from addon.capture.layout import cameras
 
 EXTS = ("png", "jpg", "jpeg", "exr")
 
@@ -25,8 +26,8 @@ EXTS = ("png", "jpg", "jpeg", "exr")
 def _capture(out):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=4, val=1, test=2, seed=1), 16, 16)
-    return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
+    cameras.create_cameras(scene, positions.LayoutSpec(train=4, val=1, test=2, seed=1), 16, 16)
+    return job.CaptureJob(scene, settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
                                                              res_y=16, depth=True, points=True)).run()
 
 

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from addon.capture import layouts
-from addon.capture import capture_job, capture_settings
-from addon.capture import layout_cameras
+from addon.capture.layout import positions
+from addon.capture.run import job
+from addon.capture.plan import settings as plan_settings
+from addon.capture.layout import cameras
 
 CENTRE, RADIUS = np.array([0.3, -0.2, 0.4]), 1.0
 GS_PROPERTIES = ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]  # 3DGS fetchPly / storePly
@@ -30,11 +31,11 @@ def sphere_capture(out, engine):
     sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
     bpy.context.scene.collection.objects.link(sun)
     scene = bpy.context.scene
-    spec = layouts.LayoutSpec(layout="sphere", train=4, val=0, test=1, radius=5.0, seed=2)
-    layout_cameras.create_cameras(scene, spec, 40, 40)
-    settings = capture_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=40, res_y=40, points=True,
+    spec = positions.LayoutSpec(layout="sphere", train=4, val=0, test=1, radius=5.0, seed=2)
+    cameras.create_cameras(scene, spec, 40, 40)
+    settings = plan_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=40, res_y=40, points=True,
                                        n_points=4000, layout=spec.to_dict())
-    return capture_job.CaptureJob(scene, settings).run()
+    return job.CaptureJob(scene, settings).run()
 
 
 @pytest.mark.parametrize("engine", ["cycles", "workbench"])
@@ -63,8 +64,8 @@ def test_manifest_records_the_addon_version(tmp_path, repo_root):
     out = tmp_path / "ds"
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=2, val=0, test=1), 16, 16)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16, res_y=16)).run()
+    cameras.create_cameras(scene, positions.LayoutSpec(train=2, val=0, test=1), 16, 16)
+    job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16, res_y=16)).run()
     with open(f"{repo_root}/addon/blender_manifest.toml", "rb") as fh:
         version = tomllib.load(fh)["version"]
     manifest = json.loads((out / "nerf_capture" / "manifest.json").read_text())

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon.capture import capture_plan
+from addon.capture.plan import frame_plan
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -90,7 +90,7 @@ def test_merged_capture_equals_the_whole_capture(captures):
             assert a == b, name
     mw, ms = (json.loads((d / "nerf_capture" / "manifest.json").read_text()) for d in (whole, sharded))
     assert mw["status"] == ms["status"] == "complete"
-    assert mw["plan_hash"] == ms["plan_hash"] == capture_plan.plan_hash(ms["plan"])
+    assert mw["plan_hash"] == ms["plan_hash"] == frame_plan.plan_hash(ms["plan"])
     assert mw["plan"] == ms["plan"] and len(ms["plan"]["frames"]) == 6
     assert mw["shards"] is None and ms["shards"]["count"] == 2
     assert {k: v["hash"] for k, v in mw["frames"].items()} == {k: v["hash"] for k, v in ms["frames"].items()}
@@ -184,51 +184,54 @@ def test_merge_without_shards_says_so(tmp_path):
 
 
 def test_parse_shard_and_round_robin():
-    assert capture_plan.parse_shard("2/5") == (2, 5) and capture_plan.parse_shard(" 1 / 1 ") == (1, 1)
+    assert frame_plan.parse_shard("2/5") == (2, 5) and frame_plan.parse_shard(" 1 / 1 ") == (1, 1)
     frames = [{"key": i} for i in range(7)]
-    shares = [[f["key"] for f in capture_plan.shard_frames(frames, k, 3)] for k in (1, 2, 3)]
+    shares = [[f["key"] for f in frame_plan.shard_frames(frames, k, 3)] for k in (1, 2, 3)]
     assert shares == [[0, 3, 6], [1, 4], [2, 5]]
 
 
 def test_more_shards_than_frames_leaves_some_empty_and_still_merges(tmp_path):
     """In-process shards (CaptureJob with settings.shard): 2 frames over 3 shards; shard 3 has none."""
-    from addon.capture import capture_merge, layouts
-    from addon.capture import capture_job, capture_plan, capture_settings
-    from addon.capture import layout_cameras
+    from addon.capture.run import merge
+    from addon.capture.layout import positions
+    from addon.capture.run import job
+    from addon.capture.plan import frame_plan, settings
+    from addon.capture.layout import cameras
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=1, val=0, test=1), 16, 16)
+    cameras.create_cameras(scene, positions.LayoutSpec(train=1, val=0, test=1), 16, 16)
     out = tmp_path / "ds"
 
     def shard(k):
-        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
+        return job.CaptureJob(scene, settings.CaptureSettings(out_dir=str(out), engine="workbench", res_x=16,
                                                                  res_y=16, shard=(k, 3))).run()
 
     empty = shard(3)
     assert (empty["frames"], empty["rendered"], empty["status"], empty["planned"]) == (0, 0, "done", 2)
-    with pytest.raises(capture_plan.CaptureError, match="2 of 2 planned frames"):
-        capture_merge.merge(str(out))
+    with pytest.raises(frame_plan.CaptureError, match="2 of 2 planned frames"):
+        merge.merge(str(out))
     assert [shard(k)["rendered"] for k in (1, 2)] == [1, 1]
-    merged = capture_merge.merge(str(out))
+    merged = merge.merge(str(out))
     assert (merged["status"], merged["frames"], merged["shards"]) == ("complete", 2, 3)
     assert json.loads((out / "transforms_test.json").read_text())["frames"][0]["file_path"] == "./test/r_0"
 
 
 def test_a_whole_capture_keeps_the_frames_shards_finished(tmp_path):
     """Switching from the farm to one machine midway: the whole run keeps every frame a shard recorded."""
-    from addon.capture import layouts
-    from addon.capture import capture_job, capture_settings
-    from addon.capture import layout_cameras
+    from addon.capture.layout import positions
+    from addon.capture.run import job
+    from addon.capture.plan import settings
+    from addon.capture.layout import cameras
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=3, val=0, test=1), 16, 16)
+    cameras.create_cameras(scene, positions.LayoutSpec(train=3, val=0, test=1), 16, 16)
     out = tmp_path / "ds"
     base = dict(out_dir=str(out), engine="workbench", res_x=16, res_y=16, depth=True)
-    first = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**base, shard=(1, 2))).run()
+    first = job.CaptureJob(scene, settings.CaptureSettings(**base, shard=(1, 2))).run()
     assert first["rendered"] == 2  # frames 0 and 2 of 4
-    whole = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**base)).run()
+    whole = job.CaptureJob(scene, settings.CaptureSettings(**base)).run()
     assert (whole["kept"], whole["rendered"], whole["status"]) == (2, 2, "complete")
     manifest = json.loads((out / "nerf_capture" / "manifest.json").read_text())
     assert all(f["done"] and "sha256" in f for f in manifest["frames"].values())

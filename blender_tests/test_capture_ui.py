@@ -9,8 +9,9 @@ import pytest
 
 import addon
 from addon import capture as capture_feature
-from addon.capture import capture_ui, layouts
-from addon.capture import camera_collection, layout_cameras
+from addon.capture.ui import panel as ui_panel
+from addon.capture.layout import positions
+from addon.capture.layout import collection, cameras
 from addon.common import jobs
 
 
@@ -48,7 +49,7 @@ def test_layout_choice_sets_elevation_defaults(registered):
     s.layout = "hemisphere"
     assert (s.elevation_min, s.elevation_max) == (0.0, 90.0)
     s.layout = "inside"
-    assert (s.elevation_min, s.elevation_max) == layouts.INSIDE_ELEVATION
+    assert (s.elevation_min, s.elevation_max) == positions.INSIDE_ELEVATION
 
 
 def test_generate_and_capture_operators(registered, tmp_path):
@@ -58,7 +59,7 @@ def test_generate_and_capture_operators(registered, tmp_path):
     s.resolution_x, s.resolution_y, s.engine = 24, 16, "workbench"
     s.output_dir = str(tmp_path / "ds")
     assert bpy.ops.nerf.generate_cameras() == {"FINISHED"}
-    assert [len(v) for v in camera_collection.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
+    assert [len(v) for v in collection.capture_cameras(bpy.context.scene).values()] == [3, 1, 1]
     assert bpy.ops.nerf.capture() == {"FINISHED"}
     with open(tmp_path / "ds" / "nerf_capture" / "manifest.json") as fh:
         assert json.load(fh)["status"] == "complete"
@@ -68,7 +69,7 @@ def test_generate_and_capture_operators(registered, tmp_path):
         bpy.ops.nerf.capture()
     assert bpy.ops.nerf.capture(overwrite=True) == {"FINISHED"}
     assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
-    assert not any(camera_collection.capture_cameras(bpy.context.scene).values())
+    assert not any(collection.capture_cameras(bpy.context.scene).values())
 
 
 def test_operator_errors_are_reported_not_raised_deep(registered, tmp_path):
@@ -89,7 +90,7 @@ def test_the_panel_cannot_capture_a_dataset_without_val_or_test_views(registered
     s.train_count = 1  # nor for a train split of one view, which train and check refuse
     assert s.train_count == 2
     # A collection made elsewhere (a script, an older file) without test cameras is refused, naming it.
-    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=3, val=1, test=0), 16, 16)
+    cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(train=3, val=1, test=0), 16, 16)
     s.output_dir, s.engine = str(tmp_path / "ds"), "workbench"
     with pytest.raises(RuntimeError, match="no test camera"):
         bpy.ops.nerf.capture()
@@ -101,7 +102,7 @@ def _fake_modal_operator(job):
     following ``job`` as the Capture operator hands it over."""
     from types import SimpleNamespace
 
-    capture_ui.follow_capture(bpy.context.scene, job)
+    ui_panel.follow_capture(bpy.context.scene, job)
     op = SimpleNamespace(_timer=None, reports=[])
     op.report = lambda kind, msg: op.reports.append((kind, msg))
     op.modal = lambda ctx, event: jobs.NERF_OT_follow_jobs.modal(op, ctx, event)
@@ -114,14 +115,14 @@ def _fake_modal_operator(job):
 def test_modal_capture_steps_per_tick_and_cancels(registered, tmp_path, how):
     from types import SimpleNamespace
 
-    from addon.capture import capture_job
+    from addon.capture.run import job as run_job
 
     bpy.ops.mesh.primitive_cube_add()
     s = bpy.context.scene.nerf_capture
     s.train_count, s.val_count, s.test_count = 3, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
-    job = capture_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job = run_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
     job.prepare()
     op, ctx = _fake_modal_operator(job)
     s.is_running = True
@@ -156,7 +157,7 @@ def test_cancel_with_no_capture_running_says_so_and_sets_no_flag(registered, cap
     assert bpy.ops.nerf.capture_cancel() == {"CANCELLED"}
     out, err = capfd.readouterr()
     assert "Warning: No capture is running: nothing to cancel." in out + err
-    assert not s.cancel_requested and jobs.get(capture_ui.CAPTURE) is None
+    assert not s.cancel_requested and jobs.get(ui_panel.CAPTURE) is None
 
 
 def test_addon_register_unregister_twice():
@@ -221,21 +222,21 @@ def test_panel_draws_every_layout_and_the_running_state(registered, layout_name,
     s.layout = layout_name
     log = []
     panel = SimpleNamespace(layout=_RecordingLayout(log))
-    capture_ui.NERF_PT_capture.draw(panel, bpy.context)
+    ui_panel.NERF_PT_capture.draw(panel, bpy.context)
     props = {entry[1] for entry in log if entry[0] == "prop"}
     assert {"layout", "engine", "resolution_x", "resolution_y", "output_dir", "depth", "masks"} <= props
     assert ("operator", "nerf.capture") in log and ("operator", "nerf.generate_cameras") in log
     assert ("rings" in props) == (layout_name == "rings") and ("frame_step" in props) == (layout_name == "animation")
-    assert ("radius" in props) == (layout_name in layouts.GENERATED_LAYOUTS and layout_name != "inside")
+    assert ("radius" in props) == (layout_name in positions.GENERATED_LAYOUTS and layout_name != "inside")
     s.is_running, s.progress, s.status = True, 0.25, "3/12 train/r_2"
     log.clear()
-    capture_ui.NERF_PT_capture.draw(panel, bpy.context)
+    ui_panel.NERF_PT_capture.draw(panel, bpy.context)
     # A flag without a capture job (left by an add-on reload) is stale: the panel offers Capture, not
     # a Cancel that has nothing to cancel.
     assert ("operator", "nerf.capture") in log and ("operator", "nerf.capture_cancel") not in log
-    monkeypatch.setattr(jobs, "is_running", lambda key: key == capture_ui.CAPTURE)
+    monkeypatch.setattr(jobs, "is_running", lambda key: key == ui_panel.CAPTURE)
     log.clear()
-    capture_ui.NERF_PT_capture.draw(panel, bpy.context)
+    ui_panel.NERF_PT_capture.draw(panel, bpy.context)
     assert ("progress", 0.25, "3/12 train/r_2") in log and ("operator", "nerf.capture_cancel") in log
 
 
@@ -252,11 +253,11 @@ def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered,
     s.radius, s.focal_length = 0.0, 50.0
 
     def stale():
-        return camera_collection.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
+        return collection.stale_layout_note(scene, s.layout_spec(), s.resolution_x, s.resolution_y)
 
     def panel_lines():
         log = []
-        capture_ui.NERF_PT_capture.draw(SimpleNamespace(layout=_RecordingLayout(log)), bpy.context)
+        ui_panel.NERF_PT_capture.draw(SimpleNamespace(layout=_RecordingLayout(log)), bpy.context)
         return " ".join(entry[1] for entry in log if entry[0] == "label")
 
     assert stale() is None  # no cameras yet
@@ -273,7 +274,7 @@ def test_cameras_laid_out_with_other_settings_are_called_out_of_date(registered,
     assert bpy.ops.nerf.clear_cameras() == {"FINISHED"}
     # cameras the user puts in the collection were laid out by no settings of ours
     user = bpy.data.objects.new("mine", bpy.data.cameras.new("mine"))
-    camera_collection.nerf_collection(scene).objects.link(user)
+    collection.nerf_collection(scene).objects.link(user)
     s.radius = 3.0
     assert stale() is None
 

@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from addon.capture import demo_scenes, layouts
-from addon.capture import capture_job, capture_plan, capture_settings, capture_world
-from addon.capture import layout_cameras
+from addon.capture.demo import scenes
+from addon.capture.layout import positions
+from addon.capture.run import job
+from addon.capture.plan import frame_plan, settings as plan_settings, world as plan_world
+from addon.capture.layout import cameras
 
 TRANSFORMS = ("transforms_train.json", "transforms_val.json", "transforms_test.json", "nerfstudio/transforms.json")
 
@@ -36,10 +38,10 @@ def _records(out):
 
 
 def _capture(scene, out, spec, engine="workbench", res=32, **kw):
-    layout_cameras.create_cameras(scene, spec, res, res)
-    settings = capture_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=kw.pop("samples", 1), res_x=res,
+    cameras.create_cameras(scene, spec, res, res)
+    settings = plan_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=kw.pop("samples", 1), res_x=res,
                                        res_y=res, layout=spec.to_dict(), **kw)
-    return capture_job.CaptureJob(scene, settings).run()
+    return job.CaptureJob(scene, settings).run()
 
 
 def _assert_background_recorded(out, film_transparent, world):
@@ -51,13 +53,13 @@ def _assert_background_recorded(out, film_transparent, world):
 
 
 def test_hdri_capture_is_opaque_and_records_the_hdri_world(tmp_path):
-    scene = demo_scenes.build("hdri")
+    scene = scenes.build("hdri")
     out = tmp_path / "ds"
-    spec = layouts.LayoutSpec(train=4, val=1, test=1, elevation_min=5, elevation_max=30, seed=1)
+    spec = positions.LayoutSpec(train=4, val=1, test=1, elevation_min=5, elevation_max=30, seed=1)
     summary = _capture(scene, out, spec, engine="cycles", samples=4, film_transparent=False)
     assert summary["status"] == "complete" and summary["rendered"] == 6
-    world = capture_world.world_description(scene.world)
-    assert world == {"name": "NeRF Demo HDRI", "kind": "environment_texture", "image": demo_scenes.HDRI_NAME,
+    world = plan_world.world_description(scene.world)
+    assert world == {"name": "NeRF Demo HDRI", "kind": "environment_texture", "image": scenes.HDRI_NAME,
                      "color": None, "strength": 1.0}
     _assert_background_recorded(out, False, world)
     assert _records(out)[0]["render"]["world"] == world  # opaque: the world is part of the frames' hash
@@ -69,16 +71,16 @@ def test_hdri_capture_is_opaque_and_records_the_hdri_world(tmp_path):
 
 
 def test_interior_capture_from_inside_the_room(tmp_path):
-    scene = demo_scenes.build("interior")
+    scene = scenes.build("interior")
     out = tmp_path / "room"
-    spec = layouts.LayoutSpec(layout="inside", train=4, val=1, test=1, focal_length=24.0)
+    spec = positions.LayoutSpec(layout="inside", train=4, val=1, test=1, focal_length=24.0)
     _capture(scene, out, spec, film_transparent=False)
     world = {"name": "NeRF Demo Room World", "kind": "color", "image": None, "color": [0.05, 0.05, 0.05],
              "strength": 1.0}
     _assert_background_recorded(out, False, world)
     doc = _json(out / "nerfstudio" / "transforms.json")
     lo, hi = np.asarray(doc["aabb"])
-    sx, sy, sz = demo_scenes.ROOM_SIZE
+    sx, sy, sz = scenes.ROOM_SIZE
     np.testing.assert_allclose([lo, hi], [[-sx / 2, -sy / 2, 0], [sx / 2, sy / 2, sz]], atol=1e-5)
     pos = np.array([np.asarray(f["transform_matrix"])[:3, 3] for f in doc["frames"]])
     assert len(pos) == 6 and ((pos > lo) & (pos < hi)).all()  # every camera inside the scene's box
@@ -90,27 +92,27 @@ def test_interior_capture_from_inside_the_room(tmp_path):
 
 
 def test_transparent_capture_records_its_film_and_world_and_hashes_as_before(tmp_path):
-    scene = demo_scenes.build("cube")
+    scene = scenes.build("cube")
     out = tmp_path / "cube"
-    _capture(scene, out, layouts.LayoutSpec(train=2, val=0, test=0), res=16)
+    _capture(scene, out, positions.LayoutSpec(train=2, val=0, test=0), res=16)
     world = {"name": "NeRF Demo World", "kind": "color", "image": None, "color": [0.35, 0.35, 0.38], "strength": 1.0}
     _assert_background_recorded(out, True, world)
     assert "world" not in _records(out)[0]["render"]  # transparent: frame hashes of older captures still match
 
 
 def test_switching_the_film_or_an_opaque_world_changes_what_resume_keeps(tmp_path):
-    scene = demo_scenes.build("cube")
+    scene = scenes.build("cube")
     out = tmp_path / "ds"
-    spec = layouts.LayoutSpec(train=2, val=0, test=1)
+    spec = positions.LayoutSpec(train=2, val=0, test=1)
     assert _capture(scene, out, spec, res=16, film_transparent=False)["rendered"] == 3
     assert _capture(scene, out, spec, res=16, film_transparent=False)["kept"] == 3  # same settings: resumed
-    with pytest.raises(capture_plan.CaptureError, match="render settings changed"):
+    with pytest.raises(frame_plan.CaptureError, match="render settings changed"):
         _capture(scene, out, spec, res=16, film_transparent=True)
     summary = _capture(scene, out, spec, res=16, film_transparent=True, overwrite=True)
     assert summary["rendered"] == 3 and _records(out)[0]["film_transparent"] is True
     _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)
     scene.world.color = (0.6, 0.2, 0.2)  # what Workbench shows behind the scene (it ignores the nodes)
-    with pytest.raises(capture_plan.CaptureError, match="render settings changed"):
+    with pytest.raises(frame_plan.CaptureError, match="render settings changed"):
         _capture(scene, out, spec, res=16, film_transparent=False)
     assert _capture(scene, out, spec, res=16, film_transparent=False, overwrite=True)["rendered"] == 3
     assert _records(out)[1]["nerfstudio/transforms.json"]["world"]["color"] == pytest.approx([0.6, 0.2, 0.2])
@@ -129,39 +131,39 @@ def _world(name):
 
 
 def test_world_description_of_each_kind_of_world():
-    assert capture_world.world_description(None) == {"name": None, "kind": "none", "image": None, "color": None,
+    assert plan_world.world_description(None) == {"name": None, "kind": "none", "image": None, "color": None,
                                                "strength": None}
     world, tree, bg, _out = _world("Plain")
     bg.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
     bg.inputs["Strength"].default_value = 0.5
-    d = capture_world.world_description(world)
+    d = plan_world.world_description(world)
     assert d["kind"] == "color" and d["color"] == pytest.approx([0.2, 0.4, 0.6]) and d["strength"] == 0.5
     world.color = (0.9, 0.1, 0.1)  # Workbench ignores the nodes and shows the viewport colour
-    d = capture_world.world_description(world, "BLENDER_WORKBENCH")
+    d = plan_world.world_description(world, "BLENDER_WORKBENCH")
     assert d["kind"] == "color" and d["color"] == pytest.approx([0.9, 0.1, 0.1])
 
     world, tree, bg, _out = _world("Sky")
     sky = tree.nodes.new("ShaderNodeTexSky")
     tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
-    assert capture_world.world_description(world)["kind"] == "sky_texture"
+    assert plan_world.world_description(world)["kind"] == "sky_texture"
 
     world, tree, bg, out = _world("Mixed")  # the light-path trick: a Background inside a Mix Shader
     env = tree.nodes.new("ShaderNodeTexEnvironment")
-    env.image = bpy.data.images.load(demo_scenes.hdri_path(), check_existing=True)
+    env.image = bpy.data.images.load(scenes.hdri_path(), check_existing=True)
     tree.links.new(env.outputs["Color"], bg.inputs["Color"])
     mix = tree.nodes.new("ShaderNodeMixShader")
     tree.links.new(bg.outputs["Background"], mix.inputs[2])
     tree.links.new(mix.outputs["Shader"], out.inputs["Surface"])
     value = tree.nodes.new("ShaderNodeValue")
     tree.links.new(value.outputs["Value"], bg.inputs["Strength"])
-    d = capture_world.world_description(world)
-    assert d["kind"] == "environment_texture" and d["image"] == demo_scenes.HDRI_NAME and d["strength"] is None
+    d = plan_world.world_description(world)
+    assert d["kind"] == "environment_texture" and d["image"] == scenes.HDRI_NAME and d["strength"] is None
 
     world, tree, bg, out = _world("Unlinked")
     tree.links.remove(out.inputs["Surface"].links[0])
-    assert capture_world.world_description(world)["kind"] == "none"
+    assert plan_world.world_description(world)["kind"] == "none"
 
     world, tree, bg, out = _world("Gradient")
     grad = tree.nodes.new("ShaderNodeTexGradient")
     tree.links.new(grad.outputs["Color"], bg.inputs["Color"])
-    assert capture_world.world_description(world)["kind"] == "other"
+    assert plan_world.world_description(world)["kind"] == "other"

@@ -16,9 +16,10 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Vector
 
-from addon.capture import layouts
-from addon.capture import capture_job, capture_settings
-from addon.capture import camera_collection, layout_cameras
+from addon.capture.layout import positions
+from addon.capture.run import job as run_job
+from addon.capture.plan import settings as plan_settings
+from addon.capture.layout import collection, cameras
 from addon.common import jobs
 from addon.compare import planes
 from addon.bridge import runs, child_process
@@ -58,9 +59,9 @@ def tiny_capture(root: str):
     mat = bpy.data.materials.new("red")
     mat.diffuse_color = (0.8, 0.2, 0.1, 1.0)
     bpy.context.object.data.materials.append(mat)
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
-    settings = capture_settings.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
-    summary = capture_job.CaptureJob(scene, settings).run()
+    cameras.create_cameras(scene, positions.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
+    settings = plan_settings.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
+    summary = run_job.CaptureJob(scene, settings).run()
     assert summary["status"] == "complete"
     return settings.out_dir
 
@@ -98,7 +99,7 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     job = drive(compare_ui.start_render(bpy.context))
     views = job.views
     assert [v.name for v in views] == ["r_0", "r_1"]
-    test_cams = camera_collection.capture_cameras(scene)["test"]
+    test_cams = collection.capture_cameras(scene)["test"]
     scene.render.resolution_x = scene.render.resolution_y = RES  # the capture's resolution
     scene.render.resolution_percentage = 100
     config = json.load(open(os.path.join(s.run_dir, "config.json")))

@@ -12,8 +12,8 @@ import bpy
 import pytest
 
 import addon
-from addon.capture import capture_ui
-from addon.capture import capture_job
+from addon.capture.ui import panel as ui_panel
+from addon.capture.run import job as run_job
 from addon.common import jobs, ui_common
 from addon.compare import compare_ui
 from addon.train import train_ui, train_job
@@ -42,7 +42,7 @@ def _prepared_capture(tmp_path, frames=2):
     s.train_count, s.val_count, s.test_count = frames, 1, 1
     s.resolution_x, s.resolution_y, s.engine, s.output_dir = 16, 16, "workbench", str(tmp_path / "ds")
     bpy.ops.nerf.generate_cameras()
-    job = capture_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
+    job = run_job.CaptureJob(bpy.context.scene, s.capture_settings(), progress=lambda d, t, i: None)
     job.prepare()
     return job
 
@@ -62,7 +62,7 @@ def _train_job(cmd):
 
 
 def test_one_follower_advances_a_capture_and_a_training_together(registered, tmp_path):
-    task = capture_ui.follow_capture(bpy.context.scene, _prepared_capture(tmp_path))
+    task = ui_panel.follow_capture(bpy.context.scene, _prepared_capture(tmp_path))
     # A trainer that reports frac 0.6 at step 10 of 100: the panel must show the trainer's 0.6, not 10/100.
     train = _train_job(_fake_trainer(tmp_path, (
         "emit(event='start', run='r', method='fake', max_steps=100, max_seconds=None)\n"
@@ -99,7 +99,7 @@ def test_one_follower_advances_a_capture_and_a_training_together(registered, tmp
 
 
 def test_esc_stops_a_capture_but_not_a_training(registered, tmp_path):
-    task = capture_ui.follow_capture(bpy.context.scene, _prepared_capture(tmp_path))
+    task = ui_panel.follow_capture(bpy.context.scene, _prepared_capture(tmp_path))
     train = _train_job(_fake_trainer(tmp_path, "emit(event='start', run='r')\nwhile True: time.sleep(0.1)\n"))
     pid = train.process.pid
     op, tick = _follower()
@@ -144,7 +144,7 @@ def test_a_second_job_under_a_running_key_is_refused(registered, tmp_path):
 
 
 def test_every_panel_takes_its_place_from_one_mixin(registered):
-    for panel in (capture_ui.NERF_PT_capture, train_ui.NERF_PT_train, compare_ui.NERF_PT_compare):
+    for panel in (ui_panel.NERF_PT_capture, train_ui.NERF_PT_train, compare_ui.NERF_PT_compare):
         assert issubclass(panel, ui_common.NerfPanel)
         assert not {"bl_space_type", "bl_region_type", "bl_category"} & set(vars(panel))
         registered_panel = getattr(bpy.types, panel.bl_idname)

@@ -9,9 +9,9 @@ import pytest
 from mathutils import Matrix
 
 from addon.dataset import cameras
-from addon.capture import layouts
-from addon.capture import camera_collection, layout_cameras, layout_notes
-from addon.capture.capture_settings import RenderView
+from addon.capture.layout import positions
+from addon.capture.layout import collection, cameras as layout_cameras, notes
+from addon.capture.plan.settings import RenderView
 
 
 def _elevations(points, centre=(0, 0, 0)):
@@ -23,10 +23,10 @@ def _elevations(points, centre=(0, 0, 0)):
 def test_generators_count_radius_and_elevation_range(gen):
     centre, radius, elev = (1.0, -2.0, 0.5), 3.0, (10.0, 70.0)
     pts = {
-        "fib": lambda: layouts.fibonacci_positions(37, radius, centre, elev),
-        "random": lambda: layouts.random_positions(37, radius, centre, elev, seed=3),
-        "rings": lambda: layouts.ring_positions(37, radius, centre, elev, rings=4),
-        "spiral": lambda: layouts.spiral_positions(37, radius, centre, elev, turns=2),
+        "fib": lambda: positions.fibonacci_positions(37, radius, centre, elev),
+        "random": lambda: positions.random_positions(37, radius, centre, elev, seed=3),
+        "rings": lambda: positions.ring_positions(37, radius, centre, elev, rings=4),
+        "spiral": lambda: positions.spiral_positions(37, radius, centre, elev, turns=2),
     }[gen]()
     p = np.asarray(pts)
     assert p.shape == (37, 3)
@@ -39,47 +39,47 @@ def test_generators_count_radius_and_elevation_range(gen):
 
 
 def test_hemisphere_covers_its_range_evenly():
-    e = _elevations(layouts.fibonacci_positions(200, 1.0, (0, 0, 0), (0.0, 90.0)))
+    e = _elevations(positions.fibonacci_positions(200, 1.0, (0, 0, 0), (0.0, 90.0)))
     assert e.min() < 3 and e.max() > 80  # spans the band
     # equal-area: half the points lie below 30 degrees (sin 30 = 0.5)
     assert abs((e < 30).mean() - 0.5) < 0.02
 
 
 def test_random_layout_is_reproducible_from_seed():
-    a = layouts.random_positions(10, 2.0, seed=7)
-    assert a == layouts.random_positions(10, 2.0, seed=7)
-    assert a != layouts.random_positions(10, 2.0, seed=8)
+    a = positions.random_positions(10, 2.0, seed=7)
+    assert a == positions.random_positions(10, 2.0, seed=7)
+    assert a != positions.random_positions(10, 2.0, seed=8)
 
 
 def test_rings_use_that_many_elevations():
-    e = np.round(_elevations(layouts.ring_positions(12, 1.0, (0, 0, 0), (0.0, 60.0), rings=3)), 6)
+    e = np.round(_elevations(positions.ring_positions(12, 1.0, (0, 0, 0), (0.0, 60.0), rings=3)), 6)
     assert sorted(set(e)) == [0.0, 30.0, 60.0]
 
 
 def test_spiral_climbs():
-    e = _elevations(layouts.spiral_positions(20, 1.0, (0, 0, 0), (5.0, 80.0), turns=3))
+    e = _elevations(positions.spiral_positions(20, 1.0, (0, 0, 0), (5.0, 80.0), turns=3))
     assert np.all(np.diff(e) > 0)
 
 
 def test_assign_splits_counts_disjoint_and_spread():
-    s = layouts.assign_splits(130, 10, 20, seed=1)
+    s = positions.assign_splits(130, 10, 20, seed=1)
     assert (s.count("train"), s.count("val"), s.count("test")) == (100, 10, 20)
-    assert s != layouts.assign_splits(130, 10, 20, seed=2)
-    with pytest.raises(layouts.LayoutError, match="cannot hold"):
-        layouts.assign_splits(5, 3, 2)
+    assert s != positions.assign_splits(130, 10, 20, seed=2)
+    with pytest.raises(positions.LayoutError, match="cannot hold"):
+        positions.assign_splits(5, 3, 2)
 
 
 def test_the_lowest_cameras_always_train():
     heights = [math.sin(0.1 * k) for k in range(121)]  # any order: the rule sorts by height
     for seed in range(5):
-        s = layouts.assign_splits(121, 1, 20, seed=seed, heights=heights)
+        s = positions.assign_splits(121, 1, 20, seed=seed, heights=heights)
         assert (s.count("train"), s.count("val"), s.count("test")) == (100, 1, 20)
         lowest = sorted(range(121), key=lambda k: heights[k])[:13]  # ceil(10 % of 121)
         assert all(s[k] == "train" for k in lowest)
     # Without heights (a user's cameras, an animation), or when the rest could not hold val and test,
     # every camera may be held out, as before.
-    assert layouts.assign_splits(130, 10, 20, seed=1) == layouts.assign_splits(130, 10, 20, seed=1, heights=None)
-    s = layouts.assign_splits(10, 4, 5, seed=0, heights=list(range(10)))
+    assert positions.assign_splits(130, 10, 20, seed=1) == positions.assign_splits(130, 10, 20, seed=1, heights=None)
+    s = positions.assign_splits(10, 4, 5, seed=0, heights=list(range(10)))
     assert s.count("train") == 1
 
 
@@ -93,13 +93,13 @@ def _unseen_world_shares(n_train, n_val, n_test, seed, heights_rule: bool):
 
     lo, hi = np.array([-1.4, -1.4, -1.3]), np.array([1.4, 1.4, 0.75])  # the hdri demo scene's bounds
     centre, sphere_r = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
-    fov = layouts.fov_from_lens(50.0, 200, 200)
-    radius = layouts.auto_radius(sphere_r, *fov)
+    fov = positions.fov_from_lens(50.0, 200, 200)
+    radius = positions.auto_radius(sphere_r, *fov)
     n = n_train + n_val + n_test
-    pos = layouts.fibonacci_positions(n, radius, tuple(centre), (0.0, 90.0))
-    splits = layouts.assign_splits(n, n_val, n_test, seed, heights=[p[2] for p in pos] if heights_rule else None)
+    pos = positions.fibonacci_positions(n, radius, tuple(centre), (0.0, 90.0))
+    splits = positions.assign_splits(n, n_val, n_test, seed, heights=[p[2] for p in pos] if heights_rule else None)
     focal = 100.0 / math.tan(fov[0] / 2)
-    cams = Cameras.create(np.array([layouts.look_at(p, tuple(centre)) for p in pos]), focal, focal, 100, 100, 200, 200)
+    cams = Cameras.create(np.array([positions.look_at(p, tuple(centre)) for p in pos]), focal, focal, 100, 100, 200, 200)
     train = Cameras.cat([cams[k] for k, s in enumerate(splits) if s == "train"])
     covered = covered_directions(train)
     aabb = torch.tensor(np.stack([lo, hi]), dtype=torch.float32)
@@ -117,7 +117,7 @@ def test_held_out_views_of_a_hemisphere_see_no_world_that_training_misses(seed):
 
 def test_look_at_points_minus_z_at_target_with_z_up():
     pos, target = (3.0, -4.0, 2.0), (0.5, 0.5, 0.0)
-    m = np.asarray(layouts.look_at(pos, target))
+    m = np.asarray(positions.look_at(pos, target))
     r = m[:3, :3]
     np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
     assert np.linalg.det(r) == pytest.approx(1.0)
@@ -126,7 +126,7 @@ def test_look_at_points_minus_z_at_target_with_z_up():
     np.testing.assert_allclose(fwd, want, atol=1e-12)
     assert r[2, 1] > 0  # camera +Y has a world +Z component: image is upright
     assert abs(r[2, 0]) < 1e-12  # no roll: camera +X is horizontal
-    top = np.asarray(layouts.look_at((0, 0, 5.0), (0, 0, 0)))  # straight down still valid
+    top = np.asarray(positions.look_at((0, 0, 5.0), (0, 0, 0)))  # straight down still valid
     np.testing.assert_allclose(-top[:3, 2], (0, 0, -1), atol=1e-12)
 
 
@@ -139,7 +139,7 @@ def _add_box(size=2.0, location=(0.0, 0.0, 0.0)):
 def test_auto_radius_frames_the_scene_bounds(res):
     _add_box(2.0, (0.3, -0.2, 0.4))
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(1.5, 0.0, 0.0))
-    spec = layouts.LayoutSpec(layout="sphere", train=30, val=0, test=0)
+    spec = positions.LayoutSpec(layout="sphere", train=30, val=0, test=0)
     cams = layout_cameras.create_cameras(bpy.context.scene, spec, *res)
     lo, hi = np.array([-0.7, -1.2, -0.6]), np.array([2.0, 0.8, 1.4])
     corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -161,20 +161,20 @@ def test_create_cameras_replaces_only_its_collection():
     user_cam = bpy.data.objects.new("UserCam", bpy.data.cameras.new("UserCam"))
     bpy.context.scene.collection.objects.link(user_cam)
     user_cam.matrix_world = Matrix.Translation((0, -10, 0))
-    spec = layouts.LayoutSpec(train=8, val=2, test=3)
+    spec = positions.LayoutSpec(train=8, val=2, test=3)
     layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
     spec.train = 5
     made = layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
-    cams = camera_collection.capture_cameras(bpy.context.scene)
-    assert [len(cams[s]) for s in layouts.SPLITS] == [5, 2, 3]
+    cams = collection.capture_cameras(bpy.context.scene)
+    assert [len(cams[s]) for s in positions.SPLITS] == [5, 2, 3]
     assert len(made) == 10
-    assert all(o.name in bpy.data.collections[layouts.COLLECTION_NAME].objects for o in made)
+    assert all(o.name in bpy.data.collections[positions.COLLECTION_NAME].objects for o in made)
     assert "UserCam" in bpy.data.objects and bpy.data.objects["UserCam"].location.y == -10
     assert sum(o.type == "CAMERA" for o in bpy.data.objects) == 11  # old layout fully removed
     assert not any(o.name.startswith("NeRF_") and o.name.endswith(".001") for o in bpy.data.objects)
     mine = bpy.data.objects.new("MovedIntoCollection", None)  # a user's object put in our collection
-    bpy.data.collections[layouts.COLLECTION_NAME].objects.link(mine)
-    assert camera_collection.clear_cameras(bpy.context.scene) == 10
+    bpy.data.collections[positions.COLLECTION_NAME].objects.link(mine)
+    assert collection.clear_cameras(bpy.context.scene) == 10
     assert [o.name for o in bpy.data.objects if o.type == "CAMERA"] == ["UserCam"]
     assert "MovedIntoCollection" in bpy.data.objects
 
@@ -184,16 +184,16 @@ def test_scene_cameras_layout_copies_user_cameras_and_splits_them():
     for k in range(6):
         cam = bpy.data.objects.new(f"Cam{k}", bpy.data.cameras.new(f"Cam{k}"))
         bpy.context.scene.collection.objects.link(cam)
-        cam.matrix_world = Matrix(layouts.look_at((5 * math.cos(k), 5 * math.sin(k), 1.0), (0, 0, 0)))
-    spec = layouts.LayoutSpec(layout="scene-cameras", val=1, test=2)
+        cam.matrix_world = Matrix(positions.look_at((5 * math.cos(k), 5 * math.sin(k), 1.0), (0, 0, 0)))
+    spec = positions.LayoutSpec(layout="scene-cameras", val=1, test=2)
     made = layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
     assert len(made) == 6
     assert sorted(o["nerf_source"] for o in made) == [f"Cam{k}" for k in range(6)]
     for obj in made:
         src = bpy.data.objects[obj["nerf_source"]]
         np.testing.assert_allclose(np.asarray(obj.matrix_world), np.asarray(src.matrix_world), atol=1e-6)
-    cams = camera_collection.capture_cameras(bpy.context.scene)
-    assert [len(cams[s]) for s in layouts.SPLITS] == [3, 1, 2]
+    cams = collection.capture_cameras(bpy.context.scene)
+    assert [len(cams[s]) for s in positions.SPLITS] == [3, 1, 2]
 
 
 def _flying_camera(active_camera):
@@ -208,7 +208,7 @@ def _flying_camera(active_camera):
 
 def test_animation_layout_samples_every_nth_frame(active_camera):
     scene = _flying_camera(active_camera)
-    made = layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
     assert sorted(o["nerf_frame"] for o in made) == [1, 11, 21, 31]
     xs = {o["nerf_frame"]: o.matrix_world.translation.x for o in made}
     assert xs[1] == pytest.approx(-5.0) and xs[31] > xs[21] > xs[11] > xs[1]
@@ -224,7 +224,7 @@ def test_animation_layout_keeps_an_animated_zoom(active_camera):
         lens.lens = mm
         lens.keyframe_insert("lens", frame=f)
     scene.frame_set(7)
-    made = layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
     mm = {o["nerf_frame"]: o.data.lens for o in made}
     assert mm[1] == pytest.approx(20.0) and mm[31] > mm[21] > mm[11] > 20.0 and mm[31] < 80.0
     assert scene.frame_current == 7 and all(o.data.animation_data is None for o in made)
@@ -234,32 +234,32 @@ def test_objects_that_move_during_an_animation_capture_are_named(active_camera):
     # Each view of the animation layout renders at its own frame: what moves there breaks the one
     # still scene a NeRF assumes. The camera itself may move; the cube of the fixture stands still.
     scene = _flying_camera(active_camera)
-    spec = layouts.LayoutSpec(layout="animation", frame_step=10, val=1, test=1)
-    assert layout_notes.motion_note(scene, spec) is None and layout_notes.layout_notes(scene, spec) == []
+    spec = positions.LayoutSpec(layout="animation", frame_step=10, val=1, test=1)
+    assert notes.motion_note(scene, spec) is None and notes.layout_notes(scene, spec) == []
     bpy.ops.mesh.primitive_uv_sphere_add(radius=0.5, location=(3.0, 0.0, 0.0))
     ball = bpy.context.active_object
     ball.keyframe_insert("location", frame=30)
     ball.location.z = 2.0
     ball.keyframe_insert("location", frame=40)
-    note = layout_notes.motion_note(scene, spec)
+    note = notes.motion_note(scene, spec)
     assert note.startswith("'Sphere' move(s) between the animation's frames") and "ghosts" in note
-    assert layout_notes.layout_notes(scene, spec) == [note]
-    assert layout_notes.motion_note(scene, layouts.LayoutSpec()) is None  # generated layouts render one frame
+    assert notes.layout_notes(scene, spec) == [note]
+    assert notes.motion_note(scene, positions.LayoutSpec()) is None  # generated layouts render one frame
     assert scene.frame_current == 7
 
 
 def test_layouts_that_need_a_camera_say_so():
     _add_box()
-    with pytest.raises(layouts.LayoutError, match="scene-cameras.*no camera"):
-        layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="scene-cameras", val=0, test=0), 32, 32)
-    with pytest.raises(layouts.LayoutError, match="animation.*no active camera"):
-        layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="animation", val=0, test=0), 32, 32)
+    with pytest.raises(positions.LayoutError, match="scene-cameras.*no camera"):
+        layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="scene-cameras", val=0, test=0), 32, 32)
+    with pytest.raises(positions.LayoutError, match="animation.*no active camera"):
+        layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="animation", val=0, test=0), 32, 32)
 
 
 def test_bad_elevation_range_is_refused():
     _add_box()
-    spec = layouts.LayoutSpec(elevation_min=50, elevation_max=10)
-    with pytest.raises(layouts.LayoutError, match="elevation range"):
+    spec = positions.LayoutSpec(elevation_min=50, elevation_max=10)
+    with pytest.raises(positions.LayoutError, match="elevation range"):
         layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
 
 
@@ -291,15 +291,15 @@ def test_a_floor_or_dome_that_dwarfs_the_subject_is_left_out_of_the_framing(extr
     from addon.scene import scene_bounds
 
     scene = _monkey_scene(*extras)
-    spec = layouts.LayoutSpec(train=8, val=1, test=1)
-    lo, hi, around = layout_notes.framing_bounds(scene, spec)
+    spec = positions.LayoutSpec(train=8, val=1, test=1)
+    lo, hi, around = notes.framing_bounds(scene, spec)
     assert around == left_out
     assert np.allclose(lo, (-1.37, -0.85, 0.02), atol=0.02) and np.allclose(hi, (1.37, 0.85, 1.98), atol=0.02)
     made = layout_cameras.create_cameras(scene, spec, 100, 100)
     # The monkey fills the frame from about 4.5 m (framed on the 100 m floor: 219 m, 2 px wide).
     assert max(o.matrix_world.translation.length for o in made) < 8.0
-    assert "without 'Plane'" in layout_notes.framing_note(scene, spec)
-    assert layout_notes.framing_note(scene, layouts.LayoutSpec(layout="inside")) is None  # a room keeps its floor
+    assert "without 'Plane'" in notes.framing_note(scene, spec)
+    assert notes.framing_note(scene, positions.LayoutSpec(layout="inside")) is None  # a room keeps its floor
     # The scene box a capture writes: the monkey with a quarter of its diagonal around it, clipped to
     # the scene (without the dome, the floor at z = 0 is its bottom and the monkey's top its top).
     pad = 0.25 * np.linalg.norm(np.subtract(hi, lo))
@@ -318,7 +318,7 @@ def test_objects_that_are_part_of_the_subject_stay_in_the_framing(extras):
     from addon.scene import scene_bounds
 
     scene = _monkey_scene(*extras)
-    lo, hi, around = layout_notes.framing_bounds(scene, layouts.LayoutSpec())
+    lo, hi, around = notes.framing_bounds(scene, positions.LayoutSpec())
     s_lo, s_hi = scene_bounds.scene_bounds(scene)
     assert around == [] and tuple(lo) == tuple(s_lo) and tuple(hi) == tuple(s_hi)
 
@@ -327,7 +327,7 @@ def test_a_selection_is_framed_as_selected():
     scene = _monkey_scene("floor")
     for obj in scene.objects:
         obj.select_set(obj.name == "Plane")
-    lo, hi, around = layout_notes.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
+    lo, hi, around = notes.framing_bounds(scene, positions.LayoutSpec(target="SELECTION"))
     assert around == [] and hi[0] - lo[0] == pytest.approx(100.0)
 
 
@@ -361,7 +361,7 @@ def test_collection_instances_are_bounded_like_the_objects_they_show():
     assert np.allclose(boxes["Chairs instance/Cube"], [(3.5, -0.5, 0.0), (4.5, 0.5, 1.0)])
     lo, hi = scene_bounds.scene_bounds(scene)
     assert hi[0] == pytest.approx(4.5) and lo[0] == pytest.approx(-1.37, abs=0.02)
-    lo, hi, around = layout_notes.framing_bounds(scene, layouts.LayoutSpec())
+    lo, hi, around = notes.framing_bounds(scene, positions.LayoutSpec())
     assert around == [] and hi[0] == pytest.approx(4.5)
     # A bounce card hidden from camera rays lights the scene but is in no picture: not bounded.
     bpy.ops.mesh.primitive_plane_add(size=8.0, location=(0.0, -9.0, 2.0))
@@ -413,7 +413,7 @@ def test_what_renders_nothing_stretches_no_box_and_hair_does():
     for obj in scene.objects:
         obj.select_set(obj.type == "GREASEPENCIL")
     with pytest.raises(scene_bounds.BoundsError, match="no selected visible objects"):
-        layout_notes.framing_bounds(scene, layouts.LayoutSpec(target="SELECTION"))
+        notes.framing_bounds(scene, positions.LayoutSpec(target="SELECTION"))
 
 
 def test_bounds_follow_the_view_layer_that_renders():
@@ -475,7 +475,7 @@ def test_each_scene_has_its_own_capture_cameras():
     # replaced the first scene's cameras, and Clear Cameras there deleted them.
     _add_box()
     first = bpy.context.scene
-    made = layout_cameras.create_cameras(first, layouts.LayoutSpec(train=3, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(first, positions.LayoutSpec(train=3, val=1, test=1), 32, 32)
     second = bpy.data.scenes.new("Second")
     bpy.ops.mesh.primitive_uv_sphere_add(radius=3.0)
     ball = bpy.context.active_object
@@ -483,9 +483,9 @@ def test_each_scene_has_its_own_capture_cameras():
         coll.objects.unlink(ball)
     second.collection.objects.link(ball)
     with bpy.context.temp_override(scene=second):
-        assert not any(camera_collection.capture_cameras(second).values())
-        theirs = layout_cameras.create_cameras(second, layouts.LayoutSpec(train=2, val=1, test=1), 32, 32)
-        assert camera_collection.clear_cameras(second) == len(theirs) == 4
-    assert sorted(o.name for split in camera_collection.capture_cameras(first).values() for o in split) == sorted(
+        assert not any(collection.capture_cameras(second).values())
+        theirs = layout_cameras.create_cameras(second, positions.LayoutSpec(train=2, val=1, test=1), 32, 32)
+        assert collection.clear_cameras(second) == len(theirs) == 4
+    assert sorted(o.name for split in collection.capture_cameras(first).values() for o in split) == sorted(
         o.name for o in made)
-    assert camera_collection.nerf_collection(second).name == layouts.COLLECTION_NAME + ".001"
+    assert collection.nerf_collection(second).name == positions.COLLECTION_NAME + ".001"

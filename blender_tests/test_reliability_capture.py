@@ -10,9 +10,11 @@ import sys
 import bpy
 import pytest
 
-from addon.capture import capture_verify, layouts
-from addon.capture import capture_job, capture_plan, capture_settings
-from addon.capture import camera_collection, layout_cameras
+from addon.capture.files import verify
+from addon.capture.layout import positions
+from addon.capture.run import job as run_job
+from addon.capture.plan import frame_plan, settings as plan_settings
+from addon.capture.layout import collection, cameras
 
 PY = sys.executable
 SCRIPT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scripts", "capture.py")
@@ -66,9 +68,9 @@ def test_save_blend_never_replaces_an_existing_file(tmp_path):
 
 def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
-    layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
-    with pytest.raises(capture_plan.CaptureError, match="70000.*65536"):
-        capture_job.CaptureJob(bpy.context.scene, capture_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
+    cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(train=2, val=0, test=0), 24, 16)
+    with pytest.raises(frame_plan.CaptureError, match="70000.*65536"):
+        run_job.CaptureJob(bpy.context.scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
                                                                       samples=1, res_x=70000, res_y=16))
 
 
@@ -85,36 +87,36 @@ def _matrices(cams):
 
 def test_rings_default_to_the_panels_range_and_give_distinct_poses():
     _box()
-    spec = layouts.LayoutSpec(layout="rings", train=12, val=2, test=2)
+    spec = positions.LayoutSpec(layout="rings", train=12, val=2, test=2)
     assert spec.elevation_range() == (10.0, 60.0)
-    cams = layout_cameras.create_cameras(bpy.context.scene, spec, 32, 32)
+    cams = cameras.create_cameras(bpy.context.scene, spec, 32, 32)
     assert len(set(_matrices(cams))) == len(cams) == 16
 
 
 def test_a_ring_at_the_pole_is_refused_before_any_camera_changes():
     _box()
-    first = layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(train=4, val=0, test=0), 32, 32)
+    first = cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(train=4, val=0, test=0), 32, 32)
     names = sorted(o.name for o in first)
-    with pytest.raises(layouts.LayoutError, match="same pose.*elevation"):
-        layout_cameras.create_cameras(bpy.context.scene, layouts.LayoutSpec(layout="rings", train=12, val=0, test=0,
+    with pytest.raises(positions.LayoutError, match="same pose.*elevation"):
+        cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="rings", train=12, val=0, test=0,
                                                                      elevation_min=0.0, elevation_max=90.0), 32, 32)
-    assert sorted(o.name for o in camera_collection.nerf_collection(bpy.context.scene).objects) == names  # untouched
+    assert sorted(o.name for o in collection.nerf_collection(bpy.context.scene).objects) == names  # untouched
 
 
 def test_a_still_camera_sampled_by_animation_is_refused(active_camera):
     cam = active_camera("Still", frames=(1, 30))
     scene = bpy.context.scene
     cam.location = (0.0, -6.0, 1.0)
-    with pytest.raises(layouts.LayoutError, match="same pose.*frame step"):
-        layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="animation", frame_step=10, val=0, test=0), 32, 32)
+    with pytest.raises(positions.LayoutError, match="same pose.*frame step"):
+        cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=0, test=0), 32, 32)
 
 
 def test_check_distinct_poses_is_exact_enough():
     a = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
     b = [[1, 0, 0, 0.01], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]
-    layouts.check_distinct_poses([a, b])
-    with pytest.raises(layouts.LayoutError, match="cameras 0 and 2"):
-        layouts.check_distinct_poses([a, b, [list(r) for r in a]])
+    positions.check_distinct_poses([a, b])
+    with pytest.raises(positions.LayoutError, match="cameras 0 and 2"):
+        positions.check_distinct_poses([a, b, [list(r) for r in a]])
 
 
 # ---------------------------------------------------------------------------------------------- 10. import_views
@@ -169,11 +171,11 @@ def test_import_views_is_quiet_for_the_captured_blend(tmp_path):
 def test_capture_resume_renders_again_what_fails_verification(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=3, val=1, test=1), 24, 16)
+    cameras.create_cameras(scene, positions.LayoutSpec(train=3, val=1, test=1), 24, 16)
     out = tmp_path / "ds"
 
     def job():
-        return capture_job.CaptureJob(scene, capture_settings.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
+        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(out), engine="workbench", samples=1,
                                                                  res_x=24, res_y=16, depth=True))
 
     assert job().run()["rendered"] == 5
@@ -185,18 +187,18 @@ def test_capture_resume_renders_again_what_fails_verification(tmp_path):
     (out / "depth" / "train" / "r_1.exr").write_bytes(b"")  # empty depth EXR
     again = job().run()
     assert (again["rendered"], again["kept"]) == (2, 3)
-    assert capture_verify.decodes_at(str(png), 24, 16)
+    assert verify.decodes_at(str(png), 24, 16)
     assert (out / "depth" / "train" / "r_1.exr").stat().st_size > 0
 
 
 def test_capture_resume_catches_a_changed_file_that_still_decodes(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     scene = bpy.context.scene
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(train=2, val=0, test=0), 24, 16)
+    cameras.create_cameras(scene, positions.LayoutSpec(train=2, val=0, test=0), 24, 16)
     out = tmp_path / "ds"
     settings = dict(out_dir=str(out), engine="workbench", samples=1, res_x=24, res_y=16)
-    capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**settings)).run()
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(**settings)).run()
     a, b = out / "train" / "r_0.png", out / "train" / "r_1.png"
     a.write_bytes(b.read_bytes())  # a valid PNG of the right size, but not the one written for r_0
-    again = capture_job.CaptureJob(scene, capture_settings.CaptureSettings(**settings)).run()
+    again = run_job.CaptureJob(scene, plan_settings.CaptureSettings(**settings)).run()
     assert (again["rendered"], again["kept"]) == (1, 1)

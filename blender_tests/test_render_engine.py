@@ -19,9 +19,11 @@ import numpy as np
 import pytest
 
 import addon
-from addon.capture import demo_scenes, layouts
-from addon.capture import capture_job, capture_settings
-from addon.capture import camera_collection, layout_cameras
+from addon.capture.demo import scenes
+from addon.capture.layout import positions
+from addon.capture.run import job
+from addon.capture.plan import settings as plan_settings
+from addon.capture.layout import collection, cameras as layout_cameras
 from addon.bridge import render_client
 from addon.render_engine import engine as render_engine
 from nerf_core.image import metrics  # PSNR as `eval` computes it (the add-on has no metrics of its own any more)
@@ -70,11 +72,11 @@ def cube_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("engine")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
-    demo_scenes.build("cube", scene)
+    scenes.build("cube", scene)
     _standard_colour(scene)
-    layout_cameras.create_cameras(scene, layouts.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
-    settings = capture_settings.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
-    assert capture_job.CaptureJob(scene, settings).run()["status"] == "complete"
+    layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
+    settings = plan_settings.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
+    assert job.CaptureJob(scene, settings).run()["status"] == "complete"
     blend = str(root / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend, copy=True)
     run = str(root / "run")
@@ -118,7 +120,7 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
     from addon.dataset import cameras
 
     scene = engine_scene
-    cam = camera_collection.capture_cameras(scene)["test"][0]  # a view the run never trained on
+    cam = collection.capture_cameras(scene)["test"][0]  # a view the run never trained on
     scene.camera = cam
     cam.data.shift_x = 0.05
     r = scene.render
@@ -220,7 +222,7 @@ def child_process_alive(pid):
 
 def test_render_errors_are_reported_and_abort_cleanly(engine_scene, tmp_path):
     scene = engine_scene
-    scene.camera = camera_collection.capture_cameras(scene)["test"][0]
+    scene.camera = collection.capture_cameras(scene)["test"][0]
     scene.render.filepath = str(tmp_path / "x.png")
     scene.nerf_render.run_dir = ""
     with pytest.raises(RuntimeError, match="No NeRF run is chosen"):
@@ -236,7 +238,7 @@ def _animated_camera(scene):
     with lens shift, vertical sensor fit, non-square pixels and an animated lens."""
     from mathutils import Matrix
 
-    test_cam = camera_collection.capture_cameras(scene)["test"][0]
+    test_cam = collection.capture_cameras(scene)["test"][0]
     cam = bpy.data.objects.new("Fly", test_cam.data.copy())
     scene.collection.objects.link(cam)
     cam.data.shift_x, cam.data.shift_y, cam.data.sensor_fit = 0.04, -0.03, "VERTICAL"
@@ -364,7 +366,7 @@ def test_viewport_preview_is_asynchronous_progressive_and_follows_the_latest_vie
 
     bpy.ops.wm.open_mainfile(filepath=cube_run["blend"])
     scene = bpy.context.scene
-    cam = camera_collection.capture_cameras(scene)["test"][0]
+    cam = collection.capture_cameras(scene)["test"][0]
     region = SimpleNamespace(width=64, height=48)
     space = SimpleNamespace(camera=cam, clip_start=0.1, clip_end=100.0)
     depsgraph = bpy.context.evaluated_depsgraph_get()
@@ -412,7 +414,7 @@ def test_an_exported_camera_path_renders_like_render_nerf_frame_for_frame(cube_r
     (``contract.eight_bit``). Before, frames 1 and 2 differed in 1 and 2 of 1200 pixels by one level."""
     bpy.ops.wm.open_mainfile(filepath=cube_run["blend"])
     scene = bpy.context.scene
-    cam = camera_collection.capture_cameras(scene)["test"][0]
+    cam = collection.capture_cameras(scene)["test"][0]
     scene.camera = cam
     r = scene.render
     r.resolution_x, r.resolution_y, r.resolution_percentage = 40, 30, 100

@@ -94,10 +94,10 @@ def argument_errors(args) -> list[str]:
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
     if args.shard is not None:
-        from addon.capture import capture_plan
+        from addon.capture.plan import frame_plan
 
         try:
-            capture_plan.parse_shard(args.shard)
+            frame_plan.parse_shard(args.shard)
         except ValueError as exc:
             errors.append(str(exc))
         if args.merge:
@@ -112,11 +112,11 @@ def argument_errors(args) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from addon.capture import layouts
+    from addon.capture.layout import positions
 
     ap = _bootstrap.scene_parser("capture.py", __doc__.split("\n\n")[0], "scene to open")
     ap.add_argument("--out", required=True, help="dataset folder to write")
-    ap.add_argument("--layout", default="hemisphere", choices=layouts.LAYOUTS)
+    ap.add_argument("--layout", default="hemisphere", choices=positions.LAYOUTS)
     ap.add_argument("--count", type=int, default=100, help="train views (generated layouts)")
     ap.add_argument("--val-count", type=int, default=10)
     ap.add_argument("--test-count", type=int, default=20)
@@ -163,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
 def imported_resolution(scene, layout: str):
     """The scene's render size when ``layout`` re-renders cameras imported from a transforms file
     (import_cameras.py set it to their images' size), else None."""
-    from addon.capture import camera_import
+    from addon.capture.layout import camera_import
 
     if layout != "scene-cameras" or not any(camera_import.is_imported(o) for o in scene.objects):
         return None
@@ -179,15 +179,17 @@ def main(argv: list[str]) -> int:
             print(f"capture: error: {e}", file=sys.stderr)
         return 2
     if args.merge:
-        from addon.capture import capture_merge
+        from addon.capture.run import merge
 
-        print(json.dumps(capture_merge.merge(args.out)), flush=True)
+        print(json.dumps(merge.merge(args.out)), flush=True)
         return 0
     _bootstrap.open_blend(args.blend)
     import bpy
 
-    from addon.capture import capture_job, capture_plan, capture_settings, layouts
-    from addon.capture import camera_collection, layout_cameras, layout_notes
+    from addon.capture.run import job as run_job
+    from addon.capture.plan import frame_plan, settings as plan_settings
+    from addon.capture.layout import positions
+    from addon.capture.layout import collection, cameras, notes
     from addon.dataset import capture_manifest
     from nerf_core.utils.progressbar import ProgressBar
 
@@ -195,37 +197,37 @@ def main(argv: list[str]) -> int:
     res_x, res_y = args.resolution or (imported_resolution(scene, args.layout) or (200, None))
     res_y = res_y if res_y is not None else (args.resolution_y if args.resolution_y is not None else res_x)
     if args.resume and capture_manifest.read_manifest(os.path.abspath(args.out)) is None:
-        raise capture_plan.CaptureError(f"--resume: {args.out} holds no capture to continue")
-    spec = layouts.LayoutSpec(
+        raise frame_plan.CaptureError(f"--resume: {args.out} holds no capture to continue")
+    spec = positions.LayoutSpec(
         layout=args.layout, train=args.count, val=args.val_count, test=args.test_count, radius=args.radius,
         elevation_min=args.elevation_min, elevation_max=args.elevation_max, seed=args.seed, rings=args.rings,
         turns=args.turns, frame_step=args.frame_step, focal_length=args.focal_length, target=args.target.upper())
     if args.keep_cameras:
-        kept = camera_collection.capture_cameras(scene)
+        kept = collection.capture_cameras(scene)
         if not any(kept.values()):
-            raise capture_plan.CaptureError(f"--keep-cameras: scene has no cameras in {layouts.COLLECTION_NAME!r}")
-        problem = camera_collection.held_out_problem(kept) if kept["train"] else None
+            raise frame_plan.CaptureError(f"--keep-cameras: scene has no cameras in {positions.COLLECTION_NAME!r}")
+        problem = collection.held_out_problem(kept) if kept["train"] else None
         if problem:
-            raise capture_plan.CaptureError(f"--keep-cameras: {problem}")
+            raise frame_plan.CaptureError(f"--keep-cameras: {problem}")
         layout_record = {"layout": "existing 'NeRF Cameras' collection"}
     else:
-        layout_cameras.create_cameras(scene, spec, res_x, res_y)
+        cameras.create_cameras(scene, spec, res_x, res_y)
         layout_record = spec.to_dict()
-        for note in layout_notes.layout_notes(scene, spec):
+        for note in notes.layout_notes(scene, spec):
             print(f"capture: note: {note}", file=sys.stderr)
-    settings = capture_settings.CaptureSettings(
+    settings = plan_settings.CaptureSettings(
         out_dir=args.out, engine=args.engine, samples=args.samples, res_x=res_x, res_y=res_y,
         film_transparent=not args.opaque, denoise=args.denoise, depth=args.depth, normals=args.normals,
         masks=args.masks, points=args.points, n_points=args.n_points, overwrite=args.overwrite,
         target=args.target.upper(), normalize_camera_scale=args.normalize_camera_scale, layout=layout_record,
-        seed=args.seed, shard=capture_plan.parse_shard(args.shard) if args.shard else None)
+        seed=args.seed, shard=frame_plan.parse_shard(args.shard) if args.shard else None)
     bar = ProgressBar(total=None, label="capture", enabled=not args.quiet)
 
     def progress(done, total, info):
         bar.total = total
         bar.set(done, info)
 
-    job = capture_job.CaptureJob(scene, settings, progress=progress)
+    job = run_job.CaptureJob(scene, settings, progress=progress)
     job.plan()  # its notes (the cameras' intrinsics) come before any render
     for note in job.notes:
         print(f"capture: note: {note}", file=sys.stderr)
@@ -244,13 +246,14 @@ def main(argv: list[str]) -> int:
 
 
 def run() -> int:
-    from addon.capture import capture_plan, layouts
+    from addon.capture.plan import frame_plan
+    from addon.capture.layout import positions
     from addon.dataset.errors import ExportError
     from addon.scene import scene_bounds
 
     from addon.scene import passes
 
-    known = (capture_plan.CaptureError, layouts.LayoutError, ExportError, scene_bounds.BoundsError,
+    known = (frame_plan.CaptureError, positions.LayoutError, ExportError, scene_bounds.BoundsError,
              passes.PassError)
     try:
         return main(_bootstrap.script_args())

@@ -92,11 +92,11 @@ def scores_of(renders: str) -> dict:
 
 
 def scene_capture_flags(scene: str) -> list[str]:
-    """Extra scripts/capture.py flags demo scene ``scene`` needs (addon/capture/demo_capture.py, loaded by path
+    """Extra scripts/capture.py flags demo scene ``scene`` needs (addon/capture/demo/capture_flags.py, loaded by path
     because importing the add-on package imports bpy): e.g. --opaque for hdri, --layout inside for interior."""
     import importlib.util
 
-    path = os.path.join(REPO_ROOT, "addon", "capture", "demo_capture.py")
+    path = os.path.join(REPO_ROOT, "addon", "capture", "demo", "capture_flags.py")
     if not os.path.isfile(path):
         return []
     spec = importlib.util.spec_from_file_location("_nerf_bridge_demo_capture", path)

@@ -53,7 +53,7 @@ def main(argv) -> int:
         open_blend(args.blend)
     elif not _bootstrap.inside_blender():
         bpy.ops.wm.read_factory_settings(use_empty=True)
-    from addon.capture import camera_import
+    from addon.capture.layout import camera_import
     from addon.compare import nerfstudio_results
     from addon.dataset.errors import ExportError
 

@@ -18,17 +18,17 @@ import _bootstrap  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
-    from addon.capture import demo_scenes
+    from addon.capture.demo import scenes
 
     ap = argparse.ArgumentParser(prog="make_demo_scene.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("name", nargs="?", choices=sorted(demo_scenes.SCENES), help="which scene")
+    ap.add_argument("name", nargs="?", choices=sorted(scenes.SCENES), help="which scene")
     ap.add_argument("--out", help="the .blend to write")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     ap.add_argument("--list", action="store_true", help="describe the scenes and exit")
     args = ap.parse_args(argv)
     if args.list:
-        for key, text in demo_scenes.SCENES.items():
-            flags = " ".join(demo_scenes.capture_flags(key))
+        for key, text in scenes.SCENES.items():
+            flags = " ".join(scenes.capture_flags(key))
             print(f"{key:10s} {text}" + (f"\n{'':10s} capture with: {flags}" if flags else ""))
         return 0
     if not args.name or not args.out:
@@ -44,8 +44,8 @@ def main(argv: list[str]) -> int:
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     try:
-        demo_scenes.build(args.name)
-    except demo_scenes.DemoSceneError as exc:
+        scenes.build(args.name)
+    except scenes.DemoSceneError as exc:
         print(f"make_demo_scene: error: {exc}", file=sys.stderr)
         return 2
     bpy.ops.wm.save_as_mainfile(filepath=out)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# README command 2: set up .venv and run every test (nerf_core/tests, scripts/tests and blender_tests).
+# README command 2: set up .venv and run every test (pyproject.toml's testpaths).
 # Extra arguments go to pytest, e.g. `bash scripts/test.sh -k capture`.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -1,10 +1,10 @@
-"""Capture feature: lay out cameras (``layouts``, ``layout_cameras``) and render them into a NeRF dataset
-(``capture_job``); the Capture panel and its operators are ``capture_ui``, its settings ``capture_props``."""
+"""Capture feature: lay out cameras (``layout.positions``, ``layout.cameras``) and render them into a NeRF dataset
+(``run.job``); the Capture panel and its operators are ``ui.panel``, its settings ``ui.props``."""
 import bpy
 
-from . import capture_ui
-from .capture_props import NerfCaptureSettings
-from .capture_ui import (
+from .ui import panel
+from .ui.import_cameras import NERF_OT_import_cameras
+from .ui.panel import (
     NERF_OT_add_demo_scene,
     NERF_OT_capture,
     NERF_OT_capture_cancel,
@@ -12,7 +12,7 @@ from .capture_ui import (
     NERF_OT_generate_cameras,
     NERF_PT_capture,
 )
-from .import_ui import NERF_OT_import_cameras
+from .ui.props import NerfCaptureSettings
 
 classes = (
     NerfCaptureSettings,
@@ -29,9 +29,9 @@ _register_classes, _unregister_classes = bpy.utils.register_classes_factory(clas
 
 def register():
     _register_classes()
-    capture_ui.attach()
+    panel.attach()
 
 
 def unregister():
-    capture_ui.detach()
+    panel.detach()
     _unregister_classes()

@@ -73,7 +73,7 @@ def write_transforms(out_dir: str, frames: list[dict], common: dict) -> list[str
     """Write transforms_{train,val,test}.json and nerfstudio's nerfstudio/transforms.json; return the paths.
 
     ``frames``: as ``transforms_document`` wants them, each with its ``split`` (and, with depth, the
-    ``nerfstudio_depth_file_path`` of its millimetre PNG, ``capture_write.nerfstudio_depth``). Every file shares one
+    ``nerfstudio_depth_file_path`` of its millimetre PNG, ``files.write.nerfstudio_depth``). Every file shares one
     top level, taken from all frames. Paths in the split files are relative to ``out_dir``; in
     nerfstudio's file (which nerfstudio resolves against its own folder) they start with ``../``.
     """

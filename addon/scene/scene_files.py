@@ -3,7 +3,7 @@
 Blender renders a scene whose image texture or linked library has gone missing without complaint: a
 missing texture renders magenta, a missing library's objects not at all. A capture of it is a dataset
 of the wrong scene that no check after the fact can tell from the right one, so the capture says so
-before rendering (``capture/capture_notes.capture_notes``).
+before rendering (``capture/plan/notes.capture_notes``).
 """
 from __future__ import annotations
 

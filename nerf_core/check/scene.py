@@ -58,9 +58,9 @@ def training_plan(report: CheckReport, root: Path, background: str) -> None:
     mode, why = for_run(background, None, ds)
     report.plan.append(f"background: {mode} ({why})")
     reason = beyond_box_reason(ds, mode)
-    if reason and has_option(DEFAULT_METHOD, "contract"):
+    if reason and has_option(DEFAULT_METHOD, "unbounded"):
         report.plan.append(f"{DEFAULT_METHOD} (the default method) will model the world beyond the box "
-                           f"(contract=true): {reason}; --set contract=false turns it off")
+                           f"(unbounded=true): {reason}; --set unbounded=false turns it off")
 
 
 def check_background(report: CheckReport, root: Path, background: str) -> Optional[bool]:

@@ -19,6 +19,7 @@ from nerf_core.cli.options import (
 from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.trainer import train
 from nerf_core.errors import TrainError
+from nerf_core.methods.registry import current_option_names
 
 # A flag's ``kind`` (``engine.config.flag``) -> argparse keyword arguments.
 _KINDS = {
@@ -56,10 +57,11 @@ def add_parser(sub, fmt) -> None:
         else:
             kwargs["default"] = f.default_factory()
         t.add_argument(name, dest=f.name, **kwargs)
-    t.add_argument("--contract", action="store_true",
-                   help="scene contraction (mip-NeRF 360 style): also model geometry beyond the scene box, such as a "
-                        "ground plane running to the horizon (vmgrid; the same as --set contract=true). Without it, "
-                        "a cut-out whose opaque pixels look past the box gets it anyway; --set contract=false stops that")
+    t.add_argument("--unbounded", "--contract", dest="unbounded", action="store_true",  # --contract: its old name
+                   help="scene contraction (mip-NeRF 360 style): also model geometry beyond the scene box, such as "
+                        "a ground plane running to the horizon (vmgrid; the same as --set unbounded=true). Without "
+                        "it, a cut-out whose opaque pixels look past the box gets it anyway; --set unbounded=false "
+                        "stops that")
     t.set_defaults(handler=run)
 
 
@@ -76,10 +78,14 @@ def run(a) -> int:
 
 
 def _options(a) -> dict:
-    """``--set`` options, with ``--contract`` as ``contract=true``; the two flags must not disagree."""
-    options = parse_options(a.options)
-    if a.contract:
-        if options.get("contract", True) is not True:
-            raise TrainError(f"--contract and --set contract={options['contract']} disagree; give one of them")
-        options["contract"] = True
+    """``--set`` options (old option names mapped to today's), with ``--unbounded`` as ``unbounded=true``;
+    the two flags must not disagree."""
+    try:
+        options = current_option_names(parse_options(a.options))
+    except ValueError as exc:
+        raise TrainError(f"--set: {exc}") from None
+    if a.unbounded:
+        if options.get("unbounded", True) is not True:
+            raise TrainError(f"--unbounded and --set unbounded={options['unbounded']} disagree; give one of them")
+        options["unbounded"] = True
     return options

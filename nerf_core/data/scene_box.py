@@ -150,7 +150,7 @@ def beyond_box_share(split: "Split", aabb: torch.Tensor, max_pixels: int = 200_0
 
 
 def beyond_box_reason(dataset, background: str) -> Optional[str]:
-    """Why a model that can (``contract``) should also model the world beyond ``dataset``'s box, or
+    """Why a model that can (``unbounded``) should also model the world beyond ``dataset``'s box, or
     None: the dataset says objects reach past it (``beyond_box``, written by the capture), or, for a
     model trained on a cut-out (``background`` other than ``environment``), its opaque pixels look
     past the box (``beyond_box_share``). The one rule behind ``train`` and the plan ``check`` prints."""

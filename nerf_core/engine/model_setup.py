@@ -1,5 +1,5 @@
 """The model a training run starts from: its options (``--set``, ``--size auto``, a resumed
-checkpoint's, ``contract`` when the scene reaches past its box, a learned world for opaque images),
+checkpoint's, ``unbounded`` when the scene reaches past its box, a learned world for opaque images),
 the seeded build, and the rays per step.
 """
 from __future__ import annotations
@@ -51,25 +51,25 @@ def model_options(cfg, method: str, dataset: Dataset, ckpt: Optional[dict],
     elif cfg.size not in (None, "", "default"):
         raise TrainError(f"--size {cfg.size!r}: only 'auto' is supported")
     options.update(cfg.options)
-    contract_if_beyond_box(method, dataset, bg_mode, options, reasons)
+    unbounded_if_beyond_box(method, dataset, bg_mode, options, reasons)
     if bg_mode == "environment" and "environment" not in options:
         options["environment"] = {"width": size_for_focal(float(dataset.split("train").cameras.fx.median()))}
     return options, dataset.aabb, reasons
 
 
-def contract_if_beyond_box(method: str, dataset: Dataset, bg_mode: str, options: dict, reasons: List[str]) -> None:
-    """Turn on ``contract`` for a method that has it (and was not told) when the scene reaches past
+def unbounded_if_beyond_box(method: str, dataset: Dataset, bg_mode: str, options: dict, reasons: List[str]) -> None:
+    """Turn on ``unbounded`` for a method that has it (and was not told) when the scene reaches past
     its box (``scene_box.beyond_box_reason``: the dataset says so, or a cut-out's opaque pixels look
     past the box). On the capture's floor scene, 3 minutes of vmgrid: 15.7 dB without and 28.7 dB
     with on a transparent film; 24.8 and 28.0 dB on an opaque one (the learned environment cannot
     hold a floor). Adds to ``options`` and ``reasons`` in place."""
-    if "contract" in options or not has_option(method, "contract"):
+    if "unbounded" in options or not has_option(method, "unbounded"):
         return
     why = beyond_box_reason(dataset, bg_mode)
     if why:
-        options["contract"] = True
-        reasons.append(f"contract=true: {why}, so the world beyond the box is modelled too "
-                       "(--set contract=false turns it off)")
+        options["unbounded"] = True
+        reasons.append(f"unbounded=true: {why}, so the world beyond the box is modelled too "
+                       "(--set unbounded=false turns it off)")
 
 
 def build_seeded(method: str, aabb: torch.Tensor, options: dict, seed: int, ckpt: Optional[dict],

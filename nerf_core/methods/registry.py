@@ -13,6 +13,11 @@ from nerf_core.fields.environment import EnvironmentMap
 
 _REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
 
+# Options renamed after checkpoints were written with them: old name -> today's. Checkpoints, run
+# configs and ``--set`` may still use an old name (``contract`` now names only the ``nerf_core.contract``
+# package, so vmgrid's scene-contraction switch is ``unbounded``).
+RENAMED_OPTIONS = {"contract": "unbounded"}
+
 
 def register(name: str):
     """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``.
@@ -85,7 +90,8 @@ def saved_options(name: str, options: dict) -> dict:
     if cls is None:
         return dict(options)
     state_keys = cls.Options.RUN_STATE_KEYS
-    return {k: v for k, v in {**cls.options_before, **options}.items() if k not in state_keys}
+    return {k: v for k, v in {**cls.options_before, **current_option_names(options)}.items()
+            if k not in state_keys}
 
 
 def saved_run_state(name: str, ckpt: dict) -> dict:
@@ -98,6 +104,23 @@ def saved_run_state(name: str, ckpt: dict) -> dict:
     if cls is None or not isinstance(options, dict):
         return {}
     return {k: options[k] for k in cls.Options.RUN_STATE_KEYS if k in options}
+
+
+def current_option_names(options: dict) -> dict:
+    """``options`` with each old option name (``RENAMED_OPTIONS``) replaced by today's name.
+
+    Raises:
+        ValueError: an option given under its old and its new name with two different values.
+    """
+    out = dict(options)
+    for old, new in RENAMED_OPTIONS.items():
+        if old in out:
+            value = out.pop(old)
+            if new in out and out[new] != value:
+                raise ValueError(f"option {old!r} is the old name of {new!r}, and the two disagree "
+                                 f"({old}={value!r}, {new}={out[new]!r}); give one of them")
+            out.setdefault(new, value)
+    return out
 
 
 def method_class(name: str) -> Optional[type]:

@@ -32,7 +32,7 @@ from nerf_core.methods.registry import register
 from nerf_core.methods.vmgrid_options import VMGridOptions
 from nerf_core.utils import profiling
 from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
-from nerf_core.volume.contraction import contract, outer_box
+from nerf_core.volume.contraction import outer_box, squeeze_into_outer_box
 from nerf_core.volume.occupancy import OccupancyGrid
 
 Tensor = torch.Tensor
@@ -76,7 +76,7 @@ class VMGrid(RadianceModel):
         density_scale = 25.0 / density_length(self.aabb, o.density_unit)
         shift = math.log(math.expm1(sigma0 / density_scale))  # softplus^-1
         # With contraction the grids span the contracted world (twice the box); points are warped into it.
-        self.contracted = bool(o.contract)
+        self.contracted = bool(o.unbounded)
         field_box = outer_box(self.aabb) if self.contracted else self.aabb
         self.field = TensorVMField(field_box, resolution=o.res_init, density_rank=o.density_rank,
                                    app_rank=o.app_rank, app_dim=o.app_dim, mlp_width=o.mlp_width,
@@ -294,8 +294,8 @@ class VMGrid(RadianceModel):
     # ------------------------------------------------------------------ rendering
 
     def warp(self, pts: Tensor) -> Tensor:
-        """World points (m, 3) -> the field's coordinates (contracted when ``contract`` is on)."""
-        return contract(pts, self.aabb) if self.contracted else pts
+        """World points (m, 3) -> the field's coordinates (contracted when ``unbounded`` is on)."""
+        return squeeze_into_outer_box(pts, self.aabb) if self.contracted else pts
 
     def ray_interval(self, rays_o, rays_d, near=None, far=None):
         if not self.contracted:

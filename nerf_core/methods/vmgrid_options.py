@@ -49,7 +49,7 @@ class VMGridOptions(MethodOptions):
     alpha_init: float = option(1e-4, "opacity of one marching step of the initial grid",
                                low=0, high=1, open_low=True, open_high=True)
     seed: int = option(0, "seed of the grids' initialisation")
-    contract: bool = option(False, "model the world beyond the box too (scene contraction)")
+    unbounded: bool = option(False, "model the world beyond the box too (scene contraction; old name: contract)")
     dist_weight: float = option(0.0, "weight of the distortion loss (pulls each ray's weight together)")
     grad_reach: float = option(grad_scaling.DEFAULT_REACH_SHARE,
                                "share of the box diagonal within which samples near a camera learn damped")

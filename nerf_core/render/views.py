@@ -24,7 +24,7 @@ from nerf_core.contract.naming import render_files, unique_stems
 from nerf_core.contract.transforms import FrameInfo, detect_layout
 
 # Checkpoint reading moved to nerf_core.runs.checkpoints; the names stay importable from here for callers
-# written against render (scripts/benchmark.py reads model sizes through them).
+# written against render (benchmarks/benchmark.py reads model sizes through them).
 from nerf_core.errors import RunError
 from nerf_core.image import pixel_filter as pf
 from nerf_core.image.io import write_exr, write_png

@@ -40,6 +40,11 @@ def _tool(name: str) -> str:
     return found
 
 
+# Every folder of Python the rules below hold for: the library, the add-on, the user commands, the
+# developer tools and the benchmarks (their tests are left out by ``_sources``).
+CHECKED_ROOTS = ("nerf_core", "addon", "scripts", "tools", "benchmarks")
+
+
 def _sources(*roots: str):
     """Every .py file under ``roots`` that is product code (tests and fixtures are left out)."""
     for root in roots:
@@ -66,7 +71,7 @@ def test_ruff_finds_nothing():
 
 
 def test_no_module_over_500_lines():
-    long = [f"{rel}: {n} lines" for rel, path in _sources("nerf_core", "addon", "scripts")
+    long = [f"{rel}: {n} lines" for rel, path in _sources(*CHECKED_ROOTS)
             if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_LINES]
     assert not long, (f"modules over {MAX_LINES} lines; split them by what they own "
                       "(docs/ARCHITECTURE.md, 'Adding code'):\n" + "\n".join(long))
@@ -74,7 +79,7 @@ def test_no_module_over_500_lines():
 
 def test_no_private_cross_imports():
     found = []
-    for rel, path in _sources("nerf_core", "addon", "scripts"):
+    for rel, path in _sources(*CHECKED_ROOTS):
         tree = ast.parse(path.read_text(encoding="utf-8"))
         me = _module_name(rel)
         for node in ast.walk(tree):

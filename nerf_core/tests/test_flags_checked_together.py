@@ -36,9 +36,14 @@ def test_devices_nothing_runs_on_are_refused_before_a_run_folder_exists(sphere_d
     _refused(_cli("eval", str(tmp_path / "nothing"), "--device", "meta"))
 
 
-def test_contract_flag_and_set_contract_false_disagree(sphere_dataset, tmp_path):
+def test_unbounded_flag_and_set_unbounded_false_disagree(sphere_dataset, tmp_path):
+    _refused(_train(sphere_dataset, tmp_path / "run", "--max-steps", "2", "--unbounded", "--set", "unbounded=false"),
+             "--unbounded and --set unbounded=False disagree")
+    # The option's old spellings (``--contract``, ``--set contract=...``) still mean the same.
     _refused(_train(sphere_dataset, tmp_path / "run", "--max-steps", "2", "--contract", "--set", "contract=false"),
-             "--contract and --set contract=False disagree")
+             "--unbounded and --set unbounded=False disagree")
+    _refused(_train(sphere_dataset, tmp_path / "run", "--set", "contract=true", "--set", "unbounded=false"),
+             "'contract' is the old name of 'unbounded'")
     assert not (tmp_path / "run").exists()
 
 

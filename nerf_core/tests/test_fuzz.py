@@ -218,10 +218,10 @@ def test_serve_answers_every_line_with_an_event(trained_run, tmp_path):
 
 FLAGS = st.sampled_from(["--max-steps", "--max-seconds", "--seed", "--batch-rays", "--downscale", "--lr",
                          "--eval-views", "--eval-at", "--set", "--device", "--background", "--size", "--method",
-                         "--log-every", "--checkpoint-every", "--preview-every", "--contract", "--resume",
+                         "--log-every", "--checkpoint-every", "--preview-every", "--unbounded", "--resume",
                          "--overwrite", "--progress"])
 FLAG_VALUES = st.one_of(st.text(max_size=10), ODD_NUMBERS.map(str),
-                        st.sampled_from(["nan", "inf", "-1", "0", "1e400", "contract=false", "n=[1,2", "=", "cuda:9",
+                        st.sampled_from(["nan", "inf", "-1", "0", "1e400", "unbounded=false", "n=[1,2", "=", "cuda:9",
                                          "meta", "auto", ""]))
 
 
@@ -232,7 +232,7 @@ def test_train_flags_end_in_a_usage_error_a_train_error_or_a_config(tmp_path):
     def run(flags):
         argv = ["train", "ds", "--out", str(tmp_path / "run")]
         for flag, value in flags:
-            argv += [flag] if flag in ("--contract", "--resume", "--overwrite") else [flag, value]
+            argv += [flag] if flag in ("--unbounded", "--resume", "--overwrite") else [flag, value]
         try:
             a = parser.parse_args(argv)
         except SystemExit as exc:

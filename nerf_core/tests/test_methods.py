@@ -155,7 +155,7 @@ def test_nerf_overfits_and_beats_nerf_nope_on_a_high_frequency_target():
     assert pe > nope + 1.0
 
 
-def test_render_rays_contract_for_every_method():
+def test_render_rays_interface_for_every_method():
     o, d, near, far, _ = sphere_scene(n_cams=1, size=4)
     for name in ("nerf", "nerf-nope", "vmgrid"):
         opts = SMALL_NERF if name.startswith("nerf") else SMALL_GRID

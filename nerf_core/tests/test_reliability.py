@@ -639,7 +639,7 @@ def test_an_opencv_camera_with_zero_distortion_is_a_pinhole(sphere_dataset):
     (["--method", "vmgrid", "--set", "step_ratio=nan"], "option 'step_ratio'"),
     (["--method", "vmgrid", "--set", "upsample_at=hello"], "option 'upsample_at'"),
     (["--method", "vmgrid", "--set", "upsample_at=[0.9,0.1,5]"], "option 'upsample_at'"),
-    (["--method", "vmgrid", "--set", "contract=maybe"], "option 'contract'"),
+    (["--method", "vmgrid", "--set", "unbounded=maybe"], "option 'unbounded'"),
     (["--method", "vmgrid", "--set", "density_rank=true"], "option 'density_rank'"),
     (["--method", "vmgrid", "--set", "res_final=100000"], "option 'res_final'"),
     (["--method", "nerf", "--set", "width=0"], "option 'width'"),

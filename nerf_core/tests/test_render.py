@@ -249,7 +249,7 @@ def test_render_of_cameras_without_images_has_no_metrics(trained_run, tmp_path):
 
 def test_render_and_eval_report_their_rendering_time(trained_run, run_copy, tmp_path, capsys):
     # renders.json and eval's summary carry the time spent rendering (nothing else), the rays rendered
-    # (with --pixel-filter none one a pixel: 2 test views of 24 x 20) and their ratio; scripts/bench_render.py
+    # (with --pixel-filter none one a pixel: 2 test views of 24 x 20) and their ratio; benchmarks/bench_render.py
     # reads them.
     ds, run, out = trained_run["dataset"], trained_run["run"], tmp_path / "timed"
     assert main(["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar",

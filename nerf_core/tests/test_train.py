@@ -178,7 +178,7 @@ def test_size_auto_records_its_reasons(sphere_dataset, tmp_path):
 @pytest.mark.parametrize("half_box, given, expect", [
     (0.3, {}, True),  # the sphere (radius 0.6) pokes out of a +-0.3 box: its edge pixels lie beyond it
     (1.0, {}, False),  # the whole sphere inside: nothing beyond the box
-    (0.3, {"contract": False}, False),  # --set contract=false wins
+    (0.3, {"unbounded": False}, False),  # --set unbounded=false wins
 ])
 def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_dataset, tmp_path, half_box, given, expect):
     from nerf_core.check.dataset import check_dataset
@@ -197,15 +197,15 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
     report = check_dataset(sphere_dataset)
     assert report.ok and any(line.startswith("scene box [[-0.3") for line in report.plan) is (half_box == 0.3)
     assert any(line.startswith("background: random") for line in report.plan)
-    assert any("contract=true" in line and "opaque where their ray misses" in line
+    assert any("unbounded=true" in line and "opaque where their ray misses" in line
                for line in report.plan) is (half_box < 0.6)
     assert ("TRAIN   vmgrid (the default method) will model the world beyond the box" in report.format()) is (half_box < 0.6)
     run = tmp_path / "run"
     train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=1, batch_rays=64, eval_views=0, options=given))
     cfg = json.loads((run / "config.json").read_text())
     start = read_events(run / "progress.jsonl")[0]
-    assert start["model"]["options"]["contract"] is expect
-    assert any(r.startswith("contract=true") for r in cfg["size_reasons"]) is (expect and not given)
+    assert start["model"]["options"]["unbounded"] is expect
+    assert any(r.startswith("unbounded=true") for r in cfg["size_reasons"]) is (expect and not given)
 
 
 def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_dataset, tmp_path):
@@ -222,7 +222,7 @@ def test_a_dataset_that_says_objects_reach_beyond_its_box_is_contracted(sphere_d
     run = tmp_path / "run"
     train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=1, batch_rays=64, eval_views=0))
     start = read_events(run / "progress.jsonl")[0]
-    assert start["model"]["options"]["contract"] is True
+    assert start["model"]["options"]["unbounded"] is True
     assert any("'beyond_box' says Plane" in r for r in start["size_reasons"])
     assert any("'beyond_box' says Plane" in line for line in check_dataset(sphere_dataset).plan)
     meta["beyond_box"] = "Plane"

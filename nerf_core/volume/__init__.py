@@ -7,7 +7,7 @@ many rays in one flat (n_samples,) array with ``ray_indices``.
 - ``occupancy``: ``OccupancyGrid``, to skip empty space; ``ray_termination``: early termination;
 - ``contraction``: mip-NeRF 360 scene contraction; ``grad_scaling``: near-camera gradient scaling.
 """
-from nerf_core.volume.contraction import contract
+from nerf_core.volume.contraction import squeeze_into_outer_box
 from nerf_core.volume.occupancy import OccupancyGrid
 from nerf_core.volume.ray_termination import visible_samples
 from nerf_core.volume.sampling import importance_samples, ray_aabb_intersect, stratified_samples
@@ -24,8 +24,9 @@ from nerf_core.volume.volrend import (
 )
 
 __all__ = [
-    "accumulate_along_rays", "accumulate_along_rays_packed", "composite_background", "contract",
+    "accumulate_along_rays", "accumulate_along_rays_packed", "composite_background",
     "distortion_loss_packed", "importance_samples", "OccupancyGrid", "packed_info_from_ray_indices",
     "ray_aabb_intersect", "render_transmittance_from_density", "render_transmittance_from_density_packed",
-    "render_weight_from_density", "render_weight_from_density_packed", "stratified_samples", "visible_samples",
+    "render_weight_from_density", "render_weight_from_density_packed", "squeeze_into_outer_box", "stratified_samples",
+    "visible_samples",
 ]

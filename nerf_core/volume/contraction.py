@@ -5,8 +5,8 @@ The box keeps its coordinates; everything outside it is squeezed into a shell of
 thickness around it, with infinity on the shell's outer face. In the box's normalised coordinates
 ``x_n = (x - centre) / half`` (the box is [-1, 1]^3) and with the max-norm ``r = |x_n|_inf``:
 
-    contract(x_n) = x_n                      for r <= 1
-                  = (2 - 1 / r) * x_n / r    for r > 1      (in [-2, 2]^3, -> the face at 2 as r -> inf)
+    squeeze(x_n) = x_n                       for r <= 1
+                 = (2 - 1 / r) * x_n / r     for r > 1      (in [-2, 2]^3, -> the face at 2 as r -> inf)
 
 The max-norm (rather than mip-NeRF 360's L2 norm) keeps the whole box, corners included, unwarped,
 so a contracted model sees the box exactly as an uncontracted one would. A grid over [-2, 2]^3
@@ -26,7 +26,7 @@ def outer_box(aabb: Tensor) -> Tensor:
     return torch.stack([centre - 2.0 * half, centre + 2.0 * half])
 
 
-def contract(pts: Tensor, aabb: Tensor) -> Tensor:
+def squeeze_into_outer_box(pts: Tensor, aabb: Tensor) -> Tensor:
     """World points (m, 3) -> contracted points (m, 3) inside ``outer_box(aabb)``; unchanged in the box.
 
     Args:

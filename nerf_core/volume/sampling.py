@@ -191,7 +191,7 @@ def contracted_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, aabb: Tenso
         aabb: (2, 3) the scene box (uncontracted region).
         step_size: distance between samples inside the box; the outer part gets as many samples as the
             box's mean half-size holds steps (the contracted shell is one half-size thick).
-        occupied_fn: maps world points (m, 3) -> (m,) bool (contract inside it).
+        occupied_fn: maps world points (m, 3) -> (m,) bool (squeezed into the outer box inside it).
 
     Returns:
         packed ``t_starts`` (k,), ``t_ends`` (k,), ``ray_indices`` (k,) long, sorted by ray then distance.
