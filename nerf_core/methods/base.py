@@ -18,6 +18,7 @@ from nerf_core.cameras.rays import ray_bounds
 from nerf_core.data.scene_box import box_length_unit
 from nerf_core.image.losses import masked_mse
 from nerf_core.methods.options import MAX_GRID_RES, MethodOptions, PluginOptions
+from nerf_core.methods.registry import current_option_names
 
 __all__ = ["RadianceModel", "MAX_GRID_RES", "density_length"]
 
@@ -78,9 +79,10 @@ class RadianceModel(nn.Module):
 
     @classmethod
     def parse_options(cls, options: Mapping[str, object]) -> MethodOptions:
-        """The typed options for ``options`` (the ``environment`` entry excluded: ``build_model`` attaches
-        it), with ``forced_options`` applied. Raises ValueError naming a bad option."""
-        given = {k: v for k, v in dict(options).items() if k != "environment"}
+        """The typed options for ``options`` (old option names mapped to today's; the ``environment``
+        entry excluded: ``build_model`` attaches it), with ``forced_options`` applied. Raises ValueError
+        naming a bad option."""
+        given = {k: v for k, v in current_option_names(dict(options)).items() if k != "environment"}
         return cls.Options.parse(cls.method_name, {**given, **cls.forced_options})
 
     @property

@@ -154,7 +154,7 @@ def model_probes(source: str, filename: str = "<source>") -> list[str]:
 
 def test_no_model_attribute_probing_outside_methods():
     probes = []
-    for rel, path in _sources("nerf_core", "scripts"):
+    for rel, path in _sources("nerf_core", "scripts", "tools", "benchmarks"):
         if rel.parts[:2] == ("nerf_core", "methods"):
             continue  # a method may look at its own attributes
         probes += model_probes(path.read_text(encoding="utf-8"), str(rel))
