@@ -239,21 +239,19 @@ class VMGrid(RadianceModel):
         return {"resolution": self.field.resolution, "res_final_budget": self.res_final_budget}
 
     def restore_run_state(self, state) -> None:
-        """Grow to the checkpoint's grid size and take back the last stage's size (both checked: a
-        crafted checkpoint could ask for terabytes)."""
-        res, budget = state.get("resolution"), state.get("res_final_budget")
-        for name, value in (("resolution", res), ("res_final_budget", budget)):
+        """Take back the last stage's size (checked: a crafted checkpoint could ask for terabytes). The
+        grid's own size comes with the weights: ``load_state_dict`` resizes to the stored planes."""
+        for name in ("resolution", "res_final_budget"):
+            value = state.get(name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int)
                                       or not 2 <= value <= MAX_GRID_RES):
                 raise ValueError(f"vmgrid: run state {name!r} must be a whole number in 2..{MAX_GRID_RES}, "
                                  f"got {value!r}")
-        if res is not None and res > self.field.resolution:
-            self.field.upsample(int(res))
-        self.res_final_budget = budget
+        self.res_final_budget = state.get("res_final_budget")
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
-        # A checkpoint saved after growth has bigger planes than a fresh build: grow to the stored size
-        # before loading.
+        # The one place vmgrid's grids change size on loading: a checkpoint saved after growth has bigger
+        # planes than a fresh build, a rollback snapshot from before a growth smaller ones.
         state_dict = tensorf.upgrade_state_dict(dict(state_dict), "field.")
         key = "field.density_planes_cl"  # (3, N, N, R)
         if key in state_dict and state_dict[key].dim() == 4 and state_dict[key].shape[1] != self.field.resolution:

@@ -59,6 +59,7 @@ def test_a_long_run_grows_further_and_records_it():
     assert model.run_state() == {"resolution": 48, "res_final_budget": 48}
     rebuilt = build_model("vmgrid", BOX, **model.options)  # what resuming does: the same schedule
     rebuilt.restore_run_state(model.run_state())
+    rebuilt.load_state_dict(model.state_dict())
     assert rebuilt.resolution_schedule() == [23, 48] and rebuilt.field.resolution == 48
 
 

@@ -35,8 +35,8 @@ def test_flat_cube_gets_a_smaller_model_than_a_texture(method):
     flat_m, tex_m = build_model(method, BOX, **flat_opts), build_model(method, BOX, **tex_opts)
     if method == "vmgrid":
         # Compare the final (grown) size: that is what training ends with.
-        flat_m.restore_run_state({"resolution": flat_opts["res_final"]})
-        tex_m.restore_run_state({"resolution": tex_opts["res_final"]})
+        flat_m.field.upsample(flat_opts["res_final"])
+        tex_m.field.upsample(tex_opts["res_final"])
     assert flat_m.num_parameters() < 0.6 * tex_m.num_parameters(), (flat_opts, tex_opts)
     assert len(flat_why) >= 3 and any("detail" in r for r in flat_why)
 
