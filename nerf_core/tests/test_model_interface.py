@@ -129,7 +129,7 @@ def test_each_option_has_a_one_line_doc_and_variants_fix_theirs():
     assert build_model("nerf-nope", BOX, use_pe=True).opts.use_pe is False
     assert build_model("vmgrid-noview", BOX, res_init=8, res_final=16).opts.view_dependent is False
     # An option the method declares is seen by has_option through its Options, not a dict of defaults.
-    assert "contract" in method_class("vmgrid").Options.declared()
+    assert "unbounded" in method_class("vmgrid").Options.declared()
 
 
 def test_the_grid_size_is_run_state_saved_apart_from_the_options():
