@@ -197,6 +197,22 @@ class RadianceModel(nn.Module):
             loss = loss + out["aux_loss"]
         return loss, mse
 
+    # ------------------------------------------------------------------ the field at points (export)
+
+    def density_at(self, pts: torch.Tensor) -> torch.Tensor:
+        """Density per scene unit (m,) at world points (m, 3), without grad: what the geometry export
+        samples. A method whose field cannot be read at points raises NotImplementedError."""
+        raise NotImplementedError(f"method {self.method_name!r} does not offer its density at points")
+
+    def colour_at(self, pts: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        """Colour (m, 3) in [0, 1] at world points (m, 3) seen along unit directions (m, 3), without grad."""
+        raise NotImplementedError(f"method {self.method_name!r} does not offer its colour at points")
+
+    def detail_resolution(self) -> int:
+        """Samples per axis of the scene box that match the model's own detail (the export's default
+        grid): 256 unless the method knows better."""
+        return 256
+
     # ------------------------------------------------------------------ optimisation
 
     def param_groups(self, lr: float) -> list[dict]:

@@ -274,6 +274,14 @@ class NeRF(RadianceModel):
         return {"rgb": fine["rgb"], "depth": fine["depth"], "acc": fine["acc"], "rgb_coarse": coarse["rgb"],
                 "n_samples": n_samples}
 
+    @torch.no_grad()
+    def density_at(self, pts: Tensor) -> Tensor:
+        return (self.fine if self.fine is not None else self.coarse).density(pts)
+
+    @torch.no_grad()
+    def colour_at(self, pts: Tensor, dirs: Tensor) -> Tensor:
+        return (self.fine if self.fine is not None else self.coarse)(pts, dirs)[1]
+
     def loss(self, out, target, weight):
         """The base loss, plus the hierarchical sampler's coarse network's colour error (the paper's)."""
         if "rgb_coarse" not in out:

@@ -291,6 +291,19 @@ class VMGrid(RadianceModel):
 
     # ------------------------------------------------------------------ rendering
 
+    @torch.no_grad()
+    def density_at(self, pts: Tensor) -> Tensor:
+        return self.field.lookup().density(self.warp(pts))
+
+    @torch.no_grad()
+    def colour_at(self, pts: Tensor, dirs: Tensor) -> Tensor:
+        return self.field.lookup().color(self.warp(pts), dirs)
+
+    def detail_resolution(self) -> int:
+        """The planes' size (halved when the grid spans the contracted world, twice the box)."""
+        res = int(self.field.resolution)
+        return max(2, res // 2) if self.contracted else res
+
     def warp(self, pts: Tensor) -> Tensor:
         """World points (m, 3) -> the field's coordinates (contracted when ``unbounded`` is on)."""
         return squeeze_into_outer_box(pts, self.aabb) if self.contracted else pts
