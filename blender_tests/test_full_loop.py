@@ -221,4 +221,4 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
     assert job.state == "cancelled" and not s.running and s.status.startswith("Training cancelled at step")
     assert not child_process.pid_alive(pid) and child_process.group_pids(pid) == []
     assert "checkpoint saved" in job.message
-    assert child_process.run_folder_state(s.run_dir) == "resumable"
+    assert runs.run_folder_state(s.run_dir) == "resumable"

@@ -17,7 +17,7 @@ from addon import file_writes
 from addon.compare import compare_views as compare
 from addon.common import jobs, prefs
 from addon.train import train_ui, train_job
-from addon.bridge import child_process
+from addon.bridge import child_process, runs
 from addon.bridge.child_process import SetupError
 
 
@@ -134,7 +134,7 @@ def test_existing_run_folder_is_never_overwritten(s, tmp_path):
     # through (Resume said "press Train instead", and Train said "press Resume").
     os.rename(os.path.join(s.run_dir, "checkpoints", "latest.pt"),
               os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
-    assert child_process.run_folder_state(s.run_dir) == "resumable"
+    assert runs.run_folder_state(s.run_dir) == "resumable"
     with pytest.raises(SetupError, match=r"holds a training run: press Resume"):
         train_ui.start_training(bpy.context)
     os.remove(os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
