@@ -278,7 +278,8 @@ def main(argv) -> int:
 
     scored = [v for v in views if v.metrics]
     summary = {
-        "out": out, "layout": args.layout, "images": args.images, "render_dir": render_dir, "cameras": cameras, "n_views": len(views),
+        "out": out, "layout": args.layout, "images": args.images, "render_dir": render_dir, "cameras": cameras,
+        "n_views": len(views),
         "psnr": _finite(sum(v.metrics["psnr"] for v in scored) / len(scored)) if scored else None,
         "ssim": _finite(sum(v.metrics["ssim"] for v in scored) / len(scored)) if scored else None,
         "views": [{"name": v.name, **{k: _finite(x) for k, x in v.metrics.items()}} for v in views],

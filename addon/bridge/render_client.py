@@ -204,7 +204,8 @@ class RenderClient:
                 return None
             now = time.monotonic()
             if self.info is None and now > start_deadline:
-                raise RenderClientError(f"the render process did not load {self.run} within {SERVE_START_TIMEOUT_S:g} s")
+                raise RenderClientError(f"the render process did not load {self.run} within "
+                                        f"{SERVE_START_TIMEOUT_S:g} s")
             if now > deadline:
                 raise RenderClientError(f"rendering took more than {timeout:g} s")
             if on_progress is not None:
