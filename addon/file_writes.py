@@ -41,9 +41,11 @@ def png_bytes(rows: bytes, width: int, height: int, bit_depth: int, colour_type:
     """A whole PNG file of filter-prefixed scanlines ``rows`` (each row: a 0 byte, then its pixels)."""
 
     def chunk(tag: bytes, payload: bytes) -> bytes:
-        return struct.pack(">I", len(payload)) + tag + payload + struct.pack(">I", zlib.crc32(tag + payload) & 0xFFFFFFFF)
+        return struct.pack(">I", len(payload)) + tag + payload + struct.pack(">I",
+                                                                             zlib.crc32(tag + payload) & 0xFFFFFFFF)
 
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, bit_depth, colour_type, 0, 0, 0))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, bit_depth,
+                                                              colour_type, 0, 0, 0))
             + chunk(b"IDAT", zlib.compress(rows, 6)) + chunk(b"IEND", b""))
 
 

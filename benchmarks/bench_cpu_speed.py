@@ -16,9 +16,9 @@ checkout, or a git revision, checked out into a temporary worktree that is remov
 From each run's progress.jsonl it reads the steps made, the steps per second after growth (step
 events from ``--after`` of the budget to the end: vmgrid's last growth stage is at 0.36) and the test
 PSNR of the final evaluation. Writes DIR/results.json and DIR/summary.md (a table with the ratios, the
-command, both commits and the machine) and DIR/cpu_speed.png (both, per scene). ``--report-only`` rewrites the summary from results.json. Run
-again into the same folder (same commits and budget), it keeps the scenes already measured and adds
-the others.
+command, both commits and the machine) and DIR/cpu_speed.png (both, per scene). ``--report-only``
+rewrites the summary from results.json. Run again into the same folder (same commits and budget), it
+keeps the scenes already measured and adds the others.
 """
 from __future__ import annotations
 

@@ -134,7 +134,8 @@ def main(argv=None) -> int:
         ["processes (1 thread each)", "rays/step/rank", "rays/step", "steps/s", "rays/s", "rays/s vs first",
          f"test PSNR at {args.steps} steps", "wall s (with start-up)"])
     lines = [f"# Data-parallel scaling: {args.method}, {args.steps} steps, dataset `{dataset}`", "",
-             f"Machine: {platform.processor() or platform.machine()}, {cores} cores, Python {platform.python_version()}, "
+             f"Machine: {platform.processor() or platform.machine()}, {cores} cores, Python "
+             f"{platform.python_version()}, "
              f"torch {torch.__version__}, {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC. "
              f"Load average (1 min) before/after: {load_before[0] if load_before else '?':.2f} / "
              f"{load_after[0] if load_after else '?':.2f}.", ""]

@@ -64,7 +64,8 @@ def parse_args(argv):
     ap.add_argument("--tensorf-eval-every", type=int, help="TensoRF test evaluation every N iterations (default "
                                                            "1000; 0 = only the final)")
     ap.add_argument("--timeout", type=float, default=480, help="seconds each side may take in all (default 480)")
-    ap.add_argument("--skip-ours", action="store_true", help="run TensoRF only (keeps ours from an earlier results.json)")
+    ap.add_argument("--skip-ours", action="store_true",
+                    help="run TensoRF only (keeps ours from an earlier results.json)")
     ap.add_argument("--skip-tensorf", action="store_true", help="run ours only (keeps TensoRF's from results.json)")
     ap.add_argument("--quick", action="store_true", help="CPU plumbing test: tiny budgets and grids")
     ap.add_argument("--overwrite", action="store_true", help="replace an earlier result in --out")
@@ -152,7 +153,8 @@ def run_ours(a, results: dict) -> None:
     print(f"ours: training {a.ours_seconds:g} s on {a.device} ...", flush=True)
     res = run_cli(cmd, log_path=os.path.join(a.out, "ours.log"), timeout=a.timeout,
                   on_event=lambda e: e.get("event") == "eval" and print(
-                      f"ours: test PSNR {e.get('psnr', float('nan')):.2f} dB at {e.get('elapsed', a.ours_seconds):.1f} s",
+                      f"ours: test PSNR {e.get('psnr', float('nan')):.2f} dB at "
+                      f"{e.get('elapsed', a.ours_seconds):.1f} s",
                       flush=True))
     config = None
     if os.path.isfile(os.path.join(run, "config.json")):

@@ -172,7 +172,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         out = steppers.get(name, step)(fn, planes, lines, u, gout).detach()
         errors[name] = {"out": float((out - ref).abs().max()), "grad_planes": float((planes.grad - ref_gp).abs().max()),
-                        "grad_lines": float((lines.grad - ref_gl).abs().max()), "first_call_s": time.perf_counter() - t0}
+                        "grad_lines": float((lines.grad - ref_gl).abs().max()),
+                        "first_call_s": time.perf_counter() - t0}
         print(f"{name:14s} max |diff| out {errors[name]['out']:.2e} grad planes {errors[name]['grad_planes']:.2e} "
               f"lines {errors[name]['grad_lines']:.2e} (first call {errors[name]['first_call_s']:.2f} s)", flush=True)
     times = {name: [] for name in variants}

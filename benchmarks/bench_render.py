@@ -40,7 +40,8 @@ def parse_args(argv):
     import argparse
 
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("--dataset", required=True, help="NeRF dataset folder (transforms_train.json and transforms_test.json)")
+    p.add_argument("--dataset", required=True,
+                   help="NeRF dataset folder (transforms_train.json and transforms_test.json)")
     p.add_argument("--out", required=True, help="output folder (runs/, renders/, frame/, render_speed.json/.md)")
     p.add_argument("--methods", default="vmgrid,nerf,nerf-nope", help="comma-separated methods (default: %(default)s)")
     p.add_argument("--seconds", type=float, default=60.0, help="training seconds per method (default: %(default)s)")

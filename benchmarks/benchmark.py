@@ -24,8 +24,8 @@ What it does, through the same command lines users run:
 Defaults are the issue-3 setup: 200x200 images, 100 train and 20 test views, 5 minutes per run, on
 the diffuse, highfreq, glossy, thin and multi scenes (objects on a transparent film) and the hdri
 (an object in a visible studio-light HDRI world), interior (a room captured from inside) and ground
-(a figure on a floor that runs to the horizon) scenes, which are captured opaque. ``--quick`` shrinks everything to finish in
-under 10 minutes on 2 CPU cores. A progress bar with an ETA covers the whole plan.
+(a figure on a floor that runs to the horizon) scenes, which are captured opaque. ``--quick`` shrinks
+everything to finish in under 10 minutes on 2 CPU cores. A progress bar with an ETA covers the whole plan.
 """
 from __future__ import annotations
 
@@ -260,7 +260,8 @@ def summary_markdown(rows, finals, sizes, profile, checkpoints: Sequence[float],
         lines += ["## Failed runs", ""] + [f"- {f['scene']} / {f['series']}: {f['error']}" for f in errors] + [""]
     if sizes:
         lines += ["## Does `--size auto` land on the Pareto front?", "",
-                  report.markdown_table(sizes, ["scene", "auto_params", "auto_psnr", "best_params", "best_psnr", "gap_db",
+                  report.markdown_table(sizes, ["scene", "auto_params", "auto_psnr", "best_params",
+                                                "best_psnr", "gap_db",
                                             "param_ratio", "on_front", "within_0.5dB_at_half", "front"]), ""]
     if profile and profile.get("shares"):
         lines += [f"## Where a training step's time goes ({profile.get('method')}, {profile.get('steps')} steps, "
@@ -311,7 +312,8 @@ def parse_args(argv):
     ap.add_argument("--report-only", action="store_true",
                     help="train nothing: redraw the charts and summary.md from OUT/results.json")
     ap.add_argument("--independent", action="store_true",
-                    help="a fresh run per checkpoint budget instead of one run with --eval-at (exact per-budget schedules, "
+                    help="a fresh run per checkpoint budget instead of one run with --eval-at (exact "
+                         "per-budget schedules, "
                          "costs the sum of the budgets)")
     args = ap.parse_args(argv)
     quick = args.quick
@@ -364,7 +366,8 @@ def main(argv=None) -> int:
     machine["threads_per_run"] = runner.thread_env(args.jobs).get("OMP_NUM_THREADS", os.cpu_count())
     train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
-        print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is nerf_core/engine/trainer.py built?\n"
+        print("benchmark: `python -m nerf_core train --help` failed or lacks --max-seconds; is "
+              "nerf_core/engine/trainer.py built?\n"
               + train_help[-800:], file=sys.stderr)
         return 2
     plan = make_plan(args, train_help)
@@ -433,7 +436,8 @@ def main(argv=None) -> int:
                 "steps": tr["steps"], "rollbacks": tr["rollbacks"], "nan": tr["nan"], "error": r["error"],
                 "stage_times": tr.get("stage_times"), "threads": env_extra.get("OMP_NUM_THREADS")}
 
-    results = [r for r in runner.run_parallel([lambda sc=sc, se=se: one_run(sc, se) for sc, se in runs], args.jobs) if r]
+    results = [r for r in runner.run_parallel([lambda sc=sc, se=se: one_run(sc, se) for sc, se in runs],
+                                              args.jobs) if r]
     failures += len(failed)
     bar.close(info="runs done")
     profile = None
@@ -447,7 +451,8 @@ def main(argv=None) -> int:
     written = write_outputs(out, results, plan, fast, profile, wall, machine, run_settings)
     print(written["markdown"])
     print(f"benchmark: wrote {out}/results.csv, final.csv, results.json, summary.md"
-          + "".join(f", {os.path.basename(c)}" for c in written["charts"]) + f" in {wall / 60:.1f} min", file=sys.stderr)
+          + "".join(f", {os.path.basename(c)}" for c in written["charts"]) + f" in {wall / 60:.1f} min",
+          file=sys.stderr)
     return 1 if failures else 0
 
 

@@ -36,7 +36,8 @@ def parse_args(argv):
     ap.add_argument("--out", required=True, help="folder for the chart, pictures, JSON and README.md")
     ap.add_argument("--hdri", default="", help="an EXR to crop (default: Blender's studio light --hdri-name)")
     ap.add_argument("--hdri-name", default=None, help="studio-light file name (default forest.exr)")
-    ap.add_argument("--datafiles", default="", help=argparse.SUPPRESS)  # Blender's DATAFILES, passed on by the Blender run
+    ap.add_argument("--datafiles", default="",
+                    help=argparse.SUPPRESS)  # Blender's DATAFILES, passed on by the Blender run
     ap.add_argument("--crop", default=None, help="TOP,LEFT,SIDE in the HDRI's pixels (default 250,700,128)")
     ap.add_argument("--downscale", type=int, default=1, help="box-downscale the crop by this factor (default 1)")
     ap.add_argument("--steps", type=int, default=1000)
@@ -45,7 +46,8 @@ def parse_args(argv):
     ap.add_argument("--depth", type=int, default=4, help="linear layers, output layer included")
     ap.add_argument("--features", type=int, default=128, help="Gaussian Fourier features")
     ap.add_argument("--sigmas", default="0.1,0.3,1,3,10,30,100,300", help="RFF scales, cycles per image width")
-    ap.add_argument("--pe-freqs", default="", help="PE frequency counts to try (default: the four counts up to the training Nyquist)")
+    ap.add_argument("--pe-freqs", default="",
+                    help="PE frequency counts to try (default: the four counts up to the training Nyquist)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="models fitted at once")
     ap.add_argument("--threads", type=int, default=1,

@@ -112,20 +112,25 @@ def markdown(results: Sequence[FitResult], meta: Dict) -> str:
     lines = [
         "# Kernel width: positional encoding and Fourier features on one photograph", "",
         f"Image: `{os.path.basename(img['source'])}`" + ("" if img["source"] == "synthetic" else
-                                                         f" (Blender studio light), crop (top, left, side) {img['crop']}, "
+                                                         f" (Blender studio light), crop (top, left, "
+                                                         f"side) {img['crop']}, "
                                                          f"downscale {img['downscale']}, tone map {img['tonemap']}") +
         f"; {img['size'][0]} x {img['size'][1]} px. Trained on the even-row, even-column pixels "
         "(a quarter), scored on the other three quarters.", "",
         f"Every model: MLP of {cfg['depth']} linear layers x {cfg['width']} (ReLU, sigmoid out), full-batch Adam "
         f"lr {cfg['lr']:g}, {cfg['steps']} steps, seed {cfg['seed']}, {cfg['features']} Gaussian Fourier "
-        f"features for RFF. σ is in cycles per image width; the training grid's Nyquist rate is {cfg['nyquist']:g}.", "",
+        f"features for RFF. σ is in cycles per image width; the training grid's Nyquist rate is {cfg['nyquist']:g}.",
+        "",
         "| model | held-out PSNR (dB) | train PSNR (dB) | parameters | seconds |", "|---|---|---|---|---|",
     ]
     for r in results:
         bold = "**" if r in (picks["best"], picks["pe"]) else ""
-        lines.append(f"| {r.spec.name} | {bold}{r.test_psnr:.2f}{bold} | {r.train_psnr:.2f} | {r.params:,} | {r.seconds:.0f} |")
+        lines.append(f"| {r.spec.name} | {bold}{r.test_psnr:.2f}{bold} | {r.train_psnr:.2f} | "
+                     f"{r.params:,} | {r.seconds:.0f} |")
     m = meta["machine"]
-    lines += ["", f"Seconds are wall time on a shared {m['cpus']}-CPU machine ({m['cpu']}, load average {m['load_avg_end']} "
+    lines += ["",
+              f"Seconds are wall time on a shared {m['cpus']}-CPU machine ({m['cpu']}, load average "
+              f"{m['load_avg_end']} "
               f"at the end, {cfg['jobs']} fits at a time): not a speed measurement.", "",
               f"Run on {meta['date']}, torch {m['torch']}:", "", "```bash", meta["command"], "```", ""]
     return "\n".join(lines)

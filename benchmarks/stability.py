@@ -139,7 +139,8 @@ def run_setting(dataset: str, run_dir: str, method: str, seed: int, seconds: flo
         row["nan"] = True  # NaN metrics come out as null
     if render:
         out = os.path.join(run_dir, "test_renders")
-        rr = runner.run_cli(runner.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset, "transforms_test.json"),
+        rr = runner.run_cli(runner.nerf_core_cmd("render", run_dir, "--cameras", os.path.join(dataset,
+                                                                                              "transforms_test.json"),
                                                  "--out", out, "--split", "test", "--overwrite", "--no-bar"),
                             log_path=log_path, env_extra=env_extra)
         if rr.ok:
@@ -183,7 +184,8 @@ def summarise(runs: list[dict], threshold: float, drop: float) -> tuple[list[dic
     for s in settings:
         # A setting is broken when any of its seeds broke: users get one seed, not the mean.
         reasons = [r["broken"] for r in groups[(s["method"], s["study"], s["setting"])] if r["broken"]]
-        s["broken"] = reasons[0] + (f" ({len(reasons)}/{s['n_runs']} seeds)" if s["n_runs"] > 1 else "") if reasons else ""
+        seeds = f" ({len(reasons)}/{s['n_runs']} seeds)" if s["n_runs"] > 1 else ""
+        s["broken"] = reasons[0] + seeds if reasons else ""
     return settings, breakdown_table(settings)
 
 
@@ -234,7 +236,8 @@ def write_report(out: str, runs: list[dict], *, machine: dict, capture: dict, sc
     settings, table = summarise(runs, threshold, drop)
     report.write_csv(os.path.join(out, "stability.csv"), runs)
     report.write_csv(os.path.join(out, "settings.csv"), settings)
-    report.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall, "capture": capture,
+    report.write_json(os.path.join(out, "stability.json"), {"machine": machine, "wall_seconds": wall,
+                                                            "capture": capture,
                                                         "scene": scene, "seconds_per_run": seconds, "jobs": jobs,
                                                         "threads_per_run": (env_extra or {}).get("OMP_NUM_THREADS"),
                                                         "threshold_db": threshold, "drop_db": drop, "runs": runs,
@@ -339,7 +342,8 @@ def main(argv=None) -> int:
     out = os.path.abspath(args.out)
     train_help = runner.cli_help(*runner.nerf_core_cmd("train"))
     if "--max-seconds" not in train_help:
-        print("stability: `python -m nerf_core train --help` failed; is nerf_core/engine/trainer.py built?\n" + train_help[-800:],
+        print("stability: `python -m nerf_core train --help` failed; is "
+              "nerf_core/engine/trainer.py built?\n" + train_help[-800:],
               file=sys.stderr)
         return 2
     fast = default_fast_method()

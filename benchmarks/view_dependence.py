@@ -49,7 +49,8 @@ def parse_args(argv):
     ap.add_argument("--resolution", type=int, default=128, help="capture resolution in pixels (default 128)")
     ap.add_argument("--views", type=int, default=100, help="train views (default 100)")
     ap.add_argument("--test-views", type=int, default=10, help="held-out test views captured (default 10)")
-    ap.add_argument("--eval-views", type=int, default=5, help="evenly spaced test views scored at each point (default 5)")
+    ap.add_argument("--eval-views", type=int, default=5,
+                    help="evenly spaced test views scored at each point (default 5)")
     ap.add_argument("--datasets", help="capture cache folder (default OUT/datasets)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--report-only", action="store_true", help="train nothing: redraw from OUT/view_dependence.json")
@@ -122,7 +123,8 @@ def main(argv=None) -> int:
         for scene in args.scene_list:
             for method in args.method_list:
                 rows += run_pair(args, captured[scene], scene, method, logs)
-        command = "python benchmarks/view_dependence.py " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+        given = sys.argv[1:] if argv is None else argv
+        command = "python benchmarks/view_dependence.py " + " ".join(shlex.quote(a) for a in given)
         results = {"command": command, "commit": commit, "machine": runner.machine_info(),
                    "wall_minutes": round((time.monotonic() - t0) / 60, 1), "datasets": captured,
                    "capture": capture_settings(args), "seconds": args.seconds, "marks": args.marks,

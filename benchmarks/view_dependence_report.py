@@ -42,7 +42,8 @@ def draw_chart(results: dict, path: str) -> None:
     for i, scene in enumerate(scenes):
         for j, method in enumerate(methods):
             ax = axes[i][j]
-            for name, style, label in ((method, "-", "with view direction"), (method + NOVIEW, "--", "colour ignores it")):
+            for name, style, label in ((method, "-", "with view direction"),
+                                       (method + NOVIEW, "--", "colour ignores it")):
                 row = runs.get((scene, name))
                 if row and row.get("points"):
                     x, y = _xy(row)
@@ -137,7 +138,8 @@ def summary_markdown(results: dict, crops: Optional[dict]) -> str:
     marks = results["marks"]
     m = results.get("machine", {})
     lines = ["# View dependence: each method with and without the view direction", "",
-             f"Command: `{results['command']}` at commit `{results['commit']}`, {results.get('wall_minutes', '?')} min wall.",
+             f"Command: `{results['command']}` at commit `{results['commit']}`, "
+             f"{results.get('wall_minutes', '?')} min wall.",
              f"Machine: {m.get('cpu', '?')}, {m.get('cpus', '?')} cores, torch {m.get('torch', '?')}; load average "
              f"{m.get('load_avg', '?')} at the end. Each pair (M, M-noview) trained at the same time, one thread each, "
              "so both saw the same share of the machine. The machine was shared with other jobs, so absolute "

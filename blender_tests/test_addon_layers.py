@@ -27,7 +27,8 @@ MAX_LINES = 500
 
 
 def _modules() -> List[Tuple[str, str]]:
-    """(path, dotted name below ``addon``) of every module, e.g. ("addon/capture/layout/positions.py", "capture.layout.positions")."""
+    """(path, dotted name below ``addon``) of every module, e.g. ("addon/capture/layout/positions.py",
+    "capture.layout.positions")."""
     found = []
     for root, dirs, files in os.walk(ADDON):
         dirs[:] = sorted(d for d in dirs if d not in ("__pycache__", "vendor"))
@@ -162,7 +163,8 @@ def test_no_private_names_across_modules():
         for node in ast.walk(tree):
             if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in add_on_modules
                     and node.attr.startswith("_") and not node.attr.startswith("__")):
-                bad.append(f"{_where(path, node.lineno)}: {node.value.id}.{node.attr}  (private name of another module)")
+                bad.append(f"{_where(path, node.lineno)}: {node.value.id}.{node.attr}  (private "
+                           f"name of another module)")
     assert not bad, "no module uses another module's _private names:\n" + "\n".join(bad)
 
 

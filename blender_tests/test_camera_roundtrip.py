@@ -98,7 +98,8 @@ def _ngp_file(dataset, path):
 
 def _check_cameras(scene, dataset, keep_split=True):
     coll = camera_import.imported_collection(scene, create=False)
-    cams = sorted((o for o in coll.objects if camera_import.is_imported(o)), key=lambda o: o[camera_import.IMPORT_INDEX])
+    cams = sorted((o for o in coll.objects if camera_import.is_imported(o)),
+                  key=lambda o: o[camera_import.IMPORT_INDEX])
     want = _frames(dataset)
     assert len(cams) == len(want)
     for cam, (split, fr) in zip(cams, want):
@@ -153,7 +154,8 @@ def test_the_script_imports_into_an_empty_blend_and_the_recapture_reproduces_the
         # (measured: depth within 2e-6 relative, one normals pixel of 540 off by 0.03).
         for key in ("depth_file_path", "normal_file_path", "mask_path"):
             assert fr.get(key), (fr["file_path"], key)
-            a, b = (_file_values(os.path.join(root, fr[key])) for root in (captured["dataset"], str(tmp_path / "again")))
+            a, b = (_file_values(os.path.join(root, fr[key])) for root in (captured["dataset"],
+                                                                           str(tmp_path / "again")))
             assert a.keys() == b.keys(), fr[key]
             for c in a:
                 if key == "mask_path":
@@ -237,11 +239,13 @@ def test_a_point_cloud_and_camera_path_come_back_from_nerfstudios_world(captured
     # The viewer's camera path lives in nerfstudio's world too.
     ns_poses = [nerfstudio_frame.to_nerfstudio_pose(p, transform, scale) for p in poses[:2]]
     path = {"camera_type": "perspective", "render_width": 40, "render_height": 30,
-            "camera_path": [{"camera_to_world": p.reshape(-1).tolist(), "fov": 40.0, "aspect": 4 / 3} for p in ns_poses]}
+            "camera_path": [{"camera_to_world": p.reshape(-1).tolist(), "fov": 40.0,
+                             "aspect": 4 / 3} for p in ns_poses]}
     json.dump(path, open(tmp_path / "camera_path.json", "w"))
     summary = camera_import.import_cameras(scene, str(tmp_path / "camera_path.json"), str(out))
     assert summary["format"] == "camera_path" and summary["cameras"] == 2
-    cams = sorted((o for o in scene.objects if camera_import.is_imported(o)), key=lambda o: o[camera_import.IMPORT_INDEX])
+    cams = sorted((o for o in scene.objects if camera_import.is_imported(o)),
+                  key=lambda o: o[camera_import.IMPORT_INDEX])
     for cam, want in zip(cams, poses[:2]):
         assert np.abs(np.array(cam.matrix_world) - want).max() <= 1e-5
         intr = dataset_cameras.camera_intrinsics(cam, scene.render)

@@ -244,7 +244,8 @@ def test_background_depth_of_eevee_is_inf_and_opaque_masks_need_cycles(tmp_path)
     z = np.array([[2.0, 100.5, 1e10], [0.0, 99.95, 50.0]], np.float32)
     np.testing.assert_array_equal(passes.planar_depth(z, clip_end=100.0),
                                   [[2.0, np.inf, np.inf], [np.inf, np.inf, 50.0]])
-    np.testing.assert_array_equal(passes.planar_depth(z), np.array([[2.0, 100.5, np.inf], [np.inf, 99.95, 50.0]], np.float32))
+    np.testing.assert_array_equal(passes.planar_depth(z), np.array([[2.0, 100.5, np.inf],
+                                                                    [np.inf, 99.95, 50.0]], np.float32))
     build_test_scene()
     scene = bpy.context.scene
     spec = layout_positions.LayoutSpec(layout="sphere", train=3, val=0, test=1, radius=7.0)
@@ -395,7 +396,8 @@ def test_a_subject_on_a_vast_floor_gets_a_scene_box_around_the_subject(tmp_path)
     scene = bpy.context.scene
     spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
     cameras.create_cameras(scene, spec, 40, 30)
-    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench",
+                                                            res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi, around = scene_bounds.subject_bounds(scene)
     box = [list(v) for v in scene_bounds.subject_box(scene, lo, hi)]
@@ -419,7 +421,8 @@ def test_a_flat_subject_gets_a_box_with_thickness_that_train_accepts(tmp_path):
     scene = bpy.context.scene
     spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
     cameras.create_cameras(scene, spec, 40, 30)
-    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench",
+                                                            res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     lo, hi = np.array(json.loads((tmp_path / "transforms_train.json").read_text())["aabb"])
     thick = scene_bounds.MIN_THICKNESS * math.sqrt(8.0)  # of the plane's 2 x 2 x 0 diagonal
@@ -438,7 +441,8 @@ def test_a_tiny_or_huge_subject_is_captured_whole(tmp_path, size):
     scene = bpy.context.scene
     spec = layout_positions.LayoutSpec(layout="hemisphere", train=3, val=1, test=1)
     made = cameras.create_cameras(scene, spec, 40, 30)
-    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench", res_x=40, res_y=30,
+    run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path), engine="workbench",
+                                                            res_x=40, res_y=30,
                                                       layout=spec.to_dict())).run()
     for split in ("train", "val", "test"):
         for _doc, fr, _intr in frames(tmp_path, split):
@@ -556,10 +560,12 @@ def test_missing_textures_and_libraries_are_named_before_a_capture(tmp_path):
     # a word: the capture was "complete" and check said "valid" for a dataset of the wrong scene.
     build_test_scene()
     scene = bpy.context.scene
-    cameras.create_cameras(scene, layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    cameras.create_cameras(scene, layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0,
+                                                              radius=7.0), 40, 30)
 
     def notes():
-        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40, res_y=30)).notes
+        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), res_x=40,
+                                                                       res_y=30)).notes
 
     assert notes() == []
     tex = tmp_path / "wood.png"
@@ -598,11 +604,13 @@ def test_masks_refuse_what_the_object_index_pass_never_marks(tmp_path):
     # the drawing marked "ignore".
     build_test_scene()
     scene = bpy.context.scene
-    cameras.create_cameras(scene, layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0, radius=7.0), 40, 30)
+    cameras.create_cameras(scene, layout_positions.LayoutSpec(layout="hemisphere", train=2, val=0, test=0,
+                                                              radius=7.0), 40, 30)
     bpy.ops.object.grease_pencil_add(type="MONKEY", location=(0, 0, 1))
 
     def job(engine, target="ALL"):
-        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine=engine, res_x=40,
+        return run_job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"),
+                                                                       engine=engine, res_x=40,
                                                                  res_y=30, masks=True, target=target))
 
     with pytest.raises(frame_plan.CaptureError, match=r"never marks 'Suzanne \(Grease Pencil\)'.*alpha"):
@@ -642,7 +650,8 @@ def test_animation_layout_renders_each_sampled_frame(tmp_path):
             ball_at = np.array([[x, 0.0, 1.2]])
             u, v, _ = project(ball_at, fr["transform_matrix"], intr)
             assert 0 <= u[0] < 40 and 0 <= v[0] < 30
-            assert alpha[int(v[0]), int(u[0])] >= OPAQUE_ALPHA, f"ball of frame {fr['blender_frame']} not where expected"
+            assert alpha[int(v[0]), int(u[0])] >= OPAQUE_ALPHA, \
+                f"ball of frame {fr['blender_frame']} not where expected"
             seen[fr["blender_frame"]] = True
     assert sorted(seen) == [1, 21, 41]
 
@@ -679,7 +688,8 @@ def test_the_film_filter_is_recorded_for_render_and_eval(tmp_path):
     settings = plan_settings.CaptureSettings(out_dir=str(gauss), engine="cycles", samples=1, res_x=16, res_y=12,
                                        layout=spec.to_dict())
     run_job.CaptureJob(scene, settings).run()
-    for out, want in ((default, {"type": "BLACKMAN_HARRIS", "width": 1.5}), (gauss, {"type": "GAUSSIAN", "width": 2.25})):
+    for out, want in ((default, {"type": "BLACKMAN_HARRIS", "width": 1.5}),
+                      (gauss, {"type": "GAUSSIAN", "width": 2.25})):
         for name in ("transforms_train.json", "transforms_test.json", "nerfstudio/transforms.json"):
             with open(out / name) as fh:
                 assert json.load(fh)["pixel_filter"] == want, (out, name)

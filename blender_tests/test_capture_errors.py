@@ -322,7 +322,8 @@ def test_cameras_whose_clipping_cuts_the_scene_box_are_named(tmp_path):
     cameras[0].data.clip_end = 0.5
     job = run_job.CaptureJob(scene, settings(tmp_path / "ds"))
     job.plan()
-    assert any(n.startswith(f"1 camera(s) clip the scene box, e.g. {cameras[0].name!r}: clip") for n in job.notes), job.notes
+    clipped = f"1 camera(s) clip the scene box, e.g. {cameras[0].name!r}: clip"
+    assert any(n.startswith(clipped) for n in job.notes), job.notes
 
 
 def test_an_overwrite_says_what_it_would_delete(tmp_path):

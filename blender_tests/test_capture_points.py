@@ -33,7 +33,8 @@ def sphere_capture(out, engine):
     scene = bpy.context.scene
     spec = positions.LayoutSpec(layout="sphere", train=4, val=0, test=1, radius=5.0, seed=2)
     cameras.create_cameras(scene, spec, 40, 40)
-    settings = plan_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=40, res_y=40, points=True,
+    settings = plan_settings.CaptureSettings(out_dir=str(out), engine=engine, samples=1, res_x=40,
+                                             res_y=40, points=True,
                                        n_points=4000, layout=spec.to_dict())
     return job.CaptureJob(scene, settings).run()
 

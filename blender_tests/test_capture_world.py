@@ -34,7 +34,8 @@ def _json(path):
 
 def _records(out):
     """(manifest, {transforms file: doc}) of a capture folder."""
-    return _json(os.path.join(out, "nerf_capture", "manifest.json")), {t: _json(os.path.join(out, t)) for t in TRANSFORMS}
+    manifest = _json(os.path.join(out, "nerf_capture", "manifest.json"))
+    return manifest, {t: _json(os.path.join(out, t)) for t in TRANSFORMS}
 
 
 def _capture(scene, out, spec, engine="workbench", res=32, **kw):

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from addon.bridge import child_process
+from addon.bridge import child_process, runs
 from addon.bridge.child_process import BackgroundProcess, group_pids, pid_alive
 
 FAKE_TRAINER = textwrap.dedent('''
@@ -143,18 +143,18 @@ def test_commands_follow_the_cli_contract():
 
 def test_run_folder_states_and_new_names(tmp_path):
     run = tmp_path / "run"
-    assert child_process.run_folder_state(str(run)) == "new"
+    assert runs.run_folder_state(str(run)) == "new"
     run.mkdir()
-    assert child_process.run_folder_state(str(run)) == "empty"
-    assert child_process.suggest_run_name(str(run)) == str(run)
+    assert runs.run_folder_state(str(run)) == "empty"
+    assert runs.suggest_run_name(str(run)) == str(run)
     (run / "config.json").write_text("{}")
-    assert child_process.run_folder_state(str(run)) == "occupied"
+    assert runs.run_folder_state(str(run)) == "occupied"
     (run / "checkpoints").mkdir()
     (run / "checkpoints" / "step_0000010.pt").write_bytes(b"x")  # what --resume falls back to
-    assert child_process.run_folder_state(str(run)) == "resumable"
+    assert runs.run_folder_state(str(run)) == "resumable"
     (run / "checkpoints" / "latest.pt").write_bytes(b"x")
-    assert child_process.run_folder_state(str(run)) == "resumable"
+    assert runs.run_folder_state(str(run)) == "resumable"
     (tmp_path / "notes.txt").write_text("mine")
-    assert child_process.run_folder_state(str(tmp_path / "notes.txt")) == "file"
+    assert runs.run_folder_state(str(tmp_path / "notes.txt")) == "file"
     (tmp_path / "run_2").mkdir()
-    assert child_process.suggest_run_name(str(run)) == str(tmp_path / "run_3")
+    assert runs.suggest_run_name(str(run)) == str(tmp_path / "run_3")

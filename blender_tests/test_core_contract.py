@@ -127,5 +127,6 @@ def test_planes_and_nerf_core_read_one_rule():
     meta = {"fl_x": 30.0, "w": 40, "h": 20, "cx": 19.0}
     frame = {"camera_angle_x": 1.2, "cy": 11.0}
     intr = planes.intrinsics_from(meta, frame)
-    assert (intr["fx"], intr["fy"], intr["cx"], intr["cy"], intr["w"], intr["h"]) == contract.resolve_intrinsics(meta, frame)
+    assert (intr["fx"], intr["fy"], intr["cx"], intr["cy"], intr["w"],
+            intr["h"]) == contract.resolve_intrinsics(meta, frame)
     assert intr == {"fx": 30.0, "fy": 30.0, "cx": 19.0, "cy": 11.0, "w": 40.0, "h": 20.0}

@@ -59,7 +59,8 @@ def test_unknown_scene_is_named():
 
 def test_workbench_render_of_the_flat_cube_shows_it_lit(tmp_path):
     scene = scenes.build("cube")
-    cameras.create_cameras(scene, positions.LayoutSpec(train=1, val=0, test=0, elevation_min=30, elevation_max=30), 32, 32)
+    cameras.create_cameras(scene, positions.LayoutSpec(train=1, val=0, test=0, elevation_min=30,
+                                                       elevation_max=30), 32, 32)
     job.CaptureJob(scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
                                                       res_x=32, res_y=32)).run()
     rgba = np.asarray(Image.open(tmp_path / "ds" / "train" / "r_0.png")).astype(float)
@@ -253,5 +254,6 @@ def test_benchmark_and_demo_capture_real_scenes_with_their_flags(tmp_path, monke
     assert "--opaque" not in obj_cmd and "--layout" not in obj_cmd
     # the flags are in the cache key; an object scene's key is what it always was
     assert ds_room.endswith("interior-" + datasets.settings_key({"scene": "interior",
-                                                                 **capture_flags.capture_defaults("interior"), **settings}))
+                                                                 **capture_flags.capture_defaults("interior"),
+                                                                 **settings}))
     assert ds_obj.endswith("diffuse-" + datasets.settings_key({"scene": "diffuse", **settings}))

@@ -60,7 +60,8 @@ def tiny_capture(root: str):
     mat.diffuse_color = (0.8, 0.2, 0.1, 1.0)
     bpy.context.object.data.materials.append(mat)
     cameras.create_cameras(scene, positions.LayoutSpec(layout="hemisphere", train=8, val=1, test=2, seed=0), RES, RES)
-    settings = plan_settings.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench", res_x=RES, res_y=RES)
+    settings = plan_settings.CaptureSettings(out_dir=os.path.join(root, "dataset"), engine="workbench",
+                                             res_x=RES, res_y=RES)
     summary = run_job.CaptureJob(scene, settings).run()
     assert summary["status"] == "complete"
     return settings.out_dir
@@ -178,11 +179,13 @@ def test_capture_train_resume_render_and_import(tmp_path, registered, repo_root)
     out = os.path.join(root, "compare_camera.blend")
     cmd = [sys.executable, os.path.join(repo_root, "scripts", "import_views.py"), "--blend", scene_blend,
            "--run", os.path.join(root, "run"), "--out", out, "--layout", "camera", "--images", "relative"]
-    refused = subprocess.run(cmd + ["--renders", os.path.join(root, "run")], capture_output=True, text=True, timeout=120)
+    refused = subprocess.run(cmd + ["--renders", os.path.join(root, "run")], capture_output=True,
+                             text=True, timeout=120)
     assert refused.returncode == 2 and "no renders.json" in refused.stderr and not os.path.exists(out)
     proc = subprocess.run(cmd + ["--renders", summary["render_dir"]], capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "render views" not in proc.stderr and json.loads(proc.stdout.strip().splitlines()[-1])["psnr"] == summary["psnr"]
+    assert "render views" not in proc.stderr
+    assert json.loads(proc.stdout.strip().splitlines()[-1])["psnr"] == summary["psnr"]
     bpy.ops.wm.open_mainfile(filepath=out)
     scene = bpy.context.scene
     assert scene.camera.name == "NeRF Cam r_0" and (scene.render.resolution_x, scene.render.resolution_y) == (RES, RES)
@@ -221,4 +224,4 @@ def test_cancel_stops_the_real_trainer_and_keeps_a_resumable_checkpoint(tmp_path
     assert job.state == "cancelled" and not s.running and s.status.startswith("Training cancelled at step")
     assert not child_process.pid_alive(pid) and child_process.group_pids(pid) == []
     assert "checkpoint saved" in job.message
-    assert child_process.run_folder_state(s.run_dir) == "resumable"
+    assert runs.run_folder_state(s.run_dir) == "resumable"

@@ -99,7 +99,8 @@ def _unseen_world_shares(n_train, n_val, n_test, seed, heights_rule: bool):
     pos = positions.fibonacci_positions(n, radius, tuple(centre), (0.0, 90.0))
     splits = positions.assign_splits(n, n_val, n_test, seed, heights=[p[2] for p in pos] if heights_rule else None)
     focal = 100.0 / math.tan(fov[0] / 2)
-    cams = Cameras.create(np.array([positions.look_at(p, tuple(centre)) for p in pos]), focal, focal, 100, 100, 200, 200)
+    cams = Cameras.create(np.array([positions.look_at(p, tuple(centre)) for p in pos]), focal, focal, 100,
+                          100, 200, 200)
     train = Cameras.cat([cams[k] for k, s in enumerate(splits) if s == "train"])
     covered = covered_directions(train)
     aabb = torch.tensor(np.stack([lo, hi]), dtype=torch.float32)
@@ -208,7 +209,8 @@ def _flying_camera(active_camera):
 
 def test_animation_layout_samples_every_nth_frame(active_camera):
     scene = _flying_camera(active_camera)
-    made = layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=1,
+                                                                     test=1), 32, 32)
     assert sorted(o["nerf_frame"] for o in made) == [1, 11, 21, 31]
     xs = {o["nerf_frame"]: o.matrix_world.translation.x for o in made}
     assert xs[1] == pytest.approx(-5.0) and xs[31] > xs[21] > xs[11] > xs[1]
@@ -224,7 +226,8 @@ def test_animation_layout_keeps_an_animated_zoom(active_camera):
         lens.lens = mm
         lens.keyframe_insert("lens", frame=f)
     scene.frame_set(7)
-    made = layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=1, test=1), 32, 32)
+    made = layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="animation", frame_step=10, val=1,
+                                                                     test=1), 32, 32)
     mm = {o["nerf_frame"]: o.data.lens for o in made}
     assert mm[1] == pytest.approx(20.0) and mm[31] > mm[21] > mm[11] > 20.0 and mm[31] < 80.0
     assert scene.frame_current == 7 and all(o.data.animation_data is None for o in made)
@@ -251,9 +254,11 @@ def test_objects_that_move_during_an_animation_capture_are_named(active_camera):
 def test_layouts_that_need_a_camera_say_so():
     _add_box()
     with pytest.raises(positions.LayoutError, match="scene-cameras.*no camera"):
-        layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="scene-cameras", val=0, test=0), 32, 32)
+        layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="scene-cameras", val=0,
+                                                                              test=0), 32, 32)
     with pytest.raises(positions.LayoutError, match="animation.*no active camera"):
-        layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="animation", val=0, test=0), 32, 32)
+        layout_cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(layout="animation", val=0,
+                                                                              test=0), 32, 32)
 
 
 def test_bad_elevation_range_is_refused():

@@ -34,7 +34,8 @@ def fake_render(tmp_path, n=2, intr=None):
         img = np.concatenate([rng.random((H, W, 3)), np.ones((H, W, 1))], axis=2)
         write_png(str(render / f"r_{i}.png"), img)
         write_png(str(data / "test" / f"r_{i}.png"), np.clip(img + 0.02 * (i + 1), 0, 1))
-        c2w = Matrix.Translation((i, -4.0, 0.5)) @ Euler((math.radians(85), 0.0, math.radians(10 * i))).to_matrix().to_4x4()
+        c2w = Matrix.Translation((i, -4.0, 0.5)) @ Euler((math.radians(85), 0.0,
+                                                          math.radians(10 * i))).to_matrix().to_4x4()
         frames.append({"file_path": f"./test/r_{i}", "transform_matrix": [list(r) for r in c2w]})
     meta = dict(intr, near=0.5, far=8.0, frames=frames)
     (data / "transforms_test.json").write_text(json.dumps(meta))
@@ -181,14 +182,17 @@ def test_selected_camera_file_matches_blenders_projection_including_shift(tmp_pa
     cam = bpy.data.objects.new("Shifted Cam", bpy.data.cameras.new("Shifted Cam"))
     scene.collection.objects.link(cam)
     cam.data.lens, cam.data.shift_x, cam.data.shift_y = 40.0, 0.15, -0.1
-    cam.matrix_world = Matrix.Translation((1.0, -5.0, 2.0)) @ Euler((math.radians(70), 0, math.radians(15))).to_matrix().to_4x4()
-    data = cameras.cameras_transforms([cam], scene, (160, 120), base={"near": 0.1, "far": 9, "aabb": [[-1] * 3, [1] * 3]})
+    cam.matrix_world = Matrix.Translation((1.0, -5.0, 2.0)) @ Euler((math.radians(70), 0,
+                                                                     math.radians(15))).to_matrix().to_4x4()
+    data = cameras.cameras_transforms([cam], scene, (160, 120), base={"near": 0.1, "far": 9,
+                                                                      "aabb": [[-1] * 3, [1] * 3]})
     assert data["near"] == 0.1 and data["w"] == 160 and len(data["frames"]) == 1
     frame = data["frames"][0]
     intr = planes.intrinsics_from(data, frame)
     for point in ((0, 0, 0), (0.5, 0.3, -0.2), (-0.7, 1.0, 0.4)):
         ndc = world_to_camera_view(scene, cam, Vector(point))
-        assert project(frame["transform_matrix"], intr, point) == pytest.approx((ndc.x * 160, (1 - ndc.y) * 120), abs=1e-3)
+        assert project(frame["transform_matrix"], intr, point) == pytest.approx((ndc.x * 160,
+                                                                                 (1 - ndc.y) * 120), abs=1e-3)
 
 
 def test_fly_through_writes_one_view_per_frame(tmp_path):

@@ -96,7 +96,8 @@ def test_start_event_background_and_note_events_are_kept():
     p = ProgressParser()
     p.feed(json.dumps({"event": "start", "time": 1.0, "method": "vmgrid", "background": "environment",
                        "background_reason": "the images have no alpha channel (RGB)"}) + "\n")
-    p.feed(json.dumps({"event": "note", "time": 1.5, "message": "environment: 58 % of the train rays miss the box"}) + "\n")
+    p.feed(json.dumps({"event": "note", "time": 1.5,
+                       "message": "environment: 58 % of the train rays miss the box"}) + "\n")
     assert p.background == "environment"
     assert "alpha" in p.background_reason
     assert p.notes == ["environment: 58 % of the train rays miss the box"]

@@ -116,7 +116,8 @@ def test_panels_draw_in_every_state(tmp_path):
     try:
         s = bpy.context.scene.nerf_train
         assert "Runs" in _labels(_draw(train_ui.NERF_PT_train))
-        s.running, s.step, s.loss, s.psnr, s.elapsed, s.eta, s.fraction, s.rollbacks = True, 120, 0.01, 21.5, 65, 30, .5, 1
+        s.running, s.step, s.loss, s.psnr = True, 120, 0.01, 21.5
+        s.elapsed, s.eta, s.fraction, s.rollbacks = 65, 30, .5, 1
         s.status = "Step 120 (50%)"
         from addon.common import jobs
 
@@ -149,7 +150,8 @@ def test_panels_draw_in_every_state(tmp_path):
         assert cancel and cancel[0][2]["text"] == "Cancel Render"
         s.running = False  # a run that ended in this session: its last numbers stay on show
         s.background = "environment: the images have no alpha channel (RGB)"
-        assert "Background: environment: the images have no alpha channel (RGB)" in _labels(_draw(train_ui.NERF_PT_train))
+        labels = _labels(_draw(train_ui.NERF_PT_train))
+        assert "Background: environment: the images have no alpha channel (RGB)" in labels
         s.running = False
         s.error = "Training stopped: boom\n--- last lines of the log ---\n" + "\n".join(f"l{i}" for i in range(30))
         labels = _labels(_draw(train_ui.NERF_PT_train))

@@ -70,7 +70,8 @@ def test_capture_settings_refuse_what_blender_would_clamp(tmp_path):
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     cameras.create_cameras(bpy.context.scene, positions.LayoutSpec(train=2, val=0, test=0), 24, 16)
     with pytest.raises(frame_plan.CaptureError, match="70000.*65536"):
-        run_job.CaptureJob(bpy.context.scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench",
+        run_job.CaptureJob(bpy.context.scene, plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"),
+                                                                            engine="workbench",
                                                                       samples=1, res_x=70000, res_y=16))
 
 

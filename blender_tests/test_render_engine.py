@@ -74,14 +74,17 @@ def cube_run(tmp_path_factory):
     scene = bpy.context.scene
     scenes.build("cube", scene)
     _standard_colour(scene)
-    layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="hemisphere", train=24, val=1, test=1, seed=0), RES, RES)
-    settings = plan_settings.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8, res_x=RES, res_y=RES)
+    layout_cameras.create_cameras(scene, positions.LayoutSpec(layout="hemisphere", train=24, val=1, test=1,
+                                                              seed=0), RES, RES)
+    settings = plan_settings.CaptureSettings(out_dir=str(root / "dataset"), engine="cycles", samples=8,
+                                             res_x=RES, res_y=RES)
     assert job.CaptureJob(scene, settings).run()["status"] == "complete"
     blend = str(root / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend, copy=True)
     run = str(root / "run")
     t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "nerf_core", "train", settings.out_dir, "--out", run, "--method", "vmgrid",
+    proc = subprocess.run([sys.executable, "-m", "nerf_core", "train", settings.out_dir, "--out", run,
+                           "--method", "vmgrid",
                            "--max-steps", str(TRAIN_STEPS), "--seed", "0", "--eval-views", "0", "--no-bar",
                            # a small, quick vmgrid (the cube is flat-shaded): CI must stay fast on 2 cores
                            "--batch-rays", "512", "--set", "res_init=32", "--set", "res_final=64",
@@ -200,7 +203,8 @@ def test_f12_renders_the_active_camera_like_nerf_core_render_and_like_cycles(eng
         assert depth.shape == (30, 48) and alpha.shape == (30, 48)
         solid = alpha > 0.5
         assert solid.mean() > 0.15
-        assert np.all(np.isfinite(depth[solid])) and config["near"] < depth[solid].min() < depth[solid].max() < config["far"]
+        assert np.all(np.isfinite(depth[solid]))
+        assert config["near"] < depth[solid].min() < depth[solid].max() < config["far"]
         # Nothing hit: inf (as in the capture's depth files), which Blender's passes store as the largest float32.
         assert np.all(depth[alpha < 0.01] >= np.finfo(np.float32).max)
         alphas.append(alpha)
@@ -293,7 +297,8 @@ def test_headless_script_renders_an_animation_that_matches_cycles(cube_run, repo
     blend = str(tmp_path / "fly.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend, copy=True)
     out = tmp_path / "nerf"
-    cmd = [sys.executable, os.path.join(repo_root, "scripts", "render_nerf.py"), "--blend", blend, "--run", cube_run["run"],
+    cmd = [sys.executable, os.path.join(repo_root, "scripts", "render_nerf.py"), "--blend", blend,
+           "--run", cube_run["run"],
            "--out", str(out), "--frames", "1:3", "--depth", "--python", sys.executable]
     t0 = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -478,5 +483,6 @@ def test_blenders_8_bit_png_of_the_engines_colours_has_nerf_core_renders_bytes(t
         bpy.data.images.remove(img)
         bpy.data.scenes.remove(scene)
     write_png(tmp_path / "nerf_core.png", rgba)
-    ours, blenders = (np.round(_read_png(str(tmp_path / n)) * 255).astype(np.uint8) for n in ("nerf_core.png", "blender.png"))
+    ours, blenders = (np.round(_read_png(str(tmp_path / n)) * 255).astype(np.uint8) for n in ("nerf_core.png",
+                                                                                              "blender.png"))
     assert np.array_equal(ours, blenders), f"{int((ours != blenders).sum())} values differ"

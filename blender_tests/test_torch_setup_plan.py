@@ -32,7 +32,8 @@ def test_online_plan_uses_the_builds_index_and_says_how_big(tmp_path):
     venv, _, install, verify = plan.steps
     assert venv.cmd == [PY, "-m", "venv", "--clear", str(tmp_path / "env")]
     assert install.cmd[:3] == [plan.python, "-m", "pip"] and "https://download.pytorch.org/whl/cpu" in install.cmd
-    assert "--no-index" not in install.cmd and install.env["PIP_INDEX_URL"] == "https://mirror"  # user's pip config kept
+    # the user's pip configuration is kept
+    assert "--no-index" not in install.cmd and install.env["PIP_INDEX_URL"] == "https://mirror"
     assert "torch>=2.5" in install.cmd and "openexr>=3.2,<4" in install.cmd
     assert verify.cmd[0] == plan.python and "import torch, nerf_core" in verify.cmd[-1]
     assert "about 200 MB" in plan.describe() and str(tmp_path / "env") in plan.describe()

@@ -17,7 +17,7 @@ from addon import file_writes
 from addon.compare import compare_views as compare
 from addon.common import jobs, prefs
 from addon.train import train_ui, train_job
-from addon.bridge import child_process
+from addon.bridge import child_process, runs
 from addon.bridge.child_process import SetupError
 
 
@@ -117,7 +117,8 @@ def test_interpreter_without_torch(s, tmp_path, no_torch_python, monkeypatch):
     assert "cannot run NeRF training" in s.error
     # No preference set and Blender's own Python lacks torch: say where to set one.
     monkeypatch.setattr(child_process.sys, "executable", no_torch_python)
-    with pytest.raises(SetupError, match=r"Blender's Python .* cannot import torch .*Preferences > Add-ons > NeRF Bridge"):
+    with pytest.raises(SetupError,
+                       match=r"Blender's Python .* cannot import torch .*Preferences > Add-ons > NeRF Bridge"):
         child_process.resolve_interpreter("")
     assert not child_process.probe_interpreter(str(tmp_path / "missing")).ok
 
@@ -128,18 +129,20 @@ def test_existing_run_folder_is_never_overwritten(s, tmp_path):
     for name, data in (("config.json", "{}"), ("checkpoints/latest.pt", "weights")):
         with open(os.path.join(s.run_dir, name), "w") as fh:
             fh.write(data)
-    with pytest.raises(SetupError, match=r"holds a training run: press Resume to continue it, or press New Name.*run_2"):
+    with pytest.raises(SetupError,
+                       match=r"holds a training run: press Resume to continue it, or press New Name.*run_2"):
         train_ui.start_training(bpy.context)
     # latest.pt gone, a step_*.pt intact: the trainer resumes from it, so the panel must let Resume
     # through (Resume said "press Train instead", and Train said "press Resume").
     os.rename(os.path.join(s.run_dir, "checkpoints", "latest.pt"),
               os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
-    assert child_process.run_folder_state(s.run_dir) == "resumable"
+    assert runs.run_folder_state(s.run_dir) == "resumable"
     with pytest.raises(SetupError, match=r"holds a training run: press Resume"):
         train_ui.start_training(bpy.context)
     os.remove(os.path.join(s.run_dir, "checkpoints", "step_0000121.pt"))
     # a run stopped before its first checkpoint: both buttons point to New Name, which exists
-    with pytest.raises(SetupError, match=r"is not empty and holds no run to resume: press New Name to train into .*run_2"):
+    with pytest.raises(SetupError,
+                       match=r"is not empty and holds no run to resume: press New Name to train into .*run_2"):
         train_ui.start_training(bpy.context)
     with pytest.raises(SetupError, match=r"no checkpoint to resume .*step_\*\.pt.*press New Name"):
         train_ui.start_training(bpy.context, resume=True)
@@ -232,7 +235,8 @@ def test_notes_of_the_render_reach_the_user_beside_the_import(tmp_path):
     # model with other images); the Compare panel said only "Imported 3 view(s)".
     out = tmp_path / "views"
     out.mkdir()
-    (out / "renders.json").write_text(json.dumps({"frames": [], "notes": ["DS changed since the run trained on it", 5]}))
+    (out / "renders.json").write_text(json.dumps({"frames": [],
+                                                  "notes": ["DS changed since the run trained on it", 5]}))
     assert compare.render_notes(str(out)) == ["DS changed since the run trained on it"]
     (out / "renders.json").write_text("[1]")
     assert compare.render_notes(str(out)) == [] and compare.render_notes(str(tmp_path / "none")) == []
@@ -245,7 +249,8 @@ def test_notes_of_the_render_reach_the_user_beside_the_import(tmp_path):
             self.reports.append((sorted(kind)[0], text))
 
     job = jobs.Job(bpy.context.scene.name)
-    job.state, job.message, job.warnings = "done", "Imported 3 view(s) from V", ["DS changed since the run trained on it"]
+    job.state, job.message = "done", "Imported 3 view(s) from V"
+    job.warnings = ["DS changed since the run trained on it"]
     op = Op()
     jobs._report(op, job)
     assert op.reports == [("INFO", "Imported 3 view(s) from V"), ("WARNING", "DS changed since the run trained on it")]

@@ -47,7 +47,8 @@ def script_args() -> list[str]:
 
 def scene_parser(prog: str, description: str, blend_help: str) -> argparse.ArgumentParser:
     """The parser of a script that works on a scene, its ``--blend`` option already added."""
-    ap = argparse.ArgumentParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog=prog, description=description,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--blend", help=f"{blend_help} (plain Python; under Blender the open file is used)")
     return ap
 

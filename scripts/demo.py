@@ -45,7 +45,8 @@ def run_step(title: str, cmd: list[str], log_dir: str, capture_stdout: bool = Fa
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
     with open(log_path, "w") as log:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO_ROOT)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                                cwd=REPO_ROOT)
         lines = []
         assert proc.stdout is not None
         for line in proc.stdout:
@@ -151,16 +152,21 @@ def main(argv: list[str] | None = None) -> int:
                                "--resolution", str(args.resolution), "--engine", "cycles", "--samples", "16",
                                "--depth", *scene_capture_flags(args.scene)], logs)
         run_step("3 check dataset", [py, "-m", "nerf_core", "check", dataset], logs)
-        train_cmd = [py, "-m", "nerf_core", "train", dataset, "--out", run, "--max-seconds", str(args.train_seconds), "--seed", "0"]
+        train_cmd = [py, "-m", "nerf_core", "train", dataset, "--out", run, "--max-seconds", str(args.train_seconds),
+                     "--seed", "0"]
         if args.method:
             train_cmd += ["--method", args.method]
         run_step("4 train", train_cmd, logs)
         renders = os.path.join(run, "views", "test")
-        run_step("5 render test views", [py, "-m", "nerf_core", "render", run, "--split", "test", "--out", renders], logs)
+        run_step("5 render test views", [py, "-m", "nerf_core", "render", run, "--split", "test",
+                                         "--out", renders], logs)
         metrics = scores_of(renders)
-        gallery_out = run_step("6 import gallery", [py, os.path.join(SCRIPTS, "import_views.py"), "--blend", scene, "--run", run,
-                                                    "--renders", renders, "--out", compare, "--layout", "gallery"], logs)
-        run_step("7 import camera-aligned", [py, os.path.join(SCRIPTS, "import_views.py"), "--blend", scene, "--run", run,
+        gallery_out = run_step("6 import gallery", [py, os.path.join(SCRIPTS, "import_views.py"), "--blend", scene,
+                                                    "--run", run,
+                                                    "--renders", renders, "--out", compare,
+                                                    "--layout", "gallery"], logs)
+        run_step("7 import camera-aligned", [py, os.path.join(SCRIPTS, "import_views.py"), "--blend", scene,
+                                             "--run", run,
                                              "--renders", renders, "--out", overlay, "--layout", "camera"], logs)
     except StepFailed as exc:
         print(f"\ndemo: FAILED: {exc}", file=sys.stderr)

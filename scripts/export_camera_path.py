@@ -49,7 +49,8 @@ def main(argv) -> int:
         cam = bpy.data.objects.get(args.camera)
         if cam is None or cam.type != "CAMERA":
             names = sorted(o.name for o in scene.objects if o.type == "CAMERA")
-            fail(f"--camera {args.camera!r}: no camera of that name in the scene (cameras: {', '.join(names) or 'none'})")
+            fail(f"--camera {args.camera!r}: no camera of that name in the scene (cameras: "
+                 f"{', '.join(names) or 'none'})")
     else:
         cam = scene.camera
         if cam is None:

@@ -191,7 +191,7 @@ def main(argv) -> int:
         fail(f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
     if os.path.exists(out) and not args.overwrite:
         fail(f"--out {out} already exists; pass --overwrite to replace it or choose another name")
-    if not os.path.isfile(contract.latest_checkpoint(run)) and not child_process.step_checkpoints(run):
+    if not os.path.isfile(contract.latest_checkpoint(run)) and not runs.step_checkpoints(run):
         fail(f"--run {run}: no {os.path.relpath(contract.latest_checkpoint(run), run)} "
              "(train it first with python -m nerf_core train)")
     check_scene_matches_run(run, scene_file, args.force)
@@ -278,7 +278,8 @@ def main(argv) -> int:
 
     scored = [v for v in views if v.metrics]
     summary = {
-        "out": out, "layout": args.layout, "images": args.images, "render_dir": render_dir, "cameras": cameras, "n_views": len(views),
+        "out": out, "layout": args.layout, "images": args.images, "render_dir": render_dir, "cameras": cameras,
+        "n_views": len(views),
         "psnr": _finite(sum(v.metrics["psnr"] for v in scored) / len(scored)) if scored else None,
         "ssim": _finite(sum(v.metrics["ssim"] for v in scored) / len(scored)) if scored else None,
         "views": [{"name": v.name, **{k: _finite(x) for k, x in v.metrics.items()}} for v in views],

@@ -93,10 +93,14 @@ def render_view(scene, cam_obj, frame, path: str) -> None:
 
 def main(argv: list[str]) -> int:
     ap = _bootstrap.scene_parser(PROG, __doc__.split("\n\n")[0], "the scene the dataset was captured from")
-    ap.add_argument("--dataset", required=True, help="dataset folder (transforms_test.json, nerf_capture/manifest.json)")
-    ap.add_argument("--views", type=int, default=5, help="test views to render, evenly spread (default 5, as eval --views 5)")
-    ap.add_argument("--seed", type=int, default=1, help="Cycles seed of the new renders (the capture used the scene's, 0 by default)")
-    ap.add_argument("--out", help="JSON file to write (default: print only); an existing file is kept unless --overwrite")
+    ap.add_argument("--dataset", required=True,
+                    help="dataset folder (transforms_test.json, nerf_capture/manifest.json)")
+    ap.add_argument("--views", type=int, default=5,
+                    help="test views to render, evenly spread (default 5, as eval --views 5)")
+    ap.add_argument("--seed", type=int, default=1,
+                    help="Cycles seed of the new renders (the capture used the scene's, 0 by default)")
+    ap.add_argument("--out",
+                    help="JSON file to write (default: print only); an existing file is kept unless --overwrite")
     ap.add_argument("--keep-renders", metavar="DIR",
                     help="keep the new renders there (vVIEW.png, RGBA as captured), e.g. to see where the noise lies; "
                          "the folder must not exist yet")
@@ -124,7 +128,9 @@ def main(argv: list[str]) -> int:
     except contract.DatasetError as exc:
         _bootstrap.fail(PROG, str(exc))
     if render_meta.get("engine") != "CYCLES":
-        _bootstrap.fail(PROG, f"{manifest_path}: engine {render_meta.get('engine')!r}; only Cycles captures have sampling noise")
+        _bootstrap.fail(PROG,
+                        f"{manifest_path}: engine {render_meta.get('engine')!r}; only Cycles "
+                        f"captures have sampling noise")
     import bpy
 
     if not args.blend and not bpy.data.filepath:
@@ -158,7 +164,8 @@ def main(argv: list[str]) -> int:
             print(f"{PROG}: view {v}: two renders {score:.2f} dB", flush=True)
     # The mean of the per-view PSNRs, as eval reports a model's: the two compare directly.
     mean_psnr = sum(e["psnr_two_renders"] for e in per_view) / len(per_view)
-    result = {"dataset": os.path.abspath(args.dataset), "blend": os.path.abspath(args.blend) if args.blend else bpy.data.filepath,
+    result = {"dataset": os.path.abspath(args.dataset),
+              "blend": os.path.abspath(args.blend) if args.blend else bpy.data.filepath,
               "seed": args.seed, "samples": render_meta.get("samples"), "views": views, "per_view": per_view,
               "psnr_two_renders": round(mean_psnr, 3), "model_ceiling": round(mean_psnr + 10 * math.log10(2), 3)}
     print(f"{PROG}: two renders {result['psnr_two_renders']:.2f} dB; a noise-free model scores about "

@@ -8,10 +8,10 @@ with ``scene.render.engine = "NERF_BRIDGE"`` (addon/render_engine/engine.py: the
 fit, shift and pixel aspect at the scene's resolution x percentage) and written as ``DIR/FFFF.png``
 (RGBA, 8 bit) and, with ``--depth``, ``DIR/FFFF_depth.exr``: Blender's multilayer EXR of the same
 render (float32; layer ``ViewLayer``, passes ``Combined`` and ``Depth``, channel ``ViewLayer.Depth.Z`` =
-planar z-depth in scene units; where nothing was hit inf, which Blender stores as 3.4e38). The render process loads the model once
-for all frames. Colour management is set to Standard for these renders (the NeRF's colours are
-already display-referred); the scene file is never saved. Existing outputs are refused unless
-``--overwrite``. The last stdout line is a JSON summary.
+planar z-depth in scene units; where nothing was hit inf, which Blender stores as 3.4e38). The render
+process loads the model once for all frames. Colour management is set to Standard for these renders
+(the NeRF's colours are already display-referred); the scene file is never saved. Existing outputs
+are refused unless ``--overwrite``. The last stdout line is a JSON summary.
 """
 from __future__ import annotations
 
@@ -31,7 +31,8 @@ def parse(argv):
     ap.add_argument("--checkpoint", default="", help="checkpoint instead of RUN/checkpoints/latest.pt")
     ap.add_argument("--out", required=True, help="output folder for FFFF.png (and FFFF_depth.exr)")
     ap.add_argument("--frames", metavar="A:B", help="first and last frame, inclusive (default: the scene's range)")
-    ap.add_argument("--depth", action="store_true", help="also write FFFF_depth.exr (multilayer EXR with the Depth pass)")
+    ap.add_argument("--depth", action="store_true",
+                    help="also write FFFF_depth.exr (multilayer EXR with the Depth pass)")
     add_python_option(ap, "the render process")
     ap.add_argument("--overwrite", action="store_true", help="replace existing outputs in --out")
     return ap.parse_args(argv)
@@ -83,7 +84,8 @@ def main(argv) -> int:
     existing = [t for t in targets if os.path.exists(t)]
     if existing and not args.overwrite:
         fail(f"--out {out} already holds {os.path.basename(existing[0])}"
-             + (f" and {len(existing) - 1} more" if len(existing) > 1 else "") + "; pass --overwrite or choose another folder")
+             + (f" and {len(existing) - 1} more" if len(existing) > 1 else "") + "; pass --overwrite or "
+                                                                                 "choose another folder")
     if scene.camera is None:
         fail(f"scene {scene.name!r} has no active camera")
     try:

@@ -50,7 +50,8 @@ def pick_python() -> str:
     """A CPython 3.11 to build the environments with ($NERF_PYTHON, else python3.11 on PATH)."""
     for cand in (os.environ.get("NERF_PYTHON", ""), "python3.11", sys.executable):
         path = shutil.which(cand) if cand else None
-        if path and subprocess.run([path, "-c", "import sys; sys.exit(sys.version_info[:2] != (3, 11))"]).returncode == 0:
+        if path and subprocess.run([path, "-c",
+                                    "import sys; sys.exit(sys.version_info[:2] != (3, 11))"]).returncode == 0:
             return path
     sys.exit("blender_versions: a Python 3.11 is needed (bpy wheels exist for 3.11 only); set NERF_PYTHON")
 
@@ -158,7 +159,8 @@ def main(argv=None) -> int:
     if args.markdown:
         with open(args.markdown, "w") as fh:
             fh.write(text + "\n")
-    ok = all(r["status"].startswith("PASS") or r["status"] == "no tests" for row in results.values() for r in row.values())
+    ok = all(r["status"].startswith("PASS") or r["status"] == "no tests"
+             for row in results.values() for r in row.values())
     return 0 if ok else 1
 
 

@@ -5,13 +5,12 @@ interpreter (an add-on preference, default ``sys.executable`` when it can import
 gets its own session/process group so that Cancel kills the whole tree, and its stdout/stderr are
 read by daemon threads into a queue that the UI drains from a modal timer (``BackgroundProcess.poll``).
 
-Imports only the standard library, ``.progress`` and the torch-free contract (``.core_contract``):
+Imports only the standard library, ``.progress`` and ``.core_path`` (never torch, never bpy):
 scripts and tests use it without bpy.
 """
 from __future__ import annotations
 
 import errno
-import glob
 import json
 import os
 import queue
@@ -25,7 +24,6 @@ from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence
 
 from ..file_writes import write_atomic
-from .core_contract import contract
 from .core_path import ADDON_DIR, nerf_core_search_path  # noqa: F401 (nerf_core_search_path: re-exported)
 from .progress import LOG_TAIL_LINES, ProgressParser
 
@@ -196,40 +194,6 @@ def check_dataset(python: str, dataset: str, timeout: float = 300.0, addon_dir: 
         lines = [ln.strip() for ln in (proc.stderr + "\n" + proc.stdout).splitlines() if ln.strip()]
         detail = "\n".join(lines[-5:]) or f"exit code {proc.returncode}"
         raise SetupError(f"Dataset {dataset} is not usable:\n{detail}")
-
-
-# -- run folders ---------------------------------------------------------------------------------
-def run_folder_state(run: str) -> str:
-    """'new' (absent), 'empty', 'file' (not a folder), 'resumable' (a checkpoint the trainer resumes
-    from: ``checkpoints/latest.pt``, else a ``checkpoints/step_*.pt``, as ``--resume`` falls back to
-    them) or 'occupied' (other files)."""
-    if not os.path.exists(run):
-        return "new"
-    if not os.path.isdir(run):
-        return "file"
-    if not os.listdir(run):
-        return "empty"
-    if os.path.isfile(contract.latest_checkpoint(run)) or step_checkpoints(run):
-        return "resumable"
-    return "occupied"
-
-
-def step_checkpoints(run: str) -> List[str]:
-    """``RUN/checkpoints/step_*.pt`` files, newest first: what ``train --resume`` falls back to when
-    latest.pt is gone (nerf_core.runs.folder.resume_candidates, the same glob and order)."""
-    found = glob.glob(os.path.join(glob.escape(run), contract.CHECKPOINTS_DIR, contract.step_glob(".pt")))
-    return sorted((p for p in found if os.path.isfile(p)), reverse=True)
-
-
-def suggest_run_name(run: str) -> str:
-    """``run`` itself when free, else the first of ``run_2``, ``run_3``... that does not exist."""
-    if run_folder_state(run) in ("new", "empty"):
-        return run
-    base = run.rstrip("/\\")
-    k = 2
-    while os.path.exists(f"{base}_{k}"):
-        k += 1
-    return f"{base}_{k}"
 
 
 # -- writing files safely ------------------------------------------------------------------------

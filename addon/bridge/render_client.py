@@ -26,7 +26,7 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 
-from . import child_process
+from . import child_process, runs
 from .core_contract import contract
 
 SERVE_START_TIMEOUT_S = 300.0  # importing torch and loading a checkpoint on a cold disk can be slow
@@ -51,7 +51,7 @@ def run_problem(run_dir: str, checkpoint: str = "") -> Optional[str]:
         return f"{run} is not a NeRF run (no config.json): choose a folder written by `python -m nerf_core train`"
     ckpt = os.path.abspath(checkpoint) if checkpoint else os.path.join(run, "checkpoints", "latest.pt")
     # Without latest.pt (a full disk cost it) nerf_core loads the newest step_*.pt, as --resume does.
-    if not os.path.isfile(ckpt) and (checkpoint or not child_process.step_checkpoints(run)):
+    if not os.path.isfile(ckpt) and (checkpoint or not runs.step_checkpoints(run)):
         return f"{ckpt} not found: train the run first (or choose another checkpoint)"
     return None
 
@@ -204,7 +204,8 @@ class RenderClient:
                 return None
             now = time.monotonic()
             if self.info is None and now > start_deadline:
-                raise RenderClientError(f"the render process did not load {self.run} within {SERVE_START_TIMEOUT_S:g} s")
+                raise RenderClientError(f"the render process did not load {self.run} within "
+                                        f"{SERVE_START_TIMEOUT_S:g} s")
             if now > deadline:
                 raise RenderClientError(f"rendering took more than {timeout:g} s")
             if on_progress is not None:

@@ -1,10 +1,13 @@
-"""List training run folders (docs/CONTRACTS.md, "Run folder") with their method, settings and metrics.
+"""Training run folders (docs/CONTRACTS.md, "Run folder"): listing them with their method, settings and
+metrics, and what a folder holds before training into it (``run_folder_state``, ``step_checkpoints``,
+``suggest_run_name``).
 
 Reads only ``RUN/config.json``, ``RUN/metrics.json`` and the checkpoint's presence, so listing never
 needs torch. A damaged file is reported on its run (``problem``) instead of hiding the run.
 """
 from __future__ import annotations
 
+import glob
 import json
 import math
 import os
@@ -167,3 +170,37 @@ def run_background(run: str) -> tuple:
         return tuple(float(v) for v in bg[:3])
     named = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
     return named.get(bg, (1.0, 1.0, 1.0)) if isinstance(bg, str) else (1.0, 1.0, 1.0)
+
+
+# -- a run folder before training into it -------------------------------------------------------
+def run_folder_state(run: str) -> str:
+    """'new' (absent), 'empty', 'file' (not a folder), 'resumable' (a checkpoint the trainer resumes
+    from: ``checkpoints/latest.pt``, else a ``checkpoints/step_*.pt``, as ``--resume`` falls back to
+    them) or 'occupied' (other files)."""
+    if not os.path.exists(run):
+        return "new"
+    if not os.path.isdir(run):
+        return "file"
+    if not os.listdir(run):
+        return "empty"
+    if os.path.isfile(contract.latest_checkpoint(run)) or step_checkpoints(run):
+        return "resumable"
+    return "occupied"
+
+
+def step_checkpoints(run: str) -> List[str]:
+    """``RUN/checkpoints/step_*.pt`` files, newest first: what ``train --resume`` falls back to when
+    latest.pt is gone (nerf_core.runs.folder.resume_candidates, the same glob and order)."""
+    found = glob.glob(os.path.join(glob.escape(run), contract.CHECKPOINTS_DIR, contract.step_glob(".pt")))
+    return sorted((p for p in found if os.path.isfile(p)), reverse=True)
+
+
+def suggest_run_name(run: str) -> str:
+    """``run`` itself when free, else the first of ``run_2``, ``run_3``... that does not exist."""
+    if run_folder_state(run) in ("new", "empty"):
+        return run
+    base = run.rstrip("/\\")
+    k = 2
+    while os.path.exists(f"{base}_{k}"):
+        k += 1
+    return f"{base}_{k}"

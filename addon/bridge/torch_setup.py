@@ -238,7 +238,8 @@ class PipProgress(ProgressParser):
             self.phase, self.collected = "collect", self.collected + 1
         elif _DOWNLOAD.match(line):
             m = _DOWNLOAD.match(line)
-            self.phase, self.current, self.file_fraction = "collect", f"{os.path.basename(m.group(1))} ({m.group(2)})", 0.0
+            current = f"{os.path.basename(m.group(1))} ({m.group(2)})"
+            self.phase, self.current, self.file_fraction = "collect", current, 0.0
         elif _INSTALLING.match(line):
             self.phase, self.current, self.file_fraction = "install", "", None
             self.installing = len([p for p in _INSTALLING.match(line).group(1).split(",") if p.strip()])

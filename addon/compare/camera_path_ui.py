@@ -31,7 +31,8 @@ class NERF_OT_export_camera_path(bpy.types.Operator):
         scene = context.scene
         frames = range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step))
         try:
-            summary = camera_path_export.export_camera_path(scene, scene.camera, frames, bpy.path.abspath(self.filepath),
+            summary = camera_path_export.export_camera_path(scene, scene.camera, frames,
+                                                            bpy.path.abspath(self.filepath),
                                                             overwrite=self.overwrite)
         except ExportError as exc:
             self.report({"ERROR"}, str(exc))

@@ -44,7 +44,7 @@ def require_checkpoint(run: str) -> str:
     SetupError when the run has neither."""
     if run and os.path.isfile(contract.latest_checkpoint(run)):
         return ""
-    steps = child_process.step_checkpoints(run) if run else []
+    steps = runs.step_checkpoints(run) if run else []
     if steps:
         return steps[0]
     raise SetupError(f"Run folder {run or '(not set)'} has no trained checkpoint yet: train first.")

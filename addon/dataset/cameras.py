@@ -57,7 +57,8 @@ def camera_intrinsics(cam_obj, render) -> dict:
     """Intrinsics of a Blender camera object for the scene's render settings (resolution %, aspect)."""
     cam = cam_obj.data
     if cam.type != "PERSP":
-        raise ExportError(f"{camera_label(cam_obj)} is {cam.type.lower()}; only perspective cameras make a NeRF dataset")
+        raise ExportError(f"{camera_label(cam_obj)} is {cam.type.lower()}; only perspective "
+                          f"cameras make a NeRF dataset")
     scale = render.resolution_percentage / 100.0
     res_x, res_y = int(render.resolution_x * scale), int(render.resolution_y * scale)
     return intrinsics_from_params(cam.lens, cam.sensor_width, cam.sensor_height, cam.sensor_fit, cam.shift_x,
@@ -115,7 +116,8 @@ def cameras_transforms(cameras, scene, size, frames=None, base: dict | None = No
                 scene.frame_set(frame)
             data = cam.data
             if data.type != "PERSP":
-                raise ExportError(f"camera {cam.name!r} is {data.type.lower()}; only perspective cameras can be rendered")
+                raise ExportError(f"camera {cam.name!r} is {data.type.lower()}; only perspective "
+                                  f"cameras can be rendered")
             intr = intrinsics_from_params(data.lens, data.sensor_width, data.sensor_height, data.sensor_fit,
                                           data.shift_x, data.shift_y, w, h, r.pixel_aspect_x, r.pixel_aspect_y)
             out_frames.append({"name": f"frame_{frame:04d}" if frame is not None else bpy.path.clean_name(cam.name),

@@ -57,7 +57,8 @@ def transforms_document(frames: list[dict], common: dict, folder: str, nerfstudi
     ``camera`` (object name). Intrinsics that all of ``intrinsics_of`` (default ``frames``) share go
     to the top level, else (or with ``per_frame``) they go on every frame. ``nerfstudio``: real file names
     (``folder/name.png``) instead of ``./folder/name``; ``path_prefix`` goes before every file path of a
-    frame (nerfstudio's file lives in ``nerfstudio/``, one folder below the images). ``common``: aabb, near, far, ply_file_path...
+    frame (nerfstudio's file lives in ``nerfstudio/``, one folder below the images). ``common``: aabb, near,
+    far, ply_file_path...
     """
     basis = frames if intrinsics_of is None else intrinsics_of
     if not basis:

@@ -69,7 +69,8 @@ def colour_warning(scene) -> Optional[str]:
     vs = scene.view_settings
     if vs.view_transform != "Standard" or vs.look not in ("None", "") or vs.exposure != 0.0 or vs.gamma != 1.0:
         return (f"View transform {vs.view_transform!r} (look {vs.look}, exposure {vs.exposure:g}, gamma {vs.gamma:g}) "
-                "is applied on top of the NeRF's colours; use Standard, no look, exposure 0, gamma 1 to get them as trained")
+                "is applied on top of the NeRF's colours; use Standard, no look, exposure 0, gamma 1 "
+                "to get them as trained")
     return None
 
 
@@ -88,7 +89,8 @@ def camera_request(cam_obj, render) -> dict:
     """The render request for a Blender camera object at the scene's render settings.
 
     Intrinsics: ``cameras.camera_intrinsics``, pose: ``cameras.scale_free_matrix`` (one rule each with
-    the capture and the camera-path export, so their renders match pixel for pixel). near/far: the camera's clip range, as Blender clips.
+    the capture and the camera-path export, so their renders match pixel for pixel). near/far: the camera's
+    clip range, as Blender clips.
     """
     intr = cameras.camera_intrinsics(cam_obj, render)
     c2w = cameras.scale_free_matrix(cam_obj)  # the capture's and the camera-path export's rule, bit for bit
@@ -303,7 +305,8 @@ class NerfRenderEngine(bpy.types.RenderEngine):
         if have != request["w"] * request["h"]:
             self.end_result(result, cancel=True)
             self.report({"ERROR"}, f"NeRF render, frame {scene.frame_current}: Blender's result holds {have} "
-                                   f"pixels, not the {request['w']}x{request['h']} rendered (an unusual Render Region?)")
+                                   f"pixels, not the {request['w']}x{request['h']} rendered (an "
+                                   f"unusual Render Region?)")
             return
         layer.passes["Combined"].rect = render_client.blender_rect(rgba)
         if depth is not None and "Depth" in layer.passes:

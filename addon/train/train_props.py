@@ -69,7 +69,8 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
         ("ANIMATION", "Fly-through", "The active camera along its animation, one view per frame"),
     ], default="TEST")
     layout: EnumProperty(name="Layout", items=[
-        ("CAMERA", "Camera-Aligned", "Each image on a plane in its camera's frustum: look through the camera to overlay"),
+        ("CAMERA", "Camera-Aligned",
+         "Each image on a plane in its camera's frustum: look through the camera to overlay"),
         ("GALLERY", "Gallery", "Rows of NeRF | Blender | error heat-map with PSNR/SSIM labels, beside the scene's "
                                "objects; look through 'NeRF Gallery Camera' to see all of it"),
     ], default="GALLERY")
@@ -79,7 +80,8 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
         ("ABSOLUTE", "Absolute", "Absolute paths into the run folder"),
     ], default="PACK")
     plane_distance: FloatProperty(name="Plane Distance", default=0.0, min=0.0, unit="LENGTH",
-                                  description="Distance of camera-aligned planes from their camera (0: at the scene centre)")
+                                  description="Distance of camera-aligned planes from their camera (0: "
+                                              "at the scene centre)")
     view_metrics: CollectionProperty(type=NerfViewMetric)
     view_metrics_index: IntProperty(default=0)
 

@@ -59,7 +59,7 @@ def start_training(context, resume: bool = False) -> TrainJob:
     s.dataset_dir = chosen
     if not run:
         raise SetupError("No run folder is set: choose where the training run should be written.")
-    state = child_process.run_folder_state(run)
+    state = runs.run_folder_state(run)
     if state == "file":
         raise SetupError(f"Run folder {run} is a file, not a folder: choose a folder for the run.")
     if resume and state != "resumable":
@@ -68,13 +68,13 @@ def start_training(context, resume: bool = False) -> TrainJob:
             raise SetupError(f"Run folder {run} holds no run to resume: press Train to start one.")
         raise SetupError(f"Run folder {run} holds no checkpoint to resume ({latest} or "
                          f"{contract.CHECKPOINTS_DIR}/{contract.step_glob('.pt')}; a run stopped before its first "
-                         f"checkpoint has none): press New Name to train into {child_process.suggest_run_name(run)}. "
+                         f"checkpoint has none): press New Name to train into {runs.suggest_run_name(run)}. "
                          "Nothing was overwritten.")
     if not resume and state in ("resumable", "occupied"):
         what = ("holds a training run: press Resume to continue it, or" if state == "resumable"
                 else "is not empty and holds no run to resume:")
         raise SetupError(f"Run folder {run} {what} press New Name to train into "
-                         f"{child_process.suggest_run_name(run)}. Nothing was overwritten.")
+                         f"{runs.suggest_run_name(run)}. Nothing was overwritten.")
     if s.max_seconds > train_props.MAX_TIME_BUDGET_S:
         # The field is bounded, but a .blend saved by an older add-on keeps what it held.
         raise SetupError(f"Time Budget is {s.max_seconds:g} s, more than 7 days ({train_props.MAX_TIME_BUDGET_S:g} s): "
@@ -257,7 +257,7 @@ class NERF_OT_run_new_name(bpy.types.Operator):
         if not s.run_dir:
             return report_and_cancel(self, "No run folder is set")
         try:
-            s.run_dir = child_process.suggest_run_name(abs_path(s.run_dir))
+            s.run_dir = runs.suggest_run_name(abs_path(s.run_dir))
         except SetupError as exc:
             return report_and_cancel(self, exc)
         s.error = ""

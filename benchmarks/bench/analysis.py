@@ -3,7 +3,8 @@
 ``summarize_training`` reads one run's progress events and ``eval_at_points`` its evaluations at
 checkpoints; ``floater_stats`` compares rendered with ground-truth alpha; ``mean_std`` summarises
 seeds; ``pareto_front`` and ``auto_size_verdict`` judge size against accuracy; ``rows_from_results``,
-``psnr_at_table``, ``pair_gap_table`` and ``size_analysis`` turn the benchmark's runs into its tables. Only the standard library at module level (numpy/pillow on use).
+``psnr_at_table``, ``pair_gap_table`` and ``size_analysis`` turn the benchmark's runs into its tables.
+Only the standard library at module level (numpy/pillow on use).
 """
 from __future__ import annotations
 

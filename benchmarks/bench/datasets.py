@@ -33,7 +33,8 @@ def _demo_capture():
 
 
 def demo_capture_defaults(scene: str) -> dict:
-    """Capture settings demo scene ``scene`` needs (``addon/capture/demo/capture_flags.py``: e.g. opaque, layout inside)."""
+    """Capture settings demo scene ``scene`` needs (``addon/capture/demo/capture_flags.py``: e.g. opaque,
+    layout inside)."""
     module = _demo_capture()
     return module.capture_defaults(scene) if module else {}
 
@@ -231,7 +232,8 @@ def perturb_poses(src: str, dst: str, rot_deg: float, trans_frac: float, seed: i
         meta["frames"] = frames
         return meta
 
-    return derive_dataset(src, dst, edit, {"pose_noise_deg": rot_deg, "pose_noise_trans_frac": trans_frac, "seed": seed})
+    return derive_dataset(src, dst, edit, {"pose_noise_deg": rot_deg, "pose_noise_trans_frac": trans_frac,
+                                           "seed": seed})
 
 
 def count_frames(dataset: str, split: str) -> int:

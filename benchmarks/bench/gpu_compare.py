@@ -89,7 +89,8 @@ def _fmt(x, spec=".2f", none="–"):
 
 def summary_markdown(results: dict, chart: Optional[str], chart_note: str = "") -> str:
     """summary.md: device, versions, the headline, both curves as a table, and the commands."""
-    m, ours, tf, h = results.get("machine", {}), results.get("ours") or {}, results.get("tensorf") or {}, headline(results)
+    m, ours, tf = results.get("machine", {}), results.get("ours") or {}, results.get("tensorf") or {}
+    h = headline(results)
     lines = [f"# Ours against TensoRF on {m.get('device_name', '?')}", "",
              f"torch {m.get('torch', '?')}, CUDA {m.get('cuda', '–')}, Python {m.get('python', '?')}, "
              f"{m.get('date', '')}; dataset `{results.get('dataset', '?')}` "
@@ -113,7 +114,8 @@ def summary_markdown(results: dict, chart: Optional[str], chart_note: str = "") 
                      f"**{'met' if h['rays_target_met'] else 'not met'}**. TensoRF: "
                      f"{_fmt(tf.get('steps_per_s'), '.1f')} it/s x {tf.get('rays_per_step', '?')} rays = "
                      f"{_fmt(tf.get('rays_per_s'), ',.0f')} rays/s.")
-    lines += ["", "| who | training s | iteration / step | test PSNR (dB) | views | eval s |", "|---|---|---|---|---|---|"]
+    lines += ["", "| who | training s | iteration / step | test PSNR (dB) | views | eval s |",
+              "|---|---|---|---|---|---|"]
     for name, side, key in (("ours", ours, "step"), ("TensoRF", tf, "iteration")):
         for p in sorted(side.get("points", []), key=lambda p: (p["seconds"], p.get("final", False))):
             lines.append(f"| {name}{' (final)' if p.get('final') else ''} | {p['seconds']:.1f} | {p.get(key, '–')} | "
@@ -127,7 +129,8 @@ def summary_markdown(results: dict, chart: Optional[str], chart_note: str = "") 
               "by `nerf_core` (edge pixels through the capture's pixel filter), TensoRF by its own `evaluation` "
               "(one ray a pixel); both on the test views composited on white, PSNR averaged over views."]
     if tf.get("standins"):
-        lines.append(f"TensoRF ran with stand-ins for {', '.join(tf['standins'])} (benchmarks/bench/tensorf_standins.py).")
+        lines.append(f"TensoRF ran with stand-ins for {', '.join(tf['standins'])} "
+                     f"(benchmarks/bench/tensorf_standins.py).")
     for side in ("ours", "tensorf"):
         if results.get(f"{side}_error"):
             lines.append(f"**{side} failed**: {results[f'{side}_error']}")

@@ -156,7 +156,8 @@ def markdown(rows: Sequence[dict], info: dict) -> str:
     size = info.get("frame_size", "800x800")
     shown = [dict(r, **{k: round(r[k]) for k in ("train_rays_per_s", "render_rays_per_s") if r.get(k) is not None})
              for r in rows]  # whole rays per second: decimals there would be noise
-    table = markdown_table(shown, ["method", "steps", "train_rays_per_s", "render_rays_per_s", "ratio", "frame_seconds"],
+    table = markdown_table(shown, ["method", "steps", "train_rays_per_s", "render_rays_per_s", "ratio",
+                                   "frame_seconds"],
                            ["method", "training steps", "training rays/s (2nd half)", "render rays/s",
                             "render / training", f"s per {size} frame"], digits=2)
     m = info.get("machine") or {}
@@ -170,7 +171,8 @@ def markdown(rows: Sequence[dict], info: dict) -> str:
     for r in rows:
         if r.get("error"):
             lines.append(f"- {r['method']}: {r['error']}")
-    lines += ["", "Training rays/s: steps x rays per step / training seconds over the second half of the run's training "
+    lines += ["",
+              "Training rays/s: steps x rays per step / training seconds over the second half of the run's training "
               "time (`step` events of RUN/progress.jsonl). Render rays/s: the test views rendered by "
               "`python -m nerf_core render`, the model's own time from renders.json (no start-up, model loading or "
               "image files; the first view left out as warm-up). `eval` renders with the same code.", "",

@@ -3,7 +3,8 @@
     python -m bench.tensorf_launch --tensorf DIR --dataset DS --logdir DIR --result JSON [--iters 5000]
                                    [--eval-every 1000] [--device cuda|cpu] [--quick]
 
-(run with ``benchmarks/`` and ``scripts/`` on ``PYTHONPATH``; ``benchmarks/bench_gpu_tensorf.py`` starts it as a subprocess.)
+(run with ``benchmarks/`` and ``scripts/`` on ``PYTHONPATH``; ``benchmarks/bench_gpu_tensorf.py`` starts it as a
+subprocess.)
 
 It imports TensoRF's ``train`` module from ``--tensorf`` and calls its ``reconstruction(args)``, with
 the arguments ``bench.tensorf_config.build_argv`` makes from TensoRF's ``configs/lego.txt``. No line of
@@ -171,7 +172,8 @@ def main(argv=None) -> int:
     ap.add_argument("--logdir", required=True, help="TensoRF's basedir (its run folder goes inside)")
     ap.add_argument("--result", required=True, help="JSON file to write")
     ap.add_argument("--iters", type=int, default=5000)
-    ap.add_argument("--eval-every", type=int, default=1000, help="test evaluation every N iterations (0: only the final)")
+    ap.add_argument("--eval-every", type=int, default=1000,
+                    help="test evaluation every N iterations (0: only the final)")
     ap.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
     ap.add_argument("--quick", action="store_true", help="tiny grid and batch (CPU plumbing tests)")
     a = ap.parse_args(argv)

@@ -136,7 +136,8 @@ def psnr(pred: Tensor, target: Tensor) -> float:
 def fit(image: np.ndarray, spec: EncodingSpec, cfg: FitConfig) -> FitResult:
     """Train one model on ``image`` (h, w, 3) in [0, 1] at the even-even pixels; score the rest."""
     h, w = image.shape[:2]
-    coords, target = pixel_coords(h, w), torch.as_tensor(np.ascontiguousarray(image), dtype=torch.float32).reshape(-1, 3)
+    coords, target = pixel_coords(h, w), torch.as_tensor(np.ascontiguousarray(image),
+                                                         dtype=torch.float32).reshape(-1, 3)
     train = even_grid_mask(h, w)
     x_tr, y_tr = coords[train], target[train]
     old_threads = torch.get_num_threads()

@@ -7,7 +7,9 @@ Made from two 400-step runs on the benchmark's interior capture (benchmarks/benc
     python benchmarks/real/interior_fog.py DATASET BASE SCALED docs/images/interior_fog.png
 """
 import sys, torch, numpy as np
-sys.path.insert(0, __import__("os").path.join(__import__("os").path.dirname(__import__("os").path.abspath(__file__)), "..", ".."))
+sys.path.insert(0,
+                __import__("os").path.join(__import__("os").path.dirname(__import__("os").path.abspath(__file__)), "..",
+                                           ".."))
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.render.frame import render_view
 from nerf_core.data.loading import load_dataset

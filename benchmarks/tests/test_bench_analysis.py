@@ -101,10 +101,13 @@ def test_eval_at_points_label_evaluations_in_mark_order():
     # "20 s"; in order they are 10 s and 20 s. The final evaluation (no eval_wall) and other splits
     # are not checkpoint evaluations.
     events = [{"event": "step", "step": 3, "elapsed": 9.0},
-              {"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0, "ssim": 0.3},
-              {"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0, "ssim": 0.3},
+              {"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0,
+               "ssim": 0.3},
+              {"event": "eval", "split": "test", "step": 4, "elapsed": 23.5, "eval_wall": 1.0, "psnr": 12.0,
+               "ssim": 0.3},
               {"event": "eval", "split": "val", "step": 9, "elapsed": 41.0, "eval_wall": 1.0, "psnr": 1.0},
-              {"event": "eval", "split": "test", "step": 9, "elapsed": 41.0, "eval_wall": 1.0, "psnr": 14.0, "ssim": 0.4},
+              {"event": "eval", "split": "test", "step": 9, "elapsed": 41.0, "eval_wall": 1.0, "psnr": 14.0,
+               "ssim": 0.4},
               {"event": "eval", "split": "test", "step": 20, "elapsed": 80.0, "psnr": 16.0}]
     points = analysis.eval_at_points(events, [40.0, 10.0, 20.0])
     assert [(p["budget"], p["seconds"], p["step"], p["psnr"]) for p in points] == [

@@ -152,7 +152,8 @@ def test_quick_run_against_tensorf(tmp_path):
     spec = importlib.util.spec_from_file_location("nerf_core_test_fixtures", path)
     fixtures = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(fixtures)  # nerf_core's dataset maker: 20 px, square, centred (TensoRF's loader)
-    fixtures.make_dataset(tmp_path / "ds", n_train=8, n_test=2, w=20, h=20, shift=(0, 0), layouts=("synthetic",), depth=False)
+    fixtures.make_dataset(tmp_path / "ds", n_train=8, n_test=2, w=20, h=20, shift=(0, 0),
+                          layouts=("synthetic",), depth=False)
     out = tmp_path / "out"
     assert cli.main(["--dataset", str(tmp_path / "ds"), "--tensorf", os.environ["NERF_BENCH_TENSORF"],
                      "--out", str(out), "--device", "cpu", "--quick"]) == 0

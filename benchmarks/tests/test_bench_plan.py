@@ -135,8 +135,10 @@ def test_benchmark_refuses_an_unknown_scene_before_making_its_folder(tmp_path, c
 
 @pytest.mark.parametrize("script, args, message", [
     ("stability", ["--quick", "--scene", "nosuch"], "stability: --scene: unknown scene 'nosuch'; choose from cube,"),
-    ("stability", ["--quick", "--methods", "vmgrid,nosuch"], "stability: --methods: unknown method 'nosuch'; choose from nerf,"),
-    ("bench_render", ["--dataset", "DS", "--methods", "nosuch"], "--methods: unknown method 'nosuch'; choose from nerf,"),
+    ("stability", ["--quick", "--methods", "vmgrid,nosuch"],
+     "stability: --methods: unknown method 'nosuch'; choose from nerf,"),
+    ("bench_render", ["--dataset", "DS", "--methods", "nosuch"],
+     "--methods: unknown method 'nosuch'; choose from nerf,"),
     ("bench_ddp", ["--method", "nosuch"], "bench_ddp: --method: unknown method 'nosuch'; choose from nerf,"),
 ])
 def test_the_other_studies_refuse_unknown_names_before_making_their_folder(tmp_path, capsys, script, args, message):

@@ -33,7 +33,8 @@ def test_training_rate_is_taken_over_the_second_half_of_training_time():
               {"event": "step", "step": 10, "elapsed": 1.0}, {"event": "step", "step": 20, "elapsed": 2.0},
               {"event": "preview", "step": 20},
               {"event": "step", "step": 30, "elapsed": 4.0}, {"event": "rollback", "step": 31},
-              {"event": "step", "step": 40, "elapsed": 6.0}, {"event": "eval", "step": 45, "elapsed": 8.0, "psnr": 20.0},
+              {"event": "step", "step": 40, "elapsed": 6.0}, {"event": "eval", "step": 45, "elapsed": 8.0,
+                                                              "psnr": 20.0},
               {"event": "done", "step": 45, "elapsed": 8.0}]
     rate = render_speed.training_rate(events, 1024)
     # Half of 8 s is 4 s: from step 30 at 4 s to step 45 at 8 s, 15 steps of 1024 rays in 4 s.
@@ -84,13 +85,15 @@ def test_big_frame_camera_keeps_the_test_views_pose_and_field_of_view(tmp_path, 
 
 def test_table_and_page():
     rows = render_speed.speed_rows([
-        {"method": "vmgrid", "train_rays_per_s": 1000.4, "render_rays_per_s": 3500.2, "frame_seconds": 1.25, "steps": 100},
+        {"method": "vmgrid", "train_rays_per_s": 1000.4, "render_rays_per_s": 3500.2, "frame_seconds": 1.25,
+         "steps": 100},
         {"method": "nerf", "train_rays_per_s": 200.0, "render_rays_per_s": None, "error": "render failed: boom"},
     ])
     assert rows[0]["ratio"] == pytest.approx(3500.2 / 1000.4) and rows[1]["ratio"] is None
     page = render_speed.markdown(rows, {"dataset": "/d", "frame_size": "800x800", "threads": 1, "contended": True,
                                         "machine": {"cpu": "CPU X", "cpus": 2, "torch": "2.13"},
-                                        "command": "python benchmarks/bench_render.py --dataset /d", "commands": ["a b"]})
+                                        "command": "python benchmarks/bench_render.py --dataset /d",
+                                        "commands": ["a b"]})
     assert "| vmgrid | 100 | 1000 | 3500 | 3.50 | 1.25 |" in page
     assert "| nerf | - | 200 | - | - | - |" in page
     assert "s per 800x800 frame" in page and "CPU X, 2 cores" in page and "threads: 1" in page
@@ -107,7 +110,8 @@ def _run(*args):
 
 def test_bad_arguments_and_existing_outputs_are_one_line_errors(tmp_path, tiny_dataset):
     ds = tiny_dataset(tmp_path / "ds")
-    res = _run("--dataset", str(ds), "--out", str(tmp_path / "o"), "--runs", f"vmgrid={tmp_path}", "--methods", "vmgrid")
+    res = _run("--dataset", str(ds), "--out", str(tmp_path / "o"), "--runs", f"vmgrid={tmp_path}",
+               "--methods", "vmgrid")
     assert res.returncode == 2 and "no config.json there" in res.stderr and "Traceback" not in res.stderr
     res = _run("--dataset", str(ds), "--out", str(tmp_path / "o"), "--frame-size", "800")
     assert res.returncode == 2 and "--frame-size '800'" in res.stderr

@@ -35,7 +35,8 @@ def test_run_cli_streams_events_and_reports_errors(tmp_path):
 
 def test_run_cli_passes_env_extra_to_the_child(tmp_path):
     script = tmp_path / "child.py"
-    script.write_text("import json, os\nprint(json.dumps({'event': 'env', 'omp': os.environ.get('OMP_NUM_THREADS')}))\n")
+    script.write_text("import json, os\nprint(json.dumps({'event': 'env', 'omp': "
+                      "os.environ.get('OMP_NUM_THREADS')}))\n")
     res = runner.run_cli([sys.executable, str(script)], env_extra={"OMP_NUM_THREADS": "1"})
     assert res.ok and res.events == [{"event": "env", "omp": "1"}]
 

@@ -52,7 +52,8 @@ def test_summarise_judges_each_seed_against_the_methods_base():
     assert by[("base", "default")]["psnr_std"] == pytest.approx(math.sqrt(2.0))  # sample std of 30, 32
     assert by[("views", 4)]["broken"] == "PSNR -5.0 dB vs base (1/2 seeds)"
     assert by[("views", 8)]["broken"] == ""
-    assert {(r["study"], r["breaks_at"]) for r in table} == {("base", "no breakdown"), ("views", "4: PSNR -5.0 dB vs base (1/2 seeds)")}
+    assert {(r["study"], r["breaks_at"]) for r in table} == {("base", "no breakdown"),
+                                                             ("views", "4: PSNR -5.0 dB vs base (1/2 seeds)")}
 
 
 def test_chart_groups_put_the_base_inside_every_sweep():
@@ -140,5 +141,6 @@ def test_stability_chart_draws_the_rule_of_each_method_in_each_panel(tmp_path, m
     assert flat_lines(panels["views"]) == [15.0, 17.5, 28.5]
     assert flat_lines(panels["lr"]) == [15.0, 28.5]  # nerf has no lr runs, so no nerf rule there
     # grid at 4 views (26.0 < 28.5) is broken and hatched; grid at x10 (29.5) is not.
-    hatched = [round(p.get_height(), 6) for ax in panels.values() for p in ax.patches if p.get_hatch() and p.get_height()]
+    hatched = [round(p.get_height(), 6) for ax in panels.values() for p in ax.patches
+               if p.get_hatch() and p.get_height()]
     assert hatched == [26.0]

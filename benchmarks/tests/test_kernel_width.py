@@ -135,5 +135,6 @@ def test_script_writes_the_study_and_never_overwrites_it(tmp_path):
                              text=True, timeout=300)
         assert bad.returncode == 2 and words in bad.stderr and not (tmp_path / "y").exists()
     corner = subprocess.run([sys.executable, script, "--out", str(tmp_path / "corner"), *source, "--crop", "0,0,8",
-                             "--steps", "1", "--sigmas", "1", "--pe-freqs", "1"], capture_output=True, text=True, timeout=300)
+                             "--steps", "1", "--sigmas", "1",
+                             "--pe-freqs", "1"], capture_output=True, text=True, timeout=300)
     assert corner.returncode == 0, corner.stderr  # an offset of 0 is a crop at the image's corner

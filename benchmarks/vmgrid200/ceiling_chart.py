@@ -66,7 +66,8 @@ def draw(one, five, ceil, tight, out: str, filtered=None) -> None:
         ax.annotate("", xy=(five[s], y), xytext=(one[s], y),
                     arrowprops=dict(arrowstyle="->", color="#555555", lw=1.2), zorder=3)
         ax.plot(one[s], y, "o", color="#9ecae1", ms=7, zorder=4, label="1 min, defaults of 21beb97" if y == 0 else None)
-        ax.plot(five[s], y, "o", color="#1f77b4", ms=8, zorder=5, label="5 min, defaults of 21beb97" if y == 0 else None)
+        ax.plot(five[s], y, "o", color="#1f77b4", ms=8, zorder=5,
+                label="5 min, defaults of 21beb97" if y == 0 else None)
         if s in tight:
             ax.plot(tight[s], y, "D", color="#2ca02c", ms=7, zorder=6,
                     label="5 min, tight occupancy grid (5f20430)" if y == 0 else None)

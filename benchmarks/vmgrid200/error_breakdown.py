@@ -88,7 +88,8 @@ def breakdown(run: str, dataset: str, renders: str, pixel_filter: str = "auto") 
 
 
 def table(rows) -> str:
-    lines = ["| run | model PSNR (pooled) | noise-free model | kind | pixels | model MSE | noise | share of the excess |",
+    lines = ["| run | model PSNR (pooled) | noise-free model | kind | pixels | model MSE | noise | "
+             "share of the excess |",
              "|---|---|---|---|---|---|---|---|"]
     for name, r in rows:
         s = r["sums"]

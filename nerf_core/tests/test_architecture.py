@@ -1,7 +1,8 @@
 """The shape of the code, checked so that it cannot erode unnoticed (docs/ARCHITECTURE.md):
 
 - nerf_core's layers and the absence of import circles: import-linter's contracts in pyproject.toml;
-- no module over 500 lines; no import of another module's private (``_name``) names;
+- no module over 500 lines and no import of another module's private (``_name``) names, in nerf_core, addon,
+  scripts, tools and benchmarks (``CHECKED_ROOTS``);
 - imports at the top of their module, except a few optional dependencies named here;
 - ruff's rule set (pyproject.toml) finds nothing.
 

@@ -226,7 +226,8 @@ def _build_interior(scene):
                                                   ((cx - 0.22, cy - 0.22, 0.5), (cx + 0.22, cy - 0.18, 0.95))])
     shelf_mat = _material("Shelf", (0.82, 0.8, 0.74), roughness=0.6)
     sx0, sx1, sy0, sy1 = 0.6, 2.2, y0 + 0.02, y0 + 0.4
-    _boxes(scene, "Shelf", shelf_mat, [((sx0, sy0, 0.0), (sx0 + 0.04, sy1, 2.0)), ((sx1 - 0.04, sy0, 0.0), (sx1, sy1, 2.0))]
+    _boxes(scene, "Shelf", shelf_mat, [((sx0, sy0, 0.0), (sx0 + 0.04, sy1, 2.0)),
+                                       ((sx1 - 0.04, sy0, 0.0), (sx1, sy1, 2.0))]
            + [((sx0, sy0, z), (sx1, sy1, z + 0.03)) for z in (0.05, 0.55, 1.05, 1.55, 1.97)])
     book_colours = [(0.75, 0.15, 0.1), (0.1, 0.35, 0.7), (0.9, 0.7, 0.1), (0.15, 0.55, 0.25), (0.5, 0.2, 0.6)]
     for k, colour in enumerate(book_colours):
@@ -250,7 +251,8 @@ def _build_interior(scene):
     painting = _material("Painting", (0.95, 0.75, 0.2), roughness=0.5, texture="noise", scale=3.0,
                          color2=(0.1, 0.2, 0.5), object_coords=True)
     _contrast(painting)
-    _mesh(scene, "Painting", [(x1 - 0.01, -1.0, 1.1), (x1 - 0.01, -1.0, 2.1), (x1 - 0.01, 0.6, 2.1), (x1 - 0.01, 0.6, 1.1)],
+    _mesh(scene, "Painting", [(x1 - 0.01, -1.0, 1.1), (x1 - 0.01, -1.0, 2.1), (x1 - 0.01, 0.6, 2.1),
+                              (x1 - 0.01, 0.6, 1.1)],
           [(0, 1, 2, 3)], painting)
     # A floor lamp in a corner: a pole and a glowing shade.
     lamp_x, lamp_y = x0 + 0.45, y0 + 0.45
@@ -301,7 +303,8 @@ def build(name: str, scene=None):
     if name == "cube":
         _add(mesh.primitive_cube_add, "Cube", _material("Flat red", (0.8, 0.1, 0.1), roughness=1.0), size=1.5)
     elif name == "diffuse":
-        mat = _material("Textured", (0.8, 0.5, 0.15), roughness=0.9, texture="noise", scale=4.0, color2=(0.1, 0.25, 0.6))
+        mat = _material("Textured", (0.8, 0.5, 0.15), roughness=0.9, texture="noise", scale=4.0,
+                        color2=(0.1, 0.25, 0.6))
         sphere = _add(mesh.primitive_uv_sphere_add, "Sphere", mat, radius=0.8, location=(0, 0, 0.3),
                       segments=48, ring_count=24)
         _smooth(sphere)
@@ -336,7 +339,8 @@ def build(name: str, scene=None):
         specs = [
             (mesh.primitive_cube_add, "Box", (0.8, 0.2, 0.2), dict(size=0.8, location=(-0.8, -0.6, -0.6))),
             (mesh.primitive_uv_sphere_add, "Ball", (0.2, 0.7, 0.3), dict(radius=0.45, location=(0.7, -0.5, -0.55))),
-            (mesh.primitive_cone_add, "Cone", (0.2, 0.3, 0.85), dict(radius1=0.5, depth=1.0, location=(0.6, 0.7, -0.5))),
+            (mesh.primitive_cone_add, "Cone", (0.2, 0.3, 0.85), dict(radius1=0.5, depth=1.0,
+                                                                     location=(0.6, 0.7, -0.5))),
             (mesh.primitive_torus_add, "Ring", (0.9, 0.75, 0.1), dict(major_radius=0.4, minor_radius=0.12,
                                                                        location=(-0.6, 0.7, -0.8))),
             (mesh.primitive_monkey_add, "Suzanne", (0.7, 0.4, 0.8), dict(size=0.8, location=(0, 0, 0.5))),

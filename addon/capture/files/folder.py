@@ -44,7 +44,8 @@ class FolderInspection:
             return None, None
         # Empty folders hold nothing to overwrite; a concurrent shard makes its frame folders a moment
         # before its state file, and must not look like foreign content to the others.
-        entries = sorted(e for e in os.listdir(out) if e != capture_manifest.MANIFEST_DIR and not _empty_tree(os.path.join(out, e)))
+        entries = sorted(e for e in os.listdir(out)
+                         if e != capture_manifest.MANIFEST_DIR and not _empty_tree(os.path.join(out, e)))
         try:
             manifest = capture_manifest.read_manifest(out)
             states = shards.read_states(out, capture_manifest.MANIFEST_DIR)
@@ -84,7 +85,8 @@ class FolderInspection:
                               "confirm overwrite (--overwrite)")
         # After the frame hashes, whose message is more precise: an opaque film's world is in them.
         looked = manifest.get("appearance_signature")  # absent in captures made before it was recorded
-        if looked and self.appearance_sig and looked != self.appearance_sig and any(v.get("done") for v in old.values()):
+        if (looked and self.appearance_sig and looked != self.appearance_sig
+                and any(v.get("done") for v in old.values())):
             return manifest, (f"output folder {out} holds frames of this scene as it looked before it changed "
                               "(materials, world or lights edited since); choose another folder or confirm "
                               "overwrite (--overwrite) to render them again")

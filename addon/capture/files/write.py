@@ -89,7 +89,8 @@ def write_dataset(out: str, plan: dict, done_keys: set, complete: bool, manifest
               "near": near, "far": far, "aabb_scale": aabb.ngp_aabb_scale(lo, hi, cams, beyond),
               "film_transparent": bool(plan["film_transparent"]), "world": plan["world"],
               # the film's pixel filter: a NeRF renders edge pixels through it to match the images
-              "pixel_filter": plan["render"].get("pixel_filter") or contract.film_filter_field(contract.DEFAULT_FILTER_KIND)}
+              "pixel_filter": (plan["render"].get("pixel_filter")
+                               or contract.film_filter_field(contract.DEFAULT_FILTER_KIND))}
     if plan["bounds"].get("surroundings"):  # left out of the box, they still render: a NeRF must reach past it
         common["beyond_box"] = list(plan["bounds"]["surroundings"])
     if plan["passes"]["depth"]:

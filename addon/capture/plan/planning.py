@@ -87,17 +87,20 @@ class CapturePlanning:
                 raise CaptureError("masks for the selection: nothing visible is selected")
             unseen = scene_bounds.unindexed_pieces(scene, only_selected=only) if self.engine == "CYCLES" else []
             if unseen:
-                shown = ", ".join(repr(n) for n in unseen[:5]) + (f" and {len(unseen) - 5} more" if len(unseen) > 5 else "")
+                shown = ", ".join(repr(n) for n in unseen[:5]) + (f" and "
+                                                                  f"{len(unseen) - 5} more" if len(unseen) > 5 else "")
                 raise CaptureError(
                     f"object masks: Cycles' object index pass never marks {shown}, so every mask would call "
                     "their pixels background and training would ignore them. Capture without masks"
-                    + ("" if only else ", or render the masks from the alpha: EEVEE or Workbench with a transparent film"))
+                    + ("" if only else ", or render the masks from the alpha: EEVEE or Workbench "
+                                       "with a transparent film"))
             if settings.target == "SELECTION" and self.engine != "CYCLES":
                 raise CaptureError("object masks of a selection need Cycles (its object index pass)")
             if not settings.film_transparent and self.engine != "CYCLES":
                 # Without Cycles' object index pass the mask is the alpha, which an opaque film makes 1.
                 raise CaptureError("object masks with an opaque film need Cycles (its object index pass): "
-                                   "EEVEE and Workbench masks come from the alpha, which an opaque film sets everywhere")
+                                   "EEVEE and Workbench masks come from the alpha, which an opaque "
+                                   "film sets everywhere")
         self.notes = capture_notes(scene)
         self.start_frame = scene.frame_current  # views without a frame of their own render at this one
         self.render_sig = None

@@ -69,12 +69,14 @@ def merge(out_dir: str) -> dict:
     manifest = capture_manifest.read_manifest(out)
     states = shards.read_states(out, capture_manifest.MANIFEST_DIR)
     if not states:
-        raise CaptureError(f"--merge: {out} holds no shard states ({capture_manifest.MANIFEST_DIR}/{shards.SHARD_DIR}/); "
+        raise CaptureError(f"--merge: {out} holds no shard states "
+                           f"({capture_manifest.MANIFEST_DIR}/{shards.SHARD_DIR}/); "
                            "run the shards (--shard K/N) first")
     plan, phash, n_shards = _plans(out, states, manifest)
     if manifest is not None and manifest.get("plan_hash") not in (None, phash):
         raise CaptureError(f"--merge: {capture_manifest.manifest_path(out)} records another capture (plan hash "
-                           f"{str(manifest.get('plan_hash'))[:12]}, the shards' {phash[:12]}); merge into a clean folder")
+                           f"{str(manifest.get('plan_hash'))[:12]}, the shards' {phash[:12]}); "
+                           f"merge into a clean folder")
     records = shards.done_records(out, capture_manifest.MANIFEST_DIR, plan["frames"], phash,
                                           manifest if manifest and manifest.get("plan_hash") == phash else None)
     missing = missing_frames(out, plan, records, n_shards)

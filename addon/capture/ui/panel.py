@@ -42,7 +42,8 @@ class NERF_OT_generate_cameras(bpy.types.Operator):
         except _ERRORS as exc:
             return report_and_cancel(self, exc)
         counts = {sp: sum(o["nerf_split"] == sp for o in made) for sp in positions.SPLITS}
-        self.report({"INFO"}, f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
+        self.report({"INFO"},
+                    f"{len(made)} cameras: {counts['train']} train, {counts['val']} val, {counts['test']} test")
         for note in notes.layout_notes(context.scene, s.layout_spec()):
             self.report({"WARNING"}, note)
         return {"FINISHED"}
