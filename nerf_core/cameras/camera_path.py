@@ -25,6 +25,10 @@ def cameras_from_camera_path(data: dict, src: Path | str) -> Tuple[Cameras, List
     Raises CameraPathError naming ``src`` (and the camera index and field) for anything unusable.
     """
     views = path_views(data, src)
-    cams = Cameras.create(np.stack([v["c2w"] for v in views]), *([v[k] for v in views] for k in ("fx", "fy", "cx", "cy")),
-                          views[0]["w"], views[0]["h"])
+    cams = Cameras.create(
+        np.stack([v["c2w"] for v in views]),
+        *([v[k] for v in views] for k in ("fx", "fy", "cx", "cy")),
+        views[0]["w"],
+        views[0]["h"],
+    )
     return cams, [f"frame_{k:05d}" for k in range(len(views))]

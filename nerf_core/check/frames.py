@@ -71,12 +71,16 @@ def number_field(report, fname, value, key, frame=None, fpath=None, positive=Tru
         report.error(fname, f"not a number ({value!r})", frame, fpath, key)
         return None
     if not math.isfinite(v) or (positive and v <= 0):
-        report.error(fname, f"must be a {'positive ' if positive else ''}finite number, got {value!r}", frame, fpath, key)
+        report.error(
+            fname, f"must be a {'positive ' if positive else ''}finite number, got {value!r}", frame, fpath, key
+        )
         return None
     return v
 
 
-def declared_intrinsics(report: CheckReport, fname: str, meta: dict, fr: dict, k: int, fpath: str, need_angle: bool) -> Optional[dict]:
+def declared_intrinsics(
+    report: CheckReport, fname: str, meta: dict, fr: dict, k: int, fpath: str, need_angle: bool
+) -> Optional[dict]:
     """The effective intrinsics of one frame (frame values override the file's), or None if incomplete."""
     vals = {}
     ok = True
@@ -119,9 +123,14 @@ def check_intrinsics_consistency(report: CheckReport, fname: str, intr: dict, k:
     if "camera_angle_x" in intr and intr.get("camera_angle_x"):
         fx_from_angle = focal_from_fov(intr["camera_angle_x"], w)
         if abs(fx_from_angle - intr["fl_x"]) > 1e-3 * intr["fl_x"] + 1e-3:
-            report.error(fname, f"camera_angle_x {intr['camera_angle_x']:.6g} gives fl_x {fx_from_angle:.4f} "
-                                f"but fl_x is {intr['fl_x']:.4f}; loaders that read only camera_angle_x would use another focal length",
-                         k, fpath, "camera_angle_x")
+            report.error(
+                fname,
+                f"camera_angle_x {intr['camera_angle_x']:.6g} gives fl_x {fx_from_angle:.4f} "
+                f"but fl_x is {intr['fl_x']:.4f}; loaders that read only camera_angle_x would use another focal length",
+                k,
+                fpath,
+                "camera_angle_x",
+            )
 
 
 def missing_file_text(path: Path, written: str) -> str:
@@ -129,7 +138,9 @@ def missing_file_text(path: Path, written: str) -> str:
     return why_not_a_file(path, written).replace("not found", "does not exist", 1)
 
 
-def check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict], k: int, fpath: str, field_name: str, rgba: bool) -> None:
+def check_image(
+    report: CheckReport, fname: str, img: Path, intr: Optional[dict], k: int, fpath: str, field_name: str, rgba: bool
+) -> None:
     if not img.is_file():
         report.error(fname, f"image {img} {missing_file_text(img, fpath)}", k, fpath, field_name)
         return
@@ -149,7 +160,9 @@ def check_image(report: CheckReport, fname: str, img: Path, intr: Optional[dict]
     elif fmt:  # nerfstudio and instant-ngp decode by content, but a misnamed file misleads every other tool
         report.warn(fname, f"{img.name} is {what}", k, fpath, field_name)
     if intr is not None and (w, h) != (int(intr["w"]), int(intr["h"])):
-        report.error(fname, f"{img.name} is {w}x{h} but w x h says {int(intr['w'])}x{int(intr['h'])}", k, fpath, field_name)
+        report.error(
+            fname, f"{img.name} is {w}x{h} but w x h says {int(intr['w'])}x{int(intr['h'])}", k, fpath, field_name
+        )
 
 
 def frame_entries(report: CheckReport, fname: str, meta: dict, seen: set) -> Iterator[tuple]:
@@ -203,7 +216,9 @@ def check_extras(report: CheckReport, fname: str, root: Path, fr: dict, k: int, 
                             fpath, key)
 
 
-def check_lens_fields(report: CheckReport, fname: str, src: dict, k: Optional[int] = None, fpath: Optional[str] = None) -> None:
+def check_lens_fields(
+    report: CheckReport, fname: str, src: dict, k: Optional[int] = None, fpath: Optional[str] = None
+) -> None:
     """Report lens fields that cannot be read (``contract.lens.lens_problem``), and warn where a
     distorting lens is read: other tools' loaders may take its images for pinhole ones."""
     problem = lens_problem(src)
@@ -221,16 +236,26 @@ def check_meta_common(report: CheckReport, fname: str, meta: dict) -> None:
     check_lens_fields(report, fname, meta)
     if "aabb_scale" in meta:
         v = meta["aabb_scale"]
-        ok = isinstance(v, (int, float)) and v >= 1 and float(v).is_integer() and (int(v) & (int(v) - 1)) == 0 and v <= 128
+        ok = (
+            isinstance(v, (int, float))
+            and v >= 1
+            and float(v).is_integer()
+            and (int(v) & (int(v) - 1)) == 0
+            and v <= 128
+        )
         if not ok:
-            report.error(fname, f"must be a power of two between 1 and 128 (instant-ngp), got {v!r}", field="aabb_scale")
+            report.error(
+                fname, f"must be a power of two between 1 and 128 (instant-ngp), got {v!r}", field="aabb_scale"
+            )
     if "aabb" in meta:
         try:
             box = np.asarray(meta["aabb"], dtype=float)
             if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
                 raise ValueError
         except (TypeError, ValueError):
-            report.error(fname, f"must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {meta['aabb']!r}", field="aabb")
+            report.error(
+                fname, f"must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {meta['aabb']!r}", field="aabb"
+            )
     for key in ("near", "far"):
         if key in meta:
             number_field(report, fname, meta[key], key, positive=False)

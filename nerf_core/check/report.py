@@ -51,7 +51,9 @@ class CheckReport:
         lines += [f"TRAIN   {line}" for line in self.plan]
         counts = ", ".join(f"{k} {v}" for k, v in self.n_frames.items())
         verdict = "valid" if self.ok else f"INVALID: {len(self.errors)} error(s)"
-        lines.append(f"{self.root}: {verdict}, {len(self.warnings)} warning(s)" + (f" ({counts} frames)" if counts else ""))
+        lines.append(
+            f"{self.root}: {verdict}, {len(self.warnings)} warning(s)" + (f" ({counts} frames)" if counts else "")
+        )
         if not self.ok and self.trainable:
             # A dataset of another tool: wrong as an export of ours, and still what train reads.
             lines.append("train reads this dataset as it is: the errors above are conventions of an export "

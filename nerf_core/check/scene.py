@@ -191,8 +191,10 @@ def check_synthetic_scale(report: CheckReport, boxes: Dict[str, object], poses: 
     if reach is not None and reach > 1.1 * SYNTHETIC_BOX_HALF:
         said.append(f"the aabb reaches {reach:.3g} units from the origin (theirs: {SYNTHETIC_BOX_HALF})")
     if outside:
-        said.append(f"{len(outside)} of {len(dists)} train cameras lie {min(dists):.3g}-{max(dists):.3g} units from the "
-                    f"origin (theirs: about 4)")
+        said.append(
+            f"{len(outside)} of {len(dists)} train cameras lie {min(dists):.3g}-{max(dists):.3g} units from the "
+            f"origin (theirs: about 4)"
+        )
     report.warn(fname, "not at the scale of the synthetic NeRF scenes: " + "; ".join(said) + ". Loaders that "
                 "hard-code it (the original NeRF: near 2, far 6; TensoRF and nerfstudio blender-data: a +-1.5 box) "
                 "will miss the scene; nerfstudio-data, instant-ngp and 3DGS read the file's own aabb and cameras",
@@ -205,8 +207,11 @@ def check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str
     of ours, or ``transforms.json`` of the one-file layout. Its frames' images, poses and intrinsics."""
     path = root / name
     if not path.is_file():
-        report.error(name, "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names "
-                                      "(`--data DATASET/nerfstudio`)")
+        report.error(
+            name,
+            "missing: nerfstudio's nerfstudio-data parser needs one transforms.json with real file names "
+            "(`--data DATASET/nerfstudio`)",
+        )
         return
     base = path.parent  # nerfstudio resolves file paths against the JSON's own folder
     meta = frame_checks.load_json(report, path)
@@ -226,14 +231,20 @@ def check_nerfstudio(report: CheckReport, root: Path, split_intrinsics: Dict[str
         frame_checks.check_frame_pose(report, name, fr, k, fp)
         frame_checks.check_extras(report, name, base, fr, k, fp)
         # nerfstudio-data takes a top-level intrinsic for every frame and never reads the frame's own.
-        ignored = [key for key in frame_checks.REQUIRED_INTRINSICS if key in meta and key in fr and fr[key] != meta[key]]
+        ignored = [
+            key for key in frame_checks.REQUIRED_INTRINSICS if key in meta and key in fr and fr[key] != meta[key]
+        ]
         if ignored:
             report.error(name, f"{ignored[0]} {fr[ignored[0]]!r} differs from the top-level {meta[ignored[0]]!r}, "
                          "which nerfstudio-data uses for every frame: leave the top-level intrinsics out when the "
                          "frames differ", k, fp, ignored[0])
         other = split_intrinsics.get(str(frame_checks.resolved(img)))
         if other is not None and intr is not None:
-            diff = [key for key in frame_checks.REQUIRED_INTRINSICS if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))]
+            diff = [
+                key
+                for key in frame_checks.REQUIRED_INTRINSICS
+                if abs(other[key] - intr[key]) > 1e-4 * max(1.0, abs(other[key]))
+            ]
             if diff:
                 report.error(name, "differs from the transforms_<split>.json entry of the same image "
                              + ", ".join(f"{d}: {intr[d]:g} vs {other[d]:g}" for d in diff), k, fp, diff[0])

@@ -10,8 +10,12 @@ from nerf_core.data.backgrounds import BACKGROUNDS
 
 def add_parser(sub, fmt) -> None:
     """Add the subcommand to ``sub`` (argparse subparsers); ``fmt``: the help formatter class."""
-    c = sub.add_parser("check", help="validate a dataset folder against the dataset conventions", formatter_class=fmt,
-                       description="Exit 0 when valid; otherwise exit 1 and list every problem with its file/frame/field.")
+    c = sub.add_parser(
+        "check",
+        help="validate a dataset folder against the dataset conventions",
+        formatter_class=fmt,
+        description="Exit 0 when valid; otherwise exit 1 and list every problem with its file/frame/field.",
+    )
     c.add_argument("dataset", metavar="DATASET", help="dataset folder")
     c.add_argument("--json", action="store_true", help="print the report as one JSON object")
     c.add_argument("--for-training", action="store_true",

@@ -12,8 +12,12 @@ def add_parser(sub, fmt) -> None:
     """Add the subcommand to ``sub`` (argparse subparsers); ``fmt``: the help formatter class."""
     e = sub.add_parser("eval", help="evaluate a run on held-out views (PSNR, SSIM, depth error)", formatter_class=fmt,
                        description="Prints one line per view, then one JSON object as the last line of stdout.")
-    add_model_args(e, split_help="split to evaluate (test or val)", downscale=(positive_int, "evaluate", "default: the --downscale the run trained at"),
-                    chunk_help="most rays per model call (CPU calls are smaller)")
+    add_model_args(
+        e,
+        split_help="split to evaluate (test or val)",
+        downscale=(positive_int, "evaluate", "default: the --downscale the run trained at"),
+        chunk_help="most rays per model call (CPU calls are smaller)",
+    )
     e.add_argument("--views", type=positive_int, metavar="N", help="evaluate N evenly spaced views only")
     e.set_defaults(handler=run)
 

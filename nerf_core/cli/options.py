@@ -57,7 +57,9 @@ def add_model_args(p, split_help: str, downscale, chunk_help: str) -> None:
     p.add_argument("run", metavar="RUN", help="run folder written by `train`")
     p.add_argument("--split", default="test", help=split_help)
     if rest:  # no default: the run's own
-        p.add_argument("--downscale", type=kind, default=None, metavar="F", help=f"{verb} at 1/F resolution ({rest[0]})")
+        p.add_argument(
+            "--downscale", type=kind, default=None, metavar="F", help=f"{verb} at 1/F resolution ({rest[0]})"
+        )
     else:
         p.add_argument("--downscale", type=kind, default=kind("1"), metavar="F", help=f"{verb} at 1/F resolution")
     p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")

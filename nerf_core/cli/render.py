@@ -15,8 +15,11 @@ def add_parser(sub, fmt) -> None:
     add_model_args(r, split_help="split to render when --cameras is a dataset folder or split transforms.json",
                     downscale=(positive_float, "render"),
                     chunk_help="most rays per model call (lower it to save memory; CPU calls are smaller)")
-    r.add_argument("--cameras", metavar="TRANSFORMS.json",
-                   help="dataset folder, transforms file (either layout) or JSON list of cameras; default: the run's dataset")
+    r.add_argument(
+        "--cameras",
+        metavar="TRANSFORMS.json",
+        help="dataset folder, transforms file (either layout) or JSON list of cameras; default: the run's dataset",
+    )
     r.add_argument("--out", required=True, type=folder, metavar="DIR", help="output folder")
     r.add_argument("--overwrite", action="store_true", help="replace existing outputs in DIR")
     r.set_defaults(handler=run)

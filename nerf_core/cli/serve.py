@@ -14,7 +14,9 @@ from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.render.server import RenderServer
 
 
-def serve_main(run: str, checkpoint: Optional[str] = None, device: Optional[str] = None, chunk: int = DEFAULT_CHUNK) -> int:
+def serve_main(
+    run: str, checkpoint: Optional[str] = None, device: Optional[str] = None, chunk: int = DEFAULT_CHUNK
+) -> int:
     """The ``serve`` subcommand. A run that cannot be loaded: one fatal ``error`` event, exit code 2."""
     try:
         server = RenderServer(run, checkpoint, device, chunk)
@@ -34,5 +36,7 @@ def add_parser(sub, formatter_class) -> None:
     s.add_argument("run", metavar="RUN", help="run folder written by `train`")
     s.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
     s.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    s.add_argument("--chunk", type=positive_int, default=DEFAULT_CHUNK, help="rays per model call (lower it to save memory)")
+    s.add_argument(
+        "--chunk", type=positive_int, default=DEFAULT_CHUNK, help="rays per model call (lower it to save memory)"
+    )
     s.set_defaults(handler=lambda a: serve_main(a.run, a.checkpoint, a.device, a.chunk))

@@ -166,7 +166,9 @@ def read_camera_file(path: Path | str) -> Tuple[str, List[CameraView], List[str]
                             v["cy"], v["w"], v["h"]) for k, v in enumerate(raw)]
         return "camera_path", views, notes
     if not isinstance(meta, dict) or "frames" not in meta:
-        raise DatasetError(f"{path}: neither a transforms file (field 'frames') nor a camera path (field 'camera_path')")
+        raise DatasetError(
+            f"{path}: neither a transforms file (field 'frames') nor a camera path (field 'camera_path')"
+        )
     views = _file_views(meta, path, None, False, notes)
     _nerfstudio_split(meta, path, views)
     ngp = any(k in meta for k in ("aabb_scale", "scale", "offset", "is_fisheye")) or \
@@ -182,7 +184,9 @@ def distortion_warning(views: List[CameraView]) -> Optional[str]:
     bent = [v for v in views if v.lens is not None]
     if not bent:
         return None
-    names = ", ".join(f"{v.split + '/' if v.split else ''}{v.name}" for v in bent[:8]) + (", ..." if len(bent) > 8 else "")
+    names = ", ".join(f"{v.split + '/' if v.split else ''}{v.name}" for v in bent[:8]) + (
+        ", ..." if len(bent) > 8 else ""
+    )
     models = sorted({v.lens.model for v in bent})
     return (f"{len(bent)} camera(s) have a lens Blender cannot model ({'/'.join(models)} distortion): {names}. "
             "They are imported as pinholes with the same focal length and centre, which line up with the "

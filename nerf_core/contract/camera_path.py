@@ -50,7 +50,9 @@ def _positive_int(data: dict, key: str, src: Path) -> int:
     value = data.get(key)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or not 1 <= value <= MAX_SIDE or int(value) != value:
-        raise CameraPathError(f"{src}: field {key!r} must be a positive whole number of pixels, at most {MAX_SIDE}, got {value!r}")
+        raise CameraPathError(
+            f"{src}: field {key!r} must be a positive whole number of pixels, at most {MAX_SIDE}, got {value!r}"
+        )
     return int(value)
 
 
@@ -154,8 +156,11 @@ def camera_path_document(views: Sequence[dict], fps: float, where: str = "camera
     other = [label[k] for k, v in enumerate(views) if (int(v["w"]), int(v["h"])) != (w, h)]
     if other:
         problems.append(f"{', '.join(other)} render at another size than {w}x{h} (one camera path has one size)")
-    shifted = [label[k] for k, v in enumerate(views)
-               if abs(v["cx"] - 0.5 * v["w"]) > CENTRE_TOLERANCE_PX or abs(v["cy"] - 0.5 * v["h"]) > CENTRE_TOLERANCE_PX]
+    shifted = [
+        label[k]
+        for k, v in enumerate(views)
+        if abs(v["cx"] - 0.5 * v["w"]) > CENTRE_TOLERANCE_PX or abs(v["cy"] - 0.5 * v["h"]) > CENTRE_TOLERANCE_PX
+    ]
     if shifted:
         problems.append(f"{', '.join(shifted)} have a lens shift (principal point off the image centre), which a "
                         "camera path cannot hold: set Shift X and Y to 0")

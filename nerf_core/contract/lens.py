@@ -52,8 +52,10 @@ def _model_name(value) -> Tuple[Optional[str], Optional[str]]:
     if value is None:
         return None, None
     if not isinstance(value, str) or value.upper() not in PINHOLE_MODELS + LENS_MODELS:
-        return None, (f"{value!r} is not supported: the camera models read are {', '.join(PINHOLE_MODELS + LENS_MODELS)}. "
-                      "Reproject the images to one of them first (e.g. COLMAP's image_undistorter)")
+        return None, (
+            f"{value!r} is not supported: the camera models read are {', '.join(PINHOLE_MODELS + LENS_MODELS)}. "
+            "Reproject the images to one of them first (e.g. COLMAP's image_undistorter)"
+        )
     return value.upper(), None
 
 
@@ -110,7 +112,10 @@ def parse_lens(meta: Optional[dict], frame: Optional[dict]) -> Tuple[Optional[Le
     if model == "OPENCV_FISHEYE":
         for key, value in zip(DISTORTION_KEYS[4:], coeffs[4:]):
             if value != 0.0:
-                return None, (key, f"is a tangential coefficient ({value!r}), which the OPENCV_FISHEYE model does not have")
+                return None, (
+                    key,
+                    f"is a tangential coefficient ({value!r}), which the OPENCV_FISHEYE model does not have",
+                )
         return Lens("OPENCV_FISHEYE", coeffs), None  # a fisheye bends rays even with zero coefficients
     if all(c == 0.0 for c in coeffs):
         return None, None

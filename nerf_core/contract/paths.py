@@ -84,7 +84,11 @@ def why_not_a_file(path: Path | str, written: Optional[str] = None) -> str:
         names = [n for n in os.listdir(folder) if not n.startswith(".")]
     except OSError:
         return "not found"
-    normalised = [n for n in names if n != path.name and unicodedata.normalize("NFC", n) == unicodedata.normalize("NFC", path.name)]
+    normalised = [
+        n
+        for n in names
+        if n != path.name and unicodedata.normalize("NFC", n) == unicodedata.normalize("NFC", path.name)
+    ]
     if normalised:
         return (f"not found; {normalised[0]!r} exists there, the same name with its accents encoded another way "
                 "(Unicode NFC vs NFD, as macOS and Linux write them): rename the file or fix the path")

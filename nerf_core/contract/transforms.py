@@ -70,7 +70,9 @@ def parse_intrinsics(src: dict, where: str) -> Dict[str, float]:
             except (TypeError, ValueError, OverflowError) as exc:
                 raise DatasetError(f"{where}: field {key!r} is not a number ({short_repr(src[key])})") from exc
             if not math.isfinite(value) or (key != "cx" and key != "cy" and value <= 0):
-                raise DatasetError(f"{where}: field {key!r} must be a positive finite number, got {short_repr(src[key])}")
+                raise DatasetError(
+                    f"{where}: field {key!r} must be a positive finite number, got {short_repr(src[key])}"
+                )
             if key in ("fl_x", "fl_y") and not MIN_FOCAL_PX <= value <= MAX_FOCAL_PX:
                 raise DatasetError(f"{where}: field {key!r} is a focal length in pixels and must lie in "
                                    f"[{MIN_FOCAL_PX:g}, {MAX_FOCAL_PX:g}] (float32 rays turn to NaN or parallel "
@@ -232,9 +234,10 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
     """Parse the metadata of a dataset without reading pixels.
 
     Returns (layout, root, {split: [FrameInfo]}, scene) where scene holds ``aabb``, ``near``,
-    ``far``, ``depth_unit_scale_factor``, ``integer_depth_scale``, ``film_transparent``, ``world`` and ``beyond_box`` when the dataset gives
-    them (each with ``KEY_file``, the file it came from), ``split_note``/``path_note``, ``notes``
-    (held-out splits left out, instant-ngp fields not applied), and ``cameras_only``: {split: [FrameInfo]}
+    ``far``, ``depth_unit_scale_factor``, ``integer_depth_scale``, ``film_transparent``, ``world`` and
+    ``beyond_box`` when the dataset gives them (each with ``KEY_file``, the file it came from),
+    ``split_note``/``path_note``, ``notes`` (held-out splits left out, instant-ngp fields not applied),
+    and ``cameras_only``: {split: [FrameInfo]}
     of held-out splits none of whose images exists (left out of the split itself, but views to render).
     """
     path = Path(path)
@@ -351,7 +354,11 @@ def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Se
     if lists["train"] is not None:
         by_name = {norm(f.file_path): f for f in frames}
         for name in splits:
-            names = lists.get(name) or (lists.get("val") if name == "test" else lists.get("test") if name == "val" else None) or []
+            names = (
+                lists.get(name)
+                or (lists.get("val") if name == "test" else lists.get("test") if name == "val" else None)
+                or []
+            )
             chosen = []
             for n in names:
                 if norm(n) not in by_name:

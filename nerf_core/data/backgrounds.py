@@ -115,8 +115,10 @@ def choose(images: torch.Tensor, film_transparent: Optional[bool], where: str = 
     if share < TRANSPARENT_SHARE:
         return "environment", ("the images' alpha is opaque everywhere: their background is part of the picture, "
                                "learned as light from infinity")
-    return "random", (f"{percent_text(share)} of the pixels are at least partly transparent (a cut-out on a transparent film): "
-                      "random background colours behind the alpha")
+    return "random", (
+        f"{percent_text(share)} of the pixels are at least partly transparent (a cut-out on a transparent film): "
+        "random background colours behind the alpha"
+    )
 
 
 def for_run(requested: str, recorded: Optional[str], dataset) -> Tuple[str, str]:

@@ -70,7 +70,9 @@ def load_pixels(fr: FrameInfo, downscale: int) -> tuple[np.ndarray, tuple[int, i
     except ImageReadError as exc:
         raise DatasetError(f"{fr.where}: field 'file_path': {exc}") from exc
     if img.shape[-1] not in (3, 4):
-        raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} has {img.shape[-1]} channels, expected RGB or RGBA")
+        raise DatasetError(
+            f"{fr.where}: field 'file_path': {fr.image} has {img.shape[-1]} channels, expected RGB or RGBA"
+        )
     if downscale > 1:
         if img.shape[0] < downscale or img.shape[1] < downscale:
             raise DatasetError(f"{fr.where}: field 'file_path': {fr.image} is {img.shape[1]}x{img.shape[0]} px; "
@@ -125,9 +127,11 @@ def camera_params(fr: FrameInfo, full_w: int, full_h: int, downscale: int) -> tu
         if at is not None:
             named = [repr(k) for k, c in zip(DISTORTION_KEYS, fr.lens.coeffs) if c != 0.0] or ["'camera_model'"]
             raise DatasetError(
-                f"{fr.where}: field{'s' * (len(named) > 1)} {', '.join(named)}: this {fr.lens.model} distortion cannot be undone over the whole "
+                f"{fr.where}: field{'s' * (len(named) > 1)} {', '.join(named)}: this {fr.lens.model} distortion "
+                "cannot be undone over the whole "
                 f"{int(W)}x{int(H)} image: near pixel ({at[0]:.0f}, {at[1]:.0f}) it turns back, so two pixels would "
-                "see one ray. Check the coefficients and the image size they were calibrated for")
+                "see one ray. Check the coefficients and the image size they were calibrated for"
+            )
     f = float(downscale)
     return fx / f, fy / f, cx / f, cy / f
 

@@ -17,8 +17,8 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
     """Every problem that makes ``load_dataset`` refuse ``path``, one message each (file, frame, field).
 
     The one validation pass behind ``train`` and ``check``: it runs the loader's own rules
-    (``frame_infos``, ``validation.scene_fields``, ``validation.check_train_count`` and ``load_split`` frame by frame, which
-    decodes every image, depth, normal and mask file and checks its size against the JSON and the
+    (``frame_infos``, ``validation.scene_fields``, ``validation.check_train_count`` and ``load_split``
+    frame by frame, which decodes every image, depth, normal and mask file and checks its size against the JSON and the
     split), collecting the errors that ``load_dataset`` raises at the first of. An empty list means
     ``train`` accepts the dataset. Pixels are read one frame at a time and dropped; ``visit(split,
     frame, one-frame Split)`` sees each frame that loads first (``check`` looks at its pixels there
@@ -30,10 +30,13 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
     except DatasetError as exc:
         return [str(exc)]
     problems: List[str] = []
-    for check in (lambda: validation.check_train_count(root, infos, min_train_views), lambda: validation.scene_fields(scene),
-                  lambda: validation.check_duplicate_images(infos),
-                  lambda: validation.parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None,
-                  lambda: validation.check_near_far(scene, infos)):
+    for check in (
+        lambda: validation.check_train_count(root, infos, min_train_views),
+        lambda: validation.scene_fields(scene),
+        lambda: validation.check_duplicate_images(infos),
+        lambda: validation.parse_aabb(scene["aabb"], str(scene["aabb_file"])) if "aabb" in scene else None,
+        lambda: validation.check_near_far(scene, infos),
+    ):
         try:
             check()
         except DatasetError as exc:
@@ -70,8 +73,10 @@ def dataset_problems(path: Path | str, downscale: int = 1, min_train_views: int 
             try:
                 if shape[:2] != first[1][:2]:
                     raise DatasetError(
-                        f"{fr.where}: field 'file_path': {fr.image} is {shape[0]}x{shape[1]} but the first {name} image "
-                        f"({first[0].image.name}) is {first[1][0]}x{first[1][1]}; all images of a split must have one size")
+                        f"{fr.where}: field 'file_path': {fr.image} is {shape[0]}x{shape[1]} but the first "
+                        f"{name} image ({first[0].image.name}) is {first[1][0]}x{first[1][1]}; all images of a "
+                        "split must have one size"
+                    )
                 if shape[2] != first[1][2]:
                     lacking = fr if shape[2] == 3 else first[0]
                     raise DatasetError(

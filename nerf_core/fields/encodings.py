@@ -56,7 +56,9 @@ class FourierFeatures(nn.Module):
     (..., in_dim) -> (..., 2 * n_features [+ in_dim]).
     """
 
-    def __init__(self, in_dim: int, n_features: int = 128, sigma: float = 10.0, seed: int = 0, include_input: bool = False):
+    def __init__(
+        self, in_dim: int, n_features: int = 128, sigma: float = 10.0, seed: int = 0, include_input: bool = False
+    ):
         super().__init__()
         g = torch.Generator().manual_seed(seed)
         self.register_buffer("B", torch.randn(n_features, in_dim, generator=g) * sigma)

@@ -151,8 +151,16 @@ PREFIT_RAYS = 400_000  # train rays tested against the box before an environment
 PREFIT_STEPS = 200  # Adam steps of that fit (8192 texture lookups each: ~15 ms on an idle 2-core CPU)
 
 
-def prefit_from_split(model, split, near: float | None, far: float | None, generator: torch.Generator,
-                      device: torch.device, max_rays: int = PREFIT_RAYS, steps: int = PREFIT_STEPS) -> tuple[str, float]:
+def prefit_from_split(
+    model,
+    split,
+    near: float | None,
+    far: float | None,
+    generator: torch.Generator,
+    device: torch.device,
+    max_rays: int = PREFIT_RAYS,
+    steps: int = PREFIT_STEPS,
+) -> tuple[str, float]:
     """``prefit`` ``model.environment`` to the pixels of ``split`` (a ``data.Split``) whose rays miss
     the model's scene box (``model.ray_interval`` empty).
 

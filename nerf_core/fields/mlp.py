@@ -35,7 +35,9 @@ class NeRFMLP(nn.Module):
         super().__init__()
         self.inv_length_unit = 1.0 / float(length_unit)
         if density_activation not in DENSITY_ACTIVATIONS:
-            raise ValueError(f"density_activation must be one of {', '.join(DENSITY_ACTIVATIONS)}, got {density_activation!r}")
+            raise ValueError(
+                f"density_activation must be one of {', '.join(DENSITY_ACTIVATIONS)}, got {density_activation!r}"
+            )
         self.density_activation = density_activation
         self.register_buffer("aabb", torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3).clone())
         self.pos_enc = PositionalEncoding(3, pos_freqs) if use_pe else IdentityEncoding(3)
@@ -50,7 +52,9 @@ class NeRFMLP(nn.Module):
         self.trunk = nn.ModuleList(layers)
         self.sigma_head = nn.Linear(width, 1)
         self.feature = nn.Linear(width, width)
-        self.rgb_head = nn.Sequential(nn.Linear(width + self.dir_enc.out_dim, width // 2), nn.ReLU(), nn.Linear(width // 2, 3))
+        self.rgb_head = nn.Sequential(
+            nn.Linear(width + self.dir_enc.out_dim, width // 2), nn.ReLU(), nn.Linear(width // 2, 3)
+        )
 
     def normalize(self, x: Tensor) -> Tensor:
         return (x - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1

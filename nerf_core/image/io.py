@@ -100,13 +100,17 @@ def read_exr(path: Path | str) -> Dict[str, np.ndarray]:
         raise ImageReadError(f"{path}: file not found")
     try:
         with OpenEXR.File(str(path), header_only=True) as f:
-            claimed = sum(_window_pixels(part.header) * max(1, len(part.header.get("channels") or ())) for part in f.parts)
+            claimed = sum(
+                _window_pixels(part.header) * max(1, len(part.header.get("channels") or ())) for part in f.parts
+            )
     except Exception as exc:
         raise ImageReadError(f"{path}: cannot read EXR ({exc})") from exc
     if claimed > MAX_EXR_VALUES:
-        raise ImageReadError(f"{path}: the EXR header claims {claimed / 1e6:.0f} million values "
-                             f"(more than {MAX_EXR_VALUES / 1e6:.0f} million, {4 * claimed / 2**30:.1f} GiB as float32); "
-                             "damaged, or far larger than a dataset image")
+        raise ImageReadError(
+            f"{path}: the EXR header claims {claimed / 1e6:.0f} million values "
+            f"(more than {MAX_EXR_VALUES / 1e6:.0f} million, {4 * claimed / 2**30:.1f} GiB as float32); "
+            "damaged, or far larger than a dataset image"
+        )
     try:
         with OpenEXR.File(str(path), separate_channels=True) as f:
             out: Dict[str, np.ndarray] = {}

@@ -25,7 +25,9 @@ def masked_mse(pred: Tensor, gt: Tensor, weight: Optional[Tensor]) -> Tensor:
 
 def total_variation_2d(planes: Tensor) -> Tensor:
     """Mean squared difference between neighbouring texels of (..., H, W) planes (smoothness prior)."""
-    return (planes[..., 1:, :] - planes[..., :-1, :]).square().mean() + (planes[..., :, 1:] - planes[..., :, :-1]).square().mean()
+    return (planes[..., 1:, :] - planes[..., :-1, :]).square().mean() + (
+        planes[..., :, 1:] - planes[..., :, :-1]
+    ).square().mean()
 
 
 def l1_sparsity(*tensors: Tensor) -> Tensor:

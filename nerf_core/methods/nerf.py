@@ -98,7 +98,9 @@ class NeRF(RadianceModel):
         opts, reasons = dict(width=width), []
         if cls.parse_options({}).use_pe:  # without the encoding (nerf-nope) there are no frequencies to size
             opts["pos_freqs"] = pos_freqs
-            reasons.append(f"{pos_freqs} positional-encoding frequencies: the finest period matches ~2 pixel footprints")
+            reasons.append(
+                f"{pos_freqs} positional-encoding frequencies: the finest period matches ~2 pixel footprints"
+            )
         reasons.append(f"MLP width {width} from the texture probe")
         return opts, reasons
 
@@ -166,7 +168,9 @@ class NeRF(RadianceModel):
             with profiling.stage("rendering"):
                 weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
         else:
-            t0, t1, ridx, mids, weights, rgb, n_evaluated = self._render_visible(t0, t1, ridx, mids, pts, rays_d, n_rays)
+            t0, t1, ridx, mids, weights, rgb, n_evaluated = self._render_visible(
+                t0, t1, ridx, mids, pts, rays_d, n_rays
+            )
         with profiling.stage("rendering"):
             color = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, rgb)
             acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
@@ -200,9 +204,10 @@ class NeRF(RadianceModel):
     def _render_visible(self, t0, t1, ridx, mids, pts, rays_d, n_rays):
         """Rendering without gradients: the packed samples (k,) -> those still visible (T > 1e-4) as
         (t0, t1, ridx, mids), their weights (n,), colours (n, 3) and how many samples the trunk ran
-        on; the same as one pass over every sample up to 1e-4 of a ray's colour. The trunk runs front to back until each ray is opaque; the
-        features of the samples it ran on are kept per round, so the colour head needs no second trunk
-        pass (memory: ``width`` floats per evaluated sample, about 8 MB per CPU call)."""
+        on; the same as one pass over every sample up to 1e-4 of a ray's colour. The trunk runs front to
+        back until each ray is opaque; the features of the samples it ran on are kept per round, so the
+        colour head needs no second trunk pass (memory: ``width`` floats per evaluated sample, about 8 MB
+        per CPU call)."""
         rounds = []  # (sample positions, features) of every round
 
         def density(sel: Tensor) -> Tensor:
@@ -219,7 +224,9 @@ class NeRF(RadianceModel):
                                                         round_size=self.render_round_size)
         # The kept samples' features in packed order: each round's survivors, sorted by position.
         pos = torch.cat([s[keep[s]] for s, _ in rounds]) if rounds else ridx.new_zeros(0)
-        feats = torch.cat([h[keep[s]] for s, h in rounds]) if rounds else pts.new_zeros(0, self.coarse.feature.in_features)
+        feats = (
+            torch.cat([h[keep[s]] for s, h in rounds]) if rounds else pts.new_zeros(0, self.coarse.feature.in_features)
+        )
         feats = feats.index_select(0, torch.argsort(pos))
         kept = keep.nonzero().squeeze(-1)
         t0, t1, ridx, mids = (x.index_select(0, kept) for x in (t0, t1, ridx, mids))

@@ -139,7 +139,9 @@ def auto_size(method: str, aabb: Tensor, fx: float, width: int, height: int, cam
     aabb = torch.as_tensor(aabb, dtype=torch.float32).reshape(2, 3)
     extent = float((aabb[1] - aabb[0]).max())
     if not (fx > 0 and cam_dist > 0 and extent > 0):
-        raise ValueError(f"auto_size needs fx > 0, cam_dist > 0 and a non-empty aabb (fx={fx}, cam_dist={cam_dist}, extent={extent})")
+        raise ValueError(
+            f"auto_size needs fx > 0, cam_dist > 0 and a non-empty aabb (fx={fx}, cam_dist={cam_dist}, extent={extent})"
+        )
     footprint = cam_dist / fx
     nyquist = extent / footprint  # cells per axis that one pixel per cell would resolve
     reasons = [f"a pixel covers ~{footprint:.4g} scene units at the box's nearest point ({cam_dist:.3g} units "

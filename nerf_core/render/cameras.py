@@ -63,7 +63,8 @@ def camera_views(path: Path | str, split: str = "test") -> tuple[Cameras, List[s
 
     ``path`` may be a dataset folder (the frames of ``split``), a transforms file of either layout
     (all its frames; a nerfstudio file with ``*_filenames`` lists gives the frames of ``split``), a
-    nerfstudio ``camera_path.json`` (``nerf_core.cameras.camera_path``), or a JSON list of cameras (see ``camera_list``).
+    nerfstudio ``camera_path.json`` (``nerf_core.cameras.camera_path``), or a JSON list of cameras (see
+    ``camera_list``).
     """
 
     path = Path(path)
@@ -125,7 +126,10 @@ def ground_truth_split(frame: Optional[FrameInfo], cameras: Cameras, view: int, 
         return None, str(exc)
     size, want = (split.width, split.height), (int(cameras.width[view]), int(cameras.height[view]))
     if size != want:
-        return None, f"{frame.image} is {size[0]}x{size[1]} px (downscaled by {downscale}), the render {want[0]}x{want[1]}"
+        return (
+            None,
+            f"{frame.image} is {size[0]}x{size[1]} px (downscaled by {downscale}), the render {want[0]}x{want[1]}",
+        )
     return split, None
 
 

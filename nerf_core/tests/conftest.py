@@ -174,7 +174,10 @@ def make_dataset(
             stem = f"r_{i}"
             fr = {"file_path": f"./{split}/{stem}", "transform_matrix": c2w.tolist()}
             if exr_images:
-                write_exr(root / split / f"{stem}.exr", {c: rgba[..., j].astype(np.float32) / 255 for j, c in enumerate("RGBA")})
+                write_exr(
+                    root / split / f"{stem}.exr",
+                    {c: rgba[..., j].astype(np.float32) / 255 for j, c in enumerate("RGBA")},
+                )
                 fr["file_path"] = f"./{split}/{stem}.exr"
             else:
                 write_png(root / split / f"{stem}.png", rgba)
@@ -187,7 +190,9 @@ def make_dataset(
     scene = {"aabb": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]], "near": 1.0, "far": 5.0} if aabb else {}
     if "synthetic" in layouts:
         for split in counts:
-            (root / f"transforms_{split}.json").write_text(json.dumps({**intr, **scene, "frames": frames[split]}, indent=1))
+            (root / f"transforms_{split}.json").write_text(
+                json.dumps({**intr, **scene, "frames": frames[split]}, indent=1)
+            )
     if "nerfstudio" in layouts:
         ext = ".exr" if exr_images else ".png"
         ns_frames, lists = [], {}

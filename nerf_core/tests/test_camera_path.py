@@ -67,7 +67,9 @@ def test_render_of_a_camera_path_matches_the_transforms_file(tmp_path, trained_r
 
 @pytest.mark.parametrize("kind", ["fisheye", "equirectangular", "omnidirectional", "vr180"])
 def test_non_perspective_camera_types_are_refused(tmp_path, kind):
-    with pytest.raises(CameraPathError, match=rf"camera_path.json: field 'camera_type' is '{kind}'; only 'perspective'"):
+    with pytest.raises(
+        CameraPathError, match=rf"camera_path.json: field 'camera_type' is '{kind}'; only 'perspective'"
+    ):
         cameras_from_camera_path(_camera_path(camera_type=kind), tmp_path / "camera_path.json")
 
 
@@ -78,15 +80,26 @@ def test_missing_camera_type_means_perspective(tmp_path):
     assert len(cams) == 2
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda d: d["camera_path"][1].update(fov=0), r"camera_path\[1\]: field 'fov' must be the vertical field of view"),
-    (lambda d: d["camera_path"][0].update(camera_to_world=[1, 0, 0]), r"camera_path\[0\]: field 'camera_to_world' must hold 16"),
-    (lambda d: d["camera_path"][0].update(camera_to_world=[2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 1]),
-     r"camera_path\[0\]: field 'camera_to_world': rotation part is scaled"),
-    (lambda d: d.update(render_width=0), r"field 'render_width' must be a positive whole number"),
-    (lambda d: d.update(render_height=12.5), r"field 'render_height' must be a positive whole number"),
-    (lambda d: d.update(camera_path=[]), r"field 'camera_path' must be a non-empty list"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (
+            lambda d: d["camera_path"][1].update(fov=0),
+            r"camera_path\[1\]: field 'fov' must be the vertical field of view",
+        ),
+        (
+            lambda d: d["camera_path"][0].update(camera_to_world=[1, 0, 0]),
+            r"camera_path\[0\]: field 'camera_to_world' must hold 16",
+        ),
+        (
+            lambda d: d["camera_path"][0].update(camera_to_world=[2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 1]),
+            r"camera_path\[0\]: field 'camera_to_world': rotation part is scaled",
+        ),
+        (lambda d: d.update(render_width=0), r"field 'render_width' must be a positive whole number"),
+        (lambda d: d.update(render_height=12.5), r"field 'render_height' must be a positive whole number"),
+        (lambda d: d.update(camera_path=[]), r"field 'camera_path' must be a non-empty list"),
+    ],
+)
 def test_bad_fields_are_named(tmp_path, change, message):
     data = _camera_path()
     change(data)

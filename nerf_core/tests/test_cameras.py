@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from nerf_core.cameras.rays import Cameras, camera_directions, project_points, ray_bounds, rays_for_pixels, rays_for_view
+from nerf_core.cameras.rays import (
+    Cameras,
+    camera_directions,
+    project_points,
+    ray_bounds,
+    rays_for_pixels,
+    rays_for_view,
+)
 from nerf_core.contract.errors import PoseError
 from nerf_core.contract.poses import check_pose
 from nerf_core.volume.sampling import ray_aabb_intersect as intersect_aabb

@@ -60,26 +60,57 @@ def _angle(meta):
 
 
 CASES = {
-    "missing camera_angle_x": ("transforms_train.json", lambda m: m.pop("camera_angle_x"), ["transforms_train.json", "camera_angle_x", "missing"]),
+    "missing camera_angle_x": (
+        "transforms_train.json",
+        lambda m: m.pop("camera_angle_x"),
+        ["transforms_train.json", "camera_angle_x", "missing"],
+    ),
     "missing fl_x": ("transforms_test.json", lambda m: m.pop("fl_x"), ["transforms_test.json", "'fl_x'", "missing"]),
     "missing h": ("nerfstudio/transforms.json", lambda m: m.pop("h"), ["transforms.json", "'h'"]),
-    "scaled matrix": ("transforms_train.json", _scale, ["transforms_train.json", "frame 2", "transform_matrix", "scaled"]),
-    "extension in file_path": ("transforms_train.json", _ext, ["transforms_train.json", "frame 1", "file_path", "extension"]),
+    "scaled matrix": (
+        "transforms_train.json",
+        _scale,
+        ["transforms_train.json", "frame 2", "transform_matrix", "scaled"],
+    ),
+    "extension in file_path": (
+        "transforms_train.json",
+        _ext,
+        ["transforms_train.json", "frame 1", "file_path", "extension"],
+    ),
     "cx outside": ("transforms_val.json", _shift_out, ["transforms_val.json", "'cx'", "outside"]),
     "inconsistent angle": ("transforms_train.json", _angle, ["transforms_train.json", "camera_angle_x", "fl_x"]),
-    "aabb_scale": ("nerfstudio/transforms.json", lambda m: m.update(aabb_scale=3), ["transforms.json", "aabb_scale", "power of two"]),
+    "aabb_scale": (
+        "nerfstudio/transforms.json",
+        lambda m: m.update(aabb_scale=3),
+        ["transforms.json", "aabb_scale", "power of two"],
+    ),
     "aabb_scale too big": ("transforms_train.json", lambda m: m.update(aabb_scale=256), ["aabb_scale"]),
-    "nerfstudio name without extension": ("nerfstudio/transforms.json", lambda m: m["frames"][0].update(file_path="../train/r_0"),
-                                          ["transforms.json", "frame 0", "file_path", "extension"]),
-    "split list names unknown file": ("nerfstudio/transforms.json", lambda m: m["test_filenames"].append("test/zzz.png"),
-                                      ["transforms.json", "test_filenames", "zzz.png"]),
-    "missing depth file": ("transforms_test.json", lambda m: m["frames"][1].update(depth_file_path="nope.exr"),
-                           ["transforms_test.json", "frame 1", "depth_file_path", "nope.exr"]),
+    "nerfstudio name without extension": (
+        "nerfstudio/transforms.json",
+        lambda m: m["frames"][0].update(file_path="../train/r_0"),
+        ["transforms.json", "frame 0", "file_path", "extension"],
+    ),
+    "split list names unknown file": (
+        "nerfstudio/transforms.json",
+        lambda m: m["test_filenames"].append("test/zzz.png"),
+        ["transforms.json", "test_filenames", "zzz.png"],
+    ),
+    "missing depth file": (
+        "transforms_test.json",
+        lambda m: m["frames"][1].update(depth_file_path="nope.exr"),
+        ["transforms_test.json", "frame 1", "depth_file_path", "nope.exr"],
+    ),
     # nerfstudio-data takes the top-level value for every frame and never reads the frame's own.
     "nerfstudio frame intrinsics hidden by the top level": (
-        "nerfstudio/transforms.json", lambda m: m["frames"][2].update(fl_x=m["fl_x"] * 1.5),
-        ["transforms.json", "frame 2", "fl_x", "top-level", "nerfstudio-data uses for every frame"]),
-    "bad aabb": ("transforms_train.json", lambda m: m.update(aabb=[[0, 0, 0], [0, 0, 0]]), ["transforms_train.json", "aabb"]),
+        "nerfstudio/transforms.json",
+        lambda m: m["frames"][2].update(fl_x=m["fl_x"] * 1.5),
+        ["transforms.json", "frame 2", "fl_x", "top-level", "nerfstudio-data uses for every frame"],
+    ),
+    "bad aabb": (
+        "transforms_train.json",
+        lambda m: m.update(aabb=[[0, 0, 0], [0, 0, 0]]),
+        ["transforms_train.json", "aabb"],
+    ),
 }
 
 

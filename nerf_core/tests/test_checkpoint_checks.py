@@ -191,11 +191,17 @@ def test_grids_of_two_resolutions_are_refused():
     model = build_model("vmgrid", torch.tensor([[-1.0] * 3, [1.0] * 3]), res_init=16)
     weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     r = weights["field.density_planes_cl"].shape[-1]
-    grown = {**weights, "field.density_planes_cl": torch.zeros(3, 24, 24, r), "field.density_lines_cl": torch.zeros(3, 24, r),
-             "field.app_planes_cl": torch.zeros(3, 24, 24, weights["field.app_planes_cl"].shape[-1]),
-             "field.app_lines_cl": torch.zeros(3, 24, weights["field.app_lines_cl"].shape[-1])}
+    grown = {
+        **weights,
+        "field.density_planes_cl": torch.zeros(3, 24, 24, r),
+        "field.density_lines_cl": torch.zeros(3, 24, r),
+        "field.app_planes_cl": torch.zeros(3, 24, 24, weights["field.app_planes_cl"].shape[-1]),
+        "field.app_lines_cl": torch.zeros(3, 24, weights["field.app_lines_cl"].shape[-1]),
+    }
     check_weights(model, grown, "ck")  # grown together: fine
     with pytest.raises(RunError, match="one resolution"):
         check_weights(model, {**grown, "field.density_planes_cl": torch.zeros(3, 24, 30, r)}, "ck")
     with pytest.raises(RunError, match="one resolution"):
-        check_weights(model, {**grown, "field.app_lines_cl": torch.zeros(3, 20, grown["field.app_lines_cl"].shape[-1])}, "ck")
+        check_weights(
+            model, {**grown, "field.app_lines_cl": torch.zeros(3, 20, grown["field.app_lines_cl"].shape[-1])}, "ck"
+        )

@@ -29,10 +29,41 @@ def test_help_and_no_bpy_import():
 
 def test_stable_flags_parse():
     p = build_parser()
-    a = p.parse_args(["train", "ds", "--out", "r", "--method", "m", "--max-seconds", "5", "--max-steps", "9", "--seed", "3",
-                      "--resume", "--size", "auto", "--progress", "f.jsonl", "--set", "x=1"])
-    assert (a.dataset, a.out, a.method, a.max_seconds, a.max_steps, a.seed, a.resume, a.size, a.progress, a.options) == \
-        ("ds", "r", "m", 5.0, 9, 3, True, "auto", "f.jsonl", ["x=1"])
+    a = p.parse_args(
+        [
+            "train",
+            "ds",
+            "--out",
+            "r",
+            "--method",
+            "m",
+            "--max-seconds",
+            "5",
+            "--max-steps",
+            "9",
+            "--seed",
+            "3",
+            "--resume",
+            "--size",
+            "auto",
+            "--progress",
+            "f.jsonl",
+            "--set",
+            "x=1",
+        ]
+    )
+    assert (
+        a.dataset,
+        a.out,
+        a.method,
+        a.max_seconds,
+        a.max_steps,
+        a.seed,
+        a.resume,
+        a.size,
+        a.progress,
+        a.options,
+    ) == ("ds", "r", "m", 5.0, 9, 3, True, "auto", "f.jsonl", ["x=1"])
     r = p.parse_args(["render", "run", "--cameras", "t.json", "--out", "d", "--split", "val"])
     assert (r.run, r.cameras, r.out, r.split) == ("run", "t.json", "d", "val")
     e = p.parse_args(["eval", "run", "--split", "test"])
@@ -42,7 +73,9 @@ def test_stable_flags_parse():
 
 
 def test_train_errors_are_one_line_with_an_error_event(tmp_path):
-    proc = _run("-m", "nerf_core", "train", str(tmp_path / "missing"), "--out", str(tmp_path / "run"), "--max-steps", "2")
+    proc = _run(
+        "-m", "nerf_core", "train", str(tmp_path / "missing"), "--out", str(tmp_path / "run"), "--max-steps", "2"
+    )
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("nerf_core train: error:") and "missing" in proc.stderr
@@ -53,13 +86,36 @@ def test_train_errors_are_one_line_with_an_error_event(tmp_path):
 
 def test_train_via_cli_in_process(sphere_dataset, tmp_path, capsys):
     run = tmp_path / "run"
-    rc = main(["train", str(sphere_dataset), "--out", str(run), "--method", "test-grid", "--max-steps", "4",
-               "--batch-rays", "64", "--no-bar", "--eval-views", "1", "--preview-every", "2", "--checkpoint-every", "2"])
+    rc = main(
+        [
+            "train",
+            str(sphere_dataset),
+            "--out",
+            str(run),
+            "--method",
+            "test-grid",
+            "--max-steps",
+            "4",
+            "--batch-rays",
+            "64",
+            "--no-bar",
+            "--eval-views",
+            "1",
+            "--preview-every",
+            "2",
+            "--checkpoint-every",
+            "2",
+        ]
+    )
     assert rc == 0
     events = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
     assert events[0]["event"] == "start" and events[-1]["event"] == "done"
     assert [e["step"] for e in events if e["event"] == "preview"] == [2, 4]
-    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["latest.pt", "step_0000002.pt", "step_0000004.pt"]
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == [
+        "latest.pt",
+        "step_0000002.pt",
+        "step_0000004.pt",
+    ]
     assert main(["train", str(sphere_dataset), "--out", str(run), "--method", "test-grid", "--max-steps", "4"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["train", str(sphere_dataset), "--out", str(tmp_path / "r2"), "--method", "no-such-method"]) == 2

@@ -110,7 +110,11 @@ def test_evenly_spaced_by_hand():
     assert contract.evenly_spaced(10, 4) == [0, 3, 6, 9]
     assert contract.evenly_spaced(100, 8) == [0, 14, 28, 42, 57, 71, 85, 99]  # round(k * 99 / 7)
     assert contract.evenly_spaced(5, 10) == [0, 1, 2, 3, 4]
-    assert contract.evenly_spaced(7, 1) == [0] and contract.evenly_spaced(0, 3) == [] and contract.evenly_spaced(3, 0) == []
+    assert (
+        contract.evenly_spaced(7, 1) == [0]
+        and contract.evenly_spaced(0, 3) == []
+        and contract.evenly_spaced(3, 0) == []
+    )
 
 
 # -- transforms files ------------------------------------------------------------------------------
@@ -132,7 +136,9 @@ def test_read_transforms_names_file_frame_and_field(tmp_path):
     bad = dict(json.loads(path.read_text()))
     bad["frames"][0]["transform_matrix"] = [[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 0], [0, 0, 0, 1]]
     path.write_text(json.dumps(bad))
-    with pytest.raises(contract.DatasetError, match=r"transforms_train.json: frame 0 \(./train/r_0\): field 'transform_matrix'.*scaled"):
+    with pytest.raises(
+        contract.DatasetError, match=r"transforms_train.json: frame 0 \(./train/r_0\): field 'transform_matrix'.*scaled"
+    ):
         contract.read_transforms(path)
 
 

@@ -35,8 +35,15 @@ def test_contraction_is_monotonic_along_a_ray():
 def test_samples_step_evenly_in_the_box_then_evenly_in_disparity_beyond_it():
     o = torch.tensor([[0.0, 0.0, 1.0]])  # a camera at the box centre, looking along +x
     d = torch.tensor([[1.0, 0.0, 0.0]])
-    t0, t1, idx = contracted_samples(o, d, torch.zeros(1), BOX, step_size=0.1, occupied_fn=lambda p: torch.ones(len(p), dtype=torch.bool),
-                                     jitter=False)
+    t0, t1, idx = contracted_samples(
+        o,
+        d,
+        torch.zeros(1),
+        BOX,
+        step_size=0.1,
+        occupied_fn=lambda p: torch.ones(len(p), dtype=torch.bool),
+        jitter=False,
+    )
     assert torch.all(idx == 0) and torch.all(t1 > t0)
     assert torch.allclose(t1[:-1], t0[1:], atol=1e-5)  # the intervals tile the ray: no gap, no overlap
     inner = t1 <= 1.0 + 1e-6

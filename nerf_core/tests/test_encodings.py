@@ -42,7 +42,9 @@ def _toy_image(n=48):
 
 def _fit(enc: nn.Module, x_tr, y_tr, x_te, y_te, steps=300) -> float:
     torch.manual_seed(0)
-    net = nn.Sequential(enc, nn.Linear(enc.out_dim, 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, 3), nn.Sigmoid())
+    net = nn.Sequential(
+        enc, nn.Linear(enc.out_dim, 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(), nn.Linear(64, 3), nn.Sigmoid()
+    )
     opt = torch.optim.Adam(net.parameters(), lr=3e-3)
     for _ in range(steps):
         loss = (net(x_tr) - y_tr).square().mean()

@@ -118,7 +118,9 @@ TENSORS = st.one_of(
               st.sampled_from([0.0, 1.0, float("nan"), float("inf"), -1e30])),
     st.builds(lambda n: torch.zeros(n, dtype=torch.float64), st.integers(0, 5)),
     st.builds(lambda n: torch.zeros(n, dtype=torch.uint8), st.integers(0, 5)))
-VALUES = st.one_of(SCALARS, TENSORS, st.lists(SCALARS, max_size=3), st.dictionaries(st.text(max_size=5), SCALARS, max_size=3))
+VALUES = st.one_of(
+    SCALARS, TENSORS, st.lists(SCALARS, max_size=3), st.dictionaries(st.text(max_size=5), SCALARS, max_size=3)
+)
 
 
 @st.composite
@@ -265,7 +267,9 @@ def camera_path_doc(draw):
     for _ in range(draw(st.integers(0, 3))):
         if draw(st.booleans()):
             doc[draw(st.sampled_from(["render_height", "render_width", "camera_path", "fps"]))] = draw(JSON)
-        elif isinstance(doc.get("camera_path"), list) and doc["camera_path"] and isinstance(doc["camera_path"][0], dict):
+        elif (
+            isinstance(doc.get("camera_path"), list) and doc["camera_path"] and isinstance(doc["camera_path"][0], dict)
+        ):
             key = draw(st.sampled_from(["camera_to_world", "fov", "aspect"]))
             doc["camera_path"][0][key] = draw(MATRIX if key == "camera_to_world" else JSON)
     return doc

@@ -180,10 +180,18 @@ def test_a_tiny_subject_is_named_before_training(tmp_path):
     proc = nerf_core("train", ds, "--out", tmp_path / "run", *FAST)
     assert proc.returncode == 0 and "note: the subject covers only 0.4 %" in proc.stderr, proc.stderr
     # the sphere of the other tests fills enough; opaque images have no subject to measure
-    assert small_subject_note(torch.from_numpy(np.stack([_sphere_image(_look_at(np.array([0, -3.0, 0])), 20.0)]))) is None
+    assert (
+        small_subject_note(torch.from_numpy(np.stack([_sphere_image(_look_at(np.array([0, -3.0, 0])), 20.0)]))) is None
+    )
     assert small_subject_note(torch.full((2, 8, 8, 4), 255, dtype=torch.uint8)) is None
     assert SMALL_SUBJECT_SHARE == 0.02
-    assert [percent_text(v) for v in (1.0, 0.99996, 0.5, 2e-5, 0.0)] == ["100.0 %", "99.996 %", "50.0 %", "0.002 %", "0.0 %"]
+    assert [percent_text(v) for v in (1.0, 0.99996, 0.5, 2e-5, 0.0)] == [
+        "100.0 %",
+        "99.996 %",
+        "50.0 %",
+        "0.002 %",
+        "0.0 %",
+    ]
 
 
 def test_degenerate_scene_box_is_named(tmp_path):

@@ -15,9 +15,10 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 PROBE = """
 import signal
 from nerf_core.utils.interrupts import honour_interrupts
-before = (signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))
+blocked = lambda: signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+before = (signal.getsignal(signal.SIGINT) == signal.SIG_IGN, blocked())
 honour_interrupts()
-after = (signal.getsignal(signal.SIGINT) is signal.default_int_handler, signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, []))
+after = (signal.getsignal(signal.SIGINT) is signal.default_int_handler, blocked())
 print(before, after)
 """
 

@@ -30,7 +30,9 @@ def sphere_scene(n_cams=6, size=16, stripes=0.0):
     """Rays (o, d, near, far) and ground truth rgb (n, 3) on white; ``stripes`` adds a high-frequency pattern."""
     f = size / (2 * math.tan(math.radians(20)))
     j, i = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    cam_d = torch.stack([(i + 0.5 - size / 2) / f, -(j + 0.5 - size / 2) / f, -torch.ones(size, size)], -1).reshape(-1, 3)
+    cam_d = torch.stack([(i + 0.5 - size / 2) / f, -(j + 0.5 - size / 2) / f, -torch.ones(size, size)], -1).reshape(
+        -1, 3
+    )
     cam_d = torch.nn.functional.normalize(cam_d, dim=-1)
     os_, ds = [], []
     for k in range(n_cams):
@@ -247,7 +249,9 @@ def test_nerf_renders_with_early_termination_as_one_full_pass_would():
         sigma, rgb = model.coarse(pts, d[ridx])
         weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, o.shape[0])
         acc = volrend.accumulate_along_rays_packed(weights, ridx, o.shape[0])
-        full = volrend.composite_background(volrend.accumulate_along_rays_packed(weights, ridx, o.shape[0], rgb), acc, bg)
+        full = volrend.composite_background(
+            volrend.accumulate_along_rays_packed(weights, ridx, o.shape[0], rgb), acc, bg
+        )
     assert float(acc.mean()) > 0.3  # something to compare
     assert torch.allclose(out["rgb"], full, atol=2e-4)
     assert torch.allclose(out["acc"], acc, atol=2e-4)
@@ -381,7 +385,9 @@ def test_nerf_density_activations_hand_computed():
     exp_net = NeRFMLP(BOX, density_activation="exp")
     soft_net = NeRFMLP(BOX, density_activation="softplus")
     # both shifted by -1; exp clamped at +-15 so an outlier cannot overflow
-    assert torch.allclose(exp_net._activate(raw), torch.tensor([math.exp(-15), math.exp(-1), 1.0, math.exp(2), math.exp(15)]))
+    assert torch.allclose(
+        exp_net._activate(raw), torch.tensor([math.exp(-15), math.exp(-1), 1.0, math.exp(2), math.exp(15)])
+    )
     assert torch.allclose(soft_net._activate(raw), torch.log1p(torch.exp(raw - 1.0)))
     with pytest.raises(ValueError, match="density_activation"):
         NeRFMLP(BOX, density_activation="relu")

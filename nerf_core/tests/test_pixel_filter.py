@@ -84,7 +84,9 @@ def test_sub_pixel_rays_pass_through_the_offset_point():
     # with a distorting lens the offset path and the per-pixel tables agree at offset 0
     from nerf_core.contract.lens import Lens
 
-    lens_cams = Cameras.create(np.eye(4)[None], 10.0, 10.0, 4.0, 3.0, 8, 6, lenses=[Lens("OPENCV", (0.1, 0, 0, 0, 0, 0))])
+    lens_cams = Cameras.create(
+        np.eye(4)[None], 10.0, 10.0, 4.0, 3.0, 8, 6, lenses=[Lens("OPENCV", (0.1, 0, 0, 0, 0, 0))]
+    )
     _, centre, _ = rays_for_pixels(lens_cams, v, i, j)
     _, zero, _ = rays_for_pixels(lens_cams, v, i, j, torch.zeros(2, 2))
     torch.testing.assert_close(zero, centre, atol=1e-6, rtol=0)
@@ -118,7 +120,9 @@ def test_edge_pixels_render_as_the_filters_average():
     # columns 3 and 4 hold the edge in their 3x3 neighbourhood; the box covers column 3 by 0.3 and
     # column 4 fully (20 x 20 strata: within 1/20), and the other columns are centre rays
     np.testing.assert_allclose(boxed["acc"][:, 3].numpy(), [0.3] * 4, atol=0.05)
-    np.testing.assert_allclose(boxed["acc"][:, [0, 1, 2, 4, 5, 6, 7]].numpy(), centre["acc"][:, [0, 1, 2, 4, 5, 6, 7]].numpy())
+    np.testing.assert_allclose(
+        boxed["acc"][:, [0, 1, 2, 4, 5, 6, 7]].numpy(), centre["acc"][:, [0, 1, 2, 4, 5, 6, 7]].numpy()
+    )
     torch.testing.assert_close(boxed["rgb"][..., 0], boxed["acc"])  # white on black: colour follows coverage
     # columns 3 and 4 of every row were refined, after the ring of 2 * 10 + 2 * 4 pixels around the image
     assert boxed["n_rays"] == 32 + 28 + 2 * 4 * 400

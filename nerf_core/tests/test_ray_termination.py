@@ -83,7 +83,9 @@ def _sphere_rays(n_cams=4, size=16):
     f = size / (2 * math.tan(math.radians(20)))
     j, i = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
     d_cam = torch.nn.functional.normalize(
-        torch.stack([(i + 0.5 - size / 2) / f, -(j + 0.5 - size / 2) / f, -torch.ones(size, size)], -1).reshape(-1, 3), dim=-1)
+        torch.stack([(i + 0.5 - size / 2) / f, -(j + 0.5 - size / 2) / f, -torch.ones(size, size)], -1).reshape(-1, 3),
+        dim=-1,
+    )
     os_, ds = [], []
     for k in range(n_cams):
         a = 2 * math.pi * k / n_cams
@@ -98,7 +100,9 @@ def _sphere_rays(n_cams=4, size=16):
     disc = b * b - (o * o).sum(-1) + 0.36
     hit = disc > 0
     t = -b - disc.clamp_min(0).sqrt()
-    rgb = torch.where(hit[:, None], 0.5 + 0.5 * torch.nn.functional.normalize(o + t[:, None] * d, dim=-1), torch.ones(1, 3))
+    rgb = torch.where(
+        hit[:, None], 0.5 + 0.5 * torch.nn.functional.normalize(o + t[:, None] * d, dim=-1), torch.ones(1, 3)
+    )
     near, far, _ = sampling.ray_aabb_intersect(o, d, BOX)
     return o, d, near, far, rgb
 

@@ -96,7 +96,9 @@ class _Killed(BaseException):
     """Stands for SIGKILL: nothing in the trainer catches it."""
 
 
-def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_says(sphere_dataset, tmp_path, monkeypatch):
+def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_says(
+    sphere_dataset, tmp_path, monkeypatch
+):
     from nerf_core.methods.registry import method_class
 
     def hook(self, step, frac):
@@ -110,7 +112,9 @@ def test_run_killed_before_its_first_checkpoint_can_be_restarted_as_the_message_
         train(_cfg(sphere_dataset, run, preview_every=1))
     monkeypatch.undo()
     assert (run / "config.json").is_file() and not (run / "checkpoints" / "latest.pt").exists()
-    proc = _cli("train", sphere_dataset, "--out", run, "--method", "test-grid", "--resume", "--max-steps", "3", "--no-bar")
+    proc = _cli(
+        "train", sphere_dataset, "--out", run, "--method", "test-grid", "--resume", "--max-steps", "3", "--no-bar"
+    )
     last = _clear_error(proc, "latest.pt", "before its first checkpoint", "--overwrite")
     proc = _cli("train", sphere_dataset, "--out", run, "--method", "test-grid", "--overwrite", "--max-steps", "3",
                 "--no-bar", "--eval-views", "0")
@@ -197,10 +201,20 @@ def test_overwrite_of_a_run_without_a_list_removes_only_exact_trainer_names(sphe
     run = tmp_path / "run"
     train(_cfg(sphere_dataset, run, max_steps=3))
     (run / ".written.json").unlink()
-    for name in ("checkpoints/my_best_model.pt", "checkpoints/latest.pt.bak", "previews/step_1.png", "config.json.orig"):
+    for name in (
+        "checkpoints/my_best_model.pt",
+        "checkpoints/latest.pt.bak",
+        "previews/step_1.png",
+        "config.json.orig",
+    ):
         (run / name).write_bytes(b"mine")
     train(_cfg(sphere_dataset, run, max_steps=2, overwrite=True))
-    for name in ("checkpoints/my_best_model.pt", "checkpoints/latest.pt.bak", "previews/step_1.png", "config.json.orig"):
+    for name in (
+        "checkpoints/my_best_model.pt",
+        "checkpoints/latest.pt.bak",
+        "previews/step_1.png",
+        "config.json.orig",
+    ):
         assert (run / name).read_bytes() == b"mine", name
     assert not (run / "checkpoints" / "step_0000003.pt").exists()
 
@@ -487,7 +501,9 @@ def test_check_rejects_what_train_rejects(dataset_factory, tmp_path, breaker, ca
     rc = main(["check", str(ds)])
     out = capsys.readouterr().out
     assert rc == 1 and word in out
-    rc = main(["train", str(ds), "--out", str(tmp_path / "run"), "--method", "test-grid", "--max-steps", "2", "--no-bar"])
+    rc = main(
+        ["train", str(ds), "--out", str(tmp_path / "run"), "--method", "test-grid", "--max-steps", "2", "--no-bar"]
+    )
     err = capsys.readouterr().err
     assert rc == 2 and word in err.strip().splitlines()[-1] and "Traceback" not in err
     assert not (tmp_path / "run").exists()
@@ -556,7 +572,10 @@ def test_paths_outside_the_dataset_are_read_with_a_note_and_bad_path_types_are_r
     assert len(outside) == 2 and any("depth_file_path" in w for w in outside)
     meta["frames"][1]["mask_path"] = 7
     (ds / "transforms_train.json").write_text(json.dumps(meta))
-    with pytest.raises(DatasetError, match=r"transforms_train.json: frame 1 \(./train/r_1\): field 'mask_path' must be a non-empty string"):
+    with pytest.raises(
+        DatasetError,
+        match=r"transforms_train.json: frame 1 \(./train/r_1\): field 'mask_path' must be a non-empty string",
+    ):
         load_dataset(ds)
 
 
@@ -620,7 +639,9 @@ def test_cameras_whose_lens_cannot_be_read_are_refused(sphere_dataset, tmp_path,
     meta["frames"][1].update(edit)
     path.write_text(json.dumps(meta))
     proc = _cli("check", sphere_dataset)
-    assert proc.returncode == 1 and "frame 1 (./train/r_1): field" in proc.stdout and repr(field) in proc.stdout, proc.stdout
+    assert proc.returncode == 1 and "frame 1 (./train/r_1): field" in proc.stdout and repr(field) in proc.stdout, (
+        proc.stdout
+    )
     _clear_error(_cli("train", sphere_dataset, "--out", tmp_path / "run", "--method", "test-grid", "--max-steps", "2",
                       "--no-bar"), "transforms_train.json", "frame 1", repr(field))
 
@@ -665,13 +686,20 @@ def test_eval_at_refuses_empty_and_non_finite_times(sphere_dataset, tmp_path):
         assert proc.returncode == 2 and "--eval-at" in proc.stderr and "Traceback" not in proc.stderr
 
 
-@pytest.mark.parametrize("edit, named", [
-    (lambda m: m.update(w=m["w"] * 2, h=m["h"] * 2), "fields 'w'/'h'"),
-    (lambda m: m.update(w=m["w"] + 0.5), "field 'w'"),
-    (lambda m: m["frames"][1].update(transform_matrix=[[str(v) for v in row] for row in m["frames"][1]["transform_matrix"]]),
-     "field 'transform_matrix'"),
-    (lambda m: m["frames"][1].update(file_path="./train/r_1\x00.png"), "field 'file_path'"),
-])
+@pytest.mark.parametrize(
+    "edit, named",
+    [
+        (lambda m: m.update(w=m["w"] * 2, h=m["h"] * 2), "fields 'w'/'h'"),
+        (lambda m: m.update(w=m["w"] + 0.5), "field 'w'"),
+        (
+            lambda m: m["frames"][1].update(
+                transform_matrix=[[str(v) for v in row] for row in m["frames"][1]["transform_matrix"]]
+            ),
+            "field 'transform_matrix'",
+        ),
+        (lambda m: m["frames"][1].update(file_path="./train/r_1\x00.png"), "field 'file_path'"),
+    ],
+)
 def test_sizes_strings_and_nul_bytes_are_refused_at_any_downscale(sphere_dataset, tmp_path, edit, named):
     path = sphere_dataset / "transforms_train.json"
     meta = json.loads(path.read_text())

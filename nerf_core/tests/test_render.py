@@ -154,7 +154,9 @@ def test_render_from_a_json_list_of_cameras(trained_run, tmp_path):
 
 def test_bad_camera_files_are_named(trained_run, tmp_path, capsys):
     path = tmp_path / "cams.json"
-    path.write_text(json.dumps([{"transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "fl_x": 10}]))
+    path.write_text(
+        json.dumps([{"transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "fl_x": 10}])
+    )
     assert main(["render", str(trained_run["run"]), "--cameras", str(path), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "cams.json" in err and "camera 0" in err and "'w'" in err and "Traceback" not in err
@@ -213,7 +215,9 @@ def test_render_metrics_equal_eval_for_the_same_view_and_checkpoint(trained_run,
     model, cfg, _ = load_run(run, torch.device("cpu"))
     split = load_dataset(ds, splits=("test",)).split("test")
     bg = cfg.get("eval_background", [1.0, 1.0, 1.0])
-    ev = evaluate_split(model, split, background=bg, near=cfg.get("near"), far=cfg.get("far"), pixel_filter=PixelFilter())
+    ev = evaluate_split(
+        model, split, background=bg, near=cfg.get("near"), far=cfg.get("far"), pixel_filter=PixelFilter()
+    )
     assert meta["metrics_background"] == pytest.approx(bg)
     assert [f["file_path"] for f in meta["frames"]] == [f"{e['name']}.png" for e in ev["per_view"]]
     for frame, e in zip(meta["frames"], ev["per_view"]):

@@ -50,9 +50,26 @@ def test_a_slow_frame_reports_progress_chunk_by_chunk(trained_run, tmp_path, mon
 
 
 def test_answers_match_render_view_pixel_for_pixel(trained_run, tmp_path):
-    events = _serve(trained_run["run"], [json.dumps(_req(1, tmp_path / "a.npy")),
-                                         json.dumps(_req(2, tmp_path / "b.npy", c2w=C2W.reshape(-1).tolist(), depth=False,
-                                                         w=6, h=5, fx=5.5, fy=5.0, cx=None, cy=None))])
+    events = _serve(
+        trained_run["run"],
+        [
+            json.dumps(_req(1, tmp_path / "a.npy")),
+            json.dumps(
+                _req(
+                    2,
+                    tmp_path / "b.npy",
+                    c2w=C2W.reshape(-1).tolist(),
+                    depth=False,
+                    w=6,
+                    h=5,
+                    fx=5.5,
+                    fy=5.0,
+                    cx=None,
+                    cy=None,
+                )
+            ),
+        ],
+    )
     assert [e["event"] for e in events] == ["ready", "result", "result"]
     assert events[0]["method"] == "test-grid" and events[0]["step"] == 30 and events[0]["background"] == "transparent"
     assert events[1]["path"] == str(tmp_path / "a.npy") and events[1]["depth_path"] == str(tmp_path / "a_depth.npy")
@@ -101,10 +118,15 @@ def test_values_float32_cannot_take_are_one_error_each_and_the_server_goes_on(tr
     # A focal length of 1e-300 px (0 in float32) made NaN rays; the ValueError that followed ended the
     # server with exit 2 and no answer, and the next request was never served.
     text_c2w = [[str(v) for v in row] for row in C2W.tolist()]
-    lines = [json.dumps(_req(1, tmp_path / "a.npy", fx=1e-300)), json.dumps(_req(2, tmp_path / "a.npy", cx=1e300)),
-             json.dumps(_req(3, tmp_path / "a.npy", far=1e300)), json.dumps(_req(4, tmp_path / "a.npy", depth="no")),
-             json.dumps(_req(5, tmp_path / "a.npy", c2w=text_c2w)), json.dumps(_req(6, str(tmp_path / "a") + "\0b.npy")),
-             json.dumps(_req(7, tmp_path / "ok.npy"))]
+    lines = [
+        json.dumps(_req(1, tmp_path / "a.npy", fx=1e-300)),
+        json.dumps(_req(2, tmp_path / "a.npy", cx=1e300)),
+        json.dumps(_req(3, tmp_path / "a.npy", far=1e300)),
+        json.dumps(_req(4, tmp_path / "a.npy", depth="no")),
+        json.dumps(_req(5, tmp_path / "a.npy", c2w=text_c2w)),
+        json.dumps(_req(6, str(tmp_path / "a") + "\0b.npy")),
+        json.dumps(_req(7, tmp_path / "ok.npy")),
+    ]
     events = _serve(trained_run["run"], lines)
     assert [e["event"] for e in events] == ["ready"] + ["error"] * 6 + ["result"]
     msgs = [e["message"] for e in events[1:7]]

@@ -80,8 +80,19 @@ def test_a_truncated_checkpoint_message_leaves_out_torchs_advice(run_copy):
 
 def test_another_runs_checkpoint_is_refused_and_files_no_metrics(run_copy, dataset_factory, tmp_path):
     other = tmp_path / "other"
-    train(TrainConfig(dataset=str(dataset_factory(tmp_path / "ds", n_train=5)), out=str(other), method="vmgrid", max_steps=2, batch_rays=64,
-                      seed=0, stdout_events=False, show_bar=False, eval_views=0))
+    train(
+        TrainConfig(
+            dataset=str(dataset_factory(tmp_path / "ds", n_train=5)),
+            out=str(other),
+            method="vmgrid",
+            max_steps=2,
+            batch_rays=64,
+            seed=0,
+            stdout_events=False,
+            show_bar=False,
+            eval_views=0,
+        )
+    )
     before = (run_copy / "metrics.json").read_bytes()
     proc = _cli("eval", run_copy, "--checkpoint", other / "checkpoints" / "latest.pt", "--no-bar")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
@@ -153,7 +164,10 @@ def test_eval_and_render_note_a_dataset_that_changed_since_training(sphere_datas
         assert proc.returncode == 0, proc.stderr
         assert "changed since the run trained on it" in proc.stderr and str(sphere_dataset.resolve()) in proc.stderr
     # ...and renders.json carries it, for the add-on to show beside the imported scores
-    assert "changed since the run trained on it" in json.loads((tmp_path / "compare" / "renders.json").read_text())["notes"][0]
+    assert (
+        "changed since the run trained on it"
+        in json.loads((tmp_path / "compare" / "renders.json").read_text())["notes"][0]
+    )
     other = tmp_path / "cams.json"  # cameras of the user's own: no dataset of the run's involved
     other.write_text(json.dumps({"camera_angle_x": 0.7, "w": 8, "h": 8, "frames": [data["frames"][0]]}))
     proc = _cli("render", run, "--cameras", other, "--out", tmp_path / "own", "--no-bar")

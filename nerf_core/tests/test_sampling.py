@@ -74,5 +74,7 @@ def test_occupied_samples_skip_empty_space():
     assert ridx.tolist() == [0] * 10 + [1] * 10
     assert torch.all(mids < 5.0) and torch.all(t0 >= 4.0 - 1e-6)
     assert torch.all(t1 - t0 <= 0.1 + 1e-6)
-    none = sampling.occupied_samples(o, d, near, far, 0.1, lambda p: torch.zeros(p.shape[0], dtype=torch.bool), jitter=True)
+    none = sampling.occupied_samples(
+        o, d, near, far, 0.1, lambda p: torch.zeros(p.shape[0], dtype=torch.bool), jitter=True
+    )
     assert none[2].numel() == 0

@@ -109,6 +109,8 @@ def test_grid_resolution_follows_the_texture_scale():
 def test_nearest_box_distance_hand_computed():
     origins = torch.tensor([[4.0, 0.0, 0.0], [0.0, 0.0, -6.0], [3.0, 4.0, 1.0], [0.0, 0.5, 0.0]])
     # Distances to the box [-1, 1]^3: 3, 5, |(2, 3, 0)| = sqrt(13), and 0 (inside: floored to 0.05 * 2).
-    assert nearest_box_distance(origins, BOX) == pytest.approx(3.0)  # torch's median of 0.1, 3, 3.606, 5: the lower middle
+    assert nearest_box_distance(origins, BOX) == pytest.approx(
+        3.0
+    )  # torch's median of 0.1, 3, 3.606, 5: the lower middle
     assert nearest_box_distance(origins[:3], BOX) == pytest.approx(13 ** 0.5)
     assert nearest_box_distance(origins[3:], BOX) == pytest.approx(0.1)

@@ -199,7 +199,9 @@ def test_a_cut_out_with_opaque_pixels_beyond_the_box_is_contracted(sphere_datase
     assert any(line.startswith("background: random") for line in report.plan)
     assert any("unbounded=true" in line and "opaque where their ray misses" in line
                for line in report.plan) is (half_box < 0.6)
-    assert ("TRAIN   vmgrid (the default method) will model the world beyond the box" in report.format()) is (half_box < 0.6)
+    assert ("TRAIN   vmgrid (the default method) will model the world beyond the box" in report.format()) is (
+        half_box < 0.6
+    )
     run = tmp_path / "run"
     train(_cfg(sphere_dataset, run, method="vmgrid", max_steps=1, batch_rays=64, eval_views=0, options=given))
     cfg = json.loads((run / "config.json").read_text())
@@ -305,7 +307,9 @@ def test_white_then_random_background(sphere_dataset):
     assert torch.all(bg_early == 1.0)
     assert bg_late.std() > 0.2  # one random colour per ray
     # Transparent pixels show exactly the background they were composited onto.
-    _, _, bg_rand, gt_rand, _ = _Batcher(split, "random", torch.Generator().manual_seed(1), torch.device("cpu")).sample(4096)
+    _, _, bg_rand, gt_rand, _ = _Batcher(split, "random", torch.Generator().manual_seed(1), torch.device("cpu")).sample(
+        4096
+    )
     assert ((gt_rand - bg_rand).abs().amax(-1) < 1e-6).float().mean() > 0.3
 
 
@@ -398,7 +402,10 @@ def test_the_default_batch_is_the_methods_and_four_times_that_on_cuda():
     BOX_2 = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
     assert CUDA_BATCH_SCALE == 4
     assert default_batch_rays(WithDefault(BOX_2), cpu) == 2048 and default_batch_rays(WithDefault(BOX_2), cuda) == 8192
-    assert default_batch_rays(WithoutDefault(BOX_2), cpu) == 1024 and default_batch_rays(WithoutDefault(BOX_2), cuda) == 4096
+    assert (
+        default_batch_rays(WithoutDefault(BOX_2), cpu) == 1024
+        and default_batch_rays(WithoutDefault(BOX_2), cuda) == 4096
+    )
 
 
 def test_a_run_records_the_batch_it_chose(sphere_dataset, tmp_path):

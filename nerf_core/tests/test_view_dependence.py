@@ -75,7 +75,9 @@ def test_default_colour_depends_on_the_direction(name):
 
 def test_the_option_turns_it_off_on_the_plain_methods_too():
     for name in ("vmgrid", "nerf"):
-        model = build_model(name, BOX, view_dependent=False, **({"res_init": 16} if name == "vmgrid" else {"width": 32}))
+        model = build_model(
+            name, BOX, view_dependent=False, **({"res_init": 16} if name == "vmgrid" else {"width": 32})
+        )
         _randomise(model)
         x, dirs = _points_and_directions(m=16, k=2)
         with torch.no_grad():

@@ -211,8 +211,12 @@ def test_old_adam_moments_are_upgraded_for_resume():
     ids = state["param_groups"][0]["params"]
     old_state = {**state, "state": dict(state["state"])}
     for pid, p in zip(ids, model.field.grid_parameters()):
-        old_state["state"][pid] = {k: (v.permute(0, 3, 1, 2) if v.dim() == 4 else v.permute(0, 2, 1).unsqueeze(-1))
-                                   if torch.is_tensor(v) and v.dim() >= 3 else v for k, v in state["state"][pid].items()}
+        old_state["state"][pid] = {
+            k: (v.permute(0, 3, 1, 2) if v.dim() == 4 else v.permute(0, 2, 1).unsqueeze(-1))
+            if torch.is_tensor(v) and v.dim() >= 3
+            else v
+            for k, v in state["state"][pid].items()
+        }
     old_weights = _old_layout(model.state_dict(), "field.")
     _, upgraded = model.upgrade_checkpoint(old_weights, old_state)
     check_optimizer_state(upgraded, opt, "old.pt")

@@ -25,9 +25,15 @@ def _camera(yaw_deg: float, pitch_deg: float = 0.0, w: int = 40, h: int = 40, fo
 
 
 def _cat(*cams: Cameras) -> Cameras:
-    return Cameras.create(torch.cat([c.c2w for c in cams]), torch.cat([c.fx for c in cams]), torch.cat([c.fy for c in cams]),
-                          torch.cat([c.cx for c in cams]), torch.cat([c.cy for c in cams]),
-                          torch.cat([c.width for c in cams]), torch.cat([c.height for c in cams]))
+    return Cameras.create(
+        torch.cat([c.c2w for c in cams]),
+        torch.cat([c.fx for c in cams]),
+        torch.cat([c.fy for c in cams]),
+        torch.cat([c.cx for c in cams]),
+        torch.cat([c.cy for c in cams]),
+        torch.cat([c.width for c in cams]),
+        torch.cat([c.height for c in cams]),
+    )
 
 
 def test_dilate_grows_one_cell_at_the_equator_and_more_towards_the_poles():
