@@ -43,7 +43,8 @@ def add_parser(sub, fmt) -> None:
     v = kinds.add_parser("volume", help="density and colour grids (.npz) for a Blender Volume", formatter_class=fmt)
     for p in (m, v):
         p.add_argument("run", metavar="RUN", help="run folder written by `train`")
-        p.add_argument("--out", required=True, metavar="FILE", help="file to write (.ply for a mesh, .npz for a volume)")
+        p.add_argument("--out", required=True, metavar="FILE",
+                       help="file to write (.ply for a mesh, .npz for a volume)")
         p.add_argument("--resolution", type=grid_res, metavar="N",
                        help="samples per axis of the scene box (default: the model's own grid; 256 for nerf)")
         p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
