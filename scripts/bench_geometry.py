@@ -8,7 +8,7 @@
 truth) for ``--seconds`` of training time, one thread, keeping a checkpoint every ``--every`` steps.
 Then, for each checkpoint, ``export mesh`` (default flags) and ``score-mesh`` at tau = 0.5 % and 1 % of
 the truth's diagonal; on the last checkpoint also the surface level against alternatives (x 1/4, x 4,
-x 16 the default ln 2 / voxel), the mesh without culling, a 256^3 extraction's time, and ``eval`` on 5
+x 16 the default), the mesh without culling, a 256^3 extraction's time, and ``eval`` on 5
 test views (PSNR, depth_mae, depth_rel). Writes DIR/<scene>_<method>.json.
 
 ``report`` draws DIR/geometry.png (F-score against training time per scene and method) and prints a
@@ -78,7 +78,6 @@ def cmd_run(a) -> int:
     from nerf_core.engine.config import TrainConfig
     from nerf_core.engine.trainer import train
     from nerf_core.evaluation.evaluate import evaluate_run
-    from nerf_core.export import grid
     from nerf_core.export.ply import read_geometry
 
     scene = os.path.basename(os.path.normpath(a.dataset)).split("-")[0]
@@ -99,7 +98,7 @@ def cmd_run(a) -> int:
     for ck in ckpts:
         step = int(os.path.basename(ck)[5:-3])
         path = os.path.join(mesh_dir, f"{scene}_{a.method}_{step:07d}.ply")
-        summary = _export(run, path, checkpoint=ck)
+        summary = _export(run, path, checkpoint=ck, resolution=a.resolution)
         entry = {"step": step, "train_seconds": round(_time_of(step, pts), 1),
                  "export_seconds": summary.get("seconds"), "faces": summary.get("faces"),
                  "resolution": summary.get("resolution"), "error": summary.get("error")}
@@ -109,17 +108,22 @@ def cmd_run(a) -> int:
         print(json.dumps(entry), flush=True)
     last = ckpts[-1]
     final_mesh = os.path.join(mesh_dir, f"{scene}_{a.method}_final.ply")
-    base = _export(run, final_mesh, checkpoint=last)
+    base = _export(run, final_mesh, checkpoint=last, resolution=a.resolution)
     variants = {"default": {"summary": base, "scores": _score(final_mesh, truth) if "error" not in base else None}}
-    box = [[float(v) for v in r] for r in base.get("box", [[0, 0, 0], [1, 1, 1]])]
-    res = base.get("resolution") or 0
-    for name, kw in (("level x0.25", {"level": 0.25}), ("level x4", {"level": 4.0}), ("level x16", {"level": 16.0}),
+    for name, kw in () if a.no_variants else (("level x0.25", {"level": 0.25}), ("level x4", {"level": 4.0}), ("level x16", {"level": 16.0}),
+                     ("fixed level", {"fixed": True}), ("no fill", {"fill_inside": False}),
                      ("no culling", {"cull_unseen": False, "min_component": 0.0})):
-        if "level" in kw and res:
+        if "level" in kw:
+            if "level" not in base:
+                continue
+            kw = {"level": kw["level"] * base["level"]}
+        if kw.pop("fixed", False):  # the fallback rule: one grid step 5 % opaque
             import numpy as np
-            kw = {"level": kw["level"] * grid.iso_level(np.asarray(box), res)}
+
+            from nerf_core.export import grid
+            kw = {"level": grid.iso_level(np.asarray(base["box"]), base["resolution"])}
         p = os.path.join(mesh_dir, f"{scene}_{a.method}_{name.replace(' ', '_')}.ply")
-        s = _export(run, p, checkpoint=last, **kw)
+        s = _export(run, p, checkpoint=last, resolution=a.resolution, **kw)
         variants[name] = {"summary": {k: s.get(k) for k in ("faces", "level", "error", "seconds")},
                           "scores": _score(p, truth) if "error" not in s else None}
     t = time.perf_counter()
@@ -243,6 +247,8 @@ def main(argv) -> int:
     r.add_argument("--seconds", type=float, default=300.0)
     r.add_argument("--every", type=int, default=250, help="steps between checkpoints")
     r.add_argument("--out", required=True)
+    r.add_argument("--resolution", type=int, help="export resolution (default: the export's own default)")
+    r.add_argument("--no-variants", action="store_true", help="skip the level and culling variants")
     p = sub.add_parser("report")
     p.add_argument("out")
     pic = sub.add_parser("picture")

@@ -29,21 +29,17 @@ class VolumeFileError(ValueError):
 
 
 def load_openvdb(extra_dirs: Sequence[str] = ()):
-    """Blender's ``openvdb`` module, looking in ``extra_dirs`` (Blender's bundled site-packages) too."""
-    try:
-        import openvdb
-        return openvdb
-    except ImportError:
-        pass
+    """Blender's ``openvdb`` module, looking in ``extra_dirs`` (Blender's bundled site-packages) too.
+    Imported here, not at the top: only a volume import needs it, and outside Blender it is absent."""
     for d in extra_dirs:
         if os.path.isdir(d) and d not in sys.path:
-            sys.path.append(d)
+            sys.path.append(d)  # after everything else: a user's own openvdb, if any, comes first
     try:
         import openvdb
-        return openvdb
     except ImportError as exc:
         raise VolumeFileError(f"Blender's OpenVDB Python module is not available ({exc}); "
                               f"looked in {', '.join(extra_dirs) or 'the default path'}") from exc
+    return openvdb
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:

@@ -105,7 +105,11 @@ def colour_at(model, pts: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return out
 
 
-def iso_level(box: np.ndarray, resolution: int) -> float:
-    """The surface's density: the sigma at which one sample step turns 50 % opaque,
-    ``ln 2 / voxel`` (voxel: the mean sample spacing, scene units). See ``mesh`` for the rule."""
-    return math.log(2.0) / float(spacing(box, resolution).mean())
+FIXED_STEP_OPACITY = 0.05
+
+
+def iso_level(box: np.ndarray, resolution: int, opacity: float = FIXED_STEP_OPACITY) -> float:
+    """The fixed surface level: the sigma at which one sample step turns ``opacity`` opaque,
+    ``-ln(1 - opacity) / voxel`` (voxel: the mean sample spacing, scene units). ``export.level``
+    says when it is used and how it compares."""
+    return -math.log1p(-opacity) / float(spacing(box, resolution).mean())

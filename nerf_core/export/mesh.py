@@ -2,10 +2,12 @@
 
 The rules, each stated once:
 
-- **Surface level.** The surface is where density reaches ``ln 2 / voxel`` (``grid.iso_level``): the
-  density at which one grid step of the render turns 50 % opaque. A lower level wraps the geometry in
-  the faint haze a field keeps around surfaces (the mesh grows outwards); a higher one sinks it into
-  the object. ``--level`` overrides it (docs/BENCHMARKS.md compares levels).
+- **Surface level.** Where the training cameras' rays first meet the surface (transmittance 0.95,
+  ``level.rendered_surface_level``), else where one grid step is 5 % opaque (``grid.iso_level``);
+  ``level`` says why and compares. A lower level wraps the geometry in the faint haze a field keeps
+  around surfaces; a higher one sinks it into the object. ``--level`` overrides it.
+- **Enclosed space.** Empty space that no camera can reach (walled in by surface) is filled first
+  (``fill_unseen_inside``), so a field that is a shell gives its outer face only.
 - **Culling.** A vertex is kept when at least one training camera sees it: in its image, in front of
   it, and not behind the mesh's own nearer surface (``seen_by_cameras``). The field was never
   supervised anywhere else, and its density there is a guess. A face is kept
@@ -28,6 +30,7 @@ import torch
 
 from nerf_core.cameras.rays import Cameras, project_points
 from nerf_core.export import extra, grid
+from nerf_core.export import level as surface_level
 
 DEFAULT_MIN_COMPONENT = 0.005
 
@@ -85,6 +88,39 @@ def _inward_share(verts, faces, density, box) -> float:
         ijk = np.clip(np.rint((p - box[0]) / step).astype(np.int64), 0, density.shape[0] - 1)
         return density[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
     return float(np.mean(at(c + n * step) > at(c - n * step)))
+
+
+def fill_unseen_inside(density: np.ndarray, box: np.ndarray, level: float,
+                       viewpoints: Optional[np.ndarray] = None) -> tuple[np.ndarray, int]:
+    """The density with every pocket of empty space that no viewpoint reaches raised above ``level``:
+    (filled grid, samples raised).
+
+    Empty space (below ``level``) is split into connected pieces; the pieces that touch the box's
+    faces or hold a viewpoint (a training camera inside the box: a room seen from within) are the air
+    the cameras look through. Every other piece is enclosed by surface, so no camera sees into it.
+    A trained field is often a shell with a faint inside: without this, marching cubes would give the
+    shell's inner face too, a second surface where nothing is seen.
+    """
+    ndimage = extra.load("scipy.ndimage", "export mesh (finding enclosed empty space)")
+    empty = density < level
+    labels, count = ndimage.label(empty)
+    if count == 0:
+        return density, 0
+    outside = set(np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
+                                            labels[:, -1].ravel(), labels[:, :, 0].ravel(),
+                                            labels[:, :, -1].ravel()])).tolist())
+    if viewpoints is not None and len(viewpoints):
+        step = grid.spacing(box, density.shape[0])
+        ijk = np.rint((np.asarray(viewpoints) - box[0]) / step).astype(np.int64)
+        inside = np.all((ijk >= 0) & (ijk < density.shape[0]), axis=1)
+        outside |= set(labels[ijk[inside, 0], ijk[inside, 1], ijk[inside, 2]].tolist())
+    outside.discard(0)
+    enclosed = empty & ~np.isin(labels, sorted(outside))
+    n = int(np.count_nonzero(enclosed))
+    if n:
+        density = density.copy()
+        density[enclosed] = 2.0 * level
+    return density, n
 
 
 def vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -168,7 +204,7 @@ def decimate(verts: np.ndarray, faces: np.ndarray, n_faces: int) -> tuple[np.nda
 
 def extract_mesh(model, box: np.ndarray, resolution: int, level: Optional[float] = None,
                  n_faces: Optional[int] = None, cameras: Optional[Cameras] = None,
-                 min_component: float = DEFAULT_MIN_COMPONENT,
+                 min_component: float = DEFAULT_MIN_COMPONENT, fill_inside: bool = True,
                  on_progress: Optional[Callable[[str, float], None]] = None) -> Mesh:
     """The coloured mesh of ``model`` inside ``box`` (2, 3), by the rules of this module.
 
@@ -176,21 +212,34 @@ def extract_mesh(model, box: np.ndarray, resolution: int, level: Optional[float]
         model: a trained RadianceModel (read through ``export.field``).
         box: (2, 3) float64 [min corner, max corner] in scene units.
         resolution: samples per axis of the density grid.
-        level: surface density per scene unit; None: ``grid.iso_level``.
+        level: surface density per scene unit; None: ``level.rendered_surface_level`` through
+            ``cameras``, else ``grid.iso_level``.
         n_faces: decimate to about this many faces; None: keep all.
         cameras: the training cameras for culling; None: no camera culling.
         min_component: floater rule, a share of the total area (0: keep every piece).
+        fill_inside: raise enclosed empty space above the level first (``fill_unseen_inside``).
         on_progress: called with (stage, share done in [0, 1]).
 
     Raises:
         NoSurface: nothing crosses the level; extra.MissingExtra: the mesh extra is missing.
     """
     say = on_progress or (lambda stage, share: None)
-    level = grid.iso_level(box, resolution) if level is None else float(level)
+    rule = "given"
+    if level is None and cameras is not None:
+        say("level", 0.0)
+        level, rule = surface_level.rendered_surface_level(model, cameras, box), "first contact of training rays"
+    if level is None:
+        level, rule = grid.iso_level(box, resolution), "one grid step 5 % opaque"
+    level = float(level)
     density = grid.sample_density(model, box, resolution, lambda s: say("density", s))
+    info = {"resolution": resolution, "level": level, "level_rule": rule, "density_range": [float(density.min()), float(density.max())]}
+    lo, hi = info["density_range"]
+    if fill_inside and lo < level < hi:
+        say("filling", 0.0)
+        viewpoints = cameras.c2w[:, :3, 3].double().numpy() if cameras is not None else None
+        density, info["enclosed_samples_filled"] = fill_unseen_inside(density, box, level, viewpoints)
     verts, faces = marching_cubes(density, box, level)
-    info = {"resolution": resolution, "level": level, "density_range": [float(density.min()), float(density.max())],
-            "faces_extracted": int(len(faces))}
+    info["faces_extracted"] = int(len(faces))
     del density
     say("culling", 0.0)
     if cameras is not None:

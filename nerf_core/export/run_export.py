@@ -42,7 +42,7 @@ def _training_cameras(config: dict, notes: list):
 
 def export_mesh(run, out, resolution: Optional[int] = None, n_faces: Optional[int] = None,
                 level: Optional[float] = None, min_component: float = mesh.DEFAULT_MIN_COMPONENT,
-                cull_unseen: bool = True, overwrite: bool = False, checkpoint=None, device=None,
+                cull_unseen: bool = True, fill_inside: bool = True, overwrite: bool = False, checkpoint=None, device=None,
                 on_progress: Optional[Callable[[str, float], None]] = None,
                 on_note: Optional[Callable[[str], None]] = None) -> dict:
     """Write the run's coloured mesh to ``out`` (binary PLY, scene frame); see ``export.mesh`` for the rules.
@@ -61,7 +61,7 @@ def export_mesh(run, out, resolution: Optional[int] = None, n_faces: Optional[in
     for n in notes:
         (on_note or (lambda s: None))(n)
     m = mesh.extract_mesh(model, box, res, level=level, n_faces=n_faces, cameras=cams,
-                          min_component=min_component, on_progress=on_progress)
+                          min_component=min_component, fill_inside=fill_inside, on_progress=on_progress)
     check_output(out, overwrite)  # again: the path may have changed while we worked
     ply.write_mesh_ply(out, m.vertices, m.faces, m.colors)
     return {"out": str(Path(out).resolve()), "kind": "mesh", "run": str(Path(run).resolve()),

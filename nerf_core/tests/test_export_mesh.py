@@ -127,7 +127,7 @@ def test_written_ply_is_the_conventional_layout_and_reads_back(tmp_path):
 
 
 def test_no_surface_names_the_level_and_the_density_range():
-    model = SphereModel(peak=1.0)  # a faint fog: never reaches ln2 / voxel
+    model = SphereModel(peak=0.1)  # a faint fog: never reaches the fixed level
     with pytest.raises(mesh.NoSurface, match=r"no surface at density level .* ranges over \[.*\]"):
         mesh.extract_mesh(model, BOX, 16)
 
@@ -175,7 +175,7 @@ def test_cli_refuses_an_output_that_is_not_a_file(fake_run, tmp_path, capsys, ki
 
 
 def test_cli_no_surface_and_huge_grid_are_one_line_with_nothing_written(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(run_export, "load_run", lambda *a, **k: (SphereModel(peak=1.0), {}, {}))
+    monkeypatch.setattr(run_export, "load_run", lambda *a, **k: (SphereModel(peak=0.1), {}, {}))
     out = tmp_path / "m.ply"
     assert main(["export", "mesh", "run", "--out", str(out), "--resolution", "16"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -194,3 +194,41 @@ def test_without_the_mesh_extra_the_error_names_it(monkeypatch, tmp_path, fake_r
     assert main(["export", "mesh", str(fake_run), "--out", str(tmp_path / "m.ply"), "--resolution", "16"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pip install nerf-bridge[mesh]" in err[0] and not (tmp_path / "m.ply").exists()
+
+
+class RampNet(SphereNet):
+    """A field as training leaves it: density rising linearly (``slope`` per scene unit of depth)
+    into a sphere, or only within a shell of inner radius ``hollow``."""
+
+    def __init__(self, slope=1000.0, hollow=0.0):
+        super().__init__()
+        self.slope, self.hollow = slope, hollow
+
+    def density(self, x):
+        r = x.norm(dim=-1)
+        sigma = self.slope * (RADIUS - r).clamp_min(0)
+        return torch.where(r < self.hollow, torch.zeros_like(sigma), sigma)
+
+
+def test_the_level_is_where_training_rays_first_meet_the_surface():
+    from nerf_core.export.level import CONTACT, rendered_surface_level
+
+    model = SphereModel()
+    model.coarse = RampNet()
+    level = rendered_surface_level(model, ring_cameras(), BOX, n_rays=512)
+    # Head-on, optical depth slope * x^2 / 2 reaches -ln(CONTACT) at sigma = sqrt(2 slope (-ln CONTACT));
+    # oblique rays meet the ramp at a shallower angle and reach it at a lower density.
+    head_on = math.sqrt(2 * 1000.0 * -math.log(CONTACT))
+    assert 0.5 * head_on < level <= 1.02 * head_on
+    m = mesh.extract_mesh(model, BOX, 48, cameras=ring_cameras())
+    assert m.info["level_rule"] == "first contact of training rays" and m.info["level"] == pytest.approx(level, rel=0.1)
+
+
+def test_enclosed_empty_space_is_filled_so_a_shell_gives_its_outer_face_only():
+    model = SphereModel()
+    model.coarse = RampNet(hollow=0.4)
+    both = mesh.extract_mesh(model, BOX, 48, level=20.0, fill_inside=False)
+    outer = mesh.extract_mesh(model, BOX, 48, level=20.0)
+    r_both, r_outer = (np.linalg.norm(m.vertices, axis=1) for m in (both, outer))
+    assert (r_both < 0.45).any()  # the shell's inner face
+    assert r_outer.min() > 0.5 and outer.info["enclosed_samples_filled"] > 0
