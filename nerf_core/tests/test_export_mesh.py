@@ -232,3 +232,23 @@ def test_enclosed_empty_space_is_filled_so_a_shell_gives_its_outer_face_only():
     r_both, r_outer = (np.linalg.norm(m.vertices, axis=1) for m in (both, outer))
     assert (r_both < 0.45).any()  # the shell's inner face
     assert r_outer.min() > 0.5 and outer.info["enclosed_samples_filled"] > 0
+
+
+def test_cli_writes_the_volume_file_of_the_contract(fake_run, tmp_path, capsys):
+    from nerf_core.export.volume import read_volume
+
+    out = tmp_path / "v.npz"
+    assert main(["export", "volume", str(fake_run), "--out", str(out), "--resolution", "24"]) == 0
+    summary = _last_json(capsys)
+    v = read_volume(out)
+    assert v["density"].shape == (24, 24, 24) and v["color"].dtype == np.uint8
+    assert str(v["format"]) == "nerf_bridge.volume"
+    idx = np.indices(v["density"].shape).reshape(3, -1).T
+    pts = (v["box"][0] + idx * v["spacing"]).reshape(24, 24, 24, 3)
+    r = np.linalg.norm(pts, axis=-1)
+    inside = r < RADIUS - 0.1
+    assert (v["density"][inside] > 1e3).all() and (v["density"][r > RADIUS + 0.1] < 1e-3).all()
+    top, bottom = inside & (pts[..., 2] > 0.05), inside & (pts[..., 2] < -0.05)
+    assert (v["color"][top] == [255, 0, 0]).all() and (v["color"][bottom] == [0, 0, 255]).all()
+    assert not v["color"][r > RADIUS + 0.1].any()  # no colour where nothing is
+    assert summary["resolution"] == 24 and summary["density_range"][1] > 1e3
