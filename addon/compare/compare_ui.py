@@ -139,15 +139,15 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
             layout.prop(s, "plane_distance")
         layout.prop(s, "image_storage")
         row = layout.row(align=True)
-        busy = jobs.get(train_ui.RENDER) if jobs.is_running(train_ui.RENDER) else None
-        if busy is not None:  # a long fly-through or export must be stoppable from here
-            text = "Cancel Export" if isinstance(busy, GeometryJob) else "Cancel Render"
+        busy = jobs.is_running(train_ui.RENDER)
+        if busy:  # a long fly-through or export must be stoppable from here
+            text = "Cancel Export" if isinstance(jobs.get(train_ui.RENDER), GeometryJob) else "Cancel Render"
             row.operator(train_ui.NERF_OT_train_cancel.bl_idname, text=text, icon="CANCEL").target = "RENDER"
         else:
             row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
         row = layout.row(align=True)
-        row.enabled = busy is None
+        row.enabled = not busy
         row.operator(NERF_OT_import_geometry.bl_idname, text="Import as Mesh", icon="MESH_DATA").geometry = "MESH"
         row.operator(NERF_OT_import_geometry.bl_idname, text="Import as Volume", icon="VOLUME_DATA").geometry = "VOLUME"
         layout.operator("nerf.export_camera_path", icon="EXPORT")  # the active camera's animation
