@@ -177,6 +177,12 @@ def render_command(python: str, run: str, cameras: str, out: str, split: str = "
     return cmd
 
 
+def export_command(python: str, kind: str, run: str, out: str, checkpoint: str = "") -> List[str]:
+    """``nerf_core export mesh|volume RUN --out FILE`` (``kind``: "mesh" or "volume")."""
+    cmd = [python, "-m", "nerf_core", "export", kind, run, "--out", out]
+    return cmd + (["--checkpoint", checkpoint] if checkpoint else [])
+
+
 def check_dataset(python: str, dataset: str, timeout: float = 300.0, addon_dir: str = ADDON_DIR) -> None:
     """Run ``python -m nerf_core check DATASET``; SetupError carrying its message when invalid."""
     if not dataset:

@@ -7,6 +7,7 @@ writes and how its views come back as planes is ``compare_views``'.
 from __future__ import annotations
 
 import bpy
+from bpy.props import EnumProperty
 
 from ..bridge import child_process
 from ..bridge.child_process import SetupError
@@ -15,6 +16,7 @@ from ..common.ui_common import NerfPanel, abs_path, property_split
 from ..train import train_ui
 from ..train.train_props import settings_of
 from . import compare_views, planes
+from .geometry_job import GeometryJob, fresh_file
 from .render_job import RenderJob
 
 
@@ -48,6 +50,35 @@ def start_render(context) -> RenderJob:
     return job
 
 
+def sync_geometry_settings(job: GeometryJob) -> None:
+    """The panel's status line while the export runs (its stage and share done), then the outcome."""
+    scene = job.scene
+    if scene is None:
+        return
+    s = scene.nerf_train
+    if job.state == "running":
+        s.status = f"Exporting the NeRF {job.geometry}: {job.stage() or 'loading the run'}"
+    else:
+        train_ui.show_outcome(s, job)
+
+
+def start_geometry(context, geometry: str) -> GeometryJob:
+    """Start ``nerf_core export mesh|volume`` of the panel's run into a fresh RUN/geometry file; the
+    result is imported when it ends. Shares Compare's job slot, so its Cancel stops it."""
+    if jobs.is_running(train_ui.RENDER):
+        raise SetupError("Compare is already busy (rendering views or exporting): wait for it or cancel.")
+    s = settings_of(context)
+    run = abs_path(s.run_dir)
+    checkpoint = compare_views.require_checkpoint(run)
+    python = child_process.resolve_interpreter(prefs.python_preference(context))
+    job = GeometryJob(context.scene.name, python, run, geometry, fresh_file(run, geometry), checkpoint=checkpoint)
+    job.on_update, job.on_end = sync_geometry_settings, train_ui.refresh_after
+    jobs.add(train_ui.RENDER, job)
+    s.status = f"Exporting the NeRF {geometry}..."
+    s.error = ""
+    return job
+
+
 # -- operators ----------------------------------------------------------------------------------------
 class NERF_OT_render_views(train_ui.StartsJob, bpy.types.Operator):
     """Render novel views with the trained NeRF and import them as image planes"""
@@ -57,6 +88,20 @@ class NERF_OT_render_views(train_ui.StartsJob, bpy.types.Operator):
 
     def start(self, context):
         return start_render(context)
+
+
+class NERF_OT_import_geometry(train_ui.StartsJob, bpy.types.Operator):
+    """Export the trained NeRF as geometry (in a separate process) and import it beside the scene's objects"""
+
+    bl_idname = "nerf.import_geometry"
+    bl_label = "Import NeRF Geometry"
+
+    geometry: EnumProperty(items=[("MESH", "Mesh", "A coloured mesh (marching cubes), in the NeRF Mesh collection"),
+                                  ("VOLUME", "Volume", "A Volume object that Cycles renders as the NeRF, in the "
+                                                       "NeRF Volume collection")], default="MESH")
+
+    def start(self, context):
+        return start_geometry(context, self.geometry.lower())
 
 
 class NERF_OT_clear_views(bpy.types.Operator):
@@ -94,11 +139,17 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
             layout.prop(s, "plane_distance")
         layout.prop(s, "image_storage")
         row = layout.row(align=True)
-        if jobs.is_running(train_ui.RENDER):  # a long fly-through must be stoppable from here
-            row.operator(train_ui.NERF_OT_train_cancel.bl_idname, text="Cancel Render", icon="CANCEL").target = "RENDER"
+        busy = jobs.is_running(train_ui.RENDER)
+        if busy:  # a long fly-through or export must be stoppable from here
+            text = "Cancel Export" if isinstance(jobs.get(train_ui.RENDER), GeometryJob) else "Cancel Render"
+            row.operator(train_ui.NERF_OT_train_cancel.bl_idname, text=text, icon="CANCEL").target = "RENDER"
         else:
             row.operator(NERF_OT_render_views.bl_idname, icon="RENDER_STILL")
         row.operator(NERF_OT_clear_views.bl_idname, text="", icon="TRASH")
+        row = layout.row(align=True)
+        row.enabled = not busy
+        row.operator(NERF_OT_import_geometry.bl_idname, text="Import as Mesh", icon="MESH_DATA").geometry = "MESH"
+        row.operator(NERF_OT_import_geometry.bl_idname, text="Import as Volume", icon="VOLUME_DATA").geometry = "VOLUME"
         layout.operator("nerf.export_camera_path", icon="EXPORT")  # the active camera's animation
         if len(s.view_metrics):
             layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)

@@ -1,4 +1,4 @@
-"""``python -m nerf_core``: train, render, eval, check (and list methods).
+"""``python -m nerf_core``: train, render, eval, check, export, score-mesh (and list methods).
 
 Stable flags are documented in docs/CONTRACTS.md. Expected problems (bad dataset, existing run,
 missing checkpoint) end with one ``nerf_core <command>: error: ...`` line on stderr and exit code 2,
@@ -14,7 +14,7 @@ import os
 import sys
 from typing import List, Optional
 
-from nerf_core.cli import check, evaluate, render, serve, train
+from nerf_core.cli import check, evaluate, export, render, score_mesh, serve, train
 from nerf_core.cli.options import HelpFormatter
 from nerf_core.contract.errors import DatasetError
 from nerf_core.errors import ImageReadError, RunError, TrainError
@@ -51,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    for command in (train, render, evaluate, check, serve):
+    for command in (train, render, evaluate, check, serve, export, score_mesh):
         command.add_parser(sub, fmt)
     m = sub.add_parser("methods", help="list the available methods, or one method's options", formatter_class=fmt)
     m.add_argument("name", nargs="?", metavar="METHOD", help="list this method's options (train --set KEY=VALUE)")

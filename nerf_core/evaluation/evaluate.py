@@ -64,8 +64,8 @@ def evaluate_split(
     Returns:
         dict with ``psnr`` and ``ssim`` (means over the views with finite values; None when none),
         ``n_views``, ``n_views_total`` (len(split)), ``width``, ``height``, ``per_view`` (a list of
-        {``view``, ``name``, ``psnr``, ``ssim``[, ``depth_mae``]}), the rendering time
-        (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and ``depth_mae`` when
+        {``view``, ``name``, ``psnr``, ``ssim``[, ``depth_mae``, ``depth_rel``]}), the rendering time
+        (``render.render_rate``: ``render_seconds``, ``rays``, ``rays_per_s``) and ``depth_mae``, ``depth_rel`` when
         the split has depth.
 
     Raises:
@@ -98,6 +98,7 @@ def evaluate_split(
     }
     if split.depth is not None:
         out["depth_mae"] = mean_finite([e.get("depth_mae") for e in per_view])
+        out["depth_rel"] = mean_finite([e.get("depth_rel") for e in per_view])
     return out
 
 
@@ -131,7 +132,7 @@ def evaluate_in_budget(model, split, seconds: float, max_views: Optional[int] = 
     per_view = first["per_view"] + more["per_view"]
     result = dict(first, per_view=per_view, n_views=len(per_view),
                   **render_rate(first["render_seconds"] + more["render_seconds"], first["rays"] + more["rays"]))
-    for key in ("psnr", "ssim", "depth_mae"):
+    for key in ("psnr", "ssim", "depth_mae", "depth_rel"):
         if key in first:
             result[key] = mean_finite([e.get(key) for e in per_view])
     return result
@@ -275,6 +276,8 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
         line = f"view {entry['view']:3d} {entry['name']}: psnr {entry['psnr']:.2f} ssim {entry['ssim']:.4f}"
         if entry.get("depth_mae") is not None:
             line += f" depth_mae {entry['depth_mae']:.4f}"
+        if entry.get("depth_rel") is not None:
+            line += f" depth_rel {entry['depth_rel']:.4f}"
         share = unseen.get(entry["view"], 0.0)
         if share >= UNSEEN_WORLD_NOTE:
             # Say why a view scores low when the reason is the capture, not the model.
@@ -293,8 +296,9 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
     summary = {"psnr": result["psnr"], "ssim": result["ssim"], "split": split, "n_views": result["n_views"],
                "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method"),
                "pixel_filter": film_filter.to_json()}
-    if "depth_mae" in result:
-        summary["depth_mae"] = result["depth_mae"]
+    for key in ("depth_mae", "depth_rel"):
+        if key in result:
+            summary[key] = result[key]
     low = {sp.stems[v]: round(share, 4) for v, share in unseen.items() if share >= UNSEEN_WORLD_NOTE}
     if low:
         summary["unseen_world"] = low  # view name -> share of its pixels on world no train view shows

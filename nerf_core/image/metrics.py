@@ -124,6 +124,24 @@ def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch
     return float((pred_z[valid] - gt_z[valid]).abs().mean())
 
 
+def depth_rel(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch.Tensor] = None,
+              mask: Optional[torch.Tensor] = None) -> Optional[float]:
+    """Mean relative error of planar depths, ``|pred - gt| / gt`` (depth benchmarks' AbsRel), over the
+    pixels ``depth_mae`` counts; None when no pixel qualifies. Unlike ``depth_mae`` it does not grow
+    with the scene's scale or the camera's distance, so scenes can be compared.
+
+    Args: as ``depth_mae``. Returns: a share (0.01 = 1 % of the true depth), or None.
+    """
+    valid = torch.isfinite(gt_z) & (gt_z > 0)
+    if gt_alpha is not None:
+        valid &= gt_alpha > 0.5
+    if mask is not None:
+        valid &= mask.bool()
+    if not bool(valid.any()):
+        return None
+    return float(((pred_z[valid] - gt_z[valid]).abs() / gt_z[valid]).mean())
+
+
 def composite(image, background=(1.0, 1.0, 1.0)):
     """(h, w, 3|4) -> (h, w, 3): straight-alpha RGBA over ``background`` (3,); RGB is returned as it is.
 

@@ -28,6 +28,7 @@ OPTIONAL_IMPORTS = {
     "numpy._core.multiarray", "numpy.core.multiarray",  # numpy 2 / numpy 1 names of one pickle helper
     "torch.torch_version",  # only to read checkpoints of older runs
     "gpu", "gpu_extras.presets",  # Blender's GPU modules: absent in background mode
+    "openvdb",  # OpenVDB inside Blender's own Python (volume import): absent from a plain Python
 }
 MAX_LOCAL_IMPORTS = 15
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from nerf_core.cli.main import main
-from nerf_core.image.metrics import depth_mae, gaussian_window, psnr, ssim
+from nerf_core.image.metrics import depth_mae, depth_rel, gaussian_window, psnr, ssim
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -71,6 +71,8 @@ def test_depth_mae_uses_pixels_with_depth_and_alpha():
     alpha = torch.tensor([[1.0, 1.0], [1.0, 0.0]])
     assert depth_mae(pred, gt, alpha) == pytest.approx((0.5 + 1.0) / 2)  # (0,1) no depth, (1,1) transparent
     assert depth_mae(pred, torch.zeros(2, 2)) is None
+    assert depth_rel(pred, gt, alpha) == pytest.approx((0.5 / 2 + 1.0 / 3) / 2)  # the same pixels, over true depth
+    assert depth_rel(pred, torch.zeros(2, 2)) is None
 
 
 def test_eval_prints_per_view_lines_and_json_last(trained_run, capsys):
@@ -81,6 +83,7 @@ def test_eval_prints_per_view_lines_and_json_last(trained_run, capsys):
     last = json.loads(lines[-1])
     assert last["split"] == "test" and last["n_views"] == 2 and last["step"] == 30
     assert math.isfinite(last["psnr"]) and 0 < last["ssim"] <= 1 and last["depth_mae"] >= 0
+    assert last["depth_rel"] >= 0 and "depth_rel" in lines[0]
     # The same numbers as training's final evaluation (same checkpoint, same views).
     assert last["psnr"] == pytest.approx(trained_run["summary"]["metrics"]["psnr"], abs=1e-4)
     metrics = json.loads((run / "metrics.json").read_text())

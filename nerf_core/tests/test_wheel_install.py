@@ -77,8 +77,9 @@ def test_wheel_metadata_is_loose_and_names_the_product(tmp_path):
     user_facing = [r for r in requires if 'extra == "dev"' not in r]  # dev: our own tools, pinned by constraints.txt
     assert not [r for r in user_facing if "==" in r.split(";")[0] or r.startswith("bpy")], requires
     extras = set(meta.get_all("Provides-Extra"))
-    assert {"exr", "charts"} <= extras
-    assert not [r for r in core if r.lower().startswith(("openexr", "matplotlib"))], "EXR and charts are extras"
+    assert {"exr", "charts", "mesh"} <= extras
+    extra_only = ("openexr", "matplotlib", "scikit-image", "fast-simplification")
+    assert not [r for r in core if r.lower().startswith(extra_only)], "EXR, charts and mesh are extras"
 
 
 @pytest.mark.slow

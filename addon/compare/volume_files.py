@@ -1,0 +1,113 @@
+"""A volume export (``python -m nerf_core export volume``'s ``.npz``, docs/CONTRACTS.md) as an OpenVDB
+file that Blender's Volume object reads. numpy and OpenVDB's Python module only: no bpy, no torch.
+
+Blender ships ``openvdb`` inside its own Python (importable directly in Blender; in the ``bpy`` wheel it
+lies in Blender's bundled site-packages, which ``load_openvdb`` is given).
+
+Grids written (``shared/CONVENTIONS.md``, "A volume for Blender"):
+- ``density`` (float): sigma per scene unit, unchanged: the capture's frame is Blender's world, so a
+  Blender unit is a scene unit and Cycles' density (per Blender unit) is the field's sigma.
+- ``color`` (vec3 float): the field's colour, converted from the display values the NeRF renders to
+  Blender's scene-linear values (the sRGB curve), so that under the Standard view transform an opaque
+  surface shows the colour the NeRF shows.
+Both on one transform: voxel (i, j, k) is the grid node at ``box[0] + (i, j, k) * spacing``.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from typing import Sequence
+
+import numpy as np
+
+DENSITY, COLOR = "density", "color"
+FORMAT = "nerf_bridge.volume"
+
+
+class VolumeFileError(ValueError):
+    """A volume file that cannot be converted (the message names it), or no OpenVDB module."""
+
+
+def load_openvdb(extra_dirs: Sequence[str] = ()):
+    """Blender's ``openvdb`` module, looking in ``extra_dirs`` (Blender's bundled site-packages) too.
+    Imported here, not at the top: only a volume import needs it, and outside Blender it is absent."""
+    for d in extra_dirs:
+        if os.path.isdir(d) and d not in sys.path:
+            sys.path.append(d)  # after everything else: a user's own openvdb, if any, comes first
+    try:
+        import openvdb
+    except ImportError as exc:
+        raise VolumeFileError(f"Blender's OpenVDB Python module is not available ({exc}); "
+                              f"looked in {', '.join(extra_dirs) or 'the default path'}") from exc
+    return openvdb
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve undone: display values in [0, 1] -> scene-linear values."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(c: np.ndarray) -> np.ndarray:
+    return np.where(c <= 0.0031308, c * 12.92, 1.055 * np.power(np.clip(c, 0, None), 1 / 2.4) - 0.055)
+
+
+def read_npz(path: str) -> dict:
+    """The arrays of a volume ``.npz``, checked: density (nx, ny, nz), color (nx, ny, nz, 3), box (2, 3),
+    spacing (3,)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise VolumeFileError(f"{path}: not a volume file of `nerf_core export volume` ({exc})") from exc
+    if str(arrays.get("format", "")) != FORMAT or not {"density", "color", "box", "spacing"} <= set(arrays):
+        raise VolumeFileError(f"{path}: not a volume file of `nerf_core export volume` (format or grids missing)")
+    d, c = arrays["density"], arrays["color"]
+    if d.ndim != 3 or c.shape != d.shape + (3,) or arrays["box"].shape != (2, 3) or arrays["spacing"].shape != (3,):
+        raise VolumeFileError(f"{path}: grids of mismatched shapes {d.shape}, {c.shape}")
+    return arrays
+
+
+def grid_matrix(box: np.ndarray, spacing: np.ndarray) -> list:
+    """OpenVDB's 4x4 index-to-world matrix (row vectors: translation in the last row)."""
+    m = np.diag([*np.asarray(spacing, dtype=np.float64), 1.0])
+    m[3, :3] = np.asarray(box, dtype=np.float64)[0]
+    return m.tolist()
+
+
+def npz_to_vdb(npz_path: str, vdb_path: str, openvdb_dirs: Sequence[str] = ()) -> dict:
+    """Write ``vdb_path`` (grids ``density`` and ``color``) from a volume ``.npz``; returns its arrays."""
+    vdb = load_openvdb(openvdb_dirs)
+    arrays = read_npz(npz_path)
+    xform = vdb.createLinearTransform(grid_matrix(arrays["box"], arrays["spacing"]))
+    density = vdb.FloatGrid()
+    density.copyFromArray(np.ascontiguousarray(arrays["density"], dtype=np.float32))  # exact: tolerance 0
+    density.name, density.transform = DENSITY, xform
+    color = vdb.Vec3SGrid()
+    linear = srgb_to_linear(arrays["color"].astype(np.float32) / 255.0).astype(np.float32)
+    color.copyFromArray(np.ascontiguousarray(linear))  # default tolerance: exact
+    color.name, color.transform = COLOR, xform
+    tmp = vdb_path + ".tmp"
+    try:
+        vdb.write(tmp, grids=[density, color])
+        os.replace(tmp, vdb_path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return arrays
+
+
+def read_vdb(vdb_path: str, shape: Sequence[int], openvdb_dirs: Sequence[str] = ()) -> dict:
+    """Grids of a written ``.vdb`` back: {name: (nx, ny, nz[, 3]) float32 array}, and for each grid
+    ``<name>_origin`` (the world position of voxel 0) and ``<name>_step`` (of voxel (1, 1, 1) minus it)."""
+    vdb = load_openvdb(openvdb_dirs)
+    out = {}
+    for g in vdb.readAllGridMetadata(vdb_path):
+        grid = vdb.read(vdb_path, g.name)
+        arr = np.zeros(tuple(shape) + ((3,) if g.name == COLOR else ()), dtype=np.float32)
+        grid.copyToArray(arr)
+        out[g.name] = arr
+        origin = np.asarray(grid.transform.indexToWorld((0, 0, 0)))
+        out[f"{g.name}_origin"] = origin
+        out[f"{g.name}_step"] = np.asarray(grid.transform.indexToWorld((1, 1, 1))) - origin
+    return out

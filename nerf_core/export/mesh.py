@@ -1,0 +1,263 @@
+"""A coloured triangle mesh of a trained field: marching cubes, culling, decimation, colours.
+
+The rules, each stated once:
+
+- **Surface level.** Where the training cameras' rays first meet the surface (transmittance 0.95,
+  ``level.rendered_surface_level``), else where one grid step is 5 % opaque (``grid.iso_level``);
+  ``level`` says why and compares. A lower level wraps the geometry in the faint haze a field keeps
+  around surfaces; a higher one sinks it into the object. ``--level`` overrides it.
+- **Enclosed space.** Empty space that no camera can reach (walled in by surface) is filled first
+  (``fill_unseen_inside``), so a field that is a shell gives its outer face only.
+- **Culling.** A vertex is kept when at least one training camera sees it: in its image, in front of
+  it, and not behind the mesh's own nearer surface (``seen_by_cameras``). The field was never
+  supervised anywhere else, and its density there is a guess. A face is kept
+  when its three vertices are. Floaters: a connected piece whose area is under ``min_component`` (a
+  share, default 0.5 %) of the whole mesh's area is dropped: haze that the training left in the air
+  forms small closed blobs, the objects of a scene form large pieces.
+- **Colour.** Each vertex takes the field's colour at its position seen head-on, along its inward
+  normal: one query per vertex, no camera needed, and the view that shows a surface's own colour
+  with the least of a highlight's grazing-angle shift. View-dependent effects are not baked in.
+- **Decimation** (``--faces N``) runs before the colours, which are then read at the kept vertices.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+import torch
+
+from nerf_core.cameras.rays import Cameras, project_points
+from nerf_core.export import extra, grid
+from nerf_core.export import level as surface_level
+
+DEFAULT_MIN_COMPONENT = 0.005
+
+
+class NoSurface(ValueError):
+    """The density never crosses the surface level inside the box (the message names both)."""
+
+
+@dataclass
+class Mesh:
+    """vertices (n, 3) float64 world positions, faces (f, 3) int64, colors (n, 3) uint8,
+    normals (n, 3) float64 unit outward normals; ``info``: what was done (counts, level, resolution)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    colors: np.ndarray
+    normals: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def marching_cubes(density: np.ndarray, box: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """The level set of a density grid (``grid`` layout) as world vertices (n, 3) and faces (f, 3),
+    wound so that ``cross(v1 - v0, v2 - v0)`` points out of the dense side.
+
+    Raises NoSurface when no sample pair straddles ``level``.
+    """
+    lo, hi = float(density.min()), float(density.max())
+    if not lo < level < hi:
+        raise NoSurface(f"no surface at density level {level:.4g} per scene unit: the density inside the box "
+                        f"ranges over [{lo:.4g}, {hi:.4g}]" + ("; the run may not have trained yet, or pass a "
+                                                               "lower --level" if hi <= level else ""))
+    measure = extra.load("skimage.measure", "marching cubes (export mesh)")
+    res = density.shape[0]
+    verts, faces, _, _ = measure.marching_cubes(density, level=level, spacing=tuple(grid.spacing(box, res)),
+                                                gradient_direction="descent", allow_degenerate=False)
+    verts = verts.astype(np.float64) + box[0]
+    faces = faces.astype(np.int64)
+    # scikit-image winds its faces for the normal that points up the gradient's descent; check the
+    # winding against the density instead of trusting a convention: outward = towards lower density.
+    if len(faces) and _inward_share(verts, faces, density, box) > 0.5:
+        faces = faces[:, ::-1].copy()
+    return verts, faces
+
+
+def _inward_share(verts, faces, density, box) -> float:
+    """Share of faces whose geometric normal points towards higher density (sampled one voxel out)."""
+    idx = np.linspace(0, len(faces) - 1, min(len(faces), 2000)).astype(np.int64)
+    tri = verts[faces[idx]]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True).clip(1e-12)
+    step = grid.spacing(box, density.shape[0])
+    c = tri.mean(axis=1)
+
+    def at(p):
+        ijk = np.clip(np.rint((p - box[0]) / step).astype(np.int64), 0, density.shape[0] - 1)
+        return density[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    return float(np.mean(at(c + n * step) > at(c - n * step)))
+
+
+def fill_unseen_inside(density: np.ndarray, box: np.ndarray, level: float,
+                       viewpoints: Optional[np.ndarray] = None) -> tuple[np.ndarray, int]:
+    """The density with every pocket of empty space that no viewpoint reaches raised above ``level``:
+    (filled grid, samples raised).
+
+    Empty space (below ``level``) is split into connected pieces; the pieces that touch the box's
+    faces or hold a viewpoint (a training camera inside the box: a room seen from within) are the air
+    the cameras look through. Every other piece is enclosed by surface, so no camera sees into it.
+    A trained field is often a shell with a faint inside: without this, marching cubes would give the
+    shell's inner face too, a second surface where nothing is seen.
+    """
+    ndimage = extra.load("scipy.ndimage", "export mesh (finding enclosed empty space)")
+    empty = density < level
+    labels, count = ndimage.label(empty)
+    if count == 0:
+        return density, 0
+    outside = set(np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
+                                            labels[:, -1].ravel(), labels[:, :, 0].ravel(),
+                                            labels[:, :, -1].ravel()])).tolist())
+    if viewpoints is not None and len(viewpoints):
+        step = grid.spacing(box, density.shape[0])
+        ijk = np.rint((np.asarray(viewpoints) - box[0]) / step).astype(np.int64)
+        inside = np.all((ijk >= 0) & (ijk < density.shape[0]), axis=1)
+        outside |= set(labels[ijk[inside, 0], ijk[inside, 1], ijk[inside, 2]].tolist())
+    outside.discard(0)
+    enclosed = empty & ~np.isin(labels, sorted(outside))
+    n = int(np.count_nonzero(enclosed))
+    if n:
+        density = density.copy()
+        density[enclosed] = 2.0 * level
+    return density, n
+
+
+def vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals (n, 3): the area-weighted mean of the adjacent faces' normals."""
+    tri = verts[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area: area-weighted
+    vn = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], fn)
+    return vn / np.linalg.norm(vn, axis=1, keepdims=True).clip(1e-12)
+
+
+def seen_by_cameras(points: np.ndarray, cameras: Cameras, voxel: Optional[float] = None) -> np.ndarray:
+    """(n,) bool: the points that at least one camera has inside its image, in front of it and, with
+    ``voxel`` (the grid step, scene units), not hidden behind other points.
+
+    Occlusion is a z-buffer of the points themselves, in cells of about two point spacings on the
+    image (``2 f voxel / depth`` pixels at the median depth, at least one), so that a surface's own
+    points leave no gaps for the points behind it; a point is seen when it lies within three voxels
+    of its cell's nearest point. Without ``voxel``: the frustum alone.
+    """
+    pts = torch.from_numpy(points.astype(np.float32))
+    seen = np.zeros(len(points), dtype=bool)
+    for v in range(len(cameras)):
+        uv, depth = project_points(cameras, v, pts)
+        uv, depth = uv.numpy().astype(np.float64), depth.numpy().astype(np.float64)
+        w, h = float(cameras.width[v]), float(cameras.height[v])
+        inside = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        if voxel is None or not inside.any():
+            seen |= inside
+            continue
+        idx = np.nonzero(inside)[0]
+        z = depth[idx]
+        cell = max(1.0, 2.0 * float(cameras.fx[v]) * voxel / float(np.median(z)))
+        cols = int(math.ceil(w / cell))
+        key = (uv[idx, 1] // cell).astype(np.int64) * cols + (uv[idx, 0] // cell).astype(np.int64)
+        zbuf = np.full(int(math.ceil(h / cell)) * cols, np.inf)
+        np.minimum.at(zbuf, key, z)
+        seen[idx[z <= zbuf[key] + 3.0 * voxel]] = True
+    return seen
+
+
+def keep_vertices(verts: np.ndarray, faces: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces whose three vertices are all in ``keep`` (n,) bool, and only the vertices they use."""
+    faces = faces[keep[faces].all(axis=1)]
+    used = np.zeros(len(verts), dtype=bool)
+    used[faces.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return verts[used], remap[faces]
+
+
+def face_areas(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    tri = verts[faces]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+
+
+def drop_small_pieces(verts: np.ndarray, faces: np.ndarray, min_share: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Remove connected pieces whose area is under ``min_share`` of the total: (verts, faces, pieces dropped)."""
+    if min_share <= 0 or not len(faces):
+        return verts, faces, 0
+    csgraph = extra.load("scipy.sparse.csgraph", "floater removal (export mesh)")
+    sparse = extra.load("scipy.sparse", "floater removal (export mesh)")
+    a, b = np.concatenate([faces[:, 0], faces[:, 1]]), np.concatenate([faces[:, 1], faces[:, 2]])
+    adj = sparse.coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(len(verts), len(verts)))
+    n_pieces, label = csgraph.connected_components(adj, directed=False)
+    piece_area = np.bincount(label[faces[:, 0]], weights=face_areas(verts, faces), minlength=n_pieces)
+    small = piece_area < min_share * piece_area.sum()
+    keep = ~small[label]
+    v, f = keep_vertices(verts, faces, keep)
+    return v, f, int(np.count_nonzero(small & (piece_area > 0)))
+
+
+def decimate(verts: np.ndarray, faces: np.ndarray, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """About ``n_faces`` faces by quadric edge collapse (fast-simplification); unchanged when already fewer."""
+    if len(faces) <= n_faces:
+        return verts, faces
+    fs = extra.load("fast_simplification", "--faces (decimation)")
+    v, f = fs.simplify(verts.astype(np.float32), faces.astype(np.int64), target_reduction=1.0 - n_faces / len(faces))
+    return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+
+
+def extract_mesh(model, box: np.ndarray, resolution: int, level: Optional[float] = None,
+                 n_faces: Optional[int] = None, cameras: Optional[Cameras] = None,
+                 min_component: float = DEFAULT_MIN_COMPONENT, fill_inside: bool = True,
+                 on_progress: Optional[Callable[[str, float], None]] = None) -> Mesh:
+    """The coloured mesh of ``model`` inside ``box`` (2, 3), by the rules of this module.
+
+    Args:
+        model: a trained RadianceModel (read through ``export.field``).
+        box: (2, 3) float64 [min corner, max corner] in scene units.
+        resolution: samples per axis of the density grid.
+        level: surface density per scene unit; None: ``level.rendered_surface_level`` through
+            ``cameras``, else ``grid.iso_level``.
+        n_faces: decimate to about this many faces; None: keep all.
+        cameras: the training cameras for culling; None: no camera culling.
+        min_component: floater rule, a share of the total area (0: keep every piece).
+        fill_inside: raise enclosed empty space above the level first (``fill_unseen_inside``).
+        on_progress: called with (stage, share done in [0, 1]).
+
+    Raises:
+        NoSurface: nothing crosses the level; extra.MissingExtra: the mesh extra is missing.
+    """
+    say = on_progress or (lambda stage, share: None)
+    rule = "given"
+    if level is None and cameras is not None:
+        say("level", 0.0)
+        level, rule = surface_level.rendered_surface_level(model, cameras, box), "first contact of training rays"
+    if level is None:
+        level, rule = grid.iso_level(box, resolution), "one grid step 5 % opaque"
+    level = float(level)
+    density = grid.sample_density(model, box, resolution, lambda s: say("density", s))
+    info = {"resolution": resolution, "level": level, "level_rule": rule, "density_range": [float(density.min()), float(density.max())]}
+    lo, hi = info["density_range"]
+    if fill_inside and lo < level < hi:
+        say("filling", 0.0)
+        viewpoints = cameras.c2w[:, :3, 3].double().numpy() if cameras is not None else None
+        density, info["enclosed_samples_filled"] = fill_unseen_inside(density, box, level, viewpoints)
+    verts, faces = marching_cubes(density, box, level)
+    info["faces_extracted"] = int(len(faces))
+    del density
+    say("culling", 0.0)
+    if cameras is not None:
+        voxel = float(grid.spacing(box, resolution).mean())
+        verts, faces = keep_vertices(verts, faces, seen_by_cameras(verts, cameras, voxel))
+        info["faces_unseen_culled"] = info["faces_extracted"] - int(len(faces))
+    before = len(faces)
+    verts, faces, dropped = drop_small_pieces(verts, faces, min_component)
+    info.update(floaters_dropped=dropped, floater_faces_culled=before - int(len(faces)))
+    if not len(faces):
+        raise NoSurface(f"no surface left at density level {level:.4g} after culling what no training camera sees "
+                        "and floaters")
+    if n_faces is not None:
+        say("decimating", 0.0)
+        verts, faces = decimate(verts, faces, n_faces)
+    normals = vertex_normals(verts, faces)
+    say("colour", 0.0)
+    rgb = grid.colour_at(model, verts, -normals)
+    colors = np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
+    info.update(vertices=int(len(verts)), faces=int(len(faces)))
+    return Mesh(verts, faces, colors, normals, info)

@@ -1,0 +1,88 @@
+"""Density and colour grids of a trained field, saved as one ``.npz`` (format: docs/CONTRACTS.md,
+"Volume export"), which the add-on turns into an OpenVDB Volume object inside Blender.
+
+- ``density``: (nx, ny, nz) float32, sigma per scene unit at the grid's nodes (``grid`` layout).
+  Cycles' volume coefficients are per Blender unit, and the capture's frame is Blender's world, so
+  Blender's density is this sigma unchanged (no unit conversion; see docs/CONTRACTS.md).
+- ``color``: (nx, ny, nz, 3) uint8, the field's colour (display-referred, as the NeRF renders it)
+  seen head-on, looking up the density's gradient into the object (the mesh's vertex colour rule); black where
+  one grid step is less than 0.1 % opaque, where colour cannot show (and costs the most queries).
+- ``box`` (2, 3) float64, ``spacing`` (3,) float64, ``level`` (the mesh's surface density),
+  ``format`` "nerf_bridge.volume", ``version`` 1.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from nerf_core.export import grid
+from nerf_core.utils.atomic import atomic_path
+
+FORMAT, VERSION = "nerf_bridge.volume", 1
+MIN_STEP_ALPHA = 1e-3  # colour only where one grid step is more opaque than this
+BYTES_PER_SAMPLE = 4 + 3 + 8  # density, colour, and the float64 gradient of the coloured nodes at worst
+
+
+def _into(density: np.ndarray, idx: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """Unit directions (m, 3) up the density's gradient at nodes ``idx`` (m, 3) (central differences,
+    one-sided at the box's faces); +z where the density is flat."""
+    n = np.array(density.shape)
+    g = np.empty((len(idx), 3), dtype=np.float64)
+    for a in range(3):
+        hi, lo = idx.copy(), idx.copy()
+        hi[:, a] = np.minimum(idx[:, a] + 1, n[a] - 1)
+        lo[:, a] = np.maximum(idx[:, a] - 1, 0)
+        dist = (hi[:, a] - lo[:, a]).clip(1) * step[a]
+        g[:, a] = (density[hi[:, 0], hi[:, 1], hi[:, 2]] - density[lo[:, 0], lo[:, 1], lo[:, 2]]) / dist
+    norm = np.linalg.norm(g, axis=1, keepdims=True)
+    flat = norm[:, 0] < 1e-12
+    d = g / norm.clip(1e-12)
+    d[flat] = (0.0, 0.0, 1.0)
+    return d  # the gradient points into the object: a camera looking at the surface looks along it
+
+
+def volume_grids(model, box: np.ndarray, resolution: int,
+                 on_progress: Optional[Callable[[str, float], None]] = None) -> dict:
+    """The arrays of the volume file (see the module docstring) for ``model`` inside ``box`` (2, 3)."""
+    say = on_progress or (lambda stage, share: None)
+    density = grid.sample_density(model, box, resolution, lambda s: say("density", s))
+    step = grid.spacing(box, resolution)
+    threshold = -np.log1p(-MIN_STEP_ALPHA) / float(step.mean())
+    color = np.zeros(density.shape + (3,), dtype=np.uint8)
+    idx = np.argwhere(density > threshold)
+    say("colour", 0.0)
+    chunk = grid.CHUNK_POINTS
+    for s in range(0, len(idx), chunk):
+        part = idx[s:s + chunk]
+        pts = box[0] + part * step
+        rgb = grid.colour_at(model, pts, _into(density, part, step))
+        color[part[:, 0], part[:, 1], part[:, 2]] = np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
+        say("colour", min(1.0, (s + chunk) / len(idx)))
+    return {"density": density, "color": color, "box": np.asarray(box, dtype=np.float64), "spacing": step,
+            "level": np.float64(grid.iso_level(box, resolution)), "format": np.str_(FORMAT),
+            "version": np.int64(VERSION)}
+
+
+def write_volume(path: Path | str, arrays: dict) -> None:
+    """Save the volume arrays as an uncompressed ``.npz`` at ``path``, atomically."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:  # a file object: np.savez would append ".npz" to a bare path
+            np.savez(fh, **arrays)
+
+
+def read_volume(path: Path | str) -> dict:
+    """The arrays of a volume file, checked (ValueError naming the file and what is wrong)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path}: not a volume file written by `export volume` ({exc})") from exc
+    missing = {"density", "color", "box", "format"} - set(arrays)
+    if missing or str(arrays["format"]) != FORMAT:
+        raise ValueError(f"{path}: not a volume file written by `export volume` (missing {sorted(missing)})")
+    d, c = arrays["density"], arrays["color"]
+    if d.ndim != 3 or c.shape != d.shape + (3,) or arrays["box"].shape != (2, 3):
+        raise ValueError(f"{path}: grids of mismatched shapes {d.shape} and {c.shape}")
+    return arrays

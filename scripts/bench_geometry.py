@@ -1,0 +1,265 @@
+"""Geometry benchmark: how far the exported mesh lies from the scene's own surfaces, against training time.
+
+    python scripts/bench_geometry.py run --dataset DS --method vmgrid --seconds 300 --out DIR [--every 250]
+    python scripts/bench_geometry.py report DIR
+    python scripts/bench_geometry.py picture --mesh MESH.ply --truth DS/points3d.ply --out PICTURE.png
+
+``run`` trains ``METHOD`` on dataset DS (a capture made with ``--points``: its ``points3d.ply`` is the
+truth) for ``--seconds`` of training time, one thread, keeping a checkpoint every ``--every`` steps.
+Then, for each checkpoint, ``export mesh`` (default flags) and ``score-mesh`` at tau = 0.5 % and 1 % of
+the truth's diagonal; on the last checkpoint also the surface level against alternatives (x 1/4, x 4,
+x 16 the default), the mesh without culling, a 256^3 extraction's time, and ``eval`` on 5
+test views (PSNR, depth_mae, depth_rel). Writes DIR/<scene>_<method>.json.
+
+``report`` draws DIR/geometry.png (F-score against training time per scene and method) and prints a
+Markdown table of the results. Two ``run``s can go side by side (one core each). ``picture`` draws a
+mesh beside the captured surface, its faces coloured by their distance to it.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _bootstrap  # noqa: E402,F401  (puts the checkout on sys.path)
+
+TAUS = (0.005, 0.01)
+
+
+def _elapsed_at(progress: str) -> dict:
+    """step -> training seconds, from the run's step events (interpolated between them)."""
+    pts = [(0, 0.0)]
+    with open(progress, encoding="utf-8") as fh:
+        for line in fh:
+            try:
+                ev = json.loads(line)
+            except ValueError:
+                continue
+            if ev.get("event") == "step" and isinstance(ev.get("elapsed"), (int, float)):
+                pts.append((int(ev["step"]), float(ev["elapsed"])))
+    return pts
+
+
+def _time_of(step: int, pts) -> float:
+    for (s0, t0), (s1, t1) in zip(pts, pts[1:]):
+        if s0 <= step <= s1:
+            return t0 + (t1 - t0) * (step - s0) / max(1, s1 - s0)
+    (s0, t0), (s1, t1) = pts[-2], pts[-1]
+    return t1 + (t1 - t0) * (step - s1) / max(1, s1 - s0)
+
+
+def _score(mesh_path: str, truth) -> dict:
+    from nerf_core.export.ply import read_geometry
+    from nerf_core.export.score import score
+
+    pred = read_geometry(mesh_path)
+    out = {}
+    for tau in TAUS:
+        s = score(pred, truth, tau_share=tau)
+        out[f"{tau:g}"] = {k: s[k] for k in ("precision", "recall", "fscore", "chamfer", "normal_consistency")}
+    return out
+
+
+def _export(run, out, **kw) -> dict:
+    from nerf_core.export import mesh
+    from nerf_core.export.run_export import export_mesh
+
+    try:
+        return export_mesh(run, out, overwrite=True, **kw)
+    except mesh.NoSurface as exc:
+        return {"error": str(exc)}
+
+
+def cmd_run(a) -> int:
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.engine.trainer import train
+    from nerf_core.evaluation.evaluate import evaluate_run
+    from nerf_core.export.ply import read_geometry
+
+    scene = os.path.basename(os.path.normpath(a.dataset)).split("-")[0]
+    os.makedirs(a.out, exist_ok=True)
+    run = os.path.join(a.out, f"{scene}_{a.method}")
+    truth = read_geometry(os.path.join(a.dataset, "points3d.ply"))
+    started = time.time()
+    if not os.path.isfile(os.path.join(run, "checkpoints", "latest.pt")):
+        train(TrainConfig(dataset=a.dataset, out=run, method=a.method, max_seconds=a.seconds, seed=0,
+                          checkpoint_every=a.every, keep_checkpoints=1000, eval_views=0, stdout_events=False,
+                          show_bar=False))
+    pts = _elapsed_at(os.path.join(run, "progress.jsonl"))
+    ckpts = sorted(glob.glob(os.path.join(run, "checkpoints", "step_*.pt")))
+    result = {"scene": scene, "method": a.method, "dataset": os.path.abspath(a.dataset), "budget_s": a.seconds,
+              "truth_points": int(len(truth.points)), "checkpoints": []}
+    mesh_dir = os.path.join(a.out, "meshes")
+    os.makedirs(mesh_dir, exist_ok=True)
+    for ck in ckpts:
+        step = int(os.path.basename(ck)[5:-3])
+        path = os.path.join(mesh_dir, f"{scene}_{a.method}_{step:07d}.ply")
+        summary = _export(run, path, checkpoint=ck, resolution=a.resolution)
+        entry = {"step": step, "train_seconds": round(_time_of(step, pts), 1),
+                 "export_seconds": summary.get("seconds"), "faces": summary.get("faces"),
+                 "resolution": summary.get("resolution"), "error": summary.get("error")}
+        if "error" not in summary:
+            entry["scores"] = _score(path, truth)
+        result["checkpoints"].append(entry)
+        print(json.dumps(entry), flush=True)
+    last = ckpts[-1]
+    final_mesh = os.path.join(mesh_dir, f"{scene}_{a.method}_final.ply")
+    base = _export(run, final_mesh, checkpoint=last, resolution=a.resolution)
+    variants = {"default": {"summary": base, "scores": _score(final_mesh, truth) if "error" not in base else None}}
+    for name, kw in () if a.no_variants else (("level x0.25", {"level": 0.25}), ("level x4", {"level": 4.0}), ("level x16", {"level": 16.0}),
+                     ("fixed level", {"fixed": True}), ("no fill", {"fill_inside": False}),
+                     ("no culling", {"cull_unseen": False, "min_component": 0.0})):
+        if "level" in kw:
+            if "level" not in base:
+                continue
+            kw = {"level": kw["level"] * base["level"]}
+        if kw.pop("fixed", False):  # the fallback rule: one grid step 5 % opaque
+            import numpy as np
+
+            from nerf_core.export import grid
+            kw = {"level": grid.iso_level(np.asarray(base["box"]), base["resolution"])}
+        p = os.path.join(mesh_dir, f"{scene}_{a.method}_{name.replace(' ', '_')}.ply")
+        s = _export(run, p, checkpoint=last, resolution=a.resolution, **kw)
+        variants[name] = {"summary": {k: s.get(k) for k in ("faces", "level", "error", "seconds")},
+                          "scores": _score(p, truth) if "error" not in s else None}
+    t = time.perf_counter()
+    big = _export(run, os.path.join(mesh_dir, f"{scene}_{a.method}_256.ply"), checkpoint=last, resolution=256)
+    result["extract_256"] = {"seconds": round(time.perf_counter() - t, 2), "faces": big.get("faces"),
+                             "error": big.get("error")}
+    result["final"] = variants
+    ev = evaluate_run(run, split="test", max_views=5, show_progress=False, print_fn=lambda s: None)
+    result["eval"] = {k: ev.get(k) for k in ("psnr", "ssim", "depth_mae", "depth_rel", "step")}
+    result["wall_seconds"] = round(time.time() - started, 1)
+    with open(os.path.join(a.out, f"{scene}_{a.method}.json"), "w", encoding="utf-8") as fh:
+        json.dump(result, fh, indent=1)
+    print(json.dumps({"scene": scene, "method": a.method, "eval": result["eval"],
+                      "final": variants["default"]["scores"], "extract_256": result["extract_256"]}))
+    return 0
+
+
+def cmd_report(a) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    results = [json.load(open(p, encoding="utf-8")) for p in sorted(glob.glob(os.path.join(a.out, "*_*.json")))]
+    scenes = sorted({r["scene"] for r in results})
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 3.8), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        for r in (r for r in results if r["scene"] == scene):
+            pts = [c for c in r["checkpoints"] if c.get("scores")]
+            for tau, style in zip(TAUS, ("--", "-")):
+                ax.plot([c["train_seconds"] / 60 for c in pts], [c["scores"][f"{tau:g}"]["fscore"] for c in pts],
+                        style, marker="o", ms=3, label=f"{r['method']}, tau {100 * tau:g} %")
+        ax.set_title(scene)
+        ax.set_xlabel("training time (min, one CPU core)")
+        ax.set_ylabel("F-score")
+        ax.set_ylim(0, 1)
+        ax.axhline(0.9, color="grey", lw=0.5)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(os.path.join(a.out, "geometry.png"), dpi=110)
+    print("| scene | method | F 0.5 % | F 1 % | P / R at 1 % | Chamfer-L1 | normal cons. | PSNR | depth_mae |"
+          " depth_rel | 256^3 extraction |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in results:
+        s = (r["final"]["default"]["scores"] or {})
+        f5, f1 = s.get("0.005", {}), s.get("0.01", {})
+        ev = r.get("eval", {})
+        print(f"| {r['scene']} | {r['method']} | {f5.get('fscore', 0):.3f} | {f1.get('fscore', 0):.3f} | "
+              f"{f1.get('precision', 0):.3f} / {f1.get('recall', 0):.3f} | {f1.get('chamfer', 0):.4f} | "
+              f"{f1.get('normal_consistency') or 0:.3f} | {ev.get('psnr') or 0:.2f} | {ev.get('depth_mae') or 0:.4f} | "
+              f"{ev.get('depth_rel') or 0:.4f} | {r['extract_256']['seconds']} s |")
+    print("\n| scene | method | variant | faces | F 0.5 % | F 1 % | P / R at 1 % |")
+    print("|---|---|---|---|---|---|---|")
+    for r in results:
+        for name, v in r["final"].items():
+            s = v["scores"] or {}
+            f5, f1 = s.get("0.005", {}), s.get("0.01", {})
+            print(f"| {r['scene']} | {r['method']} | {name} | {v['summary'].get('faces')} | "
+                  f"{f5.get('fscore', 0):.3f} | {f1.get('fscore', 0):.3f} | "
+                  f"{f1.get('precision', 0):.3f} / {f1.get('recall', 0):.3f} |")
+    return 0
+
+
+def cmd_picture(a) -> int:
+    """The mesh beside the original surface, its faces coloured by their distance to it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    from scipy.spatial import cKDTree
+
+    from nerf_core.export.mesh import decimate
+    from nerf_core.export.ply import read_geometry
+
+    truth, mesh = read_geometry(a.truth), read_geometry(a.mesh)
+    v, f = decimate(mesh.points, mesh.faces, a.faces)
+    tri = v[f]
+    diag = float(np.linalg.norm(truth.points.max(0) - truth.points.min(0)))
+    dist, _ = cKDTree(truth.points).query(tri.mean(axis=1))
+    share = dist / diag
+    fig = plt.figure(figsize=(10, 4.6))
+    lo, hi = truth.points.min(0), truth.points.max(0)
+    for k, title in enumerate(("the scene (points3d.ply, as captured)", "the NeRF's mesh: distance to the scene")):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        if k == 0:
+            pick = np.random.default_rng(0).choice(len(truth.points), min(len(truth.points), 60000), replace=False)
+            p = truth.points[pick]
+            ax.scatter(p[:, 0], p[:, 1], p[:, 2], s=0.3, c=truth.colors[pick] / 255.0 if truth.colors is not None
+                       else "grey", depthshade=False)
+        else:
+            cmap = plt.get_cmap("viridis")
+            colors = cmap(np.clip(share / (2 * a.tau), 0, 1))
+            ax.add_collection3d(Poly3DCollection(tri, facecolors=colors, edgecolor="none"))
+            sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, 2 * a.tau * 100))
+            fig.colorbar(sm, ax=ax, shrink=0.6, label="distance, % of the scene's diagonal")
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_zlim(lo[2], hi[2])
+        ax.set_box_aspect(hi - lo)
+        ax.view_init(elev=25, azim=-60)
+        ax.set_title(title, fontsize=10)
+        ax.set_axis_off()
+    within = float(np.mean(share < a.tau))
+    fig.suptitle(f"{os.path.basename(a.mesh)}: {100 * within:.1f} % of the faces lie within {100 * a.tau:g} % "
+                 "of the diagonal", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(a.out, dpi=110)
+    return 0
+
+
+def main(argv) -> int:
+    ap = argparse.ArgumentParser(prog="bench_geometry.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("--dataset", required=True)
+    r.add_argument("--method", default="vmgrid")
+    r.add_argument("--seconds", type=float, default=300.0)
+    r.add_argument("--every", type=int, default=250, help="steps between checkpoints")
+    r.add_argument("--out", required=True)
+    r.add_argument("--resolution", type=int, help="export resolution (default: the export's own default)")
+    r.add_argument("--no-variants", action="store_true", help="skip the level and culling variants")
+    p = sub.add_parser("report")
+    p.add_argument("out")
+    pic = sub.add_parser("picture")
+    pic.add_argument("--mesh", required=True)
+    pic.add_argument("--truth", required=True)
+    pic.add_argument("--out", required=True, help="PNG to write")
+    pic.add_argument("--tau", type=float, default=0.01, help="the colour scale ends at 2 tau")
+    pic.add_argument("--faces", type=int, default=30000, help="faces drawn (decimated)")
+    a = ap.parse_args(argv)
+    return {"run": cmd_run, "report": cmd_report, "picture": cmd_picture}[a.cmd](a)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,121 @@
+"""The exported volume rendered by Cycles, against the NeRF's own render and Blender's ground truth.
+
+    python scripts/bench_volume_render.py --blend SCENE.blend --run RUN --out DIR [--views 3] [--samples 64]
+
+Exports the run's volume (``python -m nerf_core export volume``), renders the first ``--views`` test
+views of the run's dataset with ``python -m nerf_core render``, then, in Blender, hides the scene's own
+objects from the render, imports the volume (``addon/compare/geometry_import.py``: the add-on's own
+import) and renders the same cameras with Cycles (transparent film, Standard view transform, so the
+emission's colour comes out as the NeRF's). Each image is composited onto white, as ``eval`` does, and
+compared: Cycles' volume against the NeRF's render, and against the ground truth; the NeRF's render
+against the ground truth for reference. Prints one JSON line per view and a summary as the last line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _bootstrap import REPO_ROOT  # noqa: E402
+
+
+def _rgb_on_white(path: str) -> np.ndarray:
+    from PIL import Image
+
+    im = np.asarray(Image.open(path).convert("RGBA"), dtype=np.float64) / 255.0
+    return im[..., :3] * im[..., 3:] + (1.0 - im[..., 3:])
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a - b) ** 2))
+    return 10 * math.log10(1.0 / mse) if mse > 0 else float("inf")
+
+
+def _nerf_core(*args) -> None:
+    env = dict(os.environ, PYTHONPATH=REPO_ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    subprocess.run([sys.executable, "-m", "nerf_core", *args], check=True, env=env, stdout=subprocess.DEVNULL)
+
+
+def main(argv) -> int:
+    ap = argparse.ArgumentParser(prog="bench_volume_render.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--blend", required=True)
+    ap.add_argument("--run", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--views", type=int, default=3)
+    ap.add_argument("--samples", type=int, default=64)
+    ap.add_argument("--resolution", type=int, help="volume samples per axis (default: the export's)")
+    a = ap.parse_args(argv)
+    os.makedirs(a.out, exist_ok=True)
+    with open(os.path.join(a.run, "config.json"), encoding="utf-8") as fh:
+        dataset = json.load(fh)["dataset"]
+    with open(os.path.join(dataset, "transforms_test.json"), encoding="utf-8") as fh:
+        meta = json.load(fh)
+    frames = meta["frames"][: a.views]
+    npz = os.path.join(a.out, "volume.npz")
+    if not os.path.isfile(npz):
+        res = ["--resolution", str(a.resolution)] if a.resolution else []
+        _nerf_core("export", "volume", a.run, "--out", npz, *res)
+    cams = os.path.join(a.out, "cameras.json")
+    with open(cams, "w", encoding="utf-8") as fh:
+        json.dump({k: v for k, v in meta.items() if k != "frames"} | {"frames": frames}, fh)
+    nerf_dir = os.path.join(a.out, "nerf")
+    if not os.path.isfile(os.path.join(nerf_dir, "renders.json")):
+        _nerf_core("render", a.run, "--cameras", cams, "--out", nerf_dir, "--no-bar")
+
+    import bpy
+    from mathutils import Matrix
+
+    from addon.compare import geometry_import
+
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend))
+    scene = bpy.context.scene
+    for obj in scene.objects:
+        if obj.type != "CAMERA":
+            obj.hide_render = True  # the NeRF's volume alone, on a transparent film
+    geometry_import.import_volume(scene, npz, os.path.join(a.out, "volume.vdb"))
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = a.samples
+    scene.cycles.device = "CPU"
+    scene.render.film_transparent = True
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
+    w = int(frames[0].get("w", meta.get("w")))
+    h = int(frames[0].get("h", meta.get("h")))
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
+    cam = bpy.data.objects.new("bench camera", bpy.data.cameras.new("bench camera"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    cam.data.sensor_fit = "HORIZONTAL"
+    cam.data.angle = float(meta["camera_angle_x"])
+    cam.data.clip_start, cam.data.clip_end = 0.01, 1000.0
+    rows = []
+    for fr in frames:
+        stem = os.path.basename(fr["file_path"])
+        cam.matrix_world = Matrix(fr["transform_matrix"])
+        scene.render.filepath = os.path.join(a.out, "cycles", stem + ".png")
+        t = time.perf_counter()
+        bpy.ops.render.render(write_still=True)
+        seconds = time.perf_counter() - t
+        cyc = _rgb_on_white(scene.render.filepath)
+        nerf = _rgb_on_white(os.path.join(nerf_dir, stem + ".png"))
+        gt = _rgb_on_white(os.path.join(dataset, fr["file_path"].lstrip("./") + ".png"))
+        row = {"view": stem, "cycles_vs_nerf": _psnr(cyc, nerf), "cycles_vs_truth": _psnr(cyc, gt),
+               "nerf_vs_truth": _psnr(nerf, gt), "cycles_seconds": round(seconds, 1)}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    summary = {k: float(np.mean([r[k] for r in rows])) for k in ("cycles_vs_nerf", "cycles_vs_truth", "nerf_vs_truth")}
+    print(json.dumps({"views": len(rows), "samples": a.samples, **summary}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

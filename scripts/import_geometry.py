@@ -1,0 +1,122 @@
+"""Export a trained run's geometry and import it into a .blend beside the objects it was trained on.
+
+    python scripts/import_geometry.py --blend scene.blend --run RUN --kind mesh|volume --out OUT.blend
+    blender -b scene.blend --python scripts/import_geometry.py -- --run RUN --kind mesh --out OUT.blend
+
+Runs ``python -m nerf_core export KIND RUN`` in a child process (a progress bar on stderr; Ctrl+C stops
+it), writing a new ``RUN/geometry/<kind>_NNN`` file (``--geometry FILE`` to choose), then imports it:
+a coloured mesh into the ``NeRF Mesh`` collection, or a Volume object (its ``.vdb`` written beside the
+``.npz`` with Blender's own OpenVDB) into ``NeRF Volume``, in the scene's frame. Saves ``--out``
+(never the scene file; an existing --out only with --overwrite) and prints a JSON summary as the last
+stdout line.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _bootstrap import (add_python_option, exit_code, fail, open_blend, out_blend, scene_parser,  # noqa: E402
+                        script_args, torch_python)
+
+PROG = "import_geometry.py"
+
+
+def parse(argv):
+    ap = scene_parser(PROG, __doc__, "scene to import into")
+    ap.add_argument("--run", required=True, help="training run folder (has checkpoints/latest.pt)")
+    ap.add_argument("--kind", required=True, choices=("mesh", "volume"), help="a coloured mesh or a volume")
+    ap.add_argument("--out", required=True, help=".blend to write")
+    ap.add_argument("--geometry", metavar="FILE",
+                    help="where the export goes (default: a new RUN/geometry/<kind>_NNN.ply or .npz)")
+    ap.add_argument("--resolution", type=int, metavar="N", help="samples per axis (default: the model's grid)")
+    ap.add_argument("--faces", type=int, metavar="N", help="mesh: decimate to about N faces")
+    add_python_option(ap, "the export")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    return ap.parse_args(argv)
+
+
+def export(cmd: list, what: str) -> dict:
+    """Run the export with a progress bar fed by its ``progress`` events; its summary (last stdout line)."""
+    from addon.bridge import child_process
+    from addon.compare import geometry_job
+    from nerf_core.utils.progressbar import ProgressBar
+
+    proc = child_process.BackgroundProcess(cmd).start()
+    bar = ProgressBar(total=100, label=f"export {what}")
+    try:
+        while not proc.finished():
+            proc.poll()
+            ev = proc.progress.last_event
+            if geometry_job.stage_text(ev):
+                bar.set(int(100 * float(ev.get("fraction") or 0)))
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        proc.cancel()
+        fail(PROG, "interrupted; nothing was imported")
+    proc.poll()
+    bar.close()
+    failure = proc.failure_message()
+    if failure:
+        fail(PROG, f"export of {what} failed: {failure}")
+    for line in reversed(proc.tail):
+        try:
+            summary = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(summary, dict) and "out" in summary:
+            return summary
+    return {}
+
+
+def main(argv) -> int:
+    args = parse(argv)
+    from addon.bridge import child_process
+    from addon.compare import compare_views, geometry_job
+    from nerf_core import contract
+
+    run = os.path.abspath(args.run)
+    out = out_blend(PROG, args.out, args.overwrite)
+    if args.blend and os.path.abspath(args.blend) == out:
+        fail(PROG, f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
+    for flag, value in (("--resolution", args.resolution), ("--faces", args.faces)):
+        if value is not None and value < (2 if flag == "--resolution" else 1):
+            fail(PROG, f"{flag} {value}: must be at least {2 if flag == '--resolution' else 1}")
+    if not os.path.isfile(contract.latest_checkpoint(run)) and not child_process.step_checkpoints(run):
+        fail(PROG, f"--run {run}: no trained checkpoint (train it first with python -m nerf_core train)")
+    try:
+        checkpoint = compare_views.require_checkpoint(run)
+        geometry = os.path.abspath(args.geometry) if args.geometry else geometry_job.fresh_file(run, args.kind)
+    except child_process.SetupError as exc:
+        fail(PROG, str(exc))
+    python = torch_python(PROG, args.python)
+    cmd = child_process.export_command(python, args.kind, run, geometry, checkpoint=checkpoint)
+    if args.resolution:
+        cmd += ["--resolution", str(args.resolution)]
+    if args.faces and args.kind == "mesh":
+        cmd += ["--faces", str(args.faces)]
+    summary = export(cmd, args.kind)
+
+    import bpy
+
+    from addon.compare import geometry_import
+
+    open_blend(args.blend)
+    scene = bpy.context.scene
+    try:
+        if args.kind == "mesh":
+            obj = geometry_import.import_mesh(scene, geometry)
+        else:
+            obj = geometry_import.import_volume(scene, geometry)
+    except (ValueError, RuntimeError, OSError) as exc:
+        fail(PROG, f"{geometry}: cannot import the {args.kind}: {exc}")
+    bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
+    print(json.dumps({"out": out, "kind": args.kind, "object": obj.name, "collection": obj.users_collection[0].name,
+                      "geometry": geometry, "export": summary}))
+    return 0
+
+
+if __name__ == "__main__":
+    exit_code(main(script_args()))
