@@ -41,11 +41,19 @@ class SphereNet(torch.nn.Module):
 
 
 class SphereModel(RadianceModel):
+    """A method whose field the export reads through the declared interface (``density_at``, ``colour_at``)."""
+
     method_name = "sphere"
 
     def __init__(self, **net):
         super().__init__(torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
         self.coarse = SphereNet(**net)
+
+    def density_at(self, pts):
+        return self.coarse.density(pts)
+
+    def colour_at(self, pts, dirs):
+        return self.coarse(pts, dirs)[1]
 
 
 def ring_cameras(n=8, radius=3.0, w=40, h=40):

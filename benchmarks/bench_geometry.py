@@ -1,8 +1,8 @@
 """Geometry benchmark: how far the exported mesh lies from the scene's own surfaces, against training time.
 
-    python scripts/bench_geometry.py run --dataset DS --method vmgrid --seconds 300 --out DIR [--every 250]
-    python scripts/bench_geometry.py report DIR
-    python scripts/bench_geometry.py picture --mesh MESH.ply --truth DS/points3d.ply --out PICTURE.png
+    python benchmarks/bench_geometry.py run --dataset DS --method vmgrid --seconds 300 --out DIR [--every 250]
+    python benchmarks/bench_geometry.py report DIR
+    python benchmarks/bench_geometry.py picture --mesh MESH.ply --truth DS/points3d.ply --out PICTURE.png
 
 ``run`` trains ``METHOD`` on dataset DS (a capture made with ``--points``: its ``points3d.ply`` is the
 truth) for ``--seconds`` of training time, one thread, keeping a checkpoint every ``--every`` steps.
@@ -24,7 +24,8 @@ import os
 import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:0] = [HERE, os.path.join(os.path.dirname(HERE), "scripts")]  # _bootstrap in scripts/
 import _bootstrap  # noqa: E402,F401  (puts the checkout on sys.path)
 
 TAUS = (0.005, 0.01)

@@ -1,6 +1,6 @@
 """The exported volume rendered by Cycles, against the NeRF's own render and Blender's ground truth.
 
-    python scripts/bench_volume_render.py --blend SCENE.blend --run RUN --out DIR [--views 3] [--samples 64]
+    python benchmarks/bench_volume_render.py --blend SCENE.blend --run RUN --out DIR [--views 3] [--samples 64]
 
 Exports the run's volume (``python -m nerf_core export volume``), renders the first ``--views`` test
 views of the run's dataset with ``python -m nerf_core render``, then, in Blender, hides the scene's own
@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:0] = [HERE, os.path.join(os.path.dirname(HERE), "scripts")]  # _bootstrap in scripts/
 from _bootstrap import REPO_ROOT  # noqa: E402
 
 
