@@ -150,8 +150,13 @@ class TensorVMField(nn.Module):
         self.resolution = n
 
     def voxel_size(self) -> float:
-        """Mean cell edge in scene units (cells are stretched on a non-cubic box)."""
-        return float(((self.aabb[1] - self.aabb[0]) / (self.resolution - 1)).mean())
+        """Mean cell edge in scene units (cells are stretched on a non-cubic box). Read once per size:
+        the marching step asks every training step, and a read from a GPU waits for it."""
+        key = (self.resolution, self.aabb._version, self.aabb.device)
+        if getattr(self, "_voxel_key", None) != key:
+            self._voxel_key = key
+            self._voxel = float(((self.aabb[1] - self.aabb[0]) / (self.resolution - 1)).mean())
+        return self._voxel
 
     # ------------------------------------------------------------------ evaluation
 

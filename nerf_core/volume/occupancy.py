@@ -48,10 +48,13 @@ class OccupancyGrid(nn.Module):
         self.n_resets = 0
         # The dilated mask ``query_near`` reads; the mask is never written by an optimiser.
         self._near: DerivedCache[Tensor] = DerivedCache(follow_optimizers=False)
+        # The share of occupied cells, read from the device only when the mask changes (an update, a
+        # load): methods ask for it several times a step (``VMGrid.formed``), and each read waits for a GPU.
+        self._fraction: DerivedCache[float] = DerivedCache(follow_optimizers=False)
 
     @property
     def occupied_fraction(self) -> float:
-        return float(self.binary.float().mean())
+        return self._fraction.get([self.binary], lambda: float(self.binary.float().mean()))
 
     def cell_size(self) -> Tensor:
         """(3,) size of one cell in scene units."""
