@@ -64,8 +64,9 @@ def composite(model, t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_ray
         # surface. Rays that are still almost transparent (all of them at initialisation) get colour
         # at every sample: treating unevaluated samples as black would teach the density only to
         # darken rays, and a field on a random background would then never become opaque.
-        acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
-    vis = (weights.detach() > model.options["color_weight"]) | (acc_ray.index_select(0, ridx) < 0.05)
+        # (The ray opacity is the output's own ``acc``, detached: the same sums, made once.)
+        acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
+    vis = (weights.detach() > model.options["color_weight"]) | (acc.detach().index_select(0, ridx) < 0.05)
     # Gathers stay outside the stage marks: the profile charges them to "other_forward".
     # One index for every gather: boolean masks would each search the mask again.
     vis = vis.nonzero().squeeze(-1)
@@ -78,7 +79,6 @@ def composite(model, t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_ray
         rgb_s = grad_scaling.scale_gradient(rgb_s, gscale.index_select(0, vis))
     with profiling.stage("rendering"):
         rgb = volrend.accumulate_along_rays_packed(weights_vis, ridx_vis, n_rays, rgb_s)
-        acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
         depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids).squeeze(-1)
         depth = depth / acc.clamp_min(1e-6)
         rgb = volrend.composite_background(rgb, acc, background.to(rgb.dtype))
