@@ -50,7 +50,8 @@ def gradient_problem(opt: torch.optim.Optimizer) -> Optional[str]:
     return None if torch.isfinite(gnorm) else "gradient is NaN or inf"
 
 
-def step_values(loss: torch.Tensor, mse: torch.Tensor, opt: torch.optim.Optimizer) -> tuple[float, float, Optional[str]]:
+def step_values(loss: torch.Tensor, mse: torch.Tensor,
+                opt: torch.optim.Optimizer) -> tuple[float, float, Optional[str]]:
     """What the trainer must know after a step's backward pass, read from the device in one transfer
     (each read makes the host wait for a GPU): (loss, mse, ``gradient_problem``'s answer).
 

@@ -11,7 +11,8 @@ import torch
 Tensor = torch.Tensor
 
 
-def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor, eps: float = 1e-9) -> Tuple[Tensor, Tensor, Tensor]:
+def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor,
+                       eps: float = 1e-9) -> Tuple[Tensor, Tensor, Tensor]:
     """Slab-method intersection of rays with an axis-aligned box.
 
     Args:
@@ -41,7 +42,8 @@ def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor, eps: float 
     return t_near, t_far, hit
 
 
-def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool, generator: Optional[torch.Generator] = None) -> Tensor:
+def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool,
+                       generator: Optional[torch.Generator] = None) -> Tensor:
     """Interval edges for ``n_samples`` stratified samples between near and far.
 
     Args:
@@ -171,7 +173,8 @@ def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, 
     sel = keep.nonzero().squeeze(-1)
     ray_idx, t = ray_idx.index_select(0, sel), t.index_select(0, sel)
     half = 0.5 * step_size
-    return (t - half).clamp_min(near.index_select(0, ray_idx)), (t + half).clamp_max(far.index_select(0, ray_idx)), ray_idx
+    t0 = (t - half).clamp_min(near.index_select(0, ray_idx))
+    return t0, (t + half).clamp_max(far.index_select(0, ray_idx)), ray_idx
 
 
 def _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, rays_d, near_fn):
