@@ -11,6 +11,15 @@ machine shared with other jobs disturbs less than wall time), else by wall time 
 ``torch.cuda.synchronize`` on CUDA). Then it profiles 5 more steps with ``torch.profiler`` and prints the
 ops by self time. Set ``NERF_CORE_NATIVE=0`` to time the grid_sample fallback instead of the native
 CPU kernel.
+
+    python benchmarks/profile_step.py --train DATASET [--batch-rays 64] [--steps 300] [--threads 1]
+                                   [--device cpu|cuda] [--method vmgrid]
+
+trains a fresh run of DATASET through ``nerf_core.train`` (seed 0, no evaluation) for ``--steps``
+steps of ``--batch-rays`` rays, from the first step on (growth and occupancy updates included), and
+prints per step: the wall time (a run without the profiler), the top-level ATen operators (each one a
+kernel launch or more on a GPU) and the host syncs, counted by ``torch.profiler`` in a second, equal
+run (``step_counts``); mean and median over the steps (the median is the steady state).
 """
 from __future__ import annotations
 
@@ -26,15 +35,28 @@ sys.path[:0] = [HERE, os.path.join(os.path.dirname(HERE), "scripts")]  # bench/ 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="profile_step.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("run", help="a trained run folder")
-    ap.add_argument("dataset", help="the dataset it was trained on (its train split gives the rays)")
+    ap.add_argument("run", nargs="?", help="a trained run folder (not with --train)")
+    ap.add_argument("dataset", nargs="?", help="the dataset it was trained on (its train split gives the rays)")
+    ap.add_argument("--train", metavar="DATASET", help="count operators and host syncs of fresh training steps")
+    ap.add_argument("--batch-rays", type=int, default=64, help="rays per training step (--train; default 64)")
+    ap.add_argument("--method", help="method to train (--train; default: the trainer's default)")
     ap.add_argument("--res", type=int, help="resample the grids to this many cells first (vmgrid)")
     ap.add_argument("--rays", type=int, default=2048)
-    ap.add_argument("--steps", type=int, default=15)
+    ap.add_argument("--steps", type=int, help="steps to time (default 15; --train: 300)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     ap.add_argument("--table", type=int, default=18, help="rows of the profiler table (0: none)")
     args = ap.parse_args(argv)
+    if args.train:
+        if args.run or args.dataset:
+            ap.error("--train DATASET takes no RUN or DATASET arguments")
+        args.steps = 300 if args.steps is None else args.steps
+        if args.steps < 1 or args.batch_rays < 1:
+            ap.error("--steps and --batch-rays must be positive")
+        return train_counts(args)
+    if not (args.run and args.dataset):
+        ap.error("give RUN and DATASET, or --train DATASET")
+    args.steps = 15 if args.steps is None else args.steps
     if args.steps < 1 or args.rays < 1:
         ap.error("--steps and --rays must be positive")
 
@@ -43,6 +65,7 @@ def main(argv=None) -> int:
     from bench.profiler import training_rays
     from nerf_core.engine.optim import make_optimizer
     from nerf_core.errors import RunError
+    from nerf_core.methods.vmgrid import VMGrid
     from nerf_core.runs.checkpoints import load_run
 
     torch.set_num_threads(args.threads)
@@ -53,7 +76,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"profile_step: {exc}")
     model.train()
     if args.res:
-        if not hasattr(getattr(model, "field", None), "upsample"):
+        if not isinstance(model, VMGrid):
             raise SystemExit(f"profile_step: --res: method {model.method_name!r} has no grids to resample")
         model.field.upsample(args.res)
     o, d, near, far, rgba, _ = training_rays(args.dataset, args.rays)
@@ -69,9 +92,7 @@ def main(argv=None) -> int:
 
     def step():
         out = model.render_rays(rays_o, rays_d, t_near, t_far, background, training=True)
-        loss = torch.mean((out["rgb"] - target) ** 2)
-        if "aux_loss" in out:
-            loss = loss + out["aux_loss"]
+        loss, _ = model.loss(out, target, None)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -85,8 +106,8 @@ def main(argv=None) -> int:
         step()
         sync()
         times.append(clock() - t0)
-    kernels = model.kernels(device) if hasattr(model, "kernels") else {}
-    print(f"profile_step: {model.method_name}, grids {getattr(getattr(model, 'field', None), 'resolution', '-')}, "
+    kernels = model.kernels(device)
+    print(f"profile_step: {model.method_name}, grids {model.run_state().get('resolution', '-')}, "
           f"{args.rays} rays, {device}, {args.threads} thread(s), kernels {kernels}: median step "
           f"{1000 * statistics.median(times):.1f} ms (min {1000 * min(times):.1f}) over {args.steps} steps")
     if args.table:
@@ -99,6 +120,78 @@ def main(argv=None) -> int:
             sync()
         key = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
         print(prof.key_averages().table(sort_by=key, row_limit=args.table))
+    return 0
+
+
+def _train(args, out: str, profile: bool):
+    """Train a fresh run into ``out``. Returns ((wall, CPU time of this thread) in seconds per ``_step``
+    call, None) or, with ``profile``, (None, ``StepCounts``)."""
+    import torch
+
+    from bench.step_counts import STEP_MARK, count_steps
+    from nerf_core.engine import trainer as trainer_mod
+    from nerf_core.engine.config import TrainConfig
+
+    cuda = args.device == "cuda"
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
+    original = trainer_mod.Trainer._step
+    spent, cpu = [], []
+
+    def timed_step(self, *a, **k):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        with torch.profiler.record_function(STEP_MARK):
+            ok = original(self, *a, **k)
+        if self.cfg.finished(self.state.step, self.state.elapsed):
+            sync()  # the last step's queued kernels belong to the steps' time
+        spent.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
+        return ok
+
+    cfg = TrainConfig(dataset=args.train, out=out, method=args.method, max_steps=args.steps, seed=0,
+                      device=args.device, batch_rays=args.batch_rays, eval_views=0, preview_every=10 ** 9,
+                      checkpoint_every=10 ** 9, stdout_events=False, show_bar=False)
+    trainer_mod.Trainer._step = timed_step
+    try:
+        if not profile:
+            trainer_mod.train(cfg)
+            n = max(1, len(spent))
+            return (sum(spent) / n, sum(cpu) / n), None
+        from torch.profiler import ProfilerActivity, profile as torch_profile
+
+        acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+        with torch_profile(activities=acts) as prof:
+            trainer_mod.train(cfg)
+        return None, count_steps(prof.events())
+    finally:
+        trainer_mod.Trainer._step = original
+
+
+def train_counts(args) -> int:
+    """``--train``: wall ms, top-level ATen operators and host syncs per training step."""
+    import tempfile
+
+    import torch
+
+    from nerf_core.errors import DatasetError, RunError, TrainError
+
+    torch.set_num_threads(args.threads)
+    args.device = args.device or ("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        with tempfile.TemporaryDirectory(prefix="profile_step_") as tmp:
+            wall, _ = _train(args, os.path.join(tmp, "timed"), profile=False)
+            _, counts = _train(args, os.path.join(tmp, "profiled"), profile=True)
+    except (DatasetError, RunError, TrainError, ValueError) as exc:
+        raise SystemExit(f"profile_step: --train {args.train}: {exc}")
+    s = counts.summary()
+    print(f"profile_step --train: {args.method or 'default method'}, {args.batch_rays} rays, {args.device}, "
+          f"{args.threads} thread(s), {s['steps']} steps from the first on")
+    # The thread's CPU time is steadier than wall time on a loaded machine (one thread only).
+    print(f"  wall per step:          {1000 * wall[0]:.2f} ms (mean, without the profiler; "
+          f"CPU time of the training thread {1000 * wall[1]:.2f} ms)")
+    print(f"  ATen operators / step:  {s['ops_mean']:.1f} mean, {s['ops_median']:g} median")
+    print(f"  host syncs / step:      {s['syncs_mean']:.2f} mean, {s['syncs_median']:g} median")
+    for kind, per_step in s["sync_kinds"].items():
+        print(f"    {per_step:6.2f}  {kind}")
     return 0
 
 

@@ -86,11 +86,7 @@ def profile_method(dataset: str, method: str, steps: int = 20, n_rays: int = 102
                 if model.training_hook(step, None):
                     opt = torch.optim.Adam(model.param_groups(1e-2))
                 out = model.render_rays(rays_o, rays_d, t_near, t_far, background, training=True)
-                loss = torch.mean((out["rgb"] - target) ** 2)
-                if "rgb_coarse" in out:
-                    loss = loss + torch.mean((out["rgb_coarse"] - target) ** 2)
-                if "aux_loss" in out:
-                    loss = loss + out["aux_loss"]
+                loss, _ = model.loss(out, target, None)
             with rec.stage("backward"):
                 opt.zero_grad(set_to_none=True)
                 loss.backward()

@@ -28,3 +28,39 @@ def test_profiles_a_trained_vmgrid_run(tmp_path, tiny_dataset):
 def test_a_missing_run_is_one_line(tmp_path):
     proc = _run(REPO / "benchmarks" / "profile_step.py", tmp_path / "nothing", tmp_path)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr and "run folder not found" in proc.stderr
+
+
+def test_train_mode_prints_operators_syncs_and_time(tmp_path, tiny_dataset):
+    data = tiny_dataset(tmp_path / "data", n_train=6)
+    proc = _run(REPO / "scripts" / "profile_step.py", "--train", data, "--steps", "3", "--batch-rays", "16")
+    assert proc.returncode == 0, proc.stderr
+    assert "16 rays, cpu, 1 thread(s), 3 steps from the first on" in proc.stdout
+    assert "wall per step:" in proc.stdout and "ATen operators / step:" in proc.stdout
+    assert "host syncs / step:" in proc.stdout
+
+
+def test_train_mode_refuses_a_missing_dataset_in_one_line(tmp_path):
+    proc = _run(REPO / "scripts" / "profile_step.py", "--train", tmp_path / "nothing", "--steps", "2")
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr and "profile_step: --train" in proc.stderr
+
+
+def test_step_counts_counts_top_level_ops_and_each_sync_once():
+    """Boolean-mask indexing (nonzero inside index) and .item() are one sync each; the ops that an
+    operator calls internally are not counted again."""
+    import torch
+    from torch.profiler import ProfilerActivity, profile, record_function
+
+    from bench.step_counts import STEP_MARK, count_steps
+
+    x = torch.arange(10.0) - 4.0
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(2):
+            with record_function(STEP_MARK):
+                y = x[x > 0]  # gt, index (nonzero inside): one sync
+                z = (y * 2).sum()  # mul, sum: no sync
+                z.item()  # one sync
+    counts = count_steps(prof.events())
+    assert counts.syncs == [2, 2]
+    assert counts.ops[0] == counts.ops[1] and 5 <= counts.ops[0] <= 6  # gt, index, mul, sum, item (+ a view)
+    kinds = counts.summary()["sync_kinds"]
+    assert kinds["aten::index (aten::nonzero)"] == 1.0

@@ -60,6 +60,23 @@ def gradient_problem(opt: torch.optim.Optimizer) -> Optional[str]:
     return None if torch.isfinite(gnorm) else "gradient is NaN or inf"
 
 
+def step_values(loss: torch.Tensor, mse: torch.Tensor,
+                opt: torch.optim.Optimizer) -> tuple[float, float, Optional[str]]:
+    """What the trainer must know after a step's backward pass, read from the device in one transfer
+    (each read makes the host wait for a GPU): (loss, mse, ``gradient_problem``'s answer).
+
+    The gradients are finite when the sum of their norms is (a NaN or inf in any of them makes it NaN
+    or inf); unlike ``gradient_problem`` nothing is written back to them.
+    """
+    grads = [p.grad for g in opt.param_groups for p in g["params"] if p.grad is not None]
+    parts = [loss.detach().float().reshape(1), mse.detach().float().reshape(1)]
+    if grads:
+        parts.append(torch.stack(torch._foreach_norm(grads)).sum().float().reshape(1).to(parts[0].device))
+    values = torch.cat(parts).tolist()
+    grad_ok = len(values) < 3 or math.isfinite(values[2])
+    return values[0], values[1], None if grad_ok else "gradient is NaN or inf"
+
+
 def roll_back(model, snap: Snapshot, state: TrainState, base_lr: float, max_rollbacks: int, reason: str,
               log) -> torch.optim.Optimizer:
     """Restore ``snap`` at half the learning rate: rewinds ``state`` (step, loss average, lr_scale,

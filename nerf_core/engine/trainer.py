@@ -49,6 +49,7 @@ from nerf_core.engine.rollback import (
     gradient_problem,
     loss_problem,
     roll_back,
+    step_values,
     take_snapshot,
 )
 from nerf_core.engine.state import RunDecisions, TrainState
@@ -415,13 +416,11 @@ class Trainer:
         out = model.render_batch(rays_o, rays_d, bg, dataset.near, dataset.far, training=True)
         loss, mse = model.loss(out, gt, weight)
         n_samples = int(out.get("n_samples", self.decisions.batch_rays))
-        if rep is None:
-            loss_value = float(loss.detach())
-            bad = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback)
-            if bad is None:
-                self.opt.zero_grad(set_to_none=True)
-                backward(loss)
-                bad = gradient_problem(self.opt)
+        if rep is None:  # backward even for a bad loss (rolled back below): one read of what to check
+            self.opt.zero_grad(set_to_none=True)
+            backward(loss)
+            loss_value, mse, grad_bad = step_values(loss, mse, self.opt)
+            bad = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback) or grad_bad
             state.elapsed += time.perf_counter() - t0
         else:  # every rank takes the same decisions from the same (reduced) numbers
             self.opt.zero_grad(set_to_none=True)

@@ -101,6 +101,7 @@ class TensorVMField(nn.Module):
         )
         nn.init.constant_(self.mlp[-1].bias, 0.0)
         self._lookup: DerivedCache[VMLookup] = DerivedCache(follow_optimizers=True)  # never saved
+        self._box: DerivedCache[tuple] = DerivedCache(follow_optimizers=False)  # (min corner, extent) of aabb
 
     # ------------------------------------------------------------------ parameters
     #
@@ -150,14 +151,21 @@ class TensorVMField(nn.Module):
         self.resolution = n
 
     def voxel_size(self) -> float:
-        """Mean cell edge in scene units (cells are stretched on a non-cubic box)."""
-        return float(((self.aabb[1] - self.aabb[0]) / (self.resolution - 1)).mean())
+        """Mean cell edge in scene units (cells are stretched on a non-cubic box). Read once per size:
+        the marching step asks every training step, and a read from a GPU waits for it."""
+        key = (self.resolution, self.aabb._version, self.aabb.device)
+        if getattr(self, "_voxel_key", None) != key:
+            self._voxel_key = key
+            self._voxel = float(((self.aabb[1] - self.aabb[0]) / (self.resolution - 1)).mean())
+        return self._voxel
 
     # ------------------------------------------------------------------ evaluation
 
     def _unit(self, x: Tensor) -> Tensor:
         """(m, 3) positions -> (m, 3) coordinates in [-1, 1] over the box (grid_sample's convention)."""
-        return (x - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) * 2 - 1
+        # The corner and extent are kept between calls (three ops fewer each, the same numbers).
+        lo, ext = self._box.get([self.aabb], lambda: (self.aabb[0], self.aabb[1] - self.aabb[0]))
+        return (x - lo) / ext * 2 - 1
 
     def density(self, x: Tensor) -> Tensor:
         """(m, 3) positions -> (m,) density per scene unit."""

@@ -26,12 +26,12 @@ import torch
 
 from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
-from nerf_core.methods import growth
+from nerf_core.methods import growth, vmgrid_render
 from nerf_core.methods.base import MAX_GRID_RES, RadianceModel, density_length
 from nerf_core.methods.registry import register
 from nerf_core.methods.vmgrid_options import VMGridOptions
 from nerf_core.utils import profiling
-from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
+from nerf_core.volume import grad_scaling, ray_termination, sampling
 from nerf_core.volume.contraction import outer_box, squeeze_into_outer_box
 from nerf_core.volume.occupancy import OccupancyGrid
 
@@ -85,7 +85,9 @@ class VMGrid(RadianceModel):
         self.occupancy = OccupancyGrid(field_box, o.occ_res)
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
-        self._acc_ema = 0.0  # running mean opacity of training rays (see ``formed``)
+        self._acc_ema = 0.0  # running mean opacity of training rays (see ``formed``), as the host last read it
+        self._acc_dev, self._acc_read = None, 0.0  # the same on the device (``vmgrid_render.track_opacity``)
+        self._near_gate, self._reach_units = grad_scaling.NearCameraGate(), None
         self._last_growth_step = 0
 
     # ------------------------------------------------------------------ schedule
@@ -123,7 +125,7 @@ class VMGrid(RadianceModel):
 
     def replica_stats(self) -> dict[str, float]:
         # ``_acc_ema`` gates ``formed()``, hence the marching step, the L1 prior and growth.
-        return {"acc_ema": self._acc_ema}
+        return {"acc_ema": vmgrid_render.read_opacity(self)}
 
     def set_replica_stats(self, stats: dict[str, float]) -> None:
         self._acc_ema = float(stats["acc_ema"])
@@ -143,7 +145,9 @@ class VMGrid(RadianceModel):
         # Frequent occupancy updates early (geometry appears fast and must not be pruned for long),
         # sparser later when the grid is stable.
         every = o.occ_every if step < 50 * o.occ_every else 2 * o.occ_every
-        if step > 0 and step % every == 0:
+        if step > 0 and step % every == 0:  # periodic steps may wait for the device: read what it keeps
+            vmgrid_render.read_opacity(self)
+            self._near_gate.recheck()
             self.update_occupancy()
         if frac is None:  # no budget given: growth follows an assumed ``budget_steps``
             frac = step / o.budget_steps
@@ -320,7 +324,8 @@ class VMGrid(RadianceModel):
         t0, t1, ridx = self._samples(rays_o, rays_d, near, far, training)
         pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, 0.5 * (t0 + t1)))
         if torch.is_grad_enabled():
-            t0, t1, ridx, pts, weights, gscale = self._visible_with_grad(t0, t1, ridx, pts, n_rays, training)
+            t0, t1, ridx, pts, weights, gscale = vmgrid_render.visible_with_grad(self, t0, t1, ridx, pts, n_rays,
+                                                                                 training)
             color_fn = self.field.color
         else:
             # Nothing to differentiate (render, eval): the same kept samples and weights, without the
@@ -332,11 +337,10 @@ class VMGrid(RadianceModel):
                 t0, t1, ridx, n_rays, self._density_of(pts, lookup), t_min=1e-4, round_size=self.render_round_size)
             keep = keep.nonzero().squeeze(-1)
             t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
-        out = self._composite(t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_rays, background)
+        out = vmgrid_render.composite(self, t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_rays, background)
         if training:
-            acc = out["acc"]
-            self._acc_ema = 0.9 * self._acc_ema + 0.1 * float(acc.detach().mean()) if n_rays else self._acc_ema
-            aux = self._regularisers(weights, t0, t1, ridx, n_rays)
+            vmgrid_render.track_opacity(self, out["acc"])  # on the device; the host reads it on periodic steps
+            aux = vmgrid_render.regularisers(self, weights, t0, t1, ridx, n_rays)
             if torch.is_tensor(aux):
                 out["aux_loss"] = aux
         return out
@@ -354,75 +358,11 @@ class VMGrid(RadianceModel):
                                              near_fn=self.occupancy.query_near,
                                              near_reach=self.occupancy.near_reach())
 
-    def _visible_with_grad(self, t0, t1, ridx, pts, n_rays, training):
-        """The samples still visible (T > 1e-4) and their weights, with grad.
-
-        Early ray termination: find the visible samples without grad, then recompute their density
-        with grad. Returns (t0, t1, ridx, pts, weights, gradient scales near the cameras or None)."""
-        with torch.no_grad():
-            sig = torch.cat([self._density(pts[i:i + self.render_step_chunk])
-                             for i in range(0, max(1, pts.shape[0]), self.render_step_chunk)])
-            with profiling.stage("rendering"):
-                trans, _ = volrend.render_transmittance_from_density_packed(t0, t1, sig, ridx, n_rays)
-            keep = (trans > 1e-4).nonzero().squeeze(-1)
-        t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
-        sigma = self._density(pts)
-        gscale = grad_scaling.near_camera_scales(0.5 * (t0 + t1), grad_scaling.reach_for_box(
-            self.aabb, self.opts.grad_reach)) if training else None
-        if gscale is not None:  # cameras inside the box: even out the gradient near each lens
-            sigma = grad_scaling.scale_gradient(sigma, gscale)
-        with profiling.stage("rendering"):
-            weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
-        return t0, t1, ridx, pts, weights, gscale
-
-    def _composite(self, t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_rays, background) -> dict:
-        """Colour the samples that can matter and add them up: {"rgb", "depth", "acc", "n_samples"}."""
-        with profiling.stage("rendering"):
-            # Colour only where it can matter: most surviving samples are transparent space before a
-            # surface. Rays that are still almost transparent (all of them at initialisation) get colour
-            # at every sample: treating unevaluated samples as black would teach the density only to
-            # darken rays, and a field on a random background would then never become opaque.
-            acc_ray = volrend.accumulate_along_rays_packed(weights.detach(), ridx, n_rays)
-        vis = (weights.detach() > self.opts.color_weight) | (acc_ray.index_select(0, ridx) < 0.05)
-        # Gathers stay outside the stage marks: the profile charges them to "other_forward".
-        # One index for every gather: boolean masks would each search the mask again.
-        vis = vis.nonzero().squeeze(-1)
-        ridx_vis, mids = ridx.index_select(0, vis), (0.5 * (t0 + t1)).unsqueeze(-1)
-        pts_vis, weights_vis = pts.index_select(0, vis), weights.index_select(0, vis)
-        dirs_vis = rays_d.index_select(0, ridx_vis)
-        with profiling.stage("field"):
-            rgb_s = color_fn(pts_vis, dirs_vis)
-        if gscale is not None:
-            rgb_s = grad_scaling.scale_gradient(rgb_s, gscale.index_select(0, vis))
-        with profiling.stage("rendering"):
-            rgb = volrend.accumulate_along_rays_packed(weights_vis, ridx_vis, n_rays, rgb_s)
-            acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
-            depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids).squeeze(-1)
-            depth = depth / acc.clamp_min(1e-6)
-            rgb = volrend.composite_background(rgb, acc, background.to(rgb.dtype))
-        return {"rgb": rgb, "depth": depth, "acc": acc, "n_samples": int(ridx.shape[0])}
-
-    def _regularisers(self, weights, t0, t1, ridx, n_rays):
-        """The training step's extra loss: L1 and TV on the density planes, the distortion loss; 0.0
-        when none applies."""
-        aux = 0.0
-        # The L1 prior waits until geometry has formed (``formed``: the occupancy grid prunes, or nearly
-        # every ray is stopped). Before that the rendering gradient on the nearly transparent field is
-        # tiny, and Adam scales every parameter's step to the same size whatever its gradient, so L1
-        # alone would drive both factors of the VM products to zero: a saddle (d(plane*line) = 0 there)
-        # that training never leaves, seen as a run stuck at its initial PSNR for its whole budget.
-        use_l1 = self.opts.l1_weight > 0 and self.formed()  # formed() reads the occupancy grid
-        with profiling.stage("field"):
-            if use_l1:
-                aux = aux + self.opts.l1_weight * self.field.density_l1()
-            if self.opts.tv_weight > 0:
-                aux = aux + self.opts.tv_weight * self.field.density_tv()
-        if self.opts.dist_weight > 0:
-            scale = float((self.aabb[1] - self.aabb[0]).norm())
-            with profiling.stage("rendering"):
-                dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
-            aux = aux + self.opts.dist_weight * dist.mean()
-        return aux
+    def _reach(self) -> float:
+        """Near-camera gradient reach in scene units (``grad_scaling``), computed once: the box is fixed."""
+        if self._reach_units is None:
+            self._reach_units = grad_scaling.reach_for_box(self.aabb, self.opts.grad_reach)
+        return self._reach_units
 
 
 @register("vmgrid-noview")

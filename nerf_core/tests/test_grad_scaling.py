@@ -76,3 +76,18 @@ def test_nerf_scales_both_passes_near_a_camera_inside_the_box(monkeypatch):
     seen = _recorded_scales(monkeypatch, [0.0, 0.0, 0.0], method="nerf", width=16)
     assert len(seen) == 2 and all(float(s.min()) < 0.05 for s in seen)
     assert _recorded_scales(monkeypatch, [0.0, 0.0, 6.0], method="nerf", width=16) == []
+
+
+def test_near_camera_gate_checks_early_then_only_when_told_and_stays_on_once_near():
+    gate = grad_scaling.NearCameraGate()
+    far_t, near_t = torch.tensor([3.0, 4.0]), torch.tensor([0.5, 4.0])
+    for _ in range(gate.CHECK_FIRST):
+        assert gate.scales(far_t, 2.0) is None
+    assert gate.checks == gate.CHECK_FIRST
+    assert gate.scales(near_t, 2.0) is None  # not checked any more: no host read
+    assert gate.checks == gate.CHECK_FIRST
+    gate.recheck()
+    assert torch.equal(gate.scales(near_t, 2.0), torch.tensor([0.0625, 1.0]))
+    # from now on every batch is scaled; far samples by exactly 1 (bit-identical gradients)
+    assert torch.equal(gate.scales(far_t, 2.0), torch.tensor([1.0, 1.0]))
+    assert gate.scales(far_t, 0.0) is None  # the option off

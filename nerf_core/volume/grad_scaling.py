@@ -49,6 +49,38 @@ def near_camera_scales(t: Tensor, reach: float):
     return distance_scale(t, reach)
 
 
+class NearCameraGate:
+    """``near_camera_scales`` for a training loop, asking the host (a sync on a GPU) rarely.
+
+    Whether a batch has samples within the reach depends on where the cameras stand, which does not
+    change during a run. The gate checks the first ``CHECK_FIRST`` batches, then only when told
+    (``recheck``, on the method's periodic steps); once a batch had near samples it scales every batch
+    from then on, which changes nothing where a sample is beyond the reach (its factor is exactly 1).
+    Scenes whose cameras all stand outside the reach get no scaling op, as before.
+    """
+
+    CHECK_FIRST = 64
+
+    def __init__(self):
+        self.seen, self.checks, self.due = False, 0, False
+
+    def recheck(self) -> None:
+        self.due = True
+
+    def scales(self, t: Tensor, reach: float):
+        """(m,) factors for sample distances ``t`` (m,), or None (no scaling for this batch)."""
+        if reach <= 0 or t.numel() == 0:
+            return None
+        if self.seen:
+            return distance_scale(t, reach)
+        if self.checks >= self.CHECK_FIRST and not self.due:
+            return None
+        self.checks, self.due = self.checks + 1, False
+        scale = near_camera_scales(t, reach)
+        self.seen = scale is not None
+        return scale
+
+
 def distance_scale(t: Tensor, reach: float) -> Tensor:
     """(m,) sample distances along unit rays -> (m,) factors ``min(1, (t / reach)^2)``."""
     return (t / reach).square().clamp(max=1.0)

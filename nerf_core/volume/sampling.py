@@ -11,7 +11,8 @@ import torch
 Tensor = torch.Tensor
 
 
-def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor, eps: float = 1e-9) -> Tuple[Tensor, Tensor, Tensor]:
+def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor,
+                       eps: float = 1e-9) -> Tuple[Tensor, Tensor, Tensor]:
     """Slab-method intersection of rays with an axis-aligned box.
 
     Args:
@@ -41,7 +42,8 @@ def ray_aabb_intersect(rays_o: Tensor, rays_d: Tensor, aabb: Tensor, eps: float 
     return t_near, t_far, hit
 
 
-def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool, generator: Optional[torch.Generator] = None) -> Tensor:
+def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool,
+                       generator: Optional[torch.Generator] = None) -> Tensor:
     """Interval edges for ``n_samples`` stratified samples between near and far.
 
     Args:
@@ -136,47 +138,60 @@ def occupied_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, far: Tensor, 
     """
     n_rays = rays_o.shape[0]
     span = (far - near).clamp_min(0)
-    n_steps = int(min(max_samples, max(1, int(torch.ceil(span.max() / step_size).item()) if n_rays else 1)))
+    # Both numbers the host needs (the step count, the longest direction) in one read: each read waits
+    # for the device on a GPU.
+    want_d = near_fn is not None
+    if n_rays:
+        first = torch.ceil(span.max() / step_size)
+        got = (torch.stack([first, rays_d.norm(dim=-1).max()]) if want_d else first.reshape(1)).tolist()
+    else:
+        got = [1.0, 0.0]
+    n_steps = int(min(max_samples, max(1, int(got[0]))))
     if jitter:
         shift = torch.rand(n_rays, 1, device=rays_o.device, dtype=rays_o.dtype, generator=generator)
     else:
         shift = torch.full((n_rays, 1), 0.5, device=rays_o.device, dtype=rays_o.dtype)
     # A run of `run` steps has its probe half-way between its first and last step, (run - 1) / 2 steps
     # from either end; rays_d need not be unit, so the reach is measured with the longest direction.
-    d_max = float(rays_d.norm(dim=-1).max()) if n_rays and near_fn is not None else 0.0
+    d_max = float(got[1]) if n_rays and want_d else 0.0
     run = int(2 * near_reach / (step_size * d_max)) + 1 if d_max > 0 else 1
     if run >= 3 and n_steps > run:
-        ray_idx, step_idx = _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, rays_d, near_fn)
-        t = near[ray_idx] + (step_idx.to(rays_o.dtype) + shift[ray_idx, 0]) * step_size
-        inside = t < far[ray_idx]
-        ray_idx, t = ray_idx[inside], t[inside]
+        ray_idx, step_idx, ok = _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, rays_d,
+                                                      near_fn)
+        shift_s = shift[:, 0].index_select(0, ray_idx)
+        t = near.index_select(0, ray_idx) + (step_idx.to(rays_o.dtype) + shift_s) * step_size
+        # One mask, one compaction: in range, before the far end, and in an occupied cell (testing the
+        # few steps past the end costs less than compacting twice).
+        keep = ok & (t < far.index_select(0, ray_idx)) & occupied_fn(ray_points(rays_o, rays_d, ray_idx, t))
     else:
         offs = torch.arange(n_steps, device=rays_o.device, dtype=rays_o.dtype)
         t_mid = near.unsqueeze(-1) + (offs + shift) * step_size  # (n_rays, n_steps)
         inside = t_mid < far.unsqueeze(-1)
         ray_idx, step_idx = inside.nonzero(as_tuple=True)
         t = t_mid[ray_idx, step_idx]
-    keep = occupied_fn(ray_points(rays_o, rays_d, ray_idx, t))
-    ray_idx, t = ray_idx[keep], t[keep]
+        keep = occupied_fn(ray_points(rays_o, rays_d, ray_idx, t))
+    sel = keep.nonzero().squeeze(-1)
+    ray_idx, t = ray_idx.index_select(0, sel), t.index_select(0, sel)
     half = 0.5 * step_size
-    return (t - half).clamp_min(near[ray_idx]), (t + half).clamp_max(far[ray_idx]), ray_idx
+    t0 = (t - half).clamp_min(near.index_select(0, ray_idx))
+    return t0, (t + half).clamp_max(far.index_select(0, ray_idx)), ray_idx
 
 
 def _steps_near_occupancy(near, far, shift, step_size, n_steps, run, rays_o, rays_d, near_fn):
     """(ray, step) index pairs (k,), (k,) of every step in a run of ``run`` steps whose probe ``near_fn``
-    accepts, sorted by ray then step (``occupied_samples``)."""
+    accepts, sorted by ray then step, and (k,) bool: the step is within ``n_steps`` (``occupied_samples``
+    folds it into its own mask, to compact once)."""
     dev, dt = rays_o.device, rays_o.dtype
     n_runs = (n_steps + run - 1) // run
     first = torch.arange(n_runs, device=dev, dtype=dt) * run  # each run's first step
     started = near.unsqueeze(-1) + (first + shift) * step_size < far.unsqueeze(-1)  # (n_rays, n_runs)
     r_idx, run_idx = started.nonzero(as_tuple=True)
-    t_probe = near[r_idx] + (run_idx.to(dt) * run + 0.5 * (run - 1) + shift[r_idx, 0]) * step_size
-    hit = near_fn(ray_points(rays_o, rays_d, r_idx, t_probe))
-    r_idx, run_idx = r_idx[hit], run_idx[hit]
+    t_probe = near.index_select(0, r_idx) + (run_idx.to(dt) * run + 0.5 * (run - 1)
+                                             + shift[:, 0].index_select(0, r_idx)) * step_size
+    hit = near_fn(ray_points(rays_o, rays_d, r_idx, t_probe)).nonzero().squeeze(-1)
+    r_idx, run_idx = r_idx.index_select(0, hit), run_idx.index_select(0, hit)
     steps = (run_idx.unsqueeze(-1) * run + torch.arange(run, device=dev)).reshape(-1)
-    ray_idx = r_idx.repeat_interleave(run)
-    ok = steps < n_steps
-    return ray_idx[ok], steps[ok]
+    return r_idx.unsqueeze(-1).expand(-1, run).reshape(-1), steps, steps < n_steps
 
 
 def contracted_samples(rays_o: Tensor, rays_d: Tensor, near: Tensor, aabb: Tensor, step_size: float,

@@ -192,9 +192,8 @@ def render_weight_from_density_packed(
     return transmittance * alphas, transmittance, alphas
 
 
-def accumulate_along_rays_packed(
-    weights: Tensor, ray_indices: Tensor, n_rays: int, values: Optional[Tensor] = None
-) -> Tensor:
+def accumulate_along_rays_packed(weights: Tensor, ray_indices: Tensor, n_rays: int,
+                                 values: Optional[Tensor] = None) -> Tensor:
     """Sum ``weights * values`` per ray in the packed layout.
 
     Args:
@@ -214,9 +213,8 @@ def accumulate_along_rays_packed(
     return out.index_add(0, ray_indices, src)
 
 
-def distortion_loss_packed(
-    weights: Tensor, t_starts: Tensor, t_ends: Tensor, ray_indices: Tensor, n_rays: int
-) -> Tensor:
+def distortion_loss_packed(weights: Tensor, t_starts: Tensor, t_ends: Tensor, ray_indices: Tensor,
+                           n_rays: int) -> Tensor:
     """mip-NeRF 360's distortion loss per ray, in the packed layout (samples sorted per ray):
 
         L = sum_{i,j} w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 (t_end_i - t_start_i),   m = interval midpoints.
