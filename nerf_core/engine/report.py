@@ -120,6 +120,7 @@ def run_config(trainer) -> dict:
     rec = asdict(trainer.cfg)
     rec.update({
         "dataset": str(Path(trainer.cfg.dataset).resolve()), "dataset_hash": getattr(trainer, "dataset_hash", None),
+        "dataset_images": getattr(trainer, "dataset_images", None),
         "out": str(trainer.run), "method": trainer.method, "model": trainer.model.describe(), "lr": trainer.base_lr,
         "warmup_steps": trainer.warmup, "background_used": trainer.bg_mode, "background_reason": trainer.bg_reason,
         "eval_background": trainer.eval_bg, "aabb": trainer.model.aabb.detach().cpu().tolist(),
