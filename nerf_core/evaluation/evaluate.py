@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 from typing import Callable, List, Optional, Sequence
 
+import torch
+
 from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.naming import evenly_spaced
@@ -23,6 +25,7 @@ from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import dataset_changed_note
+from nerf_core.utils import arguments
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
 from nerf_core.utils.progressbar import ProgressBar
@@ -243,8 +246,20 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
         DatasetError: the run's dataset cannot be loaded, or has no views with images in ``split``.
     """
 
+    f = "evaluate_run"
+    run = Path(arguments.path(f, "run", run))
+    arguments.choice(f, "split", split, contract.SPLITS)
+    if max_views is not None:
+        arguments.integer(f, "max_views", max_views, low=1)  # 0 is no request for "all": that is None
+    if downscale is not None:
+        arguments.integer(f, "downscale", downscale, low=1)
+    arguments.integer(f, "chunk", chunk, low=1)
+    arguments.choice(f, "pixel_filter", pixel_filter, ("auto", "none"))
+    if checkpoint is not None:
+        arguments.path(f, "checkpoint", checkpoint)
+    if device is not None and not isinstance(device, (str, torch.device)):
+        raise TypeError(f"{f}: device must be 'cpu', 'cuda', ... or a torch.device, got {device!r}")
     dev = pick_device(device)
-    run = Path(run)
     model, config, ckpt = load_run(run, dev, checkpoint)
     dataset_path = config.get("dataset")
     if not dataset_path:
