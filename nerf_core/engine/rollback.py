@@ -11,15 +11,26 @@ import torch
 
 from nerf_core.engine.optim import clone_state, make_optimizer, rescale_base_lrs
 from nerf_core.errors import TrainError
+from nerf_core.runs.checkpoint_checks import nonfinite_weight
 from nerf_core.runs.checkpoints import load_state_resizing
 
 SNAPSHOT_EVERY = 100  # steps between snapshots (and after every change of the parameter set)
 
 
 def take_snapshot(trainer) -> None:
-    """Keep a copy of the trainer's model and optimiser state, step and loss average in memory."""
+    """Keep a copy of the trainer's model and optimiser state, step and loss average in memory.
+
+    A weight that is NaN or inf here (a finite loss does not prove finite weights: an overflowing
+    encoding buffer, an option beyond float32) stops the run with a TrainError naming it, rather than
+    a snapshot to roll back to that is itself damaged and a run that ends "done" but cannot be loaded."""
+    model = {k: v.detach().clone() for k, v in trainer.model.state_dict().items()}
+    bad = nonfinite_weight(model)
+    if bad is not None:
+        raise TrainError(f"the model's weight {bad!r} is NaN or infinite at step {trainer.step}; training cannot "
+                         "continue from it. The method's options (--set) or --lr are beyond what float32 holds: "
+                         "lower them and start again")
     trainer.snap = {
-        "model": {k: v.detach().clone() for k, v in trainer.model.state_dict().items()},
+        "model": model,
         "opt": clone_state(trainer.opt.state_dict()),
         "step": trainer.step,
         "elapsed_at": trainer.elapsed,

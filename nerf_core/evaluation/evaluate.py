@@ -14,10 +14,11 @@ from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.naming import evenly_spaced
 from nerf_core.data.loading import load_cameras, load_dataset
+from nerf_core.data.split import Split
 from nerf_core.errors import RunError
 from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 from nerf_core.image.pixel_filter import POINT
-from nerf_core.render.frame import render_view
+from nerf_core.render.frame import check_render_arguments, render_view
 from nerf_core.render.memory import render_rate
 
 # Re-exported: callers and tests have always found the metrics here.
@@ -74,7 +75,10 @@ def evaluate_split(
     Raises:
         ValueError: images smaller than SSIM's 11 x 11 window.
     """
-
+    check_render_arguments("evaluate_split", model, None, None, background, near, far, chunk)
+    arguments.instance("evaluate_split", "split", split, Split, "a nerf_core.Split (Dataset.split(name))")
+    if views is not None:
+        views = [arguments.integer("evaluate_split", "views[]", v, low=0, high=len(split) - 1) for v in views]
     views = list(range(len(split))) if views is None else list(views)
     per_view: List[dict] = []
     render_seconds, rays = 0.0, 0

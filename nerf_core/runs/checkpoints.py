@@ -29,13 +29,14 @@ from nerf_core import __version__, contract
 from nerf_core.contract.paths import file_problem, not_a_regular_file
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
 from nerf_core.methods.registry import build_model, saved_options
-from nerf_core.runs.checkpoint_checks import check_entries, check_weights
+from nerf_core.runs.checkpoint_checks import check_entries, check_weights, nonfinite_weight
 from nerf_core.runs.folder import (
     WRITTEN_LIST,
     os_reason,
     record_written,
     resume_candidates,
 )
+from nerf_core.utils import arguments
 from nerf_core.utils.atomic import atomic_path
 
 # ----------------------------------------------------------------------------------------------
@@ -235,7 +236,11 @@ def load_run(run: Path | str, device: torch.device, checkpoint: Optional[Path | 
             run, or one whose model does not build.
         CheckpointRefused: a checkpoint that would need code to load (a crafted pickle).
     """
-    run = Path(run)
+    run = Path(arguments.path("load_run", "run", run))
+    if not isinstance(device, (torch.device, str)):
+        raise TypeError(f"load_run: device must be a torch.device (or 'cpu', 'cuda'), got {device!r}")
+    if checkpoint is not None:
+        arguments.path("load_run", "checkpoint", checkpoint)
     cfg_path = Path(contract.config_path(run))
     if not run.is_dir():
         raise RunError(f"{run}: run folder " + (not_a_regular_file(run) or "not found").replace(
@@ -390,6 +395,11 @@ def save_checkpoint(run: Path, state: dict, step: int, keep: int) -> Path:
     first: when ``latest.pt`` cannot be written, a complete step file still is (``--resume`` uses it).
     Only the newest ``keep`` step files are kept. Raises TrainError naming the file that failed.
     """
+    bad = nonfinite_weight(state.get("model", {}))
+    if bad is not None:  # a damaged model must not replace the last good checkpoint, nor end as "done"
+        raise TrainError(f"the model's weight {bad!r} turned NaN or infinite by step {step}; nothing was saved "
+                         f"over the last good checkpoint. The method's options (--set) or --lr are beyond what "
+                         "float32 holds: lower them and start again")
     ck = Path(contract.checkpoints_dir(run))
     ck.mkdir(parents=True, exist_ok=True)
     step_path = Path(contract.step_checkpoint(run, step))
