@@ -38,8 +38,33 @@ def silence_stdout() -> None:
 def stdout_failure(exc: OSError) -> BaseException:
     """What a failed write to stdout becomes: StdoutClosed for a closed pipe, else an OSError that
     names stdout (the write's own error names no file). stdout is silenced either way."""
+    if isinstance(exc.filename, str) and exc.filename.startswith("stdout"):
+        return exc  # named already (NamedStdout)
     name = stdout_name()
     silence_stdout()
     if exc.errno == errno.EPIPE or isinstance(exc, BrokenPipeError):
         return StdoutClosed(f"{name} was closed")
     return OSError(exc.errno, exc.strerror or os.strerror(exc.errno or errno.EIO), name)
+
+
+class NamedStdout:
+    """sys.stdout for the command line: a failed write or flush raises ``stdout_failure`` (naming
+    stdout, or StdoutClosed) instead of an OSError that names no file. Everything else is delegated."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except OSError as exc:
+            raise stdout_failure(exc) from None
+
+    def flush(self):
+        try:
+            return self._stream.flush()
+        except OSError as exc:
+            raise stdout_failure(exc) from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
