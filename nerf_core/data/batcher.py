@@ -36,7 +36,10 @@ class RayBatcher:
         arguments.instance("RayBatcher", "gen", gen, torch.Generator, "a CPU torch.Generator")
         if gen.device.type != "cpu":
             raise ValueError(f"RayBatcher: gen must be a CPU torch.Generator, got one on {gen.device}")
-        device = torch.device(device) if isinstance(device, str) else device
+        try:
+            device = torch.device(device) if isinstance(device, str) else device
+        except RuntimeError:
+            raise ValueError(f"RayBatcher: device {device!r} is no device name ('cpu', 'cuda', 'cuda:1')") from None
         arguments.instance("RayBatcher", "device", device, torch.device, "a torch.device (or 'cpu', 'cuda')")
         if len(split) == 0 or split.images is None:
             raise ValueError("RayBatcher: split has no views with images to draw rays from")

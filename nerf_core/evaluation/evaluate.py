@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Callable, List, Optional, Sequence
 
+import numpy as np
 import torch
 
 from nerf_core import contract
@@ -77,6 +78,8 @@ def evaluate_split(
     """
     check_render_arguments("evaluate_split", model, None, None, background, near, far, chunk)
     arguments.instance("evaluate_split", "split", split, Split, "a nerf_core.Split (Dataset.split(name))")
+    if views is not None and not isinstance(views, (list, tuple, range, np.ndarray, torch.Tensor)):
+        raise TypeError(f"evaluate_split: views must be a list of view indices or None, got {views!r:.60}")
     if views is not None:
         views = [arguments.integer("evaluate_split", "views[]", v, low=0, high=len(split) - 1) for v in views]
     views = list(range(len(split))) if views is None else list(views)

@@ -81,7 +81,7 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
     if not isinstance(name, str):
         raise TypeError(f"build_model: name must be a method name (str), got {name!r}")
     if name not in _REGISTRY:
-        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
+        raise ValueError(f"build_model: unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
     aabb = checked_box("build_model", aabb)
     options = dict(options)
     env_options = options.pop("environment", None)

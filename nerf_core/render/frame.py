@@ -101,6 +101,8 @@ def render_view(
     Raises:
         RunError: the view is too large to render in the memory available (``render.memory``).
     """
+    if view is None:
+        raise TypeError("render_view: view must be an integer index of cameras, got None")
     check_render_arguments("render_view", model, cameras, view, background, near, far, chunk)
     filter_samples = arguments.integer("render_view", "filter_samples", filter_samples, low=1)
     h, w = int(cameras.height[view]), int(cameras.width[view])
@@ -129,9 +131,8 @@ def check_render_arguments(func: str, model, cameras, view, background, near, fa
     """The public boundary of ``render_view`` (ValueError/TypeError naming the argument); ``view`` None: not given."""
     if not (isinstance(model, torch.nn.Module) and isinstance(getattr(model, "aabb", None), torch.Tensor)):
         raise TypeError(f"{func}: model must be a RadianceModel (from build_model or load_run), got {model!r:.60}")
-    if cameras is not None:
+    if view is not None:  # render_view's camera (evaluate_split passes None for both)
         arguments.instance(func, "cameras", cameras, Cameras, "a nerf_core.Cameras")
-    if view is not None:
         arguments.integer(func, "view", view, low=0, high=len(cameras) - 1)
     arguments.colour(func, "background", background)
     near = None if near is None else arguments.number(func, "near", near, low=0.0)

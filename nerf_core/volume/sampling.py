@@ -63,6 +63,7 @@ def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool, 
     arguments.same_shape("stratified_samples", "near", near, "far", far)
     if bool((far < near).any()):
         raise ValueError("stratified_samples: far must be >= near on every ray")
+    arguments.instance("stratified_samples", "jitter", jitter, bool, "True or False")
     if generator is not None:
         arguments.instance("stratified_samples", "generator", generator, torch.Generator, "a torch.Generator or None")
     u = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device, dtype=near.dtype).expand(near.shape[0], -1)
