@@ -4,7 +4,6 @@ a link loop in ``--out`` is one line, and ``build_addon.py --blender /bin/false`
 Every refusal here comes before Blender opens a file, so no test needs a scene."""
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
