@@ -11,7 +11,7 @@ from nerf_core.contract.poses import check_pose
 from nerf_core.contract.transforms import MAX_FOCAL_PX, MIN_FOCAL_PX
 from nerf_core.utils.arguments import tensor
 
-MAX_SIDE = 1 << 16  # pixels on a side: larger is no camera a NeRF renders
+MAX_SIDE = (1 << 31) - 1  # pixels on a side that int32 pixel indices hold (render.memory refuses far fewer)
 
 
 def check_cameras(cams) -> None:

@@ -179,7 +179,8 @@ _INT_MIN = {"seed": 0, "downscale": 1, "log_every": 1, "preview_every": 1, "prev
             "keep_checkpoints": 0, "max_rollbacks": 0, "eval_views": 0, "chunk": 1, "max_steps": 1, "batch_rays": 1}
 _OPTIONAL = {"preview_every", "checkpoint_every", "eval_views", "max_steps", "batch_rays", "max_seconds", "lr",
              "eval_seconds", "method", "size", "progress", "device"}
-_POSITIVE_FLOAT = ("max_seconds", "lr", "preview_seconds", "checkpoint_seconds", "eval_seconds")
+_POSITIVE_FLOAT = ("max_seconds", "lr")
+_SECONDS = ("preview_seconds", "checkpoint_seconds", "eval_seconds")  # 0 is a legitimate "none at all"
 _BOOL = ("resume", "overwrite", "dataset_moved", "stdout_events", "show_bar")
 _STR = ("method", "size", "device", "background")
 _PATHS = ("dataset", "out", "progress")
@@ -227,6 +228,12 @@ def check_field_types(cfg: "TrainConfig") -> None:
             continue
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
             raise _field_error(name, "a finite number > 0", v)
+    for name in _SECONDS:
+        v = getattr(cfg, name)
+        if v is None and name in _OPTIONAL:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+            raise _field_error(name, "a finite number of seconds >= 0", v)
     if cfg.preview_size > MAX_PREVIEW_SIZE:
         raise _field_error("preview_size", f"at most {MAX_PREVIEW_SIZE} pixels", cfg.preview_size)
     if cfg.chunk > MAX_CHUNK:
