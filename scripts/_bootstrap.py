@@ -13,6 +13,7 @@ scripts share is here too: ``scene_parser`` (a parser with ``--blend``), ``add_p
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 
@@ -65,14 +66,49 @@ def fail(prog: str, message: str) -> None:
     exit_code(2)
 
 
-def out_blend(prog: str, path: str, overwrite: bool) -> str:
-    """``--out OUT.blend`` as an absolute path; ``fail``s naming the flag when it does not end in .blend,
-    already exists (a user's file is replaced only with ``--overwrite``) or its folder does not exist."""
+def same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file: by identity (device and inode), through links and relative
+    paths; two paths of which one does not exist are not the same file."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def check_output(prog: str, flag: str, path: str, overwrite: bool, inputs: dict) -> str:
+    """The one rule for every script's output file: an absolute path that is not a link loop, that
+    exists only with ``overwrite``, and that is none of the ``inputs`` ({flag: path or None}; under
+    Blender the open .blend counts as one). ``fail``s naming the flags otherwise."""
     out = os.path.abspath(path)
-    if not out.endswith(".blend"):
-        fail(prog, f"--out {path!r}: must name a .blend file")
+    try:
+        os.stat(out)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            fail(prog, f"{flag} {path}: a symbolic link loop (a link that points back to itself); remove it "
+                       "or choose another name")
+    except ValueError:
+        fail(prog, f"{flag} {path!r}: not a usable file name")
+    found = {k: v for k, v in inputs.items() if v}
+    if inside_blender():
+        import bpy
+
+        if bpy.data.filepath:
+            found.setdefault("the open scene", bpy.data.filepath)
+    for name, src in found.items():
+        if same_file(out, src):
+            fail(prog, f"{flag} {path} is the same file as {name} {src}; an output never replaces an input. "
+                       "Choose another name")
     if os.path.lexists(out) and not overwrite:
-        fail(prog, f"--out {out} already exists; pass --overwrite or choose another file")
+        fail(prog, f"{flag} {out} already exists; pass --overwrite or choose another file")
+    return out
+
+
+def out_blend(prog: str, path: str, overwrite: bool, inputs: dict | None = None) -> str:
+    """``--out OUT.blend`` as an absolute path; ``fail``s naming the flag when it does not end in .blend,
+    exists without ``overwrite``, is one of ``inputs`` (``check_output``) or its folder is missing."""
+    if not os.path.abspath(path).endswith(".blend"):
+        fail(prog, f"--out {path!r}: must name a .blend file")
+    out = check_output(prog, "--out", path, overwrite, inputs or {})
     if not os.path.isdir(os.path.dirname(out)):
         fail(prog, f"--out {out}: folder {os.path.dirname(out)} does not exist")
     return out

@@ -143,9 +143,16 @@ def bundled_blender_ext() -> str:
 
 
 def _run_checked(cmd: list, what: str) -> None:
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    """Run a Blender tool step; BuildError saying what ran, its exit status and its output (or that it
+    printed nothing: a --blender that is not Blender, such as /bin/false)."""
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    except OSError as exc:
+        raise BuildError(f"{what}: cannot run {cmd[0]} ({exc.strerror or exc})") from None
     if proc.returncode != 0:
-        raise BuildError(f"{what} failed:\n{(proc.stdout + proc.stderr).strip()}")
+        output = (proc.stdout + proc.stderr).strip()
+        raise BuildError(f"{what} failed: {cmd[0]} exited with status {proc.returncode}"
+                         + (f":\n{output}" if output else " and printed nothing; is it a Blender 4.2+ executable?"))
 
 
 def build(blender: str = "", out_dir: str = "", use_bundled: bool = True, addon_dir: str = ADDON_DIR) -> str:

@@ -41,6 +41,8 @@ def fail(message: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
+    _bootstrap.check_output("export_camera_path", "--out", args.out, args.overwrite,
+                            {"--blend": args.blend, "--dataparser-transforms": args.dataparser_transforms})
     import bpy
 
     open_blend(args.blend)

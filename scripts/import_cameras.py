@@ -45,7 +45,8 @@ def fail(message: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    out = _bootstrap.out_blend("import_cameras", args.out, args.overwrite)
+    out = _bootstrap.out_blend("import_cameras", args.out, args.overwrite, {
+        "--blend": args.blend, "--transforms": args.transforms, "--dataparser-transforms": args.dataparser_transforms})
     import bpy
 
     if args.blend:

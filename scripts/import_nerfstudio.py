@@ -44,7 +44,9 @@ def fail(message: str) -> None:
 
 def main(argv) -> int:
     args = parse(argv)
-    out = _bootstrap.out_blend("import_nerfstudio", args.out, args.overwrite)
+    out = _bootstrap.out_blend("import_nerfstudio", args.out, args.overwrite, {
+        "--blend": args.blend, "--camera-path": args.camera_path,
+        **{f"--geometry {g}": g for g in args.geometry}})
     if not args.geometry and not args.camera_path:
         fail("nothing to import: pass --geometry FILE and/or --camera-path FILE")
     import bpy

@@ -31,6 +31,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _bootstrap  # noqa: E402
 from _bootstrap import REPO_ROOT, exit_code, open_blend, script_args  # noqa: E402
 
 
@@ -187,10 +188,9 @@ def main(argv) -> int:
         import bpy
 
         scene_file = bpy.data.filepath
-    if scene_file and os.path.abspath(scene_file) == out:
+    if scene_file and (os.path.abspath(scene_file) == out or _bootstrap.same_file(scene_file, out)):
         fail(f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
-    if os.path.exists(out) and not args.overwrite:
-        fail(f"--out {out} already exists; pass --overwrite to replace it or choose another name")
+    out = _bootstrap.check_output("import_views", "--out", args.out, args.overwrite, {"--blend": args.blend})
     if not os.path.isfile(contract.latest_checkpoint(run)) and not runs.step_checkpoints(run):
         fail(f"--run {run}: no {os.path.relpath(contract.latest_checkpoint(run), run)} "
              "(train it first with python -m nerf_core train)")

@@ -31,10 +31,7 @@ def main(argv: list[str]) -> int:
                     help="resolution %% of the scene's resolution (default 100: a tile at the views' own size)")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     args = ap.parse_args(argv)
-    out = os.path.abspath(args.out)
-    if os.path.exists(out) and not args.overwrite:
-        print(f"render_gallery: error: {out} exists; pass --overwrite to replace it", file=sys.stderr)
-        return 2
+    out = _bootstrap.check_output("render_gallery", "--out", args.out, args.overwrite, {"--blend": args.blend})
     import bpy
 
     _bootstrap.open_blend(args.blend)

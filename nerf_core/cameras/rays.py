@@ -11,13 +11,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional, Sequence, Tuple
 
-import numpy as np
 import torch
 
 # Pose validation (contract.check_pose) and the focal-length rule (contract.resolve_intrinsics) live
 # in nerf_core.contract: the add-on needs them without torch.
+from nerf_core.cameras.checks import as_array, check_cameras
 from nerf_core.cameras.distortion import distort_direction, pixel_directions
 from nerf_core.contract.lens import Lens
+from nerf_core.utils import arguments
 from nerf_core.volume.sampling import ray_aabb_intersect
 
 _FIELDS = ("c2w", "fx", "fy", "cx", "cy", "width", "height")
@@ -49,14 +50,30 @@ class Cameras:
     dist: Optional[torch.Tensor] = None
     fisheye: Optional[torch.Tensor] = None
 
+    def __post_init__(self) -> None:
+        check_cameras(self)  # the public boundary (cameras/checks.py); indexing and moving skip it
+
+    @classmethod
+    def _trusted(cls, *fields) -> "Cameras":
+        """A Cameras made from the fields of checked ones (a subset, a copy on a device): not checked again."""
+        cams = object.__new__(cls)
+        for name, value in zip(_FIELDS + ("dist", "fisheye"), fields):  # c2w..height, dist, fisheye
+            setattr(cams, name, value)
+        return cams
+
     @classmethod
     def create(cls, c2w, fx, fy, cx, cy, width, height, lenses: Optional[Sequence] = None) -> "Cameras":
         """``lenses``: one ``contract.Lens`` or None per camera (None for all: pinholes)."""
-        c2w = torch.as_tensor(np.asarray(c2w), dtype=torch.float32).reshape(-1, 4, 4)
+        arr = as_array(c2w, "c2w")
+        if arr.size % 16 or (arr.size == 0 and arr.ndim != 3):
+            raise ValueError(f"Cameras.create: c2w must be (n, 4, 4) or (4, 4) matrices, got shape {arr.shape}")
+        c2w = torch.as_tensor(arr, dtype=torch.float32).reshape(-1, 4, 4)
         n = c2w.shape[0]
 
         def vec(v, dtype=torch.float32):
-            t = torch.as_tensor(np.asarray(v), dtype=dtype).reshape(-1)
+            t = torch.as_tensor(as_array(v, "an intrinsic"), dtype=dtype).reshape(-1)
+            if t.numel() not in (1, n):
+                raise ValueError(f"Cameras.create: each intrinsic needs 1 or {n} values, got {t.numel()}")
             return t.expand(n).clone() if t.numel() == 1 else t
 
         dist = fisheye = None
@@ -81,7 +98,7 @@ class Cameras:
 
     def _map(self, fn) -> "Cameras":
         lens = (None, None) if self.dist is None else (fn(self.dist), fn(self.fisheye))
-        return Cameras(*(fn(getattr(self, f)) for f in _FIELDS), *lens)
+        return Cameras._trusted(*(fn(getattr(self, f)) for f in _FIELDS), *lens)
 
     def __getitem__(self, idx) -> "Cameras":
         if isinstance(idx, int):
@@ -231,6 +248,8 @@ def rays_for_view(cameras: Cameras, view: int) -> Tuple[torch.Tensor, torch.Tens
         z_per_t: (h*w,) float32 planar depth per unit of ray distance (multiply a ray distance by it
             to get z-depth along the camera's -Z).
     """
+    arguments.instance("rays_for_view", "cameras", cameras, Cameras, "a nerf_core.Cameras")
+    view = arguments.integer("rays_for_view", "view", view, low=0, high=len(cameras) - 1)
     w, h = int(cameras.width[view]), int(cameras.height[view])
     jj, ii = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
     v = torch.full((h * w,), view, dtype=torch.long)

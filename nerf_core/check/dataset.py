@@ -36,7 +36,9 @@ from nerf_core.check.scene import (
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.intrinsics import angle_only_caveats
 from nerf_core.contract.transforms import frame_infos, resolve_image
+from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.data.problems import dataset_problems
+from nerf_core.utils import arguments
 
 _FRAME_RE = re.compile(r"^(?P<file>.+?\.json): frame (?P<frame>\d+) \((?P<path>.*?)\): (?P<rest>.*)$", re.S)
 _FILE_RE = re.compile(r"^(?P<file>.+?\.json): (?P<rest>.*)$", re.S)
@@ -63,7 +65,10 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
         frame and field), ``n_frames`` per split, ``plan`` (what ``train`` will decide), ``notes``,
         ``trainable``; ``format()`` gives the text the ``check`` command prints, ``as_dict()`` its JSON.
     """
-    root = Path(path)
+    root = Path(arguments.path("check_dataset", "path", path))
+    arguments.choice("check_dataset", "background", background, BACKGROUNDS)
+    if not isinstance(for_training, bool):
+        raise TypeError(f"check_dataset: for_training must be True or False, got {for_training!r}")
     if root.is_file() and root.suffix == ".json" and root.name.startswith("transforms"):
         root = root.parent  # DATASET/transforms_train.json, as `train` accepts it: check its dataset
     if _is_nerfstudio_copy(root):

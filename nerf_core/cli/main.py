@@ -22,6 +22,7 @@ from nerf_core.methods import catalog
 from nerf_core.methods.registry import available_methods, method_class
 from nerf_core.runs.folder import os_error_text
 from nerf_core.utils.interrupts import honour_interrupts
+from nerf_core.utils.stdout import NamedStdout, StdoutClosed
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -83,9 +84,15 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     expected = (DatasetError, RunError, TrainError, ImageReadError, ValueError, OSError)
     honour_interrupts()  # a Cancel (SIGINT/SIGTERM) must stop us cleanly, whatever the parent ignored
+    plain_stdout, sys.stdout = sys.stdout, NamedStdout(sys.stdout)  # a full or closed stdout is named
     try:
         _load_plugins()
-        return args.handler(args)
+        code = args.handler(args)
+        sys.stdout.flush()  # > /dev/full fails here, named, rather than at exit unnamed
+        return code
+    except StdoutClosed as exc:
+        print(f"nerf_core {args.command}: interrupted: {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except expected as exc:
         msg = str(exc) or type(exc).__name__
         if isinstance(exc, OSError) and msg.startswith("[Errno"):  # a bare OSError, not one of our messages
@@ -95,3 +102,5 @@ def main(argv: Optional[List[str]] = None) -> int:
     except KeyboardInterrupt:
         print(f"nerf_core {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        sys.stdout = plain_stdout

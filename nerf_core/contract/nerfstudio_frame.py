@@ -27,6 +27,10 @@ DATAPARSER_FILE = "dataparser_transforms.json"
 ROTATION_TOLERANCE = 1e-5  # |R^T R - I|: a transform that is not a rotation is refused, not guessed at
 
 
+# The scales a dataparser writes fit a scene into about a unit box; beyond these, poses leave float range.
+MIN_SCALE, MAX_SCALE = 1e-6, 1e6
+
+
 def read_dataparser_transform(path: Path | str) -> Tuple[np.ndarray, float]:
     """(R|t as (3, 4) float64, scale) of a ``dataparser_transforms.json`` (or of an output folder holding one).
 
@@ -55,6 +59,9 @@ def read_dataparser_transform(path: Path | str) -> Tuple[np.ndarray, float]:
     scale = data.get("scale", 1.0)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
         raise DatasetError(f"{path}: field 'scale' must be a positive number, got {scale!r}")
+    if not MIN_SCALE <= scale <= MAX_SCALE:  # 1e-300 would put every camera at infinity, and exit 0
+        raise DatasetError(f"{path}: field 'scale' is {scale!r}, outside {MIN_SCALE:g}..{MAX_SCALE:g}: nerfstudio "
+                           "scales a scene to about a unit box, so this is not a file it wrote")
     return m, float(scale)
 
 

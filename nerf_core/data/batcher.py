@@ -7,6 +7,10 @@ import torch
 from nerf_core.cameras.rays import rays_for_pixels
 from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
 from nerf_core.data.split import Split
+from nerf_core.utils import arguments
+
+# what a RayBatcher composites ground truth onto ("auto" is decided before: data.backgrounds.choose)
+TRAINING_BACKGROUNDS = ("environment", "random", "white", "black", "white-then-random")
 
 
 class RayBatcher:
@@ -27,6 +31,18 @@ class RayBatcher:
     """
 
     def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device):
+        arguments.instance("RayBatcher", "split", split, Split, "a nerf_core.Split (Dataset.split('train'))")
+        arguments.choice("RayBatcher", "background", background, TRAINING_BACKGROUNDS)
+        arguments.instance("RayBatcher", "gen", gen, torch.Generator, "a CPU torch.Generator")
+        if gen.device.type != "cpu":
+            raise ValueError(f"RayBatcher: gen must be a CPU torch.Generator, got one on {gen.device}")
+        try:
+            device = torch.device(device) if isinstance(device, str) else device
+        except RuntimeError:
+            raise ValueError(f"RayBatcher: device {device!r} is no device name ('cpu', 'cuda', 'cuda:1')") from None
+        arguments.instance("RayBatcher", "device", device, torch.device, "a torch.device (or 'cpu', 'cuda')")
+        if len(split) == 0 or split.images is None:
+            raise ValueError("RayBatcher: split has no views with images to draw rays from")
         self.split, self.gen, self.device = split, gen, device
         self.background = background
         self.hw = split.height * split.width

@@ -17,6 +17,7 @@ Every problem with the input raises ``DatasetError`` whose message names the fil
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import List, Sequence
 
@@ -49,6 +50,7 @@ from nerf_core.data.validation import (
 )
 from nerf_core.errors import ImageReadError
 from nerf_core.image.io import png_info
+from nerf_core.utils import arguments
 
 # ----------------------------------------------------------------------------------------------
 # pixels
@@ -144,6 +146,12 @@ def load_dataset(
             ``downscale`` that is not a positive integer, an unknown split name, or train images that
             show nothing (all transparent, all black, masks that select nothing).
     """
+    path = arguments.path("load_dataset", "path", path)
+    if isinstance(splits, str) or not all(isinstance(s, str) for s in splits):
+        raise TypeError(f"load_dataset: splits must be a list of split names ({', '.join(SPLITS)}), got {splits!r}")
+    arguments.integer("load_dataset", "min_train_views", min_train_views, low=1)
+    if isinstance(downscale, bool) or not isinstance(downscale, (int, float)) or not math.isfinite(downscale):
+        raise TypeError(f"load_dataset: downscale must be an integer >= 1, got {downscale!r}")
     if int(downscale) != downscale or downscale < 1:
         raise DatasetError(f"downscale must be a positive integer, got {downscale!r}")
     downscale = int(downscale)
@@ -231,6 +239,9 @@ def load_cameras(path: Path | str, split: str = "test") -> tuple[Cameras, List[F
         DatasetError: an unknown split, a split without frames, unreadable transforms, or a frame
             without ``w``/``h`` whose image size cannot be read.
     """
+    path = arguments.path("load_cameras", "path", path)
+    if not isinstance(split, str):
+        raise TypeError(f"load_cameras: split must be one of {', '.join(SPLITS)}, got {split!r}")
     if split not in SPLITS:
         raise DatasetError(f"unknown split {split!r}; choose one of {', '.join(SPLITS)}")
     layout, root, infos, scene = frame_infos(path, SPLITS)

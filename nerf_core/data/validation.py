@@ -38,6 +38,19 @@ def parse_aabb(value, where: str) -> torch.Tensor:
     return torch.tensor(box, dtype=torch.float32)
 
 
+def checked_box(func: str, aabb) -> torch.Tensor:
+    """``aabb`` as a (2, 3) float32 tensor by ``parse_aabb``'s rule, for a public function's argument
+    (ValueError/TypeError naming ``func`` and ``aabb``)."""
+    if isinstance(aabb, (str, bytes, dict)) or aabb is None:
+        raise TypeError(f"{func}: aabb must be a (2, 3) array [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {aabb!r}")
+    if isinstance(aabb, torch.Tensor):
+        aabb = aabb.detach().cpu().double().numpy()
+    try:
+        return parse_aabb(aabb, f"{func}: argument aabb")
+    except DatasetError as exc:
+        raise ValueError(str(exc).replace("field 'aabb'", "aabb")) from None
+
+
 def check_train_count(root: Path, infos: Dict[str, List[FrameInfo]], min_train_views: int) -> None:
     # Views, not frames: one image listed twice (with one pose; two poses are check_duplicate_images's)
     # is still one view.

@@ -6,6 +6,7 @@ rebuilds it on ``--resume`` from the saved one and the few settings a user may c
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Optional, Sequence
 
@@ -187,6 +188,7 @@ class TrainConfig:
 
     def check(self) -> None:
         """Refuse settings no run can use (TrainError naming the flag)."""
+        check_field_types(self)
         if self.background not in BACKGROUNDS:
             raise TrainError(f"--background {self.background!r}: choose one of {', '.join(BACKGROUNDS)}")
         for name in ("max_steps", "max_seconds", "lr"):
@@ -214,6 +216,81 @@ class TrainConfig:
             cls.parse_options(self.options)  # the method's typed options: the same rules as build_model
         except (TypeError, ValueError) as exc:
             raise TrainError(f"--set: {exc}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+# Field types and ranges for the Python API (the CLI's argparse types check the same for its flags):
+# a wrong type or a zero would otherwise fail deep inside the run (log_every=0: ZeroDivisionError),
+# after the run folder is made. Checked first by ``TrainConfig.check``, before anything is written.
+_INT_MIN = {"seed": 0, "downscale": 1, "log_every": 1, "preview_every": 1, "preview_size": 1, "checkpoint_every": 1,
+            "keep_checkpoints": 0, "max_rollbacks": 0, "eval_views": 0, "chunk": 1, "max_steps": 1, "batch_rays": 1}
+_OPTIONAL = {"preview_every", "checkpoint_every", "eval_views", "max_steps", "batch_rays", "max_seconds", "lr",
+             "eval_seconds", "method", "size", "progress", "device"}
+_POSITIVE_FLOAT = ("max_seconds", "lr")
+_SECONDS = ("preview_seconds", "checkpoint_seconds", "eval_seconds")  # 0 is a legitimate "none at all"
+_BOOL = ("resume", "overwrite", "dataset_moved", "stdout_events", "show_bar")
+_STR = ("method", "size", "device", "background")
+_PATHS = ("dataset", "out", "progress")
+MAX_PREVIEW_SIZE = 1 << 14  # pixels on the longest side; a preview is a thumbnail
+MAX_CHUNK = 1 << 24  # rays per model call
+
+
+def _field_error(name: str, want: str, value) -> TrainError:
+    return TrainError(f"TrainConfig.{name} (--{name.replace('_', '-')}) must be {want}, got {value!r}")
+
+
+def check_field_types(cfg: "TrainConfig") -> None:
+    """Refuse a field of the wrong type or out of range (TrainError naming the field and what it must be);
+    TypeError when ``cfg`` is no TrainConfig at all."""
+    if not isinstance(cfg, TrainConfig):
+        raise TypeError(f"train(cfg): cfg must be a nerf_core.TrainConfig, got {type(cfg).__name__}")
+
+    for name in _PATHS:
+        v = getattr(cfg, name)
+        if v is None and name in _OPTIONAL or isinstance(v, (str, os.PathLike)) and str(v).strip():
+            try:
+                os.fsencode(v) if v is not None else None
+            except UnicodeError:
+                raise _field_error(name, "a path the file system can encode (it holds a lone surrogate)", v) from None
+            continue
+        raise _field_error(name, "a non-empty path (str)", v)
+    for name in _BOOL:
+        if not isinstance(getattr(cfg, name), bool):
+            raise _field_error(name, "True or False", getattr(cfg, name))
+    for name in _STR:
+        v = getattr(cfg, name)
+        if not (isinstance(v, str) or v is None and name in _OPTIONAL):
+            raise _field_error(name, "a string", v)
+    if cfg.size not in (None, "auto"):
+        raise _field_error("size", "None or 'auto'", cfg.size)
+    for name, low in _INT_MIN.items():
+        v = getattr(cfg, name)
+        if v is None and name in _OPTIONAL:
+            continue
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise _field_error(name, f"an integer >= {low}", v)
+    for name in _POSITIVE_FLOAT:
+        v = getattr(cfg, name)
+        if v is None and name in _OPTIONAL:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+            raise _field_error(name, "a finite number > 0", v)
+    for name in _SECONDS:
+        v = getattr(cfg, name)
+        if v is None and name in _OPTIONAL:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+            raise _field_error(name, "a finite number of seconds >= 0", v)
+    if cfg.preview_size > MAX_PREVIEW_SIZE:
+        raise _field_error("preview_size", f"at most {MAX_PREVIEW_SIZE} pixels", cfg.preview_size)
+    if cfg.chunk > MAX_CHUNK:
+        raise _field_error("chunk", f"at most {MAX_CHUNK} rays", cfg.chunk)
+    if not isinstance(cfg.options, dict) or not all(isinstance(k, str) for k in cfg.options):
+        raise _field_error("options", "a dict of option name (str) -> value ({} for the method's defaults)",
+                           cfg.options)
+    if not isinstance(cfg.eval_at, (list, tuple)) or not all(
+            isinstance(t, (int, float)) and not isinstance(t, bool) for t in cfg.eval_at):
+        raise _field_error("eval_at", "a list of training times in seconds", cfg.eval_at)
 
 
 # What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.

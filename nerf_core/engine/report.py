@@ -135,19 +135,21 @@ def _set_aside_if_damaged(metrics: Path) -> None:
 
 
 def run_config(cfg, decisions: RunDecisions, model, dataset, run: Path, device, world_size: int,
-               dataset_hash: Optional[str]) -> dict:
+               dataset_hash: Optional[str], dataset_images: Optional[dict] = None) -> dict:
     """What RUN/config.json (and each checkpoint's ``config``) holds: the ``TrainConfig`` plus what the
     trainer decided (``RunDecisions``; docs/CONTRACTS.md).
 
     Args:
         cfg: the run's ``TrainConfig``; decisions: its ``RunDecisions``; model: the built model;
         dataset: the loaded ``Dataset``; run: the run folder; device: the torch device trained on;
-        world_size: processes under torchrun (1 without); dataset_hash: ``runs.folder.dataset_hash``.
+        world_size: processes under torchrun (1 without); dataset_hash: ``runs.folder.dataset_hash``;
+        dataset_images: ``runs.dataset_identity.dataset_images`` (what ``eval`` checks the images by).
     """
     ds, tr = dataset, dataset.split("train")
     rec = asdict(cfg)
     rec.update({
         "dataset": str(Path(cfg.dataset).resolve()), "dataset_hash": dataset_hash,
+        "dataset_images": dataset_images,
         "out": str(run), "method": decisions.method, "model": model.describe(), "lr": decisions.base_lr,
         "warmup_steps": decisions.warmup, "background_used": decisions.background,
         "background_reason": decisions.background_reason, "eval_background": decisions.eval_background,

@@ -13,6 +13,7 @@ import torch
 from nerf_core.engine.optim import clone_state, make_optimizer, rescale_base_lrs
 from nerf_core.engine.state import TrainState
 from nerf_core.errors import TrainError
+from nerf_core.runs.checkpoint_checks import nonfinite_weight
 from nerf_core.runs.weights import load_state_resizing
 
 SNAPSHOT_EVERY = 100  # steps between snapshots (and after every change of the parameter set)
@@ -31,9 +32,18 @@ class Snapshot:
 
 
 def take_snapshot(model, opt: torch.optim.Optimizer, state: TrainState) -> Snapshot:
-    """A copy of the model's and optimiser's state, and of the counters a rollback rewinds."""
-    return Snapshot(model={k: v.detach().clone() for k, v in model.state_dict().items()},
-                    opt=clone_state(opt.state_dict()), step=state.step, elapsed_at=state.elapsed,
+    """A copy of the model's and optimiser's state, and of the counters a rollback rewinds.
+
+    A weight that is NaN or inf here (a finite loss does not prove finite weights: an overflowing
+    encoding buffer, an option beyond float32) stops the run with a TrainError naming it, rather than
+    a snapshot to roll back to that is itself damaged and a run that ends "done" but cannot be loaded."""
+    weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    bad = nonfinite_weight(weights)
+    if bad is not None:
+        raise TrainError(f"the model's weight {bad!r} is NaN or infinite at step {state.step}; training cannot "
+                         "continue from it. The method's options (--set) or --lr are beyond what float32 holds: "
+                         "lower them and start again")
+    return Snapshot(model=weights, opt=clone_state(opt.state_dict()), step=state.step, elapsed_at=state.elapsed,
                     loss_ema=state.loss_ema)
 
 

@@ -32,7 +32,7 @@ from nerf_core.data.loading import load_dataset
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
 from nerf_core.engine.callbacks import StepInterval, default_callbacks
-from nerf_core.engine.config import TrainConfig, default_method, merge_resumed_config
+from nerf_core.engine.config import TrainConfig, check_field_types, default_method, merge_resumed_config
 from nerf_core.engine.model_setup import build_seeded, default_batch_rays, model_options, prefit_environment
 from nerf_core.engine.optim import (
     make_optimizer,
@@ -63,6 +63,7 @@ from nerf_core.runs.checkpoints import (
     save_checkpoint,
     versions,
 )
+from nerf_core.runs.dataset_identity import dataset_images
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import (
     check_progress_file,
@@ -98,6 +99,7 @@ class Trainer:
         self.opt: Optional[torch.optim.Optimizer] = None
         self.resumed_checkpoint = ""
         self.dataset_hash: Optional[str] = None
+        self.dataset_images: Optional[dict] = None
 
     # The public entry point: never raises for expected problems without first emitting an error event.
     def fit(self) -> dict:
@@ -156,7 +158,7 @@ class Trainer:
                 self.cfg = merge_resumed_config(self.cfg, ckpt)
                 distributed.note_resume(ckpt, self.dist)
                 check_run_vs_dataset(self.run, self.cfg.dataset)
-            self.dataset_hash = dataset_hash(self.cfg.dataset)
+            self.dataset_hash, self.dataset_images = dataset_hash(self.cfg.dataset), dataset_images(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
             unscorable = evaluation_problem(dataset, self.cfg)
             if unscorable:
@@ -300,7 +302,7 @@ class Trainer:
 
     def _run_config(self) -> dict:
         return run_config(self.cfg, self.decisions, self.model, self.dataset, self.run, self.device,
-                          self.dist.world_size, self.dataset_hash)
+                          self.dist.world_size, self.dataset_hash, self.dataset_images)
 
     # ------------------------------------------------------------------ loop
 
@@ -493,6 +495,7 @@ def train(cfg: TrainConfig) -> dict:
         DatasetError: the dataset cannot be loaded.
         RunError: ``resume`` without a usable checkpoint.
         ValueError: a ``device`` that does not exist.
-        KeyboardInterrupt: Ctrl-C or SIGTERM, re-raised after a checkpoint is saved.
+        KeyboardInterrupt: Ctrl-C, SIGTERM, SIGHUP or a closed stdout, re-raised after a checkpoint is saved.
     """
+    check_field_types(cfg)  # before anything reads cfg.out or cfg.dataset (TrainError naming the field)
     return Trainer(cfg).fit()

@@ -8,14 +8,18 @@ import time
 from pathlib import Path
 from typing import Callable, List, Optional, Sequence
 
+import numpy as np
+import torch
+
 from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.naming import evenly_spaced
 from nerf_core.data.loading import load_cameras, load_dataset
+from nerf_core.data.split import Split
 from nerf_core.errors import RunError
 from nerf_core.fields.world_coverage import covered_directions, unseen_world_share
 from nerf_core.image.pixel_filter import POINT
-from nerf_core.render.frame import render_view
+from nerf_core.render.frame import check_render_arguments, render_view
 from nerf_core.render.memory import DEFAULT_CHUNK, render_rate
 
 # Re-exported: callers and tests have always found the metrics here.
@@ -23,6 +27,7 @@ from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import dataset_changed_note
+from nerf_core.utils import arguments
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
 from nerf_core.utils.progressbar import ProgressBar
@@ -71,7 +76,12 @@ def evaluate_split(
     Raises:
         ValueError: images smaller than SSIM's 11 x 11 window.
     """
-
+    check_render_arguments("evaluate_split", model, None, None, background, near, far, chunk)
+    arguments.instance("evaluate_split", "split", split, Split, "a nerf_core.Split (Dataset.split(name))")
+    if views is not None and not isinstance(views, (list, tuple, range, np.ndarray, torch.Tensor)):
+        raise TypeError(f"evaluate_split: views must be a list of view indices or None, got {views!r:.60}")
+    if views is not None:
+        views = [arguments.integer("evaluate_split", "views[]", v, low=0, high=len(split) - 1) for v in views]
     views = list(range(len(split))) if views is None else list(views)
     per_view: List[dict] = []
     render_seconds, rays = 0.0, 0
@@ -243,8 +253,20 @@ def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int]
         DatasetError: the run's dataset cannot be loaded, or has no views with images in ``split``.
     """
 
+    f = "evaluate_run"
+    run = Path(arguments.path(f, "run", run))
+    arguments.choice(f, "split", split, contract.SPLITS)
+    if max_views is not None:
+        arguments.integer(f, "max_views", max_views, low=1)  # 0 is no request for "all": that is None
+    if downscale is not None:
+        arguments.integer(f, "downscale", downscale, low=1)
+    arguments.integer(f, "chunk", chunk, low=1)
+    arguments.choice(f, "pixel_filter", pixel_filter, ("auto", "none"))
+    if checkpoint is not None:
+        arguments.path(f, "checkpoint", checkpoint)
+    if device is not None and not isinstance(device, (str, torch.device)):
+        raise TypeError(f"{f}: device must be 'cpu', 'cuda', ... or a torch.device, got {device!r}")
     dev = pick_device(device)
-    run = Path(run)
     model, record, ckpt = load_trained(run, dev, checkpoint)
     dataset_path = record.dataset
     if not dataset_path:

@@ -14,6 +14,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from nerf_core.utils import arguments
+
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
@@ -22,6 +24,29 @@ SSIM_K2 = 0.03
 
 def _tensor(x) -> torch.Tensor:
     return x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))
+
+
+_EIGHT_BIT = " (colours in [0, 1] are floats: divide 8-bit images by 255)"
+
+
+def _images(func: str, pred, gt, last_dim: Optional[int] = 3) -> tuple:
+    """``pred`` and ``gt`` checked at the public boundary: float, finite, the same shape (no broadcasting)."""
+    a = arguments.tensor(func, "pred", pred, last_dim=last_dim, dtype_hint=_EIGHT_BIT)
+    b = arguments.tensor(func, "gt", gt, last_dim=last_dim, dtype_hint=_EIGHT_BIT)
+    arguments.same_shape(func, "pred", a, "gt", b)
+    if not a.numel():
+        raise ValueError(f"{func}: pred and gt are empty (shape {tuple(a.shape)})")
+    return a, b
+
+
+def _mask(func: str, mask, shape: tuple, name: str = "mask") -> Optional[torch.Tensor]:
+    """A bool mask of ``shape`` (None stays None)."""
+    if mask is None:
+        return None
+    m = arguments.tensor(func, name, mask, floating=False, finite=False)
+    if tuple(m.shape) != tuple(shape):
+        raise ValueError(f"{func}: {name} must have shape {tuple(shape)}, got {tuple(m.shape)}")
+    return m.bool()
 
 
 def mse_to_psnr(mse: float | torch.Tensor) -> float:
@@ -41,9 +66,11 @@ def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = No
     Returns:
         PSNR in dB, -10 log10(MSE); ``inf`` for a perfect match (NaN when ``mask`` selects nothing).
     """
-    err = (_tensor(pred).float() - _tensor(gt).float()) ** 2
+    pred, gt = _images("psnr", pred, gt)
+    mask = _mask("psnr", mask, pred.shape[:-1])
+    err = (pred.float() - gt.float()) ** 2
     if mask is not None:
-        err = err[_tensor(mask).bool()]
+        err = err[mask]
     return mse_to_psnr(err.mean())
 
 
@@ -97,6 +124,7 @@ def ssim(pred: torch.Tensor, gt: torch.Tensor) -> float:
     Raises:
         ValueError: images of different shapes, not (h, w, c), or smaller than 11 x 11 pixels.
     """
+    pred, gt = _images("ssim", pred, gt, last_dim=None)
     return float(ssim_map(pred, gt).mean())
 
 
@@ -114,7 +142,14 @@ def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch
     Returns:
         The mean absolute difference in scene units, or None.
     """
-    valid = torch.isfinite(gt_z) & (gt_z > 0)
+    pred_z = arguments.tensor("depth_mae", "pred_z", pred_z, ndim=2, finite=False)
+    gt_z = arguments.tensor("depth_mae", "gt_z", gt_z, ndim=2, finite=False)  # non-finite: no ground truth there
+    arguments.same_shape("depth_mae", "pred_z", pred_z, "gt_z", gt_z)
+    if gt_alpha is not None:
+        gt_alpha = arguments.tensor("depth_mae", "gt_alpha", gt_alpha)
+        arguments.same_shape("depth_mae", "gt_alpha", gt_alpha, "gt_z", gt_z)
+    mask = _mask("depth_mae", mask, gt_z.shape)
+    valid = torch.isfinite(gt_z) & (gt_z > 0) & torch.isfinite(pred_z)
     if gt_alpha is not None:
         valid &= gt_alpha > 0.5
     if mask is not None:

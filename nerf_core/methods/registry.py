@@ -9,6 +9,7 @@ from typing import Callable, Dict, Optional
 
 import torch
 
+from nerf_core.data.validation import checked_box
 from nerf_core.fields.environment import EnvironmentMap
 
 _REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
@@ -19,19 +20,34 @@ _REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
 RENAMED_OPTIONS = {"contract": "unbounded"}
 
 
-def register(name: str):
+def register(name: str, replace: bool = False):
     """Class decorator: make a ``RadianceModel`` subclass buildable as ``build_model(name, ...)``.
 
-    Also sets the class's ``method_name`` to ``name``; a second registration of a name replaces the first.
+    Also sets the class's ``method_name`` to ``name``. A second registration of a plugin's name
+    replaces the first; a built-in method's name is refused unless ``replace=True`` (checkpoints of
+    the built-in method would load into the replacement).
 
     Args:
-        name: the method's name (``train --method NAME``, saved in checkpoints).
+        name: the method's name (``train --method NAME``, saved in checkpoints): a non-empty string.
+        replace: allow replacing a built-in method.
 
     Returns:
         The decorator, which returns the class itself.
     """
 
+    if not isinstance(name, str) or not name.strip() or name != name.strip():
+        raise (TypeError if not isinstance(name, str) else ValueError)(
+            f"register: name must be a non-empty string without surrounding spaces, got {name!r}")
+    if not isinstance(replace, bool):
+        raise TypeError(f"register: replace must be True or False, got {replace!r}")
+    old = _REGISTRY.get(name)
+    if old is not None and getattr(old, "__module__", "").startswith("nerf_core.methods.") and not replace:
+        raise ValueError(f"register: {name!r} is a built-in method; pass replace=True to replace it, or register "
+                         "your method under another name")
+
     def deco(cls):
+        if not (isinstance(cls, type) and issubclass(cls, torch.nn.Module)):
+            raise TypeError(f"register({name!r}): decorates a RadianceModel subclass, got {cls!r}")
         _REGISTRY[name] = cls
         cls.method_name = name
         return cls
@@ -67,8 +83,11 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
         ValueError: an unknown method name, an ``environment`` that is not a dict, or (from the method)
             an option it refuses; a ``TypeError`` may come from an option the method does not take.
     """
+    if not isinstance(name, str):
+        raise TypeError(f"build_model: name must be a method name (str), got {name!r}")
     if name not in _REGISTRY:
-        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
+        raise ValueError(f"build_model: unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
+    aabb = checked_box("build_model", aabb)
     options = dict(options)
     env_options = options.pop("environment", None)
     model = _REGISTRY[name](aabb=aabb, **options)

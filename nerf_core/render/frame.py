@@ -12,6 +12,7 @@ from nerf_core.cameras.rays import Cameras, rays_for_pixels, rays_for_view
 from nerf_core.image.pixel_filter import DEFAULT_SAMPLES, PixelFilter, edge_pixels
 from nerf_core.methods.base import RadianceModel
 from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory
+from nerf_core.utils import arguments
 
 # On the CPU a model call is fastest when its samples' intermediate tensors stay in cache: measured
 # at one thread on trained runs, vmgrid renders 1.28x faster in calls of 1024 rays than of 8192 and
@@ -107,6 +108,10 @@ def render_view(
     Raises:
         RunError: the view is too large to render in the memory available (``render.memory``).
     """
+    if view is None:
+        raise TypeError("render_view: view must be an integer index of cameras, got None")
+    check_render_arguments("render_view", model, cameras, view, background, near, far, chunk)
+    filter_samples = arguments.integer("render_view", "filter_samples", filter_samples, low=1)
     h, w = int(cameras.height[view]), int(cameras.width[view])
     check_view_memory(w, h, f"view {view}")
     rays_o, rays_d, z_per_t = rays_for_view(cameras, view)
@@ -127,6 +132,21 @@ def render_view(
         "z_depth": torch.where(acc >= 0.5, z, torch.zeros_like(z)),
         "n_rays": n_rays,  # rays rendered: one a pixel, and the filter's at edges
     }
+
+
+def check_render_arguments(func: str, model, cameras, view, background, near, far, chunk) -> None:
+    """The public boundary of ``render_view`` (ValueError/TypeError naming the argument); ``view`` None: not given."""
+    if not isinstance(model, RadianceModel):
+        raise TypeError(f"{func}: model must be a RadianceModel (from build_model or open_run), got {model!r:.60}")
+    if view is not None:  # render_view's camera (evaluate_split passes None for both)
+        arguments.instance(func, "cameras", cameras, Cameras, "a nerf_core.Cameras")
+        arguments.integer(func, "view", view, low=0, high=len(cameras) - 1)
+    arguments.colour(func, "background", background)
+    near = None if near is None else arguments.number(func, "near", near, low=0.0)
+    far = None if far is None else arguments.number(func, "far", far, above=0.0)
+    if near is not None and far is not None and far <= near:
+        raise ValueError(f"{func}: far ({far}) must be greater than near ({near})")
+    arguments.integer(func, "chunk", chunk, low=1)
 
 
 def render_rays_of(model, rays_o, rays_d, background, near, far, chunk, on_chunk) -> Dict[str, torch.Tensor]:

@@ -71,6 +71,13 @@ def _number(req: dict, key: str, where: str, positive: bool = False, default=Non
     return float(value)
 
 
+def valid_id(value) -> bool:
+    """Whether a request ``id`` can be echoed in a JSON answer: None, a string, a bool, an int or a finite float."""
+    if isinstance(value, float):
+        return math.isfinite(value)
+    return value is None or isinstance(value, (str, int))
+
+
 def parse_request(req: Any) -> Dict[str, Any]:
     """Validate one request object; returns a dict with c2w (4, 4) float64 and plain numbers.
 
@@ -274,6 +281,10 @@ class RenderServer:
         if not isinstance(obj, dict):
             self.emit("error", id=None, message=f"a request must be a JSON object, got {type(obj).__name__}: "
                                                 f"{line.strip()[:80]!r}")
+            return True
+        if not valid_id(obj.get("id")):  # echoed back in every answer: NaN there would not be JSON
+            self.emit("error", id=None, message=f"request id must be a string, an integer or a finite number, got "
+                                                f"{obj.get('id')!r:.80}")
             return True
         if "cmd" in obj:
             if obj["cmd"] == "quit":

@@ -36,6 +36,7 @@ from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory, render_rat
 from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.folder import dataset_changed_note
+from nerf_core.utils import arguments
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
 from nerf_core.utils.progressbar import ProgressBar
@@ -263,6 +264,16 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         DatasetError: a cameras file that cannot be read.
     """
 
+    f = "render_run"
+    run, out = arguments.path(f, "run", run), arguments.path(f, "out", out)
+    if cameras_path is not None:
+        arguments.path(f, "cameras_path", cameras_path)
+    arguments.choice(f, "split", split, ("train", "val", "test"))
+    arguments.number(f, "downscale", downscale, above=0.0)
+    arguments.integer(f, "chunk", chunk, low=1)
+    arguments.choice(f, "pixel_filter", pixel_filter, ("auto", "none"))
+    if not isinstance(overwrite, bool):
+        raise TypeError(f"{f}: overwrite must be True or False, got {overwrite!r}")
     refuse_dataset_root_out(out)
     dev = pick_device(device)
     model, record, ckpt = load_trained(run, dev, checkpoint)

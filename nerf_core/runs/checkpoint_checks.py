@@ -123,6 +123,15 @@ def _growing(model) -> dict:
     return {name: None for name in growing}
 
 
+def nonfinite_weight(weights: Dict[str, torch.Tensor]) -> str | None:
+    """The name of the first floating-point tensor of ``weights`` holding NaN or inf, else None: what
+    a checkpoint must never be written with (the loaders refuse it as damaged)."""
+    for name, value in weights.items():
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            return name
+    return None
+
+
 def check_weights(model: RadianceModel, weights: Dict[str, torch.Tensor], where: str) -> None:
     """Refuse (RunError) weights that do not fit ``model``: names, dtypes, shapes, finite values.
 

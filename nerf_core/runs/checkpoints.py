@@ -28,7 +28,7 @@ from nerf_core import __version__, contract
 from nerf_core.contract.paths import file_problem
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
 from nerf_core.methods.base import RadianceModel
-from nerf_core.runs.checkpoint_checks import check_entries
+from nerf_core.runs.checkpoint_checks import check_entries, nonfinite_weight
 from nerf_core.runs.folder import (
     WRITTEN_LIST,
     os_reason,
@@ -37,6 +37,7 @@ from nerf_core.runs.folder import (
 )
 from nerf_core.runs.record import RunRecord, read_run_record
 from nerf_core.runs.weights import first_line, model_from_checkpoint
+from nerf_core.utils import arguments
 from nerf_core.utils.atomic import atomic_path
 
 # ----------------------------------------------------------------------------------------------
@@ -161,10 +162,15 @@ def load_trained(run: Path | str, device: torch.device, checkpoint: Optional[Pat
             run, or one whose model does not build.
         CheckpointRefused: a checkpoint that would need code to load (a crafted pickle).
     """
-    record = read_run_record(Path(run))
-    ck = Path(checkpoint) if checkpoint else newest_checkpoint(Path(run))
+    run = Path(arguments.path("load_run", "run", run))
+    if not isinstance(device, (torch.device, str)):
+        raise TypeError(f"load_run: device must be a torch.device (or 'cpu', 'cuda'), got {device!r}")
+    if checkpoint is not None:
+        arguments.path("load_run", "checkpoint", checkpoint)
+    record = read_run_record(run)
+    ck = Path(checkpoint) if checkpoint else newest_checkpoint(run)
     ckpt = read_checkpoint(ck)
-    _check_checkpoint_of_run(ckpt, record.raw, ck, Path(run))
+    _check_checkpoint_of_run(ckpt, record.raw, ck, run)
     return model_from_checkpoint(ckpt, device, str(ck)), record, ckpt
 
 
@@ -297,6 +303,11 @@ def save_checkpoint(run: Path, state: dict, step: int, keep: int) -> Path:
     first: when ``latest.pt`` cannot be written, a complete step file still is (``--resume`` uses it).
     Only the newest ``keep`` step files are kept. Raises TrainError naming the file that failed.
     """
+    bad = nonfinite_weight(state.get("model", {}))
+    if bad is not None:  # a damaged model must not replace the last good checkpoint, nor end as "done"
+        raise TrainError(f"the model's weight {bad!r} turned NaN or infinite by step {step}; nothing was saved "
+                         f"over the last good checkpoint. The method's options (--set) or --lr are beyond what "
+                         "float32 holds: lower them and start again")
     ck = Path(contract.checkpoints_dir(run))
     ck.mkdir(parents=True, exist_ok=True)
     step_path = Path(contract.step_checkpoint(run, step))

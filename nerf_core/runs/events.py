@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import IO, Iterable, Iterator, List, Optional
 
 from nerf_core import contract
+from nerf_core.utils.stdout import StdoutClosed, stdout_failure
 
 
 def _ends_mid_line(path: Path) -> bool:
@@ -52,11 +53,18 @@ class EventLog:
     def emit(self, event: str, **fields) -> dict:
         record = {"event": event, "time": time.time(), **contract.json_safe(fields)}
         line = json.dumps(record, allow_nan=False)
-        for f in ([self.stream] if self.stream is not None else []) + self._files:
+        # The files first: a closed stdout stops the run, and this event must still reach the log.
+        for f in list(self._files) + ([self.stream] if self.stream is not None else []):
             try:
                 f.write(line + "\n")
                 f.flush()
-            except OSError as exc:
+            except (OSError, StdoutClosed) as exc:
+                if f is self.stream and f in (sys.stdout, sys.__stdout__):
+                    self.stream = None  # never again: the failure below stops the run or names stdout
+                    self.events.append(record)
+                    raise (exc if isinstance(exc, StdoutClosed) else stdout_failure(exc)) from None
+                if isinstance(exc, StdoutClosed):
+                    raise
                 if f is not self.stream:
                     self._drop(f)  # its buffer still holds the line: closing it later would fail again
                 if exc.filename is None and getattr(f, "name", None):

@@ -17,7 +17,6 @@ Checkpoint files themselves (writing, reading, loading a model) live in ``nerf_c
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import re
@@ -32,9 +31,10 @@ except ImportError:  # Windows
     fcntl = None
 
 from nerf_core import contract
-from nerf_core.contract.errors import DatasetError
-from nerf_core.contract.transforms import detect_layout
 from nerf_core.errors import TrainError
+
+# The dataset a run belongs to has its own module; these names stay importable from here.
+from nerf_core.runs.dataset_identity import dataset_changed_note, dataset_hash, resume_dataset  # noqa: F401
 from nerf_core.utils.atomic import write_json_atomic
 
 RUN_LOCK = contract.LOCK  # RUN/.lock: held (flock) by the one trainer writing RUN; holds its PID
@@ -70,12 +70,57 @@ def record_written(run: Path, *paths: Path) -> None:
     names = read_written(run) or []
     added = False
     for p in paths:
-        rel = Path(p).resolve().relative_to(run.resolve()).as_posix()
+        rel = _own_file(run, Path(p))
         if rel not in names:
             names.append(rel)
             added = True
     if added or not (run / WRITTEN_LIST).is_file():
         write_json_atomic(run / WRITTEN_LIST, names, default=str)
+
+
+def _link_in_path(run: Path, path: Path) -> Optional[Path]:
+    """The first part of ``path`` (below ``run``) that is a symbolic link, else None."""
+    try:
+        rel = path.relative_to(run)
+    except ValueError:
+        return path
+    at = run
+    for part in rel.parts:
+        at = at / part
+        if at.is_symlink():
+            return at
+    return None
+
+
+def _own_file(run: Path, path: Path) -> str:
+    """``path`` relative to ``run`` (posix) when it is a run's own file: inside the run folder, and no
+    part of it a symbolic link (a link would carry a write, or a later --overwrite, out of the run).
+    Raises TrainError naming the link or the path otherwise."""
+    run_abs, path_abs = Path(os.path.abspath(run)), Path(os.path.abspath(path))
+    try:
+        rel = path_abs.relative_to(run_abs)
+    except ValueError:
+        raise TrainError(f"{path}: lies outside the run folder {run}; a run writes only inside it") from None
+    if not rel.parts or ".." in rel.parts:
+        raise TrainError(f"{path}: lies outside the run folder {run}; a run writes only inside it")
+    link = _link_in_path(run_abs, path_abs)
+    if link is not None:
+        raise TrainError(f"{link}: is a symbolic link (to {os.readlink(link)}) inside the run folder {run}; a run "
+                         "writes and removes only its own files. Remove the link, or choose another --out")
+    return rel.as_posix()
+
+
+def removable(run: Path, rel: str) -> Optional[Path]:
+    """``run/rel`` when --overwrite may remove it: a plain relative path, no part of it a symbolic link,
+    and its resolved path inside the resolved run folder; else None (it is left alone)."""
+    p = _inside(run, rel)
+    if p is None or _link_in_path(run, p) is not None:
+        return None
+    real_run = run.resolve()
+    real = p.resolve()
+    if real == real_run or real_run not in real.parents:
+        return None
+    return p
 
 
 def _inside(run: Path, rel: str) -> Optional[Path]:
@@ -107,7 +152,7 @@ def trainer_written(run: Path) -> List[Path]:
     found: List[Path] = []
     if listed is not None:
         for rel in listed:
-            p = _inside(run, rel)
+            p = removable(run, rel)
             if p is None:
                 continue
             for cand in (p, p.with_name(p.name + ".tmp")):
@@ -120,7 +165,7 @@ def trainer_written(run: Path) -> List[Path]:
         return found  # not a run at all: nothing in it is ours to delete
     for p in sorted(run.rglob("*")) if run.is_dir() else []:
         rel = p.relative_to(run).as_posix()
-        if p.is_file() and not p.is_symlink() and LEGACY_WRITTEN.fullmatch(rel):
+        if p.is_file() and LEGACY_WRITTEN.fullmatch(rel) and removable(run, rel) is not None:
             found.append(p)
     return found
 
@@ -142,12 +187,26 @@ def resume_candidates(run: Path) -> List[Path]:
     return out
 
 
+def check_run_layout(run: Path) -> None:
+    """Refuse a run folder whose own names are symbolic links (a write or an --overwrite through one
+    would reach a user's file outside the run) or whose checkpoints/previews folder is a file."""
+    if not run.is_dir():
+        return
+    for name in (contract.CONFIG, contract.PROGRESS, WRITTEN_LIST, contract.METRICS, contract.CHECKPOINTS_DIR,
+                 contract.PREVIEWS_DIR):
+        _own_file(run, run / name)  # TrainError naming the link
+    for name in (contract.CHECKPOINTS_DIR, contract.PREVIEWS_DIR):
+        if (run / name).exists() and not (run / name).is_dir():
+            raise TrainError(f"{run / name}: is a file, and the run keeps a folder there; move the file away")
+
+
 def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
     """Refuse to touch an existing run unless asked (raises TrainError); changes nothing."""
     if resume and overwrite:
         raise TrainError("--resume and --overwrite contradict each other; pick one")
     if run.exists() and not run.is_dir():
         raise TrainError(f"--out {run}: {run.name} is a file, and a folder is needed there")
+    check_run_layout(run)
     if resume:
         if not resume_candidates(run):
             latest = Path(contract.latest_checkpoint(run))
@@ -323,6 +382,8 @@ def clear_run_folder(run: Path) -> List[str]:
     """Delete what a previous training wrote in ``run``; return the removed paths (relative)."""
     removed = []
     for p in trainer_written(run):
+        if removable(run, p.relative_to(run).as_posix()) is None:  # checked again just before: never outside
+            continue
         p.unlink()
         removed.append(str(p.relative_to(run)))
     for sub in (contract.CHECKPOINTS_DIR, contract.PREVIEWS_DIR):
@@ -330,6 +391,10 @@ def clear_run_folder(run: Path) -> List[str]:
         if d.is_dir() and not any(d.iterdir()):
             d.rmdir()
     return removed
+
+
+# How torch.save's C++ stream writer reports a failed write (a full disk, a file-size limit).
+_STREAM_WRITER_FAILED = ("unexpected pos", "PytorchStreamWriter failed", "file write failed")
 
 
 def os_reason(exc: BaseException) -> str:
@@ -342,8 +407,12 @@ def os_reason(exc: BaseException) -> str:
             err = errno.ENOSPC
     if err == errno.ENOSPC:
         return "no space left on device"
+    if err == errno.EFBIG:
+        return "file too large (a file-size limit, ulimit -f, was reached)"
     if err is not None:
         return os.strerror(err).lower()
+    if any(s in str(exc) for s in _STREAM_WRITER_FAILED):  # torch's writer hides the errno
+        return "the write stopped part-way: the disk is full, or a file-size limit (ulimit -f) was reached"
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
@@ -359,88 +428,3 @@ def os_error_text(exc: OSError) -> str:
         if blocker is not None:
             text += f" ({blocker} is a file, and a folder is needed there)"
     return text
-
-
-# ----------------------------------------------------------------------------------------------
-# the dataset a run belongs to
-
-
-def dataset_hash(path) -> str:
-    """sha256 over the transforms files of a dataset (names and contents): what ``--resume`` compares
-    to tell the dataset a run was trained on from another one at the same or a different path."""
-    layout, root = detect_layout(Path(path))
-    if layout == "synthetic":
-        files = [root / f"transforms_{s}.json" for s in ("train", "val", "test")]
-    else:
-        files = [Path(path) if Path(path).is_file() else root / "transforms.json"]
-    h = hashlib.sha256()
-    for f in files:
-        if f.is_file():
-            h.update(f.name.encode() + b"\0")
-            try:
-                h.update(f.read_bytes())
-            except OSError as exc:
-                raise DatasetError(f"{f}: cannot read ({exc.strerror})") from None
-            h.update(b"\0")
-    return h.hexdigest()
-
-
-def dataset_changed_note(config: dict) -> Optional[str]:
-    """A note when the dataset a run's config.json names no longer holds the data it trained on
-    (its transforms files' hash differs), else None: ``eval`` and ``render`` still work on it, but
-    their scores then compare the model with other data (``--resume`` refuses it outright)."""
-    path, want = config.get("dataset"), config.get("dataset_hash")
-    if not (isinstance(path, str) and isinstance(want, str) and Path(path).exists()):
-        return None
-    try:
-        have = dataset_hash(path)
-    except (DatasetError, OSError):
-        return None  # loading the dataset reports it, naming the file
-    if have == want:
-        return None
-    return (f"{path} changed since the run trained on it (transforms hash {have[:12]}, trained on {want[:12]}); "
-            "the scores compare the model with the data there now")
-
-
-def resume_dataset(saved: dict, dataset: str, dataset_moved: bool) -> str:
-    """The dataset to resume on: the recorded one (``saved``: the run's config), or ``dataset`` (the
-    DATASET argument) when it holds the same dataset.
-
-    A run continued on other data would silently mix two scenes, so a DATASET other than the one the
-    run was trained on is refused unless the content hash of its transforms files (recorded in
-    config.json when the run started) matches: then the dataset was moved or copied, and the new
-    path is used. Runs from before the hash was recorded need ``dataset_moved`` to accept another path.
-    """
-    recorded = saved.get("dataset")
-    if not recorded:
-        return dataset
-    new = str(Path(dataset).resolve())
-    want = saved.get("dataset_hash")
-    if new == str(Path(recorded).resolve()):
-        if want and Path(new).exists():
-            have = dataset_hash(new)
-            if have != want:
-                raise TrainError(
-                    f"{new}: the dataset changed since the run started (transforms hash {have[:12]} "
-                    f"instead of {want[:12]}); resuming would train on other data. Start a new run "
-                    "(another --out, or --overwrite)")
-        return new
-    if want:
-        try:
-            have = dataset_hash(new)
-        except DatasetError as exc:
-            raise TrainError(f"--resume: the run was trained on {recorded}, and {exc}") from None
-        if have == want:
-            print(f"train: {new} holds the dataset the run was trained on (moved from {recorded}); using it",
-                  file=sys.stderr)
-            return new
-        raise TrainError(
-            f"--resume: the run was trained on {recorded} (transforms hash {want[:12]}), but {new} holds "
-            f"another dataset (hash {have[:12]}); resume with the original DATASET, or start a new run")
-    if dataset_moved:
-        print(f"train: --dataset-moved: resuming on {new} instead of {recorded} (this run recorded no dataset "
-              "hash to check it against)", file=sys.stderr)
-        return new
-    raise TrainError(
-        f"--resume: the run was trained on {recorded}, not {new}, and recorded no dataset hash to check that "
-        f"they hold the same data; resume with the original DATASET, or pass --dataset-moved if you moved it")

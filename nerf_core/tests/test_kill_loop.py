@@ -109,3 +109,42 @@ def test_a_killed_run_resumes_or_tells_the_truth(dataset_factory, tmp_path):
         outcomes[f"{fired}: {outcome}"] += 1
     print("kill loop:", json.dumps(outcomes, sort_keys=True))
     assert sum(outcomes.values()) == ITERATIONS
+
+
+def _stop_after_first_checkpoint(ds, run, how: str) -> subprocess.CompletedProcess:
+    """Start a trainer and, once its first checkpoint exists, stop it ``how``: "SIGHUP" (a closed
+    terminal or ssh connection) or "closed stdout" (``train ... | head``: the reader goes away)."""
+    proc = subprocess.Popen(_train(ds, run, "--max-steps", "100000", "--log-every", "1"), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=_env(), cwd=REPO_ROOT)
+    try:
+        deadline = time.monotonic() + 60
+        while not (run / "checkpoints" / "latest.pt").is_file() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if how == "SIGHUP":
+            proc.send_signal(signal.SIGHUP)
+        else:
+            proc.stdout.close()
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, "", err.decode())
+
+
+@pytest.mark.parametrize("how", ["SIGHUP", "closed stdout"])
+def test_sighup_and_a_closed_stdout_save_a_checkpoint_that_resumes(dataset_factory, tmp_path, how):
+    ds = dataset_factory(tmp_path / "ds", n_train=4, n_test=1, w=16, h=12)
+    run = tmp_path / "run"
+    stopped = _stop_after_first_checkpoint(ds, run, how)
+    assert stopped.returncode == 130, stopped.stderr[-1500:]
+    assert "Traceback" not in stopped.stderr and "interrupted" in stopped.stderr
+    events = [json.loads(x) for x in (run / "progress.jsonl").read_text().splitlines() if x.startswith("{")]
+    assert events[-1]["event"] == "error" and "checkpoint saved" in events[-1]["message"], events[-2:]
+    saved = [e["step"] for e in events if e["event"] == "checkpoint"][-1]
+    resumed = subprocess.run(_train(ds, run, "--resume", "--max-steps", str(saved + 3)), capture_output=True,
+                             text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
+    assert resumed.returncode == 0, resumed.stderr[-1500:]
+    events = [json.loads(x) for x in (run / "progress.jsonl").read_text().splitlines() if x.startswith("{")]
+    start = [e for e in events if e["event"] == "start"][-1]
+    assert start["resumed_from"] == saved and events[-1]["event"] == "done"

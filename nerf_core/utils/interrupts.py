@@ -1,7 +1,11 @@
-"""Stopping a long job cleanly: SIGTERM handled like Ctrl-C.
+"""Stopping a long job cleanly: SIGTERM and SIGHUP handled like Ctrl-C.
 
-The add-on's Cancel and most job schedulers send SIGTERM; a trainer that treats it as
-``KeyboardInterrupt`` saves a checkpoint on its way out, so the run can be resumed.
+The add-on's Cancel and most job schedulers send SIGTERM, a closed terminal or ssh connection
+SIGHUP; a trainer that treats them as ``KeyboardInterrupt`` saves a checkpoint on its way out, so
+the run can be resumed. (A SIGHUP left ignored by the parent, as ``nohup`` does, stays ignored.)
+A file-size limit (``ulimit -f``) would kill the process with SIGXFSZ in the middle of a write;
+ignored, the write fails with EFBIG instead and the trainer names the file and keeps the previous
+checkpoint.
 Under ``torchrun`` the ranks record the signal instead (``DeferredInterrupts``) and stop together.
 """
 from __future__ import annotations
@@ -24,17 +28,33 @@ def honour_interrupts() -> None:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, wanted)
 
 
+def _stop_signals() -> list:
+    """The signals that stop a run with a checkpoint besides SIGINT: SIGTERM, and SIGHUP unless ignored."""
+    names = ["SIGTERM"] + (["SIGHUP"] if hasattr(signal, "SIGHUP") and signal.getsignal(signal.SIGHUP) != signal.SIG_IGN
+                           else [])
+    return [getattr(signal, n) for n in names if hasattr(signal, n)]
+
+
 def terminate_as_interrupt():
-    """Treat SIGTERM (what the add-on's Cancel and most job schedulers send) like Ctrl-C, so the run
-    stops with a checkpoint it can resume from. Returns a function restoring the previous handler."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "SIGTERM"):
+    """Treat SIGTERM (what the add-on's Cancel and most job schedulers send) and SIGHUP (a closed
+    terminal) like Ctrl-C, so the run stops with a checkpoint it can resume from, and ignore SIGXFSZ
+    so that a file-size limit fails a write (EFBIG, named) instead of killing the process. Returns a
+    function restoring the previous handlers."""
+    if threading.current_thread() is not threading.main_thread():
         return lambda: None
 
     def handler(signum, frame):
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt(f"{signal.Signals(signum).name}")
 
-    previous = signal.signal(signal.SIGTERM, handler)
-    return lambda: signal.signal(signal.SIGTERM, previous)
+    previous = {sig: signal.signal(sig, handler) for sig in _stop_signals()}
+    if hasattr(signal, "SIGXFSZ"):
+        previous[signal.SIGXFSZ] = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    def restore() -> None:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+    return restore
 
 
 class DeferredInterrupts:
@@ -52,7 +72,7 @@ class DeferredInterrupts:
     With ``reraise=False`` the block simply shields what it runs (an interrupted run's checkpoint).
     """
 
-    SIGNALS = ("SIGINT", "SIGTERM")
+    SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
     def __init__(self, enabled: bool = True, reraise: bool = True):
         self.enabled = enabled and threading.current_thread() is threading.main_thread()
@@ -72,7 +92,7 @@ class DeferredInterrupts:
                 self.signal = self.signal or signal.Signals(signum).name
 
             for name in self.SIGNALS:
-                if hasattr(signal, name):
+                if hasattr(signal, name) and signal.getsignal(getattr(signal, name)) != signal.SIG_IGN:
                     self._previous[name] = signal.signal(getattr(signal, name), handler)
         return self
 

@@ -8,6 +8,8 @@ from typing import Optional, Tuple
 
 import torch
 
+from nerf_core.utils import arguments
+
 Tensor = torch.Tensor
 
 
@@ -57,6 +59,15 @@ def stratified_samples(near: Tensor, far: Tensor, n_samples: int, jitter: bool,
         edges (n_rays, n_samples + 1) in ``near``'s dtype, from ``near`` to ``far``: interval i is
         [edges[:, i], edges[:, i+1]].
     """
+    n_samples = arguments.integer("stratified_samples", "n_samples", n_samples, low=1)
+    near = arguments.tensor("stratified_samples", "near", near, ndim=1)
+    far = arguments.tensor("stratified_samples", "far", far, ndim=1)
+    arguments.same_shape("stratified_samples", "near", near, "far", far)
+    if bool((far < near).any()):
+        raise ValueError("stratified_samples: far must be >= near on every ray")
+    arguments.instance("stratified_samples", "jitter", jitter, bool, "True or False")
+    if generator is not None:
+        arguments.instance("stratified_samples", "generator", generator, torch.Generator, "a torch.Generator or None")
     u = torch.linspace(0.0, 1.0, n_samples + 1, device=near.device, dtype=near.dtype).expand(near.shape[0], -1)
     if jitter:
         # Jitter the midpoints between bin edges so that intervals stay ordered and still tile [near, far].
