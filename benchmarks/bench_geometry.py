@@ -111,9 +111,18 @@ def cmd_run(a) -> int:
     final_mesh = os.path.join(mesh_dir, f"{scene}_{a.method}_final.ply")
     base = _export(run, final_mesh, checkpoint=last, resolution=a.resolution)
     variants = {"default": {"summary": base, "scores": _score(final_mesh, truth) if "error" not in base else None}}
-    for name, kw in () if a.no_variants else (("level x0.25", {"level": 0.25}), ("level x4", {"level": 4.0}), ("level x16", {"level": 16.0}),
-                     ("fixed level", {"fixed": True}), ("no fill", {"fill_inside": False}),
-                     ("no culling", {"cull_unseen": False, "min_component": 0.0})):
+    for name, kw in (
+        ()
+        if a.no_variants
+        else (
+            ("level x0.25", {"level": 0.25}),
+            ("level x4", {"level": 4.0}),
+            ("level x16", {"level": 16.0}),
+            ("fixed level", {"fixed": True}),
+            ("no fill", {"fill_inside": False}),
+            ("no culling", {"cull_unseen": False, "min_component": 0.0}),
+        )
+    ):
         if "level" in kw:
             if "level" not in base:
                 continue

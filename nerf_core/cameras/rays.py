@@ -78,7 +78,9 @@ class Cameras:
 
         dist = fisheye = None
         if lenses is not None and any(lens is not None for lens in lenses):
-            dist = torch.tensor([lens.coeffs if lens is not None else (0.0,) * 6 for lens in lenses], dtype=torch.float64)
+            dist = torch.tensor(
+                [lens.coeffs if lens is not None else (0.0,) * 6 for lens in lenses], dtype=torch.float64
+            )
             fisheye = torch.tensor([lens is not None and lens.fisheye for lens in lenses], dtype=torch.bool)
         return cls(c2w, vec(fx), vec(fy), vec(cx), vec(cy), vec(width, torch.int64), vec(height, torch.int64),
                    dist, fisheye)

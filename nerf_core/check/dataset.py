@@ -160,7 +160,9 @@ def _check_split_files(report: CheckReport, root: Path, one_file: bool):
         if not fpath_json.is_file():
             layout = ("this is the one-file layout (transforms.json, read by nerfstudio-data and instant-ngp), but "
                       if one_file else "")
-            report.error(fname, f"missing: {layout}the original NeRF loader reads train, val and test; 3DGS needs train and test")
+            report.error(
+                fname, f"missing: {layout}the original NeRF loader reads train, val and test; 3DGS needs train and test"
+            )
             continue
         meta = load_json(report, fpath_json)
         if meta is None:
@@ -199,11 +201,22 @@ def _check_held_out_views(report: CheckReport, poses: Dict[str, List[tuple]]) ->
         for k, fp, m, img in poses.get(split, []):
             for k2, fp2, m2, img2 in poses.get("train", []):
                 if img == img2:
-                    report.error(f"transforms_{split}.json", f"uses the training image of train frame {k2} ({fp2})", k, fp, "file_path")
+                    report.error(
+                        f"transforms_{split}.json",
+                        f"uses the training image of train frame {k2} ({fp2})",
+                        k,
+                        fp,
+                        "file_path",
+                    )
                     break
                 if np.allclose(m, m2, atol=1e-6):
-                    report.error(f"transforms_{split}.json", f"camera equals train frame {k2} ({fp2}): held-out views must be new viewpoints",
-                                 k, fp, "transform_matrix")
+                    report.error(
+                        f"transforms_{split}.json",
+                        f"camera equals train frame {k2} ({fp2}): held-out views must be new viewpoints",
+                        k,
+                        fp,
+                        "transform_matrix",
+                    )
                     break
 
 
@@ -217,9 +230,14 @@ def _check_paths(report: CheckReport, root: Path) -> None:
     for frames in infos.values():
         for fr in frames:
             for key in fr.outside:
-                report.warn(shown_path(root, str(fr.json_file)), "points outside the dataset folder (absolute or '../'): "
-                            "the file is read, but a copy of the folder or another machine will not find it",
-                            fr.index, fr.file_path, key)
+                report.warn(
+                    shown_path(root, str(fr.json_file)),
+                    "points outside the dataset folder (absolute or '../'): "
+                    "the file is read, but a copy of the folder or another machine will not find it",
+                    fr.index,
+                    fr.file_path,
+                    key,
+                )
 
 
 def _check_loadable(report: CheckReport, root: Path) -> None:

@@ -62,7 +62,9 @@ class RayBatcher:
         view = flat // self.hw
         pix = flat % self.hw
         j, i = pix // self.split.width, pix % self.split.width
-        random_bg = self.background == "random" or (self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION)
+        random_bg = self.background == "random" or (
+            self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION
+        )
         if random_bg:
             bg = torch.rand(n, 3, generator=self.gen)
         else:

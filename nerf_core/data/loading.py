@@ -74,12 +74,14 @@ def load_split(
         elif (img.shape[1], img.shape[0]) != size[:2]:
             raise DatasetError(
                 f"{fr.where}: field 'file_path': {fr.image} is {img.shape[1]}x{img.shape[0]} but the first "
-                f"{name} image ({frames[0].image.name}) is {size[0]}x{size[1]}; all images of a split must have one size"
+                f"{name} image ({frames[0].image.name}) is {size[0]}x{size[1]}; all images of a split must have "
+                "one size"
             )
         elif img.shape[2] != size[2]:
             lacking = fr if img.shape[2] == 3 else frames[0]
             raise DatasetError(
-                f"{lacking.where}: field 'file_path': {lacking.image} has no alpha channel while other {name} images do; "
+                f"{lacking.where}: field 'file_path': {lacking.image} has no alpha channel while other {name} "
+                "images do; "
                 "the alpha channel is the mask of the object, export every image as RGBA"
             )
         elif img.dtype != size[3]:
@@ -200,7 +202,9 @@ def load_dataset(
             # place the box, read without their pixels
             all_cams = [cameras_of_frames(infos["train"])]
         if not all_cams:
-            raise DatasetError(f"{root}: no frames with images in {', '.join(splits)}, and no 'aabb' to place the scene")
+            raise DatasetError(
+                f"{root}: no frames with images in {', '.join(splits)}, and no 'aabb' to place the scene"
+            )
         cams = Cameras.cat(all_cams)
         aabb, source = estimate_aabb(cams, far, depth_points(loaded["train"]) if len(loaded["train"]) else None)
         notes.append(source)
@@ -262,7 +266,9 @@ def cameras_of_frames(frames: List[FrameInfo]) -> Cameras:
             try:
                 w, h, _, _ = png_info(fr.image)
             except ImageReadError as exc:
-                raise DatasetError(f"{fr.where}: fields 'w'/'h' are missing and the image size cannot be read: {exc}") from exc
+                raise DatasetError(
+                    f"{fr.where}: fields 'w'/'h' are missing and the image size cannot be read: {exc}"
+                ) from exc
         w, h = int(w), int(h)
         fr.intrinsics.setdefault("w", w)
         fr.intrinsics.setdefault("h", h)

@@ -26,7 +26,9 @@ def parse_aabb(value, where: str) -> torch.Tensor:
     except (TypeError, ValueError) as exc:
         raise DatasetError(f"{where}: field 'aabb' is not a numeric [[xmin,ymin,zmin],[xmax,ymax,zmax]]") from exc
     if box.shape != (2, 3) or not np.all(np.isfinite(box)) or not np.all(box[1] > box[0]):
-        raise DatasetError(f"{where}: field 'aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {value!r}")
+        raise DatasetError(
+            f"{where}: field 'aabb' must be [[xmin,ymin,zmin],[xmax,ymax,zmax]] with min < max, got {value!r}"
+        )
     far_out = coordinate_problem(box, "the box")
     if far_out:
         raise DatasetError(f"{where}: field 'aabb': {far_out}")
@@ -164,13 +166,17 @@ def scene_fields(scene: dict) -> tuple:
         raise DatasetError(f"{scene['far_file']}: field 'far' ({far}) must be greater than 'near' ({near})")
     film = scene.get("film_transparent")
     if film is not None and not isinstance(film, bool):
-        raise DatasetError(f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}")
+        raise DatasetError(
+            f"{scene['film_transparent_file']}: field 'film_transparent' must be true or false, got {film!r}"
+        )
     world = scene.get("world")
     if world is not None and not isinstance(world, dict):
         raise DatasetError(f"{scene['world_file']}: field 'world' must be an object, got {type(world).__name__}")
     beyond = scene.get("beyond_box", [])
     if not isinstance(beyond, list) or not all(isinstance(n, str) for n in beyond):
-        raise DatasetError(f"{scene['beyond_box_file']}: field 'beyond_box' must be a list of object names, got {beyond!r}")
+        raise DatasetError(
+            f"{scene['beyond_box_file']}: field 'beyond_box' must be a list of object names, got {beyond!r}"
+        )
     scene_pixel_filter(scene)
     return near, far, film, world, beyond
 

@@ -161,6 +161,12 @@ class TrainConfig:
             self.max_seconds is not None and elapsed >= self.max_seconds
         )
 
+    def spent_budgets(self, step: int, elapsed: float) -> List[str]:
+        """The budgets (as flags) that ``step`` and ``elapsed`` already meet, e.g. ["--max-steps 100"]."""
+        return ([f"--max-steps {self.max_steps}"] if self.max_steps is not None and step >= self.max_steps
+                else []) + ([f"--max-seconds {self.max_seconds:g}"] if self.max_seconds is not None
+                            and elapsed >= self.max_seconds else [])
+
     def eta(self, step: int, elapsed: float) -> Optional[float]:
         """Training seconds left: to the step budget at the mean step time so far, or to the time budget."""
         etas = []

@@ -35,6 +35,16 @@ def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float
              lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(opt.param_groups)})
 
 
+def failure_line(exc: BaseException, batch_rays: Optional[int]) -> str:
+    """One line for a RuntimeError or MemoryError inside training (no traceback). Out of memory names
+    what to turn down: the allocator's byte count alone does not say which setting asked for it."""
+    msg = (str(exc).splitlines() or [type(exc).__name__])[0]
+    if isinstance(exc, MemoryError) or "alloc" in msg.lower() or "out of memory" in msg.lower():
+        msg = (f"not enough memory ({msg[:200]}); lower --batch-rays (now {batch_rays}) or the method's size "
+               "options (--set res_final=..., density_rank=..., width=..., occ_res=...)")
+    return msg
+
+
 def emit_start(log, cfg, decisions: RunDecisions, model, dataset, run: Path, device, dist,
                resumed_from: Optional[int]) -> None:
     """The ``start`` event, and on rank 0's stderr what it says that a person should read (sizes,

@@ -43,7 +43,7 @@ from nerf_core.engine.optim import (
 )
 from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
-from nerf_core.engine.report import emit_start, evaluation_problem, run_config
+from nerf_core.engine.report import emit_start, evaluation_problem, failure_line, run_config
 from nerf_core.engine.rollback import (
     SNAPSHOT_EVERY,
     gradient_problem,
@@ -232,11 +232,7 @@ class Trainer:
                 pass  # the failing file may be the --progress log itself; the message still reaches stderr
             raise TrainError(msg) from None
         except (RuntimeError, MemoryError) as exc:  # e.g. out of memory inside a model: one clear line, no traceback
-            msg = (str(exc).splitlines() or [type(exc).__name__])[0]
-            if isinstance(exc, MemoryError) or "alloc" in msg.lower() or "out of memory" in msg.lower():
-                # Name what to turn down: the allocator's byte count alone does not say which setting asked.
-                msg = (f"not enough memory ({msg[:200]}); lower --batch-rays (now {self.cfg.batch_rays}) or the "
-                       "method's size options (--set res_final=..., density_rank=..., width=..., occ_res=...)")
+            msg = failure_line(exc, self.cfg.batch_rays)
             self.log.emit("error", message=f"training failed at step {self.state.step}: {msg}")
             raise TrainError(f"training failed at step {self.state.step}: {msg}") from exc
         finally:
@@ -360,10 +356,7 @@ class Trainer:
 
     def _refuse_spent_budget(self) -> None:
         """--resume of a run whose budget is met: refused before anything is rewritten."""
-        cfg, state = self.cfg, self.state
-        spent = ([f"--max-steps {cfg.max_steps}"] if cfg.max_steps is not None and state.step >= cfg.max_steps
-                 else []) + ([f"--max-seconds {cfg.max_seconds:g}"] if cfg.max_seconds is not None
-                             and state.elapsed >= cfg.max_seconds else [])
+        state, spent = self.state, self.cfg.spent_budgets(self.state.step, self.state.elapsed)
         if spent:
             raise TrainError(f"--resume: the run is already at step {state.step} ({state.elapsed:.0f} s trained), "
                              f"which meets {' and '.join(spent)}; nothing is left to train. Give a larger budget "

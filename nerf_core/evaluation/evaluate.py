@@ -218,9 +218,18 @@ def unseen_world_shares(model, dataset_path, split, views: Sequence[int]) -> dic
     return {v: unseen_world_share(split.cameras, v, covered, aabb) for v in views}
 
 
-def evaluate_run(run, split: str = "test", device=None, max_views: Optional[int] = None, downscale: Optional[int] = None,
-                 chunk: int = DEFAULT_CHUNK, checkpoint=None, print_fn=print, show_progress: bool = True,
-                 pixel_filter: str = "auto") -> dict:
+def evaluate_run(
+    run,
+    split: str = "test",
+    device=None,
+    max_views: Optional[int] = None,
+    downscale: Optional[int] = None,
+    chunk: int = DEFAULT_CHUNK,
+    checkpoint=None,
+    print_fn=print,
+    show_progress: bool = True,
+    pixel_filter: str = "auto",
+) -> dict:
     """The ``eval`` subcommand: evaluate a run's latest checkpoint on ``split``; prints a line per
     view and returns the summary (also merged into RUN/metrics.json and RUN/progress.jsonl).
 

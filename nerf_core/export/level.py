@@ -63,7 +63,9 @@ def rendered_surface_level(model, cameras: Cameras, box: np.ndarray, n_rays: int
         sigma = field.density(model, pts).float().cpu().reshape(t.shape)
         depth = torch.cumsum(sigma * ((b - a) / samples)[:, None], dim=1)  # optical depth after each step
         opaque = depth[:, -1] >= -math.log(1.0 - OPAQUE)
-        first = torch.searchsorted(depth[opaque].contiguous(), torch.full((int(opaque.sum()), 1), -math.log(transmittance)))
+        first = torch.searchsorted(
+            depth[opaque].contiguous(), torch.full((int(opaque.sum()), 1), -math.log(transmittance))
+        )
         found.append(sigma[opaque].gather(1, first.clamp_max(samples - 1)).squeeze(1))
     values = torch.cat(found) if found else torch.zeros(0)
     return float(values.median()) if values.numel() else None

@@ -232,7 +232,12 @@ def extract_mesh(model, box: np.ndarray, resolution: int, level: Optional[float]
         level, rule = grid.iso_level(box, resolution), "one grid step 5 % opaque"
     level = float(level)
     density = grid.sample_density(model, box, resolution, lambda s: say("density", s))
-    info = {"resolution": resolution, "level": level, "level_rule": rule, "density_range": [float(density.min()), float(density.max())]}
+    info = {
+        "resolution": resolution,
+        "level": level,
+        "level_rule": rule,
+        "density_range": [float(density.min()), float(density.max())],
+    }
     lo, hi = info["density_range"]
     if fill_inside and lo < level < hi:
         say("filling", 0.0)

@@ -40,11 +40,21 @@ def _training_cameras(config: dict, notes: list):
         return None
 
 
-def export_mesh(run, out, resolution: Optional[int] = None, n_faces: Optional[int] = None,
-                level: Optional[float] = None, min_component: float = mesh.DEFAULT_MIN_COMPONENT,
-                cull_unseen: bool = True, fill_inside: bool = True, overwrite: bool = False, checkpoint=None, device=None,
-                on_progress: Optional[Callable[[str, float], None]] = None,
-                on_note: Optional[Callable[[str], None]] = None) -> dict:
+def export_mesh(
+    run,
+    out,
+    resolution: Optional[int] = None,
+    n_faces: Optional[int] = None,
+    level: Optional[float] = None,
+    min_component: float = mesh.DEFAULT_MIN_COMPONENT,
+    cull_unseen: bool = True,
+    fill_inside: bool = True,
+    overwrite: bool = False,
+    checkpoint=None,
+    device=None,
+    on_progress: Optional[Callable[[str, float], None]] = None,
+    on_note: Optional[Callable[[str], None]] = None,
+) -> dict:
     """Write the run's coloured mesh to ``out`` (binary PLY, scene frame); see ``export.mesh`` for the rules.
 
     Returns the summary: ``out``, ``vertices``, ``faces``, ``resolution``, ``level``, ``seconds``,

@@ -87,7 +87,9 @@ def ssim_map(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
     if pred.shape != gt.shape or pred.dim() != 3:
         raise ValueError(f"ssim needs two (h, w, c) images of one shape, got {tuple(pred.shape)} and {tuple(gt.shape)}")
     if min(pred.shape[:2]) < SSIM_WINDOW:
-        raise ValueError(f"ssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {pred.shape[1]}x{pred.shape[0]}")
+        raise ValueError(
+            f"ssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {pred.shape[1]}x{pred.shape[0]}"
+        )
     x = pred.double().permute(2, 0, 1)[None]  # (1, c, h, w); float64 so E[x^2]-E[x]^2 does not cancel badly
     y = gt.double().permute(2, 0, 1)[None]
     c = x.shape[1]

@@ -224,7 +224,9 @@ class VMGrid(RadianceModel):
         # texture halving), never finer: cells finer than a pixel footprint are not supervised.
         footprint_res = fine_res / (0.5 + 0.5 * fine_share)
         res_max = int(max(res_final, min(320, round(footprint_res / 8) * 8)))
-        opts = dict(res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=rank, res_budget_max=res_max)
+        opts = dict(
+            res_final=res_final, res_init=res_init, app_rank=app_rank, density_rank=rank, res_budget_max=res_max
+        )
         reasons = [f"grid grows {res_init} -> {res_final} cells per axis (no finer than the pixel footprint"
                    + (", coarser for coarse texture" if fine_share < 1 else "") + ")",
                    f"appearance rank {app_rank} (8-16) from the texture probe, density rank {rank}",

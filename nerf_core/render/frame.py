@@ -27,8 +27,16 @@ CPU_MIN_CALL_RAYS = 64  # below this the per-call Python overhead dominates
 
 
 @torch.no_grad()
-def render_rays_chunked(model: RadianceModel, rays_o, rays_d, background, near=None, far=None, chunk: int = DEFAULT_CHUNK,
-                        on_chunk: Optional[Callable[[int, int], None]] = None) -> Dict[str, torch.Tensor]:
+def render_rays_chunked(
+    model: RadianceModel,
+    rays_o,
+    rays_d,
+    background,
+    near=None,
+    far=None,
+    chunk: int = DEFAULT_CHUNK,
+    on_chunk: Optional[Callable[[int, int], None]] = None,
+) -> Dict[str, torch.Tensor]:
     """Evaluation rendering of (m, 3) camera rays (``model.render_batch``) in model calls of at most
     ``chunk`` rays to bound memory.
 
@@ -57,7 +65,11 @@ def render_rays_chunked(model: RadianceModel, rays_o, rays_d, background, near=N
         e = min(s + step, m)
         res = model.render_batch(rays_o[s:e], rays_d[s:e], bg[s:e], near, far, training=False)
         for k in out:
-            out[k].append(res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1) if k != "rgb" else res[k].detach().float())
+            out[k].append(
+                res[k].detach().float().reshape(res[k].shape[0], -1).squeeze(-1)
+                if k != "rgb"
+                else res[k].detach().float()
+            )
         if cpu and "n_samples" in res:
             per_ray = max(1.0, float(res["n_samples"]) / (e - s))
             step = int(min(cap, max(CPU_MIN_CALL_RAYS, CPU_SAMPLES_PER_CALL / per_ray)))
@@ -102,7 +114,8 @@ def render_view(
         dict of CPU tensors: ``rgb`` (h, w, 3) float32 in [0, 1] composited onto ``background`` (onto
         the model's learned environment instead when it has one), ``acc`` (h, w) float32 opacity in
         [0, 1], ``depth`` (h, w) float32 distance along the ray (as the method reports it; the built-in
-        methods normalise it by acc) and ``z_depth`` (h, w) float32 planar depth along the camera's -Z (0 where acc < 0.5);
+        methods normalise it by acc) and ``z_depth`` (h, w) float32 planar depth along the camera's -Z
+        (0 where acc < 0.5);
         plus ``n_rays``, an int (not a tensor): rays rendered, one a pixel and the filter's at edges.
 
     Raises:
@@ -202,8 +215,9 @@ def filter_edges(model, cameras: Cameras, view: int, rgb: torch.Tensor, acc: tor
                         torch.round(jj.double() + 0.5 - float(cameras.cy[view]))], dim=-1).long()
     off = pixel_filter.offsets(q, samples, keys=keys).reshape(-1, 2)
     views = torch.full((q * samples,), int(view), dtype=torch.long)
-    rays_o, rays_d, z_per_t = rays_for_pixels(cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples),
-                                              off)
+    rays_o, rays_d, z_per_t = rays_for_pixels(
+        cameras, views, ii.repeat_interleave(samples), jj.repeat_interleave(samples), off
+    )
     # The centre pass has reported the whole view; these calls only let ``on_chunk`` stop the render.
     res = render_rays_of(model, rays_o, rays_d, background, near, far, chunk,
                           None if on_chunk is None else (lambda done, m: on_chunk(total, total)))

@@ -151,7 +151,9 @@ def _save_npy(path: str, array: np.ndarray) -> None:
             raise RequestError(f"{path} appeared while the view rendered; the server never overwrites a file") from None
         except OSError:  # no hard links here (FAT, some network shares)
             if os.path.exists(path):
-                raise RequestError(f"{path} appeared while the view rendered; the server never overwrites a file") from None
+                raise RequestError(
+                    f"{path} appeared while the view rendered; the server never overwrites a file"
+                ) from None
             os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -197,8 +199,10 @@ class RenderServer:
                     try:
                         line = line.decode("utf-8")
                     except UnicodeDecodeError as exc:
-                        line = NotUtf8(f"input line is not UTF-8 (byte {exc.start}: {line[exc.start:exc.start + 1]!r}): "
-                                       f"{line[:80]!r}")
+                        line = NotUtf8(
+                            f"input line is not UTF-8 (byte {exc.start}: {line[exc.start : exc.start + 1]!r}): "
+                            f"{line[:80]!r}"
+                        )
                 self._inbox.put(line)
         finally:
             self._inbox.put(None)  # end of input, also when reading failed
@@ -302,8 +306,11 @@ class RenderServer:
         except (RequestError, RunError) as exc:
             self.emit("error", id=obj.get("id"), message=str(exc))
         except OSError as exc:
-            self.emit("error", id=obj.get("id"), message=f"request {obj.get('id')!r}: cannot write {exc.filename or ''}: "
-                                                          f"{exc.strerror or exc}")
+            self.emit(
+                "error",
+                id=obj.get("id"),
+                message=f"request {obj.get('id')!r}: cannot write {exc.filename or ''}: {exc.strerror or exc}",
+            )
         except (RuntimeError, ValueError, ArithmeticError) as exc:
             # e.g. out of memory inside torch, or a value the checks above missed: one request fails, the
             # server goes on (a client waits for an answer to every request).

@@ -142,7 +142,9 @@ def _refuse_targets(out: Path, stems: List[str], gt_frames: list, overwrite: boo
                            "renders never replace a dataset's images, even with --overwrite. Choose another --out")
     existing = [t for t in targets if t.exists()]
     if existing and not overwrite:
-        names = ", ".join(t.name for t in existing[:5]) + (f" and {len(existing) - 5} more" if len(existing) > 5 else "")
+        names = ", ".join(t.name for t in existing[:5]) + (
+            f" and {len(existing) - 5} more" if len(existing) > 5 else ""
+        )
         raise RunError(f"{out}: would overwrite existing {names}; pass --overwrite or choose another --out")
 
 

@@ -102,7 +102,9 @@ def read_checkpoint(path: Path) -> dict:
     except pickle.UnpicklingError as exc:
         found = _REFUSED.search(str(exc))
         if found is None:
-            raise RunError(f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})") from None
+            raise RunError(
+                f"{path}: cannot read checkpoint (damaged or not a checkpoint: {_unpickler_detail(exc)})"
+            ) from None
         what = next((g.strip() for g in found.groups() if g), "")
         raise CheckpointRefused(
             f"{path}: refused: the checkpoint contains code or objects that are not plain tensors and data"

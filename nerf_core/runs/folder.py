@@ -221,7 +221,8 @@ def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
                     f"wrote: {listed})"
                 )
             raise TrainError(
-                f"{latest}: not found and no {contract.CHECKPOINTS_DIR}/{contract.step_glob('.pt')} either; nothing to resume. {run} "
+                f"{latest}: not found and no {contract.CHECKPOINTS_DIR}/{contract.step_glob('.pt')} either; "
+                f"nothing to resume. {run} "
                 f"holds other files ({listed}): choose another --out, or --overwrite "
                 "(removes only files a trainer wrote there)"
             )

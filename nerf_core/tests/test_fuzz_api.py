@@ -58,33 +58,70 @@ def _calls(w):
     return {
         "psnr": (nerf_core.psnr, dict(pred=a, gt=a.clone(), mask=None)),
         "ssim": (nerf_core.ssim, dict(pred=torch.rand(12, 12, 3), gt=torch.rand(12, 12, 3))),
-        "depth_mae": (nerf_core.depth_mae, dict(pred_z=torch.rand(4, 4), gt_z=torch.rand(4, 4) + 0.1, gt_alpha=None,
-                                                 mask=None)),
-        "Cameras.create": (nerf_core.Cameras.create, dict(c2w=np.array(POSE), fx=6.0, fy=6.0, cx=3.0, cy=3.0, width=6,
-                                                          height=6)),
+        "depth_mae": (
+            nerf_core.depth_mae,
+            dict(pred_z=torch.rand(4, 4), gt_z=torch.rand(4, 4) + 0.1, gt_alpha=None, mask=None),
+        ),
+        "Cameras.create": (
+            nerf_core.Cameras.create,
+            dict(c2w=np.array(POSE), fx=6.0, fy=6.0, cx=3.0, cy=3.0, width=6, height=6),
+        ),
         "build_model": (nerf_core.build_model, dict(name="test-grid", aabb=BOX)),
-        "render_view": (nerf_core.render_view, dict(model=w["model"], cameras=w["cams"], view=0, near=None, far=None,
-                                                    background=(1.0, 1.0, 1.0), chunk=64)),
+        "render_view": (
+            nerf_core.render_view,
+            dict(
+                model=w["model"], cameras=w["cams"], view=0, near=None, far=None, background=(1.0, 1.0, 1.0), chunk=64
+            ),
+        ),
         "rays_for_view": (nerf_core.rays_for_view, dict(cameras=w["cams"], view=0)),
-        "stratified_samples": (stratified_samples, dict(near=torch.zeros(3), far=torch.ones(3), n_samples=4,
-                                                        jitter=False)),
-        "RayBatcher": (nerf_core.RayBatcher, dict(split=w["split"], background="white", gen=torch.Generator(),
-                                                  device=torch.device("cpu"))),
+        "stratified_samples": (
+            stratified_samples,
+            dict(near=torch.zeros(3), far=torch.ones(3), n_samples=4, jitter=False),
+        ),
+        "RayBatcher": (
+            nerf_core.RayBatcher,
+            dict(split=w["split"], background="white", gen=torch.Generator(), device=torch.device("cpu")),
+        ),
         "evaluate_split": (nerf_core.evaluate_split, dict(model=w["model"], split=w["split"], views=[0], chunk=512)),
-        "evaluate_run": (nerf_core.evaluate_run, dict(run=w["root"] / "no_run", split="test", max_views=None,
-                                                      downscale=None, chunk=64, show_progress=False)),
-        "render_run": (nerf_core.render_run, dict(run=w["root"] / "no_run", cameras_path=None, out=w["root"] / "out",
-                                                  split="test", chunk=64, show_progress=False)),
+        "evaluate_run": (
+            nerf_core.evaluate_run,
+            dict(run=w["root"] / "no_run", split="test", max_views=None, downscale=None, chunk=64, show_progress=False),
+        ),
+        "render_run": (
+            nerf_core.render_run,
+            dict(
+                run=w["root"] / "no_run",
+                cameras_path=None,
+                out=w["root"] / "out",
+                split="test",
+                chunk=64,
+                show_progress=False,
+            ),
+        ),
         "load_dataset": (nerf_core.load_dataset, dict(path=w["ds"], downscale=1)),
         "load_cameras": (nerf_core.load_cameras, dict(path=w["ds"], split="test")),
         "check_dataset": (nerf_core.check_dataset, dict(path=w["ds"], background="auto", for_training=False)),
         "load_run": (nerf_core.load_run, dict(run=w["root"] / "no_run", device=torch.device("cpu"), checkpoint=None)),
         "register": (nerf_core.register, dict(name="fuzz-method", replace=False)),
-        "train": (lambda **kw: nerf_core.train(nerf_core.TrainConfig(**kw)),
-                  # no dataset there: the fields are checked first, then loading it stops the run (fast)
-                  dict(dataset=str(w["root"] / "no_dataset"), out=str(w["root"] / "never"), method="test-grid", max_steps=1,
-                       log_every=1, chunk=64, preview_size=8, eval_views=0, show_bar=False, stdout_events=False,
-                       options={}, dataset_moved=True, overwrite=False)),
+        "train": (
+            lambda **kw: nerf_core.train(nerf_core.TrainConfig(**kw)),
+            # no dataset there: the fields are checked first, then loading it stops the run (fast)
+            dict(
+                dataset=str(w["root"] / "no_dataset"),
+                out=str(w["root"] / "never"),
+                method="test-grid",
+                max_steps=1,
+                log_every=1,
+                chunk=64,
+                preview_size=8,
+                eval_views=0,
+                show_bar=False,
+                stdout_events=False,
+                options={},
+                dataset_moved=True,
+                overwrite=False,
+            ),
+        ),
     }
 
 

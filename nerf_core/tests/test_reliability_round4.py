@@ -162,10 +162,17 @@ def _cams(**kw):
     return nerf_core.Cameras.create(**args)
 
 
-@pytest.mark.parametrize("kw, words", [
-    (dict(c2w=np.full((1, 4, 4), np.nan)), "c2w holds NaN"), (dict(fx=-5.0), "fx"), (dict(width=0), "width"),
-    (dict(c2w=np.diag([2.0, 2.0, 2.0, 1.0])[None]), "scaled"), (dict(c2w="eye"), "c2w"), (dict(fy=[1.0, 2.0]), "1 or 1"),
-])
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        (dict(c2w=np.full((1, 4, 4), np.nan)), "c2w holds NaN"),
+        (dict(fx=-5.0), "fx"),
+        (dict(width=0), "width"),
+        (dict(c2w=np.diag([2.0, 2.0, 2.0, 1.0])[None]), "scaled"),
+        (dict(c2w="eye"), "c2w"),
+        (dict(fy=[1.0, 2.0]), "1 or 1"),
+    ],
+)
 def test_cameras_refuse_what_the_loaders_refuse(kw, words):
     with pytest.raises((ValueError, TypeError), match=words):
         _cams(**kw)
