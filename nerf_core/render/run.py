@@ -24,6 +24,7 @@ from nerf_core.render.frame import render_view
 from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.record import RunRecord
+from nerf_core.utils import arguments
 from nerf_core.utils.device import pick_device
 
 
@@ -100,6 +101,11 @@ def open_run(path: Union[str, Path], device: Union[str, torch.device, None] = No
         RunError: a missing or unusable run folder, config.json or checkpoint.
         CheckpointRefused: a checkpoint that would need code to load.
     """
+    path = Path(arguments.path("open_run", "path", path))
+    if checkpoint is not None:
+        arguments.path("open_run", "checkpoint", checkpoint)
+    if device is not None and not isinstance(device, (str, torch.device)):
+        raise TypeError(f"open_run: device must be 'cpu', 'cuda', ... or a torch.device, got {device!r}")
     dev = device if isinstance(device, torch.device) else pick_device(device)
-    model, record, ckpt = load_trained(Path(path), dev, checkpoint)
-    return Run(Path(path), model, record, ckpt)
+    model, record, ckpt = load_trained(path, dev, checkpoint)
+    return Run(path, model, record, ckpt)

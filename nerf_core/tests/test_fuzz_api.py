@@ -102,6 +102,7 @@ def _calls(w):
         "load_cameras": (nerf_core.load_cameras, dict(path=w["ds"], split="test")),
         "check_dataset": (nerf_core.check_dataset, dict(path=w["ds"], background="auto", for_training=False)),
         "load_run": (nerf_core.load_run, dict(run=w["root"] / "no_run", device=torch.device("cpu"), checkpoint=None)),
+        "open_run": (nerf_core.open_run, dict(path=w["root"] / "no_run", device="cpu", checkpoint=None)),
         "register": (nerf_core.register, dict(name="fuzz-method", replace=False)),
         "train": (
             lambda **kw: nerf_core.train(nerf_core.TrainConfig(**kw)),
@@ -145,7 +146,7 @@ def _finite_result(value) -> bool:
 def test_every_public_function_is_fuzzed():
     called = {name.split(".")[0] for name, _ in CASES} | {"TrainConfig", "available_methods", "volume", "__version__"}
     errors = {n for n in nerf_core.__all__ if n.endswith("Error") or n == "CheckpointRefused"}
-    assert set(nerf_core.__all__) - errors - called == {"Dataset", "Split", "RadianceModel"}  # classes, not calls
+    assert set(nerf_core.__all__) - errors - called == {"Dataset", "Split", "RadianceModel", "Run"}  # classes
 
 
 @pytest.mark.parametrize("name, arg", CASES)
