@@ -10,6 +10,7 @@ and that view's ``psnr``/``ssim`` in renders.json (docs/CONTRACTS.md). File name
 from __future__ import annotations
 
 import math
+import numbers
 import sys
 import time
 from pathlib import Path
@@ -271,7 +272,9 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     if cameras_path is not None:
         arguments.path(f, "cameras_path", cameras_path)
     arguments.choice(f, "split", split, ("train", "val", "test"))
-    arguments.number(f, "downscale", downscale, above=0.0)
+    if isinstance(downscale, bool) or not isinstance(downscale, numbers.Real):
+        raise TypeError(f"{f}: downscale must be a number, got {downscale!r:.60}")
+    # Its range is checked once the cameras are read: the message says how small they are.
     arguments.integer(f, "chunk", chunk, low=1)
     arguments.choice(f, "pixel_filter", pixel_filter, ("auto", "none"))
     if not isinstance(overwrite, bool):
