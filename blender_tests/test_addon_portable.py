@@ -1,7 +1,7 @@
 """The add-on loads in any Blender from 4.2 on, whatever its Python: Blender 5.1+ runs Python 3.13, and an
 add-on that ships compiled files built for 3.11 (or imports a compiled package Blender lacks) would fail
 to load there. So the add-on, and the nerf_core it vendors, are plain Python that imports only the
-standard library, Blender's own modules and numpy (which Blender bundles). Read from the source: nothing
+standard library, Blender's own modules, numpy and openvdb (which Blender bundles). Read from the source: nothing
 is imported, bpy not needed.
 """
 from __future__ import annotations
@@ -17,7 +17,8 @@ ADDON = os.path.join(REPO, "addon")
 COMPILED = (".so", ".pyd", ".dll", ".dylib", ".whl", ".pyc", ".egg")
 # What Blender itself provides: its Python API modules and the numpy it bundles.
 BLENDER_PROVIDES = {"bpy", "bpy_extras", "mathutils", "gpu", "gpu_extras", "bmesh", "bl_math", "blf", "aud",
-                    "addon_utils", "bl_ui", "numpy"}
+                    "addon_utils", "bl_ui", "numpy",
+                    "openvdb"}  # Blender ships OpenVDB's Python module (the volume import writes .vdb with it)
 
 
 def _files(root):

@@ -32,7 +32,7 @@ def test_a_missing_run_is_one_line(tmp_path):
 
 def test_train_mode_prints_operators_syncs_and_time(tmp_path, tiny_dataset):
     data = tiny_dataset(tmp_path / "data", n_train=6)
-    proc = _run(REPO / "scripts" / "profile_step.py", "--train", data, "--steps", "3", "--batch-rays", "16")
+    proc = _run(REPO / "benchmarks" / "profile_step.py", "--train", data, "--steps", "3", "--batch-rays", "16")
     assert proc.returncode == 0, proc.stderr
     assert "16 rays, cpu, 1 thread(s), 3 steps from the first on" in proc.stdout
     assert "wall per step:" in proc.stdout and "ATen operators / step:" in proc.stdout
@@ -40,7 +40,7 @@ def test_train_mode_prints_operators_syncs_and_time(tmp_path, tiny_dataset):
 
 
 def test_train_mode_refuses_a_missing_dataset_in_one_line(tmp_path):
-    proc = _run(REPO / "scripts" / "profile_step.py", "--train", tmp_path / "nothing", "--steps", "2")
+    proc = _run(REPO / "benchmarks" / "profile_step.py", "--train", tmp_path / "nothing", "--steps", "2")
     assert proc.returncode != 0 and "Traceback" not in proc.stderr and "profile_step: --train" in proc.stderr
 
 
