@@ -20,6 +20,7 @@ from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.nerfstudio_frame import read_dataparser_transform
 from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.rollback import take_snapshot
+from nerf_core.engine.state import TrainState
 from nerf_core.engine.trainer import train
 from nerf_core.errors import TrainError
 from nerf_core.render.server import valid_id
@@ -262,13 +263,9 @@ def test_non_finite_weights_stop_the_run_and_never_replace_a_checkpoint(tmp_path
     with torch.no_grad():
         model.grid[0, 0, 0, 0, 0] = float("inf")
 
-    class Trainer:
-        pass
-
-    t = Trainer()
-    t.model, t.opt, t.step, t.elapsed, t.loss_ema = model, torch.optim.Adam(model.parameters()), 7, 1.0, None
+    state = TrainState(step=7, elapsed=1.0)
     with pytest.raises(TrainError, match="'grid' is NaN or infinite at step 7"):
-        take_snapshot(t)
+        take_snapshot(model, torch.optim.Adam(model.parameters()), state)
     run = tmp_path / "run"
     save_checkpoint(run, {"model": {"w": torch.zeros(2)}, "step": 1}, 1, keep=3)
     with pytest.raises(TrainError, match="'grid' turned NaN or infinite"):
