@@ -56,7 +56,7 @@ else
 fi
 "$venv/bin/python" - <<'PY' >&2 || die "the environment is incomplete; delete .venv and run again."
 import importlib
-for mod in ("torch", "numpy", "OpenEXR", "bpy", "pytest", "matplotlib", "skimage", "fast_simplification", "nerf_core"):
+for mod in ("torch", "numpy", "OpenEXR", "bpy", "pytest", "xdist", "matplotlib", "skimage", "fast_simplification", "nerf_core"):
     importlib.import_module(mod)
 PY
 echo "$venv/bin/python"
