@@ -3,7 +3,7 @@ temporary file exists, between it and the rename, mid-``progress.jsonl``, mid-pr
 times), then ``train --resume``. Every time the run must resume, or say the truth (exit 2, one line,
 no traceback), and then start again with the flag the message names.
 
-The iterations are seeded; ``NERF_KILL_LOOP=N`` runs N of them (CI: 6, about a minute).
+The iterations are seeded, one test each; ``NERF_KILL_LOOP=N`` runs N of them (CI: 6, about 15 s each).
 """
 from __future__ import annotations
 
@@ -82,36 +82,34 @@ def _clear_error(proc) -> str:
 
 
 @pytest.mark.slow
-def test_a_killed_run_resumes_or_tells_the_truth(dataset_factory, tmp_path):
+@pytest.mark.parametrize("k", range(ITERATIONS))
+def test_a_killed_run_resumes_or_tells_the_truth(dataset_factory, tmp_path, k):
+    """Iteration ``k`` of the loop (one test each, so that parallel workers share them): its trigger is
+    ``TRIGGERS[k % len(TRIGGERS)]``, its random kill time and byte threshold come from a seed of ``k``."""
     ds = dataset_factory(tmp_path / "ds", n_train=6, n_test=1, w=16, h=12)
-    rng = random.Random(0)
-    outcomes = {}
-    for k in range(ITERATIONS):
-        trigger = TRIGGERS[k % len(TRIGGERS)]
-        run = tmp_path / f"run{k}"
-        fired = _kill_somewhere(ds, run, trigger, rng)
-        resumed = subprocess.run(_train(ds, run, "--resume", "--max-steps", "100000", "--max-seconds", "1.5"),
-                                 capture_output=True, text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
-        if resumed.returncode == 0:
-            outcome = "resumed"
-            events = [json.loads(x) for x in (run / "progress.jsonl").read_text().splitlines()
-                      if x.startswith("{") and x.endswith("}")]
-            assert events[-1]["event"] == "done", events[-3:]
-        else:
-            # The truth: nothing to resume from (killed before the first checkpoint), and what to do:
-            # --overwrite when the trainer left files, or no --resume when it was killed before it
-            # wrote any (a slow start on a loaded machine).
-            message = _clear_error(resumed)
-            flag = "--overwrite" if "--overwrite" in message else None
-            assert flag or "drop --resume" in message, message
-            again = subprocess.run(_train(ds, run, *([flag] if flag else []), "--max-steps", "5"),
-                                   capture_output=True, text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
-            assert again.returncode == 0, again.stderr[-1500:]
-            outcome = f"told, then {flag or 'a new run'}"
-        outcomes.setdefault(f"{fired}: {outcome}", 0)
-        outcomes[f"{fired}: {outcome}"] += 1
-    print("kill loop:", json.dumps(outcomes, sort_keys=True))
-    assert sum(outcomes.values()) == ITERATIONS
+    rng = random.Random(k)
+    trigger = TRIGGERS[k % len(TRIGGERS)]
+    run = tmp_path / "run"
+    fired = _kill_somewhere(ds, run, trigger, rng)
+    resumed = subprocess.run(_train(ds, run, "--resume", "--max-steps", "100000", "--max-seconds", "1.5"),
+                             capture_output=True, text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
+    if resumed.returncode == 0:
+        outcome = "resumed"
+        events = [json.loads(x) for x in (run / "progress.jsonl").read_text().splitlines()
+                  if x.startswith("{") and x.endswith("}")]
+        assert events[-1]["event"] == "done", events[-3:]
+    else:
+        # The truth: nothing to resume from (killed before the first checkpoint), and what to do:
+        # --overwrite when the trainer left files, or no --resume when it was killed before it
+        # wrote any (a slow start on a loaded machine).
+        message = _clear_error(resumed)
+        flag = "--overwrite" if "--overwrite" in message else None
+        assert flag or "drop --resume" in message, message
+        again = subprocess.run(_train(ds, run, *([flag] if flag else []), "--max-steps", "5"),
+                               capture_output=True, text=True, env=_env(), cwd=REPO_ROOT, timeout=120)
+        assert again.returncode == 0, again.stderr[-1500:]
+        outcome = f"told, then {flag or 'a new run'}"
+    print(f"kill loop {k}: {fired}: {outcome}")
 
 
 def _stop_after_first_checkpoint(ds, run, how: str) -> subprocess.CompletedProcess:
