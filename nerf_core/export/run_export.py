@@ -62,7 +62,7 @@ def export_mesh(
     surface, the mesh extra missing) or RunError (an unusable run) before anything is written.
     """
     started = time.perf_counter()
-    out = check_output(out, overwrite)
+    out = check_output(out, overwrite, suffix=".ply")
     notes: list = []
     model, config, ckpt, box = _load(run, checkpoint, device, notes)
     res = int(resolution or field.grid_resolution(model))
@@ -72,7 +72,7 @@ def export_mesh(
         (on_note or (lambda s: None))(n)
     m = mesh.extract_mesh(model, box, res, level=level, n_faces=n_faces, cameras=cams,
                           min_component=min_component, fill_inside=fill_inside, on_progress=on_progress)
-    check_output(out, overwrite)  # again: the path may have changed while we worked
+    check_output(out, overwrite, suffix=".ply")  # again: the path may have changed while we worked
     ply.write_mesh_ply(out, m.vertices, m.faces, m.colors)
     return {"out": str(Path(out).resolve()), "kind": "mesh", "run": str(Path(run).resolve()),
             "step": ckpt.get("step"), "method": ckpt.get("method"), "box": box.tolist(), **m.info,
@@ -88,7 +88,7 @@ def export_volume(run, out, resolution: Optional[int] = None, overwrite: bool = 
     ``notes``. Raises ValueError or RunError before anything is written.
     """
     started = time.perf_counter()
-    out = check_output(out, overwrite)
+    out = check_output(out, overwrite, suffix=".npz")
     notes: list = []
     model, config, ckpt, box = _load(run, checkpoint, device, notes)
     res = int(resolution or field.grid_resolution(model))
@@ -97,7 +97,7 @@ def export_volume(run, out, resolution: Optional[int] = None, overwrite: bool = 
         (on_note or (lambda s: None))(n)
     arrays = volume.volume_grids(model, box, res, on_progress=on_progress)
     d = arrays["density"]
-    check_output(out, overwrite)
+    check_output(out, overwrite, suffix=".npz")
     volume.write_volume(out, arrays)
     return {"out": str(Path(out).resolve()), "kind": "volume", "run": str(Path(run).resolve()),
             "step": ckpt.get("step"), "method": ckpt.get("method"), "resolution": res, "box": box.tolist(),

@@ -260,3 +260,13 @@ def test_cli_writes_the_volume_file_of_the_contract(fake_run, tmp_path, capsys):
     assert (v["color"][top] == [255, 0, 0]).all() and (v["color"][bottom] == [0, 0, 255]).all()
     assert not v["color"][r > RADIUS + 0.1].any()  # no colour where nothing is
     assert summary["resolution"] == 24 and summary["density_range"][1] > 1e3
+
+
+@pytest.mark.parametrize("kind,name", [("mesh", "m.txt"), ("mesh", "m.npz"), ("volume", "v.ply"), ("volume", "v")])
+def test_an_output_name_with_the_wrong_suffix_is_one_line_with_nothing_written(tmp_path, fake_run, capsys, kind, name):
+    out = tmp_path / name
+    assert main(["export", kind, str(fake_run), "--out", str(out), "--resolution", "16"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    want = ".ply" if kind == "mesh" else ".npz"
+    assert len(err) == 1 and f"name one ending in {want}" in err[0] and str(out) in err[0], err
+    assert not out.exists()
