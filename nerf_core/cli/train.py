@@ -23,7 +23,8 @@ from nerf_core.methods.registry import current_option_names
 
 # A flag's ``kind`` (``engine.config.flag``) -> argparse keyword arguments.
 _KINDS = {
-    "str": {}, "int": {"type": int}, "positive_int": {"type": positive_int}, "nonneg_int": {"type": nonneg_int},
+    "str": {}, "path": {}, "int": {"type": int}, "positive_int": {"type": positive_int},
+    "nonneg_int": {"type": nonneg_int},
     "positive_float": {"type": positive_float}, "folder": {"type": folder}, "seconds_list": {"type": seconds_list},
     "options": {"action": "append"}, "switch": {"action": "store_true"}, "switch_off": {"action": "store_false"},
 }

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Dict, List, Optional, Sequence
 
 from nerf_core import contract
@@ -32,18 +32,27 @@ def flag(default, help: str, *, name: Optional[str] = None, kind: str = "str", m
         help: the flag's help text (argparse's: ``%%`` for a percent sign).
         name: the flag ("--no-bar", "--set") or, without dashes, a positional argument; default:
             ``--`` and the field's name with dashes.
-        kind: how the command line's text becomes the value: "str", "int", "positive_int",
-            "nonneg_int", "positive_float", "folder", "seconds_list", "options" (repeatable KEY=VALUE),
-            "switch" (a flag that sets True) or "switch_off" (a flag that sets False).
+        kind: what the value is, which decides both how the command line's text becomes the value
+            (``cli.train``) and what ``check_field_types`` accepts from Python (``FIELD_KINDS``): "str",
+            "path", "int", "positive_int", "nonneg_int", "positive_float", "folder", "seconds_list",
+            "options" (repeatable KEY=VALUE), "switch" (a flag that sets True) or "switch_off" (a flag
+            that sets False).
         metavar, choices, required: as argparse's.
     """
-    meta = {"flag": {"name": name, "help": help, "kind": kind, "metavar": metavar,
+    meta = {"kind": kind, "choices": tuple(choices) if choices is not None else None,
+            "flag": {"name": name, "help": help, "kind": kind, "metavar": metavar,
                      "choices": tuple(choices) if choices is not None else None, "required": required}}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda: type(default)(default), metadata=meta)
     if default is None and (required or (name is not None and not name.startswith("-"))):
         return field(metadata=meta)  # no default: the caller must give it
     return field(default=default, metadata=meta)
+
+
+def setting(default, kind: str):
+    """A ``TrainConfig`` field that is no flag of ``train`` (set from Python or kept from the run's
+    config), with its ``kind`` (see ``flag``) for ``check_field_types``."""
+    return field(default=default, metadata={"kind": kind, "choices": None})
 
 
 @dataclass
@@ -97,7 +106,7 @@ class TrainConfig:
     """
 
     dataset: str = flag(None, "dataset folder (transforms_train.json or transforms.json) or a transforms file",
-                        name="dataset", metavar="DATASET")
+                        name="dataset", kind="path", metavar="DATASET")
     out: str = flag(None, "run folder to create (refused if it exists and is not empty)", kind="folder",
                     metavar="RUN", required=True)
     method: Optional[str] = flag(None, "method name (see `python -m nerf_core methods`); default: the library's "
@@ -119,7 +128,7 @@ class TrainConfig:
     options: Dict[str, object] = flag({}, "method option, repeatable (e.g. --set res_final=128; "
                                           "`python -m nerf_core methods vmgrid` lists them)",
                                       name="--set", kind="options", metavar="KEY=VALUE")
-    progress: Optional[str] = flag(None, "also append the JSON progress events to FILE", metavar="FILE")
+    progress: Optional[str] = flag(None, "also append the JSON progress events to FILE", kind="path", metavar="FILE")
     device: Optional[str] = flag(None, "torch device (cpu, cuda, cuda:1); default: cuda if available else cpu",
                                  metavar="DEV")
     lr: Optional[float] = flag(None, "base learning rate (default: the method's)", kind="positive_float")
@@ -135,20 +144,20 @@ class TrainConfig:
     log_every: int = flag(50, "emit a step event every N steps", kind="positive_int", metavar="N")
     preview_every: Optional[int] = flag(None, "preview every N steps (default: every 30 s of training)",
                                         kind="positive_int", metavar="N")
-    preview_seconds: float = 30.0  # training seconds between previews (when preview_every is None)
-    preview_size: int = 256  # longest side of preview images
+    preview_seconds: float = setting(30.0, "seconds")  # training seconds between previews (preview_every None)
+    preview_size: int = setting(256, "positive_int")  # longest side of preview images
     checkpoint_every: Optional[int] = flag(None, "checkpoint every N steps (default: every 5 min)",
                                            kind="positive_int", metavar="N")
-    checkpoint_seconds: float = 300.0
-    keep_checkpoints: int = 3  # step_XXXXXXX.pt files kept besides latest.pt
-    max_rollbacks: int = 8
+    checkpoint_seconds: float = setting(300.0, "seconds")
+    keep_checkpoints: int = setting(3, "nonneg_int")  # step_XXXXXXX.pt files kept besides latest.pt
+    max_rollbacks: int = setting(8, "nonneg_int")
     eval_views: Optional[int] = flag(None, "held-out views to evaluate at the end (0 = none; default: as many as "
                                            "fit in 25%% of the training time)", kind="nonneg_int", metavar="N")
-    eval_seconds: Optional[float] = None  # None: max(30 s, 25 % of the training time)
+    eval_seconds: Optional[float] = setting(None, "seconds")  # None: max(30 s, 25 % of the training time)
     eval_at: List[float] = flag([], "also evaluate held-out views at these training times (seconds), e.g. "
                                     "60,120,300", kind="seconds_list", metavar="S1,S2,...")
-    chunk: int = DEFAULT_CHUNK
-    stdout_events: bool = True
+    chunk: int = setting(DEFAULT_CHUNK, "positive_int")
+    stdout_events: bool = setting(True, "switch")
     show_bar: bool = flag(True, "no progress bar on stderr", name="--no-bar", kind="switch_off")
 
     def budget_fraction(self, step: int, elapsed: float) -> float:
@@ -195,8 +204,6 @@ class TrainConfig:
     def check(self) -> None:
         """Refuse settings no run can use (TrainError naming the flag)."""
         check_field_types(self)
-        if self.background not in BACKGROUNDS:
-            raise TrainError(f"--background {self.background!r}: choose one of {', '.join(BACKGROUNDS)}")
         for name in ("max_steps", "max_seconds", "lr"):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):  # NaN and inf are refused too
@@ -225,78 +232,84 @@ class TrainConfig:
 
 
 # ------------------------------------------------------------------------------------------------
-# Field types and ranges for the Python API (the CLI's argparse types check the same for its flags):
-# a wrong type or a zero would otherwise fail deep inside the run (log_every=0: ZeroDivisionError),
-# after the run folder is made. Checked first by ``TrainConfig.check``, before anything is written.
-_INT_MIN = {"seed": 0, "downscale": 1, "log_every": 1, "preview_every": 1, "preview_size": 1, "checkpoint_every": 1,
-            "keep_checkpoints": 0, "max_rollbacks": 0, "eval_views": 0, "chunk": 1, "max_steps": 1, "batch_rays": 1}
-_OPTIONAL = {"preview_every", "checkpoint_every", "eval_views", "max_steps", "batch_rays", "max_seconds", "lr",
-             "eval_seconds", "method", "size", "progress", "device"}
-_POSITIVE_FLOAT = ("max_seconds", "lr")
-_SECONDS = ("preview_seconds", "checkpoint_seconds", "eval_seconds")  # 0 is a legitimate "none at all"
-_BOOL = ("resume", "overwrite", "dataset_moved", "stdout_events", "show_bar")
-_STR = ("method", "size", "device", "background")
-_PATHS = ("dataset", "out", "progress")
+# What a field of each kind (``flag``/``setting``) must hold when the config comes from Python: the
+# words of the error, and the test. A wrong type or a zero would otherwise fail deep inside the run
+# (log_every=0: ZeroDivisionError), after the run folder is made; ``TrainConfig.check`` runs these
+# first, before anything is written. Ranges beyond a kind's (seed < 2^63, ...) are ``check``'s.
+def _integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _path(v) -> bool:
+    return isinstance(v, (str, os.PathLike)) and bool(str(v).strip())
+
+
+FIELD_KINDS = {
+    "str": ("a string", lambda v: isinstance(v, str)),
+    "path": ("a non-empty path (str)", _path),
+    "folder": ("a non-empty path (str)", _path),
+    "int": ("an integer >= 0", lambda v: _integer(v) and v >= 0),
+    "positive_int": ("an integer >= 1", lambda v: _integer(v) and v >= 1),
+    "nonneg_int": ("an integer >= 0", lambda v: _integer(v) and v >= 0),
+    "positive_float": ("a finite number > 0", lambda v: _number(v) and v > 0),
+    "seconds": ("a finite number of seconds >= 0", lambda v: _number(v) and v >= 0),  # 0: "none at all"
+    "seconds_list": ("a list of training times in seconds",
+                     # NaN or a time past the budget: ``check`` says so in its own words
+                     lambda v: isinstance(v, (list, tuple)) and all(
+                         isinstance(t, (int, float)) and not isinstance(t, bool) for t in v)),
+    "options": ("a dict of option name (str) -> value ({} for the method's defaults)",
+                lambda v: isinstance(v, dict) and all(isinstance(k, str) for k in v)),
+    "switch": ("True or False", lambda v: isinstance(v, bool)),
+    "switch_off": ("True or False", lambda v: isinstance(v, bool)),
+}
+_PATH_KINDS = ("path", "folder")
 MAX_PREVIEW_SIZE = 1 << 14  # pixels on the longest side; a preview is a thumbnail
 MAX_CHUNK = 1 << 24  # rays per model call
 
 
 def _field_error(name: str, want: str, value) -> TrainError:
-    return TrainError(f"TrainConfig.{name} (--{name.replace('_', '-')}) must be {want}, got {value!r}")
+    """TrainConfig.NAME (and its flag, where it has one) must be WANT, got VALUE."""
+    spec = {f.name: f.metadata.get("flag") for f in fields(TrainConfig)}.get(name)
+    if spec is None or (spec["name"] and not spec["name"].startswith("-")):
+        where = ""  # no flag of its own (a setting, or the positional DATASET)
+    else:
+        where = f" ({spec['name'] or '--' + name.replace('_', '-')})"
+    return TrainError(f"TrainConfig.{name}{where} must be {want}, got {value!r}")
 
 
 def check_field_types(cfg: "TrainConfig") -> None:
     """Refuse a field of the wrong type or out of range (TrainError naming the field and what it must be);
-    TypeError when ``cfg`` is no TrainConfig at all."""
+    TypeError when ``cfg`` is no TrainConfig at all.
+
+    Each field's rule comes from its declared ``kind`` (``FIELD_KINDS``), its ``choices`` and, for
+    ``Optional[...]`` fields, None; the CLI's argparse types check the same kinds for its flags.
+    """
     if not isinstance(cfg, TrainConfig):
         raise TypeError(f"train(cfg): cfg must be a nerf_core.TrainConfig, got {type(cfg).__name__}")
-
-    for name in _PATHS:
-        v = getattr(cfg, name)
-        if v is None and name in _OPTIONAL or isinstance(v, (str, os.PathLike)) and str(v).strip():
+    for f in fields(TrainConfig):
+        v = getattr(cfg, f.name)
+        if v is None and str(f.type).startswith("Optional["):
+            continue
+        want, ok = FIELD_KINDS[f.metadata["kind"]]
+        if not ok(v):
+            raise _field_error(f.name, want, v)
+        if f.metadata["kind"] in _PATH_KINDS:
             try:
-                os.fsencode(v) if v is not None else None
+                os.fsencode(v)
             except UnicodeError:
-                raise _field_error(name, "a path the file system can encode (it holds a lone surrogate)", v) from None
-            continue
-        raise _field_error(name, "a non-empty path (str)", v)
-    for name in _BOOL:
-        if not isinstance(getattr(cfg, name), bool):
-            raise _field_error(name, "True or False", getattr(cfg, name))
-    for name in _STR:
-        v = getattr(cfg, name)
-        if not (isinstance(v, str) or v is None and name in _OPTIONAL):
-            raise _field_error(name, "a string", v)
-    if cfg.size not in (None, "auto"):
-        raise _field_error("size", "None or 'auto'", cfg.size)
-    for name, low in _INT_MIN.items():
-        v = getattr(cfg, name)
-        if v is None and name in _OPTIONAL:
-            continue
-        if isinstance(v, bool) or not isinstance(v, int) or v < low:
-            raise _field_error(name, f"an integer >= {low}", v)
-    for name in _POSITIVE_FLOAT:
-        v = getattr(cfg, name)
-        if v is None and name in _OPTIONAL:
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-            raise _field_error(name, "a finite number > 0", v)
-    for name in _SECONDS:
-        v = getattr(cfg, name)
-        if v is None and name in _OPTIONAL:
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
-            raise _field_error(name, "a finite number of seconds >= 0", v)
+                raise _field_error(f.name, "a path the file system can encode (it holds a lone surrogate)", v) from None
+        choices = f.metadata["choices"]
+        if choices is not None and v not in choices:
+            nothing = "None or " if str(f.type).startswith("Optional[") else ""
+            raise _field_error(f.name, nothing + "one of " + ", ".join(map(repr, choices)), v)
     if cfg.preview_size > MAX_PREVIEW_SIZE:
         raise _field_error("preview_size", f"at most {MAX_PREVIEW_SIZE} pixels", cfg.preview_size)
     if cfg.chunk > MAX_CHUNK:
         raise _field_error("chunk", f"at most {MAX_CHUNK} rays", cfg.chunk)
-    if not isinstance(cfg.options, dict) or not all(isinstance(k, str) for k in cfg.options):
-        raise _field_error("options", "a dict of option name (str) -> value ({} for the method's defaults)",
-                           cfg.options)
-    if not isinstance(cfg.eval_at, (list, tuple)) or not all(
-            isinstance(t, (int, float)) and not isinstance(t, bool) for t in cfg.eval_at):
-        raise _field_error("eval_at", "a list of training times in seconds", cfg.eval_at)
 
 
 # What the user may change when resuming: budgets, device, output plumbing; the rest is the run's.
