@@ -109,6 +109,38 @@ def test_floaters_and_what_no_camera_sees_are_culled():
     assert only_top.vertices[:, 2].min() > -0.1
 
 
+def test_the_culling_projection_is_project_points():
+    from nerf_core.cameras.rays import project_points
+
+    cams = ring_cameras(n=5, w=40, h=30)
+    pts = np.random.default_rng(0).uniform(-1.5, 1.5, (500, 3)).astype(np.float32)
+    for v in range(len(cams)):
+        u, row, depth = mesh._pixels_and_depth(cams, v, pts)
+        uv, z = project_points(cams, v, torch.from_numpy(pts))
+        front = z.numpy() > 0
+        assert np.allclose(depth, z.numpy(), atol=1e-5)
+        assert np.allclose(u[front], uv[front, 0].numpy(), atol=1e-3)
+        assert np.allclose(row[front], uv[front, 1].numpy(), atol=1e-3)
+
+
+def test_a_point_behind_a_wall_is_not_seen_and_one_in_front_is():
+    """One camera at z = 3 looking down at a dense wall (z = 0, a 1x1 square of points): a point
+    half a unit under the wall is hidden, one half a unit above it is seen, and so is the wall, but
+    for the few points in the image cell of the one in front of it."""
+    c2w = np.eye(4)
+    c2w[:3, 3] = (0.0, 0.0, 3.0)
+    one = ring_cameras(n=1, w=64, h=64)
+    cam = Cameras.create(c2w[None], one.fx, one.fy, one.cx, one.cy, one.width, one.height)
+    g = np.linspace(-0.5, 0.5, 101)
+    wall = np.stack(np.meshgrid(g, g, indexing="ij") + [np.zeros((101, 101))], axis=-1).reshape(-1, 3)
+    pts = np.concatenate([wall, [[0.1, 0.1, -0.5], [0.1, 0.1, 0.5], [3.0, 3.0, 0.0]]])
+    seen = mesh.seen_by_cameras(pts, cam, voxel=0.01)
+    hidden = np.flatnonzero(~seen[:-3])
+    assert 0 < len(hidden) <= 25 and np.abs(wall[hidden, :2] - 0.1).max() < 0.06  # its 1 px cell: 0.04 units
+    assert list(seen[-3:]) == [False, True, False]  # hidden, in front, outside the image
+    assert mesh.seen_by_cameras(pts, cam)[-3:].tolist() == [True, True, False]  # the frustum alone
+
+
 def test_decimation_reaches_about_the_asked_faces_and_keeps_the_shape():
     # a density that rises over a few voxels, as a trained field's does (a bare step's terraced mesh
     # stops the quadric decimation early)
