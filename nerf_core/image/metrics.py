@@ -130,10 +130,29 @@ def ssim(pred: torch.Tensor, gt: torch.Tensor) -> float:
     return float(ssim_map(pred, gt).mean())
 
 
+def _depth_pixels(name: str, pred_z, gt_z, gt_alpha, mask) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The depth metrics' one rule for which pixels count: ground truth there (finite, > 0), a finite
+    prediction, ground-truth alpha > 0.5 and ``mask``. Returns (pred_z, gt_z, valid (h, w) bool), the
+    inputs checked with ``name`` in their errors."""
+    pred_z = arguments.tensor(name, "pred_z", pred_z, ndim=2, finite=False)
+    gt_z = arguments.tensor(name, "gt_z", gt_z, ndim=2, finite=False)  # non-finite: no ground truth there
+    arguments.same_shape(name, "pred_z", pred_z, "gt_z", gt_z)
+    if gt_alpha is not None:
+        gt_alpha = arguments.tensor(name, "gt_alpha", gt_alpha)
+        arguments.same_shape(name, "gt_alpha", gt_alpha, "gt_z", gt_z)
+    mask = _mask(name, mask, gt_z.shape)
+    valid = torch.isfinite(gt_z) & (gt_z > 0) & torch.isfinite(pred_z)
+    if gt_alpha is not None:
+        valid &= gt_alpha > 0.5
+    if mask is not None:
+        valid &= mask.bool()
+    return pred_z, gt_z, valid
+
+
 def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch.Tensor] = None,
               mask: Optional[torch.Tensor] = None) -> Optional[float]:
-    """Mean absolute error of planar depths (h, w) over pixels with ground truth (finite, > 0),
-    ground-truth alpha > 0.5 and ``mask``; None when no pixel qualifies.
+    """Mean absolute error of planar depths (h, w) over pixels with ground truth (finite, > 0), a
+    finite prediction, ground-truth alpha > 0.5 and ``mask``; None when no pixel qualifies.
 
     Args:
         pred_z: (h, w) rendered planar z-depth (``render_view``'s ``z_depth``), in scene units.
@@ -144,18 +163,7 @@ def depth_mae(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch
     Returns:
         The mean absolute difference in scene units, or None.
     """
-    pred_z = arguments.tensor("depth_mae", "pred_z", pred_z, ndim=2, finite=False)
-    gt_z = arguments.tensor("depth_mae", "gt_z", gt_z, ndim=2, finite=False)  # non-finite: no ground truth there
-    arguments.same_shape("depth_mae", "pred_z", pred_z, "gt_z", gt_z)
-    if gt_alpha is not None:
-        gt_alpha = arguments.tensor("depth_mae", "gt_alpha", gt_alpha)
-        arguments.same_shape("depth_mae", "gt_alpha", gt_alpha, "gt_z", gt_z)
-    mask = _mask("depth_mae", mask, gt_z.shape)
-    valid = torch.isfinite(gt_z) & (gt_z > 0) & torch.isfinite(pred_z)
-    if gt_alpha is not None:
-        valid &= gt_alpha > 0.5
-    if mask is not None:
-        valid &= mask.bool()
+    pred_z, gt_z, valid = _depth_pixels("depth_mae", pred_z, gt_z, gt_alpha, mask)
     if not bool(valid.any()):
         return None
     return float((pred_z[valid] - gt_z[valid]).abs().mean())
@@ -169,11 +177,7 @@ def depth_rel(pred_z: torch.Tensor, gt_z: torch.Tensor, gt_alpha: Optional[torch
 
     Args: as ``depth_mae``. Returns: a share (0.01 = 1 % of the true depth), or None.
     """
-    valid = torch.isfinite(gt_z) & (gt_z > 0)
-    if gt_alpha is not None:
-        valid &= gt_alpha > 0.5
-    if mask is not None:
-        valid &= mask.bool()
+    pred_z, gt_z, valid = _depth_pixels("depth_rel", pred_z, gt_z, gt_alpha, mask)
     if not bool(valid.any()):
         return None
     return float(((pred_z[valid] - gt_z[valid]).abs() / gt_z[valid]).mean())

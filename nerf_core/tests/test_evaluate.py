@@ -75,6 +75,20 @@ def test_depth_mae_uses_pixels_with_depth_and_alpha():
     assert depth_rel(pred, torch.zeros(2, 2)) is None
 
 
+@pytest.mark.parametrize("metric", [depth_mae, depth_rel])
+def test_depth_metrics_count_the_same_pixels_by_hand(metric):
+    """Truth 2 everywhere but an infinite (the world) and a zero (no depth) pixel; the prediction NaN
+    at one pixel and inf at another: only the two pixels with both count, |1.5-2| and |3-2|."""
+    gt = torch.tensor([[2.0, float("inf")], [0.0, 2.0], [2.0, 2.0]])
+    pred = torch.tensor([[1.5, 9.0], [9.0, 3.0], [float("nan"), float("inf")]])
+    want = (0.5 + 1.0) / 2 if metric is depth_mae else (0.5 / 2 + 1.0 / 2) / 2
+    assert metric(pred, gt) == pytest.approx(want)
+    assert metric(pred, gt, mask=torch.tensor([[True, True], [True, False], [True, True]])) == pytest.approx(
+        0.5 if metric is depth_mae else 0.25)
+    with pytest.raises(ValueError, match=metric.__name__):
+        metric(pred, gt[:2])
+
+
 def test_eval_prints_per_view_lines_and_json_last(trained_run, capsys):
     run = trained_run["run"]
     assert main(["eval", str(run), "--split", "test", "--no-bar"]) == 0
