@@ -64,3 +64,12 @@ def test_step_counts_counts_top_level_ops_and_each_sync_once():
     assert counts.ops[0] == counts.ops[1] and 5 <= counts.ops[0] <= 6  # gt, index, mul, sum, item (+ a view)
     kinds = counts.summary()["sync_kinds"]
     assert kinds["aten::index (aten::nonzero)"] == 1.0
+
+
+def test_sync_sources_names_the_lines_that_sync(tmp_path, tiny_dataset):
+    data = tiny_dataset(tmp_path / "data", n_train=6)
+    proc = _run(REPO / "benchmarks" / "bench" / "sync_sources.py", data, "--steps", "3", "--batch-rays", "16")
+    assert proc.returncode == 0, proc.stderr
+    rows = proc.stdout.splitlines()[1:]
+    assert rows and all(".py:" in r for r in rows), proc.stdout  # each row names a source line
+    assert any("aten._fused_adam_" in r and "engine/trainer.py" in r for r in rows), proc.stdout
