@@ -1,4 +1,5 @@
 """Occupancy grid: updates mark occupied cells, marching skips the rest, an emptied grid recovers."""
+import pytest
 import torch
 
 from nerf_core.volume import sampling
@@ -150,3 +151,13 @@ def test_each_point_finds_its_own_cell_by_hand_worked_indices():
     odd = torch.tensor([[float("nan"), 0.0, 1.0], [float("inf"), 0.0, 1.0], [0.0, -float("inf"), 1.0]])
     g.binary.fill_(True)
     assert not g.query(odd).any() and g.query_near(odd).shape == (3,)
+
+
+def test_near_reach_is_read_once_per_box_and_follows_a_new_box():
+    g = OccupancyGrid(torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 3.0]]), resolution=8)
+    assert g.near_reach() == pytest.approx(0.999 * 0.25)  # the smallest cell edge, 2 / 8
+    calls = []
+    g.cell_size = lambda: calls.append(1) or torch.tensor([9.0, 9.0, 9.0])  # a read would show here
+    assert g.near_reach() == pytest.approx(0.999 * 0.25) and not calls  # cached: no read of the device
+    g.aabb.mul_(2.0)  # the box changes (in place, as a load or a tightening does)
+    assert g.near_reach() == pytest.approx(0.999 * 9.0) and calls == [1]

@@ -52,6 +52,8 @@ class OccupancyGrid(nn.Module):
         # load): methods ask for it several times a step (``VMGrid.formed``), and each read waits for a GPU.
         self._fraction: DerivedCache[float] = DerivedCache(follow_optimizers=False)
         self._box: DerivedCache[dict] = DerivedCache(follow_optimizers=False)  # ``_cell_index``'s terms
+        # ``near_reach``: asked once a training step, read from the device only when the box changes
+        self._reach: DerivedCache[float] = DerivedCache(follow_optimizers=False)
 
     @property
     def occupied_fraction(self) -> float:
@@ -94,7 +96,7 @@ class OccupancyGrid(nn.Module):
     def near_reach(self) -> float:
         """How far from a point ``query_near`` looks: one cell along each axis covers every point
         within the smallest cell edge (a hair less, for rounding)."""
-        return 0.999 * float(self.cell_size().min())
+        return self._reach.get([self.aabb], lambda: 0.999 * float(self.cell_size().min()))
 
     @torch.no_grad()
     def query_near(self, pts: Tensor) -> Tensor:
