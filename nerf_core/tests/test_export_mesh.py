@@ -264,6 +264,31 @@ def test_the_level_is_where_training_rays_first_meet_the_surface():
     assert m.info["level_rule"] == "first contact of training rays" and m.info["level"] == pytest.approx(level, rel=0.1)
 
 
+class HazyRampNet(RampNet):
+    """The ramped sphere in a faint haze that fills the rest of the box (a field after a short training
+    of a room seen from inside): the haze alone stops more than 5 % of the light before the sphere."""
+
+    HAZE = 0.3
+
+    def density(self, x):
+        return torch.maximum(super().density(x), torch.full(x.shape[:1], self.HAZE))
+
+
+def test_the_level_is_the_surface_not_the_haze_before_it():
+    from nerf_core.export.level import CONTACT, rendered_surface_level
+
+    model = SphereModel()
+    model.coarse = HazyRampNet()
+    # counted from the ray's start, the haze reaches 5 % opacity after -ln(0.95) / 0.3 = 0.17 units,
+    # before most rays reach the sphere (the box's faces are 0.4 units from it)
+    level = rendered_surface_level(model, ring_cameras(), BOX, n_rays=512)
+    head_on = math.sqrt(2 * 1000.0 * -math.log(CONTACT))
+    assert 0.5 * head_on < level <= 1.1 * head_on and level > 10 * HazyRampNet.HAZE
+    m = mesh.extract_mesh(model, BOX, 48, cameras=ring_cameras())
+    r = np.linalg.norm(m.vertices, axis=1)
+    assert np.abs(r - RADIUS).max() < 2 * float(grid.spacing(BOX, 48).mean())  # on the sphere, no fog
+
+
 def test_enclosed_empty_space_is_filled_so_a_shell_gives_its_outer_face_only():
     model = SphereModel()
     model.coarse = RampNet(hollow=0.4)
