@@ -8,12 +8,13 @@
 truth) for ``--seconds`` of training time, one thread, keeping a checkpoint every ``--every`` steps.
 Then, for each checkpoint, ``export mesh`` (default flags) and ``score-mesh`` at tau = 0.5 % and 1 % of
 the truth's diagonal; on the last checkpoint also the surface level against alternatives (x 1/4, x 4,
-x 16 the default), the mesh without culling, a 256^3 extraction's time, and ``eval`` on 5
-test views (PSNR, depth_mae, depth_rel). Writes DIR/<scene>_<method>.json.
+x 16 the default), the mesh without culling (``--no-variants`` skips these), a 256^3 extraction's time
+(``--no-256`` skips it; minutes for nerf), and ``eval`` on 5 test views (PSNR, depth_mae, depth_rel).
+The last checkpoint's mesh is the final one. Writes DIR/<scene>_<method>.json.
 
-``report`` draws DIR/geometry.png (F-score against training time per scene and method) and prints a
-Markdown table of the results. Two ``run``s can go side by side (one core each). ``picture`` draws a
-mesh beside the captured surface, its faces coloured by their distance to it.
+``report`` draws DIR/geometry.png (F-score against training time: one panel per scene, four a row, one
+colour per method) and prints Markdown tables of the results. Two ``run``s can go side by side (one core
+each). ``picture`` draws a mesh beside the captured surface, its faces coloured by their distance to it.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import argparse
 import glob
 import json
 import os
+import shutil
 import sys
 import time
 
@@ -100,6 +102,7 @@ def cmd_run(a) -> int:
         step = int(os.path.basename(ck)[5:-3])
         path = os.path.join(mesh_dir, f"{scene}_{a.method}_{step:07d}.ply")
         summary = _export(run, path, checkpoint=ck, resolution=a.resolution)
+        exported = (path, summary)
         entry = {"step": step, "train_seconds": round(_time_of(step, pts), 1),
                  "export_seconds": summary.get("seconds"), "faces": summary.get("faces"),
                  "resolution": summary.get("resolution"), "error": summary.get("error")}
@@ -109,7 +112,10 @@ def cmd_run(a) -> int:
         print(json.dumps(entry), flush=True)
     last = ckpts[-1]
     final_mesh = os.path.join(mesh_dir, f"{scene}_{a.method}_final.ply")
-    base = _export(run, final_mesh, checkpoint=last, resolution=a.resolution)
+    # the last checkpoint's mesh is the final one (same checkpoint, same flags): copied, not exported twice
+    base = exported[1]
+    if "error" not in base:
+        shutil.copyfile(exported[0], final_mesh)
     variants = {"default": {"summary": base, "scores": _score(final_mesh, truth) if "error" not in base else None}}
     for name, kw in (
         ()
@@ -136,10 +142,11 @@ def cmd_run(a) -> int:
         s = _export(run, p, checkpoint=last, resolution=a.resolution, **kw)
         variants[name] = {"summary": {k: s.get(k) for k in ("faces", "level", "error", "seconds")},
                           "scores": _score(p, truth) if "error" not in s else None}
-    t = time.perf_counter()
-    big = _export(run, os.path.join(mesh_dir, f"{scene}_{a.method}_256.ply"), checkpoint=last, resolution=256)
-    result["extract_256"] = {"seconds": round(time.perf_counter() - t, 2), "faces": big.get("faces"),
-                             "error": big.get("error")}
+    if not a.no_256:
+        t = time.perf_counter()
+        big = _export(run, os.path.join(mesh_dir, f"{scene}_{a.method}_256.ply"), checkpoint=last, resolution=256)
+        result["extract_256"] = {"seconds": round(time.perf_counter() - t, 2), "faces": big.get("faces"),
+                                 "error": big.get("error")}
     result["final"] = variants
     ev = evaluate_run(run, split="test", max_views=5, show_progress=False, print_fn=lambda s: None)
     result["eval"] = {k: ev.get(k) for k in ("psnr", "ssim", "depth_mae", "depth_rel", "step")}
@@ -147,8 +154,13 @@ def cmd_run(a) -> int:
     with open(os.path.join(a.out, f"{scene}_{a.method}.json"), "w", encoding="utf-8") as fh:
         json.dump(result, fh, indent=1)
     print(json.dumps({"scene": scene, "method": a.method, "eval": result["eval"],
-                      "final": variants["default"]["scores"], "extract_256": result["extract_256"]}))
+                      "final": variants["default"]["scores"], "extract_256": result.get("extract_256")}))
     return 0
+
+
+def _seconds_256(r) -> str:
+    big = r.get("extract_256")
+    return f"{big['seconds']} s" if big else "-"
 
 
 def cmd_report(a) -> int:
@@ -159,36 +171,58 @@ def cmd_report(a) -> int:
 
     results = [json.load(open(p, encoding="utf-8")) for p in sorted(glob.glob(os.path.join(a.out, "*_*.json")))]
     scenes = sorted({r["scene"] for r in results})
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 3.8), squeeze=False)
-    for ax, scene in zip(axes[0], scenes):
+    methods = sorted({r["method"] for r in results})
+    colours = dict(zip(methods, plt.get_cmap("tab10").colors))
+    ncol = min(4, len(scenes))
+    nrow = -(-len(scenes) // ncol)
+    # small multiples: one panel per scene, one colour per method; tau 0.5 % dashed, open markers; 1 % solid
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.3 * ncol, 2.7 * nrow + 0.6), squeeze=False, sharey=True)
+    t_max = max([c["train_seconds"] / 60 for r in results for c in r["checkpoints"]] + [1.0])
+    for k, ax in enumerate(axes.flat):
+        if k >= len(scenes):
+            ax.set_visible(False)
+            continue
+        scene = scenes[k]
         for r in (r for r in results if r["scene"] == scene):
             pts = [c for c in r["checkpoints"] if c.get("scores")]
-            for tau, style in zip(TAUS, ("--", "-")):
+            for tau, style, face in zip(TAUS, ("--", "-"), ("white", None)):  # open markers at 0.5 %
                 ax.plot([c["train_seconds"] / 60 for c in pts], [c["scores"][f"{tau:g}"]["fscore"] for c in pts],
-                        style, marker="o", ms=3, label=f"{r['method']}, tau {100 * tau:g} %")
-        ax.set_title(scene)
-        ax.set_xlabel("training time (min, one CPU core)")
-        ax.set_ylabel("F-score")
+                        style, marker="o", ms=4, mfc=face, color=colours[r["method"]])
+        ax.set_title(scene, fontsize=10)
+        ax.set_xlim(0, t_max * 1.05)
         ax.set_ylim(0, 1)
-        ax.axhline(0.9, color="grey", lw=0.5)
+        ax.axhline(0.9, color="grey", lw=0.6, ls=":")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right")
-    fig.tight_layout()
+        ax.tick_params(labelsize=8)
+        if k % ncol == 0:
+            ax.set_ylabel("F-score", fontsize=9)
+        if k >= len(scenes) - ncol:
+            ax.set_xlabel("training time (min, one core)", fontsize=9)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=colours[m], marker="o", ms=3, label=m) for m in methods]
+    handles += [Line2D([], [], color="black", ls=style, marker="o", ms=4, mfc=face,
+                       label=f"tau {100 * tau:g} % of the diagonal")
+                for tau, style, face in zip(TAUS, ("--", "-"), ("white", None))]
+    handles.append(Line2D([], [], color="grey", lw=0.6, ls=":", label="F = 0.9"))
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))
     fig.savefig(os.path.join(a.out, "geometry.png"), dpi=110)
-    print("| scene | method | F 0.5 % | F 1 % | P / R at 1 % | Chamfer-L1 | normal cons. | PSNR | depth_mae |"
-          " depth_rel | 256^3 extraction |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| scene | method | steps | F 0.5 % | F 1 % | P / R at 1 % | Chamfer-L1 | normal cons. | PSNR |"
+          " depth_mae | depth_rel | 256^3 extraction |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
         s = (r["final"]["default"]["scores"] or {})
         f5, f1 = s.get("0.005", {}), s.get("0.01", {})
         ev = r.get("eval", {})
-        print(f"| {r['scene']} | {r['method']} | {f5.get('fscore', 0):.3f} | {f1.get('fscore', 0):.3f} | "
+        steps = r["checkpoints"][-1]["step"] if r["checkpoints"] else "-"
+        print(f"| {r['scene']} | {r['method']} | {steps} | {f5.get('fscore', 0):.3f} | {f1.get('fscore', 0):.3f} | "
               f"{f1.get('precision', 0):.3f} / {f1.get('recall', 0):.3f} | {f1.get('chamfer', 0):.4f} | "
               f"{f1.get('normal_consistency') or 0:.3f} | {ev.get('psnr') or 0:.2f} | {ev.get('depth_mae') or 0:.4f} | "
-              f"{ev.get('depth_rel') or 0:.4f} | {r['extract_256']['seconds']} s |")
+              f"{ev.get('depth_rel') or 0:.4f} | {_seconds_256(r)} |")
     print("\n| scene | method | variant | faces | F 0.5 % | F 1 % | P / R at 1 % |")
     print("|---|---|---|---|---|---|---|")
-    for r in results:
+    for r in (r for r in results if len(r["final"]) > 1):  # runs made with --no-variants have only the default
         for name, v in r["final"].items():
             s = v["scores"] or {}
             f5, f1 = s.get("0.005", {}), s.get("0.01", {})
@@ -259,6 +293,7 @@ def main(argv) -> int:
     r.add_argument("--out", required=True)
     r.add_argument("--resolution", type=int, help="export resolution (default: the export's own default)")
     r.add_argument("--no-variants", action="store_true", help="skip the level and culling variants")
+    r.add_argument("--no-256", action="store_true", help="skip the timed 256^3 extraction (minutes for nerf)")
     p = sub.add_parser("report")
     p.add_argument("out")
     pic = sub.add_parser("picture")
