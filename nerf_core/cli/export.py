@@ -53,7 +53,7 @@ def add_parser(sub, fmt) -> None:
     m.add_argument("--faces", type=positive_int, metavar="N", help="decimate to about N faces")
     m.add_argument("--level", type=positive_float, metavar="SIGMA",
                    help="surface density per scene unit (default: where the training rays first meet the surface, "
-                        "transmittance 0.95)")
+                        "transmittance 0.95 over the 4 grid steps before it)")
     m.add_argument("--min-component", type=share, default=mesh.DEFAULT_MIN_COMPONENT, metavar="SHARE",
                    help="drop connected pieces with less than this share of the total area (floaters; 0 keeps all)")
     m.add_argument("--keep-unseen", action="store_true", help="keep what no training camera sees")

@@ -2,10 +2,11 @@
 
 The rules, each stated once:
 
-- **Surface level.** Where the training cameras' rays first meet the surface (transmittance 0.95,
-  ``level.rendered_surface_level``), else where one grid step is 5 % opaque (``grid.iso_level``);
-  ``level`` says why and compares. A lower level wraps the geometry in the faint haze a field keeps
-  around surfaces; a higher one sinks it into the object. ``--level`` overrides it.
+- **Surface level.** Where the training cameras' rays first meet the surface (transmittance 0.95
+  over the few grid steps before each ray's surface, ``level.rendered_surface_level``), else where
+  one grid step is 5 % opaque (``grid.iso_level``); ``level`` says why and compares. A lower level
+  wraps the geometry in the faint haze a field keeps around surfaces; a higher one sinks it into the
+  object. ``--level`` overrides it.
 - **Enclosed space.** Empty space that no camera can reach (walled in by surface) is filled first
   (``fill_unseen_inside``), so a field that is a shell gives its outer face only.
 - **Culling.** A vertex is kept when at least one training camera sees it: in its image, in front of
