@@ -41,10 +41,12 @@ def add_parser(sub, fmt) -> None:
                        description="Train a NeRF. JSON progress events go to stdout and RUN/progress.jsonl; "
                                    "a progress bar with ETA goes to stderr.")
     for f, spec in flag_fields():
-        kwargs = dict(_KINDS[spec["kind"]], help=spec["help"])
-        for key in ("metavar", "choices"):
-            if spec[key] is not None:
-                kwargs[key] = list(spec[key]) if key == "choices" else spec[key]
+        kind, choices = f.metadata["kind"], f.metadata["choices"]
+        kwargs = dict(_KINDS[kind], help=spec["help"])
+        if spec["metavar"] is not None:
+            kwargs["metavar"] = spec["metavar"]
+        if choices is not None:
+            kwargs["choices"] = list(choices)
         name = spec["name"] or "--" + f.name.replace("_", "-")
         if not name.startswith("-"):  # a positional argument: the field's own name
             t.add_argument(f.name, **kwargs)
@@ -53,7 +55,7 @@ def add_parser(sub, fmt) -> None:
             kwargs["required"] = True
         elif f.default is not dataclasses.MISSING:
             kwargs["default"] = f.default
-        elif spec["kind"] == "options":
+        elif kind == "options":
             kwargs["default"] = []  # --set KEY=VALUE items; parse_options makes the dict
         else:
             kwargs["default"] = f.default_factory()

@@ -39,9 +39,10 @@ def flag(default, help: str, *, name: Optional[str] = None, kind: str = "str", m
             that sets False).
         metavar, choices, required: as argparse's.
     """
+    # "kind" and "choices" belong to the value (``check_field_types`` reads them for every field);
+    # "flag" holds only what the command line adds.
     meta = {"kind": kind, "choices": tuple(choices) if choices is not None else None,
-            "flag": {"name": name, "help": help, "kind": kind, "metavar": metavar,
-                     "choices": tuple(choices) if choices is not None else None, "required": required}}
+            "flag": {"name": name, "help": help, "metavar": metavar, "required": required}}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda: type(default)(default), metadata=meta)
     if default is None and (required or (name is not None and not name.startswith("-"))):
