@@ -1,15 +1,17 @@
-"""``python -m nerf_core export mesh|volume RUN --out FILE``: the trained scene as geometry.
+"""``python -m nerf_core export mesh|volume RUN --out FILE``: the trained scene as geometry; and
+``export colmap DATASET --out DIR``: a capture as a COLMAP sparse model (``nerf_core.export.colmap``).
 
 stdout: ``{"event": "progress", "stage", "fraction", "time"}`` lines (at most every 0.5 s) and
 ``{"event": "note", "message", "time"}`` lines while it works, then the summary JSON as the last line.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import time
 
 from nerf_core.cli.options import checked_number, positive_float, positive_int
-from nerf_core.export import mesh
+from nerf_core.export import colmap, mesh
 from nerf_core.export.run_export import export_mesh, export_volume
 
 share = checked_number(float, "a number", lambda v: 0 <= v < 1, "must lie in [0, 1)")
@@ -59,6 +61,24 @@ def add_parser(sub, fmt) -> None:
     m.add_argument("--keep-unseen", action="store_true", help="keep what no training camera sees")
     m.set_defaults(handler=run_mesh)
     v.set_defaults(handler=run_volume)
+    c = kinds.add_parser("colmap", formatter_class=fmt,
+                         help="a capture folder as a COLMAP model (sparse/0, images/, masks/) for splatting trainers",
+                         description="Write DATASET's views as a COLMAP folder: sparse/0/{cameras,images,points3D}"
+                         ".{bin,txt}, opaque RGB images/, masks/ where the film was transparent, and "
+                         "nerf_bridge_colmap.json. The scene's own units and frame: no normalisation.")
+    c.add_argument("dataset", metavar="DATASET", help="a capture (dataset folder)")
+    c.add_argument("--out", required=True, metavar="DIR", help="the COLMAP folder to write (new, or empty)")
+    c.add_argument("--splits", type=_splits, default=["train"], metavar="LIST",
+                   help="comma-separated splits to export (default train; e.g. train,test)")
+    c.add_argument("--overwrite", action="store_true", help="replace a non-empty --out folder")
+    c.set_defaults(handler=run_colmap)
+
+
+def _splits(text: str):
+    try:
+        return colmap.parse_splits(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run_mesh(a) -> int:
@@ -75,4 +95,10 @@ def run_volume(a) -> int:
     summary = export_volume(a.run, a.out, resolution=a.resolution, overwrite=a.overwrite, checkpoint=a.checkpoint,
                             device=a.device, on_progress=progress, on_note=note)
     print(json.dumps(summary))
+    return 0
+
+
+def run_colmap(a) -> int:
+    _, note = _events()
+    print(json.dumps(colmap.export_colmap(a.dataset, a.out, splits=a.splits, overwrite=a.overwrite, on_note=note)))
     return 0

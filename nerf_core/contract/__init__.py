@@ -18,6 +18,8 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
 - ``film``: the ``pixel_filter`` field (the film filter a dataset's images were rendered through);
 - ``camera_path``: nerfstudio's camera_path.json, read and written; ``camera_files``: the cameras of any
   transforms file (imported into Blender); ``nerfstudio_frame``: nerfstudio's dataparser transform;
+- ``colmap_model``: COLMAP's sparse model files, read and written; ``colmap_dataset``: a COLMAP folder as
+  frames (the ``colmap`` layout) and our cameras as COLMAP's;
 - ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run.
 """
 from __future__ import annotations
@@ -28,7 +30,15 @@ import os
 import re
 from typing import Any, Dict, Optional
 
-from . import camera_files, camera_path, eight_bit, nerfstudio_frame  # noqa: F401 (the add-on reaches them as contract.X)
+# the add-on reaches them as contract.X; importing colmap_dataset registers the COLMAP layout
+from . import (  # noqa: F401
+    camera_files,
+    camera_path,
+    colmap_dataset,
+    colmap_model,
+    eight_bit,
+    nerfstudio_frame,
+)
 from .errors import DatasetError, PoseError  # noqa: F401
 from .film import (  # noqa: F401
     DEFAULT_FILTER_KIND,

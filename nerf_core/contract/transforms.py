@@ -23,6 +23,7 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
+from .colmap_model import find_sparse
 from .errors import DatasetError, PoseError
 from .jsonfile import read_json
 from .lens import DISTORTION_KEYS, Lens, lens_problem, parse_lens
@@ -45,6 +46,9 @@ EXTRA_FIELDS = (("depth_file_path", "depth"), ("depth_path", "depth"), ("normal_
 # Focal lengths in pixels that float32 rays survive: at 1e-3 px a pixel's ray is 1000 image widths off
 # the axis (a field of view within a hair of 180 degrees); at 1e8 px a 100 k-pixel image spans 1e-3 rad.
 MIN_FOCAL_PX, MAX_FOCAL_PX = 1e-3, 1e8
+# Readers of layouts without transforms files: layout -> fn(root, splits) -> (root, {split: frames}, scene).
+# ``contract.colmap_dataset`` registers "colmap" (it builds on this module, so it cannot be imported here).
+LAYOUT_READERS: dict = {}
 
 
 def check_camera_model(src: dict, where: str) -> None:
@@ -211,7 +215,8 @@ def read_transforms(path: Path | str) -> List[FrameInfo]:
 
 
 def detect_layout(path: Path | str) -> tuple[str, Path]:
-    """('synthetic'|'nerfstudio', dataset root) for a dataset folder or one of its transforms files."""
+    """('synthetic'|'nerfstudio'|'colmap', dataset root) for a dataset folder or one of its transforms files
+    (a COLMAP folder: ``images/`` and ``sparse/0`` or ``sparse`` with a model, and no transforms file)."""
     path = Path(path)
     if path.is_file():
         if path.name.startswith("transforms_") and path.suffix == ".json":
@@ -227,7 +232,10 @@ def detect_layout(path: Path | str) -> tuple[str, Path]:
             if problem:
                 raise DatasetError(f"{path / name}: {problem}")
             return layout, path
-    raise DatasetError(f"{path}: no transforms_train.json or transforms.json in this folder")
+    if (path / "images").is_dir() and find_sparse(path) not in (None, path):
+        return "colmap", path
+    raise DatasetError(f"{path}: no transforms_train.json or transforms.json in this folder (nor a COLMAP model: "
+                       "images/ and sparse/0/)")
 
 
 def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, Path, Dict[str, List[FrameInfo]], dict]:
@@ -244,7 +252,9 @@ def frame_infos(path: Path | str, splits: Sequence[str] = SPLITS) -> tuple[str, 
     layout, root = detect_layout(path)
     out: Dict[str, List[FrameInfo]] = {}
     scene: dict = {}
-    if layout == "synthetic":
+    if layout in LAYOUT_READERS:
+        root, out, scene = LAYOUT_READERS[layout](root, splits)
+    elif layout == "synthetic":
         for name in splits:
             jf = root / f"transforms_{name}.json"
             if path.is_file() and path.name.startswith("transforms_") and jf != path and name == "train":

@@ -126,7 +126,8 @@ class Dataset:
 
     Attributes:
         root: the dataset folder.
-        layout: "synthetic" (``transforms_{train,val,test}.json``) or "nerfstudio" (``transforms.json``).
+        layout: "synthetic" (``transforms_{train,val,test}.json``), "nerfstudio" (``transforms.json``) or
+            "colmap" (``images/`` and ``sparse/0``: ``contract.colmap_dataset``).
         splits: {"train", "val", "test"} -> ``Split`` (empty for splits not loaded).
         aabb: (2, 3) float32 scene box, [min corner, max corner] in scene units.
         aabb_source: "dataset (FILE)" when a transforms file gives ``aabb``, else a sentence saying how
@@ -144,7 +145,7 @@ class Dataset:
     """
 
     root: Path
-    layout: str  # "synthetic" or "nerfstudio"
+    layout: str  # "synthetic", "nerfstudio" or "colmap"
     splits: Dict[str, Split]
     aabb: torch.Tensor  # (2, 3)
     aabb_source: str  # "dataset" or a sentence saying how it was estimated

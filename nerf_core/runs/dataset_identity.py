@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 from typing import Dict, List, Optional
 
+from nerf_core.contract.colmap_dataset import MANIFEST
+from nerf_core.contract.colmap_model import find_sparse
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.transforms import detect_layout, frame_infos
 from nerf_core.errors import TrainError
@@ -71,11 +73,14 @@ def images_changed(want, have, same_place: bool) -> Optional[str]:
 
 
 def dataset_hash(path) -> str:
-    """sha256 over the transforms files of a dataset (names and contents): what ``--resume`` compares
+    """sha256 over the transforms files (a COLMAP folder: its sparse model files and our manifest) of a
+    dataset (names and contents): what ``--resume`` compares
     to tell the dataset a run was trained on from another one at the same or a different path."""
     layout, root = detect_layout(Path(path))
     if layout == "synthetic":
         files = [root / f"transforms_{s}.json" for s in ("train", "val", "test")]
+    elif layout == "colmap":  # the sparse model's files and our export's manifest (its split lists)
+        files = sorted(find_sparse(root).glob("*.*")) + [root / MANIFEST]
     else:
         files = [Path(path) if Path(path).is_file() else root / "transforms.json"]
     h = hashlib.sha256()

@@ -1,0 +1,475 @@
+"""COLMAP's sparse model on disk: ``cameras``, ``images`` and ``points3D``, binary and text (stdlib + numpy).
+
+The layout is COLMAP's own (``src/colmap/scene/reconstruction_io.cc``; its ``scripts/python/read_write_model.py``),
+all little-endian:
+
+- ``cameras.bin``: uint64 count; per camera int32 id, int32 model id, uint64 width, uint64 height,
+  float64 params[n] (n fixed by the model, ``MODELS``);
+- ``images.bin``: uint64 count; per image int32 id, float64 qvec[4] (w, x, y, z), float64 tvec[3],
+  int32 camera id, the name as NUL-terminated UTF-8, uint64 n2d, then n2d x (float64 x, float64 y,
+  int64 point3D id, -1 = none);
+- ``points3D.bin``: uint64 count; per point uint64 id, float64 xyz[3], uint8 rgb[3], float64 error,
+  uint64 track length, then track length x (int32 image id, int32 point2D index).
+
+The text twins hold the same values, one camera / point per line and two lines per image.
+
+Poses (docs/CONTRACTS.md, "COLMAP"): ``qvec``/``tvec`` map world to camera, ``X_cam = R(q) X + t``, in
+OpenCV camera axes (x right, y down, z forward). Our ``c2w`` is OpenGL (y up, looking along -z), so
+``w2c = inverse(c2w @ diag(1, -1, -1, 1))`` (``pose_to_colmap``) and back (``pose_from_colmap``).
+Pixel coordinates agree with ours: the top-left corner of the image is (0, 0) and pixel centres sit at
++0.5, so ``cx``/``cy`` pass through unchanged.
+
+Every problem raises ``ColmapError`` (a ``DatasetError``) naming the file and the camera or image.
+"""
+from __future__ import annotations
+
+import math
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from .errors import DatasetError
+from .paths import why_not_a_file
+
+# model id -> (name, parameter names), COLMAP's numbering (src/colmap/sensor/models.h)
+MODELS: Dict[int, Tuple[str, Tuple[str, ...]]] = {
+    0: ("SIMPLE_PINHOLE", ("f", "cx", "cy")),
+    1: ("PINHOLE", ("fx", "fy", "cx", "cy")),
+    2: ("SIMPLE_RADIAL", ("f", "cx", "cy", "k")),
+    3: ("RADIAL", ("f", "cx", "cy", "k1", "k2")),
+    4: ("OPENCV", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")),
+    5: ("OPENCV_FISHEYE", ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")),
+    6: ("FULL_OPENCV", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")),
+    7: ("FOV", ("fx", "fy", "cx", "cy", "omega")),
+    8: ("SIMPLE_RADIAL_FISHEYE", ("f", "cx", "cy", "k")),
+    9: ("RADIAL_FISHEYE", ("f", "cx", "cy", "k1", "k2")),
+    10: ("THIN_PRISM_FISHEYE", ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1")),
+    11: ("RAD_TAN_THIN_PRISM_FISHEYE", tuple(f"p{i}" for i in range(16))),
+}
+MODEL_IDS = {name: mid for mid, (name, _) in MODELS.items()}
+MODEL_FILES = ("cameras", "images", "points3D")
+# OpenGL camera axes -> OpenCV's (and back): flip y and z
+GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+class ColmapError(DatasetError):
+    """A sparse model that cannot be read or written; the message names the file and the camera or image."""
+
+
+@dataclass
+class Camera:
+    """One COLMAP camera: ``model`` a name of ``MODELS``, ``params`` (n,) float64 in the model's order."""
+
+    id: int
+    model: str
+    width: int
+    height: int
+    params: np.ndarray
+
+
+@dataclass
+class Image:
+    """One registered image: world-to-camera ``qvec`` (4,) (w, x, y, z) and ``tvec`` (3,), OpenCV axes;
+    ``xys`` (n, 2) float64 pixel positions of its 2D points and ``point3D_ids`` (n,) int64 (-1 = none)."""
+
+    id: int
+    qvec: np.ndarray
+    tvec: np.ndarray
+    camera_id: int
+    name: str
+    xys: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    point3D_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+
+@dataclass
+class Points:
+    """The sparse points: ``ids`` (n,) int64, ``xyz`` (n, 3) float64, ``rgb`` (n, 3) uint8, ``error`` (n,)
+    float64 and ``tracks``: n arrays (k, 2) int64 of (image id, point2D index)."""
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    rgb: np.ndarray
+    error: np.ndarray
+    tracks: List[np.ndarray]
+
+    @staticmethod
+    def empty() -> "Points":
+        return Points(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0), [])
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass
+class Model:
+    """A whole sparse model: cameras and images by id, and the points."""
+
+    cameras: Dict[int, Camera]
+    images: Dict[int, Image]
+    points: Points
+
+
+# -- poses ------------------------------------------------------------------------------------------
+def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation -> (4,) unit quaternion (w, x, y, z) with w >= 0 (Shepperd's method: stable for
+    every rotation, unlike the trace formula near 180 degrees)."""
+    R = np.asarray(R, dtype=np.float64)
+    t = np.trace(R)
+    cands = np.array([t, R[0, 0], R[1, 1], R[2, 2]])
+    k = int(np.argmax(cands))
+    if k == 0:
+        w = math.sqrt(1.0 + t) / 2
+        q = np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(max(0.0, 1.0 + R[i, i] - R[j, j] - R[m, m])) * 2
+        q = np.zeros(4)
+        q[0] = (R[m, j] - R[j, m]) / s
+        q[1 + i] = s / 4
+        q[1 + j] = (R[j, i] + R[i, j]) / s
+        q[1 + m] = (R[m, i] + R[i, m]) / s
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
+    """(4,) quaternion (w, x, y, z), normalised first -> (3, 3) rotation."""
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def pose_to_colmap(c2w: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Our (4, 4) OpenGL camera-to-world -> COLMAP's world-to-camera (qvec (4,), tvec (3,)), OpenCV axes."""
+    c2w_cv = np.asarray(c2w, dtype=np.float64) @ GL_TO_CV
+    R = c2w_cv[:3, :3].T
+    t = -R @ c2w_cv[:3, 3]
+    return rotmat_to_qvec(R), t
+
+
+def pose_from_colmap(qvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """COLMAP's world-to-camera (qvec, tvec) -> our (4, 4) OpenGL camera-to-world."""
+    R = qvec_to_rotmat(qvec)
+    c2w_cv = np.eye(4)
+    c2w_cv[:3, :3] = R.T
+    c2w_cv[:3, 3] = -R.T @ np.asarray(tvec, dtype=np.float64)
+    return c2w_cv @ GL_TO_CV
+
+
+# -- finding a model --------------------------------------------------------------------------------
+def model_files(folder: Path | str) -> Optional[Tuple[Dict[str, Path], str]]:
+    """({cameras, images, points3D} -> file, ".bin" | ".txt") of a sparse model folder, or None when
+    it has no ``cameras.bin``/``cameras.txt``. Binary wins when both are there (COLMAP's own choice)."""
+    folder = Path(folder)
+    for ext in (".bin", ".txt"):
+        if os.path.lexists(folder / f"cameras{ext}"):
+            return {n: folder / f"{n}{ext}" for n in MODEL_FILES}, ext
+    return None
+
+
+def find_sparse(root: Path | str) -> Optional[Path]:
+    """The sparse model of a COLMAP folder (``sparse/0``, else ``sparse``, else the folder itself when
+    it holds ``cameras.bin``/``.txt``), or None."""
+    root = Path(root)
+    for cand in (root / "sparse" / "0", root / "sparse", root):
+        if cand.is_dir() and model_files(cand) is not None:
+            return cand
+    return None
+
+
+# -- binary -----------------------------------------------------------------------------------------
+class _Reader:
+    """Little-endian reads from a whole file's bytes; a short read is a truncated file, named."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        problem = why_not_a_file(path) if not path.is_file() else None
+        if problem:
+            raise ColmapError(f"{path}: {problem}")
+        self.data = path.read_bytes()
+        self.pos = 0
+
+    def take(self, fmt: str, what: str):
+        size = struct.calcsize("<" + fmt)
+        if self.pos + size > len(self.data):
+            raise ColmapError(f"{self.path}: the file is truncated (it ends inside {what}, at byte {len(self.data)})")
+        out = struct.unpack_from("<" + fmt, self.data, self.pos)
+        self.pos += size
+        return out
+
+    def array(self, dtype, count: int, what: str) -> np.ndarray:
+        dt = np.dtype(dtype).newbyteorder("<")
+        size = dt.itemsize * count
+        if count < 0 or self.pos + size > len(self.data):
+            raise ColmapError(f"{self.path}: the file is truncated (it ends inside {what}, at byte {len(self.data)})")
+        out = np.frombuffer(self.data, dt, count, self.pos)
+        self.pos += size
+        return out
+
+    def name(self, what: str) -> str:
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise ColmapError(f"{self.path}: the file is truncated (it ends inside the name of {what})")
+        raw = self.data[self.pos:end]
+        self.pos = end + 1
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ColmapError(f"{self.path}: the name of {what} is not UTF-8 ({raw[:40]!r})") from None
+
+    def done(self) -> None:
+        if self.pos != len(self.data):
+            raise ColmapError(f"{self.path}: {len(self.data) - self.pos} bytes after the last entry; "
+                              "the file is not a COLMAP model of this kind, or it is damaged")
+
+
+def _model_of(mid: int, where: str) -> Tuple[str, Tuple[str, ...]]:
+    if mid not in MODELS:
+        raise ColmapError(f"{where}: unknown camera model id {mid} (COLMAP's ids are 0-{max(MODELS)})")
+    return MODELS[mid]
+
+
+def read_cameras_bin(path: Path) -> Dict[int, Camera]:
+    r = _Reader(path)
+    out = {}
+    (n,) = r.take("Q", "the camera count")
+    for k in range(n):
+        cid, mid, w, h = r.take("iiQQ", f"camera {k + 1} of {n}")
+        name, pnames = _model_of(mid, f"{path}: camera {cid}")
+        params = r.array(np.float64, len(pnames), f"the parameters of camera {cid}").copy()
+        out[cid] = Camera(cid, name, int(w), int(h), params)
+    r.done()
+    return out
+
+
+def read_images_bin(path: Path) -> Dict[int, Image]:
+    r = _Reader(path)
+    out = {}
+    (n,) = r.take("Q", "the image count")
+    for k in range(n):
+        vals = r.take("i4d3di", f"image {k + 1} of {n}")
+        iid = vals[0]
+        name = r.name(f"image {iid}")
+        (n2d,) = r.take("Q", f"the point count of image {iid} ({name})")
+        rec = r.array(np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")]), n2d, f"the 2D points of image {iid}")
+        out[iid] = Image(iid, np.array(vals[1:5]), np.array(vals[5:8]), vals[8], name,
+                         np.stack([rec["x"], rec["y"]], axis=1).astype(np.float64), rec["id"].astype(np.int64))
+    r.done()
+    return out
+
+
+def read_points_bin(path: Path) -> Points:
+    r = _Reader(path)
+    (n,) = r.take("Q", "the point count")
+    ids, xyz, rgb, err, tracks = np.zeros(n, np.int64), np.zeros((n, 3)), np.zeros((n, 3), np.uint8), np.zeros(n), []
+    head = np.dtype([("id", "<u8"), ("xyz", "<f8", 3), ("rgb", "u1", 3), ("err", "<f8"), ("len", "<u8")])
+    for k in range(n):
+        rec = r.array(head, 1, f"point {k + 1} of {n}")[0]
+        ids[k], xyz[k], rgb[k], err[k] = rec["id"], rec["xyz"], rec["rgb"], rec["err"]
+        tracks.append(r.array(np.int32, 2 * int(rec["len"]), f"the track of point {int(rec['id'])}")
+                      .reshape(-1, 2).astype(np.int64))
+    r.done()
+    return Points(ids, xyz, rgb, err, tracks)
+
+
+def write_cameras_bin(path: Path, cameras: Dict[int, Camera]) -> None:
+    with open(path, "wb") as fh:
+        fh.write(struct.pack("<Q", len(cameras)))
+        for c in cameras.values():
+            fh.write(struct.pack("<iiQQ", c.id, MODEL_IDS[c.model], c.width, c.height))
+            fh.write(np.asarray(c.params, "<f8").tobytes())
+
+
+def write_images_bin(path: Path, images: Dict[int, Image]) -> None:
+    with open(path, "wb") as fh:
+        fh.write(struct.pack("<Q", len(images)))
+        for im in images.values():
+            fh.write(struct.pack("<i4d3di", im.id, *im.qvec, *im.tvec, im.camera_id))
+            fh.write(im.name.encode("utf-8") + b"\0")
+            rec = np.zeros(len(im.point3D_ids), np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")]))
+            rec["x"], rec["y"], rec["id"] = im.xys[:, 0], im.xys[:, 1], im.point3D_ids
+            fh.write(struct.pack("<Q", len(rec)) + rec.tobytes())
+
+
+def write_points_bin(path: Path, pts: Points) -> None:
+    head = np.dtype([("id", "<u8"), ("xyz", "<f8", 3), ("rgb", "u1", 3), ("err", "<f8"), ("len", "<u8")])
+    with open(path, "wb") as fh:
+        fh.write(struct.pack("<Q", len(pts)))
+        for k in range(len(pts)):
+            rec = np.zeros(1, head)
+            rec["id"], rec["xyz"], rec["rgb"], rec["err"], rec["len"] = (pts.ids[k], pts.xyz[k], pts.rgb[k],
+                                                                         pts.error[k], len(pts.tracks[k]))
+            fh.write(rec.tobytes() + np.asarray(pts.tracks[k], "<i4").tobytes())
+
+
+# -- text -------------------------------------------------------------------------------------------
+def _lines(path: Path) -> List[Tuple[int, List[str]]]:
+    """(line number, words) of a text model file, comments and blank lines left out."""
+    problem = why_not_a_file(path) if not path.is_file() else None
+    if problem:
+        raise ColmapError(f"{path}: {problem}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ColmapError(f"{path}: cannot read it as UTF-8 text ({exc})") from None
+    return [(k + 1, ln.split()) for k, ln in enumerate(text.split("\n")) if ln.strip() and not ln.startswith("#")]
+
+
+def _numbers(path: Path, line: int, words: List[str], kind, what: str) -> list:
+    try:
+        return [kind(w) for w in words]
+    except ValueError:
+        raise ColmapError(f"{path}: line {line} ({what}): not a number in {' '.join(words)[:80]!r}") from None
+
+
+def read_cameras_txt(path: Path) -> Dict[int, Camera]:
+    out = {}
+    for line, w in _lines(path):
+        if len(w) < 4:
+            raise ColmapError(f"{path}: line {line}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]")
+        cid, width, height = _numbers(path, line, [w[0], w[2], w[3]], int, "camera")
+        if w[1] not in MODEL_IDS:
+            raise ColmapError(f"{path}: camera {cid}: unknown camera model {w[1]!r}")
+        pnames = MODELS[MODEL_IDS[w[1]]][1]
+        params = _numbers(path, line, w[4:], float, f"camera {cid}")
+        if len(params) != len(pnames):
+            raise ColmapError(f"{path}: camera {cid}: model {w[1]} has {len(pnames)} parameters "
+                              f"({' '.join(pnames)}), the line gives {len(params)}")
+        out[cid] = Camera(cid, w[1], width, height, np.array(params, np.float64))
+    return out
+
+
+def read_images_txt(path: Path) -> Dict[int, Image]:
+    out = {}
+    rows = _lines_keep_empty_points(path)
+    for k in range(0, len(rows), 2):
+        line, w = rows[k]
+        if len(w) < 10:
+            raise ColmapError(f"{path}: line {line}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
+        iid, cid = _numbers(path, line, [w[0], w[8]], int, "image")
+        vals = _numbers(path, line, w[1:8], float, f"image {iid}")
+        name = " ".join(w[9:])
+        if k + 1 >= len(rows):
+            raise ColmapError(f"{path}: image {iid} ({name}): the file ends before its line of 2D points")
+        pline, pw = rows[k + 1]
+        if len(pw) % 3:
+            raise ColmapError(f"{path}: line {pline}: image {iid}'s 2D points are not triples X Y POINT3D_ID")
+        pts = np.array(_numbers(path, pline, pw, float, f"image {iid}'s 2D points"), np.float64).reshape(-1, 3)
+        out[iid] = Image(iid, np.array(vals[:4]), np.array(vals[4:7]), cid, name, pts[:, :2].copy(),
+                         pts[:, 2].astype(np.int64))
+    return out
+
+
+def _lines_keep_empty_points(path: Path) -> List[Tuple[int, List[str]]]:
+    """images.txt's lines without comments, keeping the (possibly empty) 2D-point line of each image."""
+    _lines(path)  # the file checks
+    text = path.read_text(encoding="utf-8").split("\n")
+    rows = [(k + 1, ln.split()) for k, ln in enumerate(text) if not ln.startswith("#")]
+    while rows and not rows[-1][1]:
+        rows.pop()
+    if len(rows) % 2:  # the last image has no 2D points: its empty line went with the trailing blanks
+        rows.append((rows[-1][0] + 1, []))
+    return rows
+
+
+def read_points_txt(path: Path) -> Points:
+    ids, xyz, rgb, err, tracks = [], [], [], [], []
+    for line, w in _lines(path):
+        if len(w) < 8 or (len(w) - 8) % 2:
+            raise ColmapError(f"{path}: line {line}: expected POINT3D_ID X Y Z R G B ERROR TRACK[]")
+        ids.append(_numbers(path, line, w[:1], int, "point")[0])
+        xyz.append(_numbers(path, line, w[1:4], float, f"point {ids[-1]}"))
+        rgb.append(_numbers(path, line, w[4:7], int, f"point {ids[-1]}"))
+        err.append(_numbers(path, line, w[7:8], float, f"point {ids[-1]}")[0])
+        tracks.append(np.array(_numbers(path, line, w[8:], int, f"point {ids[-1]}"), np.int64).reshape(-1, 2))
+    if not ids:
+        return Points.empty()
+    return Points(np.array(ids, np.int64), np.array(xyz), np.clip(rgb, 0, 255).astype(np.uint8), np.array(err), tracks)
+
+
+def _fmt(v: float) -> str:
+    return repr(float(v))  # shortest text that reads back as the same float64
+
+
+def write_cameras_txt(path: Path, cameras: Dict[int, Camera]) -> None:
+    lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
+             f"# Number of cameras: {len(cameras)}"]
+    lines += [" ".join([str(c.id), c.model, str(c.width), str(c.height)] + [_fmt(p) for p in c.params])
+              for c in cameras.values()]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_images_txt(path: Path, images: Dict[int, Image]) -> None:
+    n2d = sum(len(im.point3D_ids) for im in images.values())
+    lines = ["# Image list with two lines of data per image:",
+             "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+             "#   POINTS2D[] as (X, Y, POINT3D_ID)",
+             f"# Number of images: {len(images)}, mean observations per image: {n2d / max(1, len(images)):g}"]
+    for im in images.values():
+        lines.append(" ".join([str(im.id)] + [_fmt(v) for v in (*im.qvec, *im.tvec)] + [str(im.camera_id), im.name]))
+        lines.append(" ".join(f"{_fmt(x)} {_fmt(y)} {int(p)}" for (x, y), p in zip(im.xys, im.point3D_ids)))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_points_txt(path: Path, pts: Points) -> None:
+    lines = ["# 3D point list with one line of data per point:",
+             "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
+             f"# Number of points: {len(pts)}"]
+    for k in range(len(pts)):
+        lines.append(" ".join([str(int(pts.ids[k]))] + [_fmt(v) for v in pts.xyz[k]]
+                              + [str(int(v)) for v in pts.rgb[k]] + [_fmt(pts.error[k])]
+                              + [str(int(v)) for v in np.asarray(pts.tracks[k]).ravel()]))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+_READERS = {".bin": (read_cameras_bin, read_images_bin, read_points_bin),
+            ".txt": (read_cameras_txt, read_images_txt, read_points_txt)}
+
+
+def read_model(folder: Path | str) -> Model:
+    """The sparse model in ``folder`` (binary, else text). A missing ``points3D`` file reads as no points.
+
+    Checks what the files must agree on: every image's camera exists, every track names an existing
+    image and one of its 2D points. Raises ColmapError naming the file and the camera or image.
+    """
+    folder = Path(folder)
+    found = model_files(folder)
+    if found is None:
+        raise ColmapError(f"{folder}: no cameras.bin or cameras.txt: not a COLMAP sparse model folder")
+    files, ext = found
+    read_cams, read_ims, read_pts = _READERS[ext]
+    cameras = read_cams(files["cameras"])
+    images = read_ims(files["images"])
+    points = read_pts(files["points3D"]) if os.path.lexists(files["points3D"]) else Points.empty()
+    for im in images.values():
+        if im.camera_id not in cameras:
+            raise ColmapError(f"{files['images']}: image {im.id} ({im.name}) refers to camera {im.camera_id}, "
+                              f"which {files['cameras'].name} lacks (it has {sorted(cameras)[:8]})")
+    for pid, track in zip(points.ids, points.tracks):
+        for iid, idx in track:
+            if int(iid) not in images or not 0 <= int(idx) < len(images[int(iid)].point3D_ids):
+                raise ColmapError(f"{files['points3D']}: point {int(pid)}'s track names image {int(iid)}, 2D point "
+                                  f"{int(idx)}, which {files['images'].name} does not have")
+    return Model(cameras, images, points)
+
+
+def write_model(folder: Path | str, model: Model, exts: Tuple[str, ...] = (".bin", ".txt")) -> None:
+    """Write ``model`` into ``folder`` (which must exist) in each format of ``exts``."""
+    folder = Path(folder)
+    for ext in exts:
+        if ext == ".bin":
+            write_cameras_bin(folder / "cameras.bin", model.cameras)
+            write_images_bin(folder / "images.bin", model.images)
+            write_points_bin(folder / "points3D.bin", model.points)
+        else:
+            write_cameras_txt(folder / "cameras.txt", model.cameras)
+            write_images_txt(folder / "images.txt", model.images)
+            write_points_txt(folder / "points3D.txt", model.points)
