@@ -18,6 +18,10 @@ Render farm: run the same command N times with --shard 1/N ... N/N (at once, on 
 i mod N + 1) and writes only its frames and its own state file. Then
 ``capture.py --out DATASET --merge`` checks every planned frame and writes the transforms files,
 the point cloud and the manifest (README: "Capturing on a render farm").
+
+--colmap also writes DATASET/colmap/ once the capture is complete (after the capture, or after --merge):
+the views of --colmap-splits (default train) as a COLMAP sparse model for splatting trainers, by the
+same code as ``python -m nerf_core export colmap DATASET --out DIR`` (``nerf_core.export.colmap``).
 """
 from __future__ import annotations
 
@@ -28,6 +32,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402  (puts the repository on sys.path)
+from nerf_core.contract.errors import DatasetError  # noqa: E402  (standard library: fine in Blender)
 
 
 def parse_resolution(text: str) -> tuple[int, int | None]:
@@ -93,6 +98,8 @@ def argument_errors(args) -> list[str]:
     for flag, v in (("--elevation-min", args.elevation_min), ("--elevation-max", args.elevation_max)):
         if v is not None and not (math.isfinite(v) and -90.0 <= v <= 90.0):
             errors.append(f"{flag}: {v} degrees is outside [-90, 90]")
+    if args.colmap or args.colmap_splits:
+        errors += colmap_errors(args)
     if args.shard is not None:
         from addon.capture.plan import frame_plan
 
@@ -109,6 +116,41 @@ def argument_errors(args) -> list[str]:
             and args.elevation_min > args.elevation_max):
         errors.append(f"--elevation-min {args.elevation_min} is above --elevation-max {args.elevation_max}")
     return errors
+
+
+def colmap_errors(args) -> list[str]:
+    """Why --colmap cannot run here (before anything renders): bad splits, a shard, no Pillow in this Python."""
+    errors = []
+    if args.colmap_splits and not args.colmap:
+        errors.append("--colmap-splits needs --colmap")
+    if args.shard is not None and args.colmap:
+        errors.append("--colmap needs the whole capture: give it to --merge, not to a shard")
+    try:
+        from nerf_core.export import colmap  # Pillow reads and writes its images: not in every Blender
+    except ImportError as exc:
+        return errors + [f"--colmap: this Python cannot import the COLMAP export ({exc}); capture without it, "
+                         "then run `python -m nerf_core export colmap DATASET --out DATASET/colmap`"]
+    try:
+        colmap.parse_splits(args.colmap_splits or "train")
+    except ValueError as exc:
+        errors.append(str(exc).replace("--splits", "--colmap-splits"))
+    return errors
+
+
+def write_colmap(args, summary: dict) -> None:
+    """DATASET/colmap from the finished capture, its notes on stderr and its summary in ``summary``."""
+    from nerf_core.export import colmap
+
+    def note(message: str) -> None:
+        print(f"capture: note: colmap: {message}", file=sys.stderr)
+
+    out = os.path.join(os.path.abspath(args.out), colmap.CAPTURE_SUBDIR)
+    splits = colmap.parse_splits(args.colmap_splits or "train")
+    try:
+        summary["colmap"] = colmap.export_colmap(args.out, out, splits=splits, overwrite=True, on_note=note,
+                                                 in_capture=True)
+    except ValueError as exc:  # the output path; the capture itself is complete and kept
+        raise DatasetError(f"--colmap: {exc}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -155,6 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--merge", action="store_true",
                     help="after every shard: verify all planned frames in --out and write the dataset's JSON, "
                          "point cloud and manifest (needs only --out)")
+    ap.add_argument("--colmap", action="store_true",
+                    help="also write DATASET/colmap/: a COLMAP model (sparse/0, images/, masks/) for splatting")
+    ap.add_argument("--colmap-splits", metavar="LIST", help="splits --colmap exports (default train; e.g. train,test)")
     ap.add_argument("--save-blend", help="also save the scene with its NeRF cameras to this .blend")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
@@ -181,7 +226,10 @@ def main(argv: list[str]) -> int:
     if args.merge:
         from addon.capture.run import merge
 
-        print(json.dumps(merge.merge(args.out)), flush=True)
+        summary = merge.merge(args.out)
+        if args.colmap:
+            write_colmap(args, summary)
+        print(json.dumps(summary), flush=True)
         return 0
     _bootstrap.open_blend(args.blend)
     import bpy
@@ -239,6 +287,8 @@ def main(argv: list[str]) -> int:
               file=sys.stderr)
         return 130
     bar.close("done")
+    if args.colmap:
+        write_colmap(args, summary)
     if args.save_blend:
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save_blend), copy=True)
     print(json.dumps(summary), flush=True)
@@ -253,8 +303,9 @@ def run() -> int:
 
     from addon.scene import passes
 
+    # DatasetError: the COLMAP export of the finished capture (--colmap); the capture itself is kept
     known = (frame_plan.CaptureError, positions.LayoutError, ExportError, scene_bounds.BoundsError,
-             passes.PassError)
+             passes.PassError, DatasetError)
     try:
         return main(_bootstrap.script_args())
     except known as exc:

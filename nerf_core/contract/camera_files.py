@@ -8,7 +8,10 @@ rule ``contract.resolve_intrinsics``, the lens rule ``contract.parse_lens``, the
 - nerfstudio's ``transforms.json`` (per-frame ``fl_x fl_y cx cy w h``; splits from its
   ``train_filenames``/``val_filenames``/``test_filenames`` lists when it has them) and instant-ngp's
   (the same reader: ``scale``/``offset`` are instant-ngp's own fitting and are not applied, as in ``train``);
-- nerfstudio's ``camera_path.json`` (``contract.camera_path``).
+- nerfstudio's ``camera_path.json`` (``contract.camera_path``);
+- a COLMAP sparse model folder (``sparse/0`` with ``cameras.bin``/``.txt``), or the COLMAP folder above it
+  (``contract.colmap_dataset.camera_intrinsics``: PINHOLE, OPENCV, ... with their lens; poses from
+  ``colmap_model.pose_from_colmap``), one view per registered image, in image-id order.
 
 A frame that gives no ``w``/``h`` takes its image's size (PNG or JPEG header; else the size of
 another frame's image of the same file, with a note). Every problem raises DatasetError naming the
@@ -24,6 +27,8 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from .camera_path import CameraPathError, is_camera_path, path_views
+from .colmap_dataset import camera_intrinsics, read_manifest
+from .colmap_model import ColmapError, find_sparse, pose_from_colmap, read_model
 from .errors import DatasetError
 from .intrinsics import resolve_intrinsics
 from .jsonfile import read_json
@@ -135,7 +140,7 @@ def _nerfstudio_split(meta: dict, jf: Path, views: List[CameraView]) -> None:
 def read_camera_file(path: Path | str) -> Tuple[str, List[CameraView], List[str]]:
     """(format, views, notes) of a transforms file of any layout (module doc), or a dataset folder.
 
-    ``format`` is "synthetic", "nerfstudio", "instant-ngp" or "camera_path". Views come in file order
+    ``format`` is "synthetic", "nerfstudio", "instant-ngp", "camera_path" or "colmap". Views come in file order
     (split by split for the synthetic layout). Raises DatasetError naming the file, frame and field.
     """
     path = Path(path)
@@ -151,6 +156,8 @@ def read_camera_file(path: Path | str) -> Tuple[str, List[CameraView], List[str]
         for split, jf in files:
             views += _file_views(read_json(jf), jf, split, True, notes)
         return "synthetic", views, notes
+    if path.is_dir() and not (path / "transforms.json").is_file() and find_sparse(path) is not None:
+        return "colmap", colmap_views(find_sparse(path)), notes
     if path.is_dir():
         if not (path / "transforms.json").is_file():
             raise DatasetError(f"{path}: no transforms_train.json, transforms_val.json, transforms_test.json or "
@@ -177,6 +184,27 @@ def read_camera_file(path: Path | str) -> Tuple[str, List[CameraView], List[str]
         notes.append(f"{path}: instant-ngp's 'scale'/'offset' are its own fitting of the scene into its unit cube; "
                      "the cameras are placed as written")
     return ("instant-ngp" if ngp and "train_filenames" not in meta else "nerfstudio"), views, notes
+
+
+def colmap_views(sparse: Path) -> List[CameraView]:
+    """One view per registered image of the sparse model in ``sparse``, in image-id order; each tagged
+    with its split when our export's manifest (in the COLMAP folder above) lists it."""
+    model = read_model(sparse)
+    manifest = read_manifest(sparse.parent.parent if sparse.name == "0" else sparse.parent) or {}
+    listed = manifest.get("images") if isinstance(manifest.get("images"), dict) else {}
+    split_of = {n: s for s, names in listed.items() if s in SPLITS and isinstance(names, list) for n in names}
+    images_file = next(sparse.glob("images.*"), sparse / "images.bin")
+    cameras_file = next(sparse.glob("cameras.*"), sparse / "cameras.bin")
+    views = []
+    for k, im in enumerate(sorted(model.images.values(), key=lambda i: i.id)):
+        where = f"{images_file}: image {im.id} ({im.name})"
+        if not (np.isfinite(im.qvec).all() and np.isfinite(im.tvec).all()) or not np.linalg.norm(im.qvec) > 0:
+            raise ColmapError(f"{where}: its pose (qvec {im.qvec.tolist()}, tvec {im.tvec.tolist()}) is not finite")
+        intr, lens = camera_intrinsics(model.cameras[im.camera_id], str(cameras_file))
+        views.append(CameraView(Path(im.name).stem, split_of.get(im.name), k, where, pose_from_colmap(im.qvec, im.tvec),
+                                intr["fl_x"], intr["fl_y"], intr["cx"], intr["cy"], int(intr["w"]), int(intr["h"]),
+                                lens))
+    return views
 
 
 def distortion_warning(views: List[CameraView]) -> Optional[str]:

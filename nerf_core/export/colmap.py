@@ -37,6 +37,7 @@ from nerf_core.export.ply import GeometryFileError, read_geometry
 from nerf_core.image.io import read_depth, read_png, write_png
 
 POINTS_FILE = "points3d.ply"
+CAPTURE_SUBDIR = "colmap"  # capture.py --colmap writes DATASET/colmap: the one place inside a dataset
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)  # captures on a transparent film are read composited onto white
 NO_POINTS_NOTE = ("{ply}: no point cloud; points3D is empty. 3D Gaussian Splatting and gsplat start from the "
                   "sparse points: capture with --points")
@@ -51,15 +52,17 @@ def parse_splits(text: str) -> List[str]:
     return list(dict.fromkeys(names))
 
 
-def check_out(out: Path | str, dataset: Path, overwrite: bool) -> Path:
+def check_out(out: Path | str, dataset: Path, overwrite: bool, in_capture: bool = False) -> Path:
     """The output folder after refusing (ValueError) a link, a file, the dataset or a folder inside or
-    around it, and an existing non-empty folder without ``overwrite``."""
+    around it (``in_capture``: except ``DATASET/colmap``, where the capture puts it), and an existing
+    non-empty folder without ``overwrite``."""
     out = Path(os.path.abspath(out))
     if os.path.islink(out):
         raise ValueError(f"--out {out}: is a symbolic link; name a real folder (nothing is written through links)")
     ds = Path(os.path.realpath(dataset))
     real = Path(os.path.realpath(out))
-    if real == ds or ds in real.parents or real in ds.parents:
+    own = in_capture and real == ds / CAPTURE_SUBDIR
+    if not own and (real == ds or ds in real.parents or real in ds.parents):
         raise ValueError(f"--out {out}: is the dataset {ds}, inside it or around it; the export never writes there")
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
@@ -199,7 +202,8 @@ def _points_model(root: Path, images: Dict[int, Image], track_views: List[dict],
 
 
 def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = ("train",), overwrite: bool = False,
-                  background=DEFAULT_BACKGROUND, on_note: Optional[Callable[[str], None]] = None) -> dict:
+                  background=DEFAULT_BACKGROUND, on_note: Optional[Callable[[str], None]] = None,
+                  in_capture: bool = False) -> dict:
     """Write a COLMAP folder of ``dataset``'s ``splits`` into ``out`` (layout in the module doc).
 
     Args:
@@ -207,6 +211,8 @@ def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = 
         out: the folder to write; it must not exist, or be empty, unless ``overwrite``.
         splits: names among "train", "val", "test"; the tracks name the train images when "train" is there.
         background: (3,) colour in [0, 1] behind a transparent film.
+        in_capture: allow ``out`` = ``DATASET/colmap`` (``capture.py --colmap``); any other path inside the
+            dataset, or the dataset itself, is refused.
     Returns:
         the summary: ``out``, ``cameras``, ``images`` ({split: count}), ``points``, ``dropped_points``,
         ``masks``, ``notes``, ``seconds``.
@@ -217,7 +223,7 @@ def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = 
     started = time.perf_counter()
     say = on_note or (lambda s: None)
     layout, root, infos, scene = frame_infos(dataset, SPLITS)
-    out = check_out(out, root, overwrite)
+    out = check_out(out, root, overwrite, in_capture)
     frames = [(s, fr) for s in splits for fr in infos.get(s, [])]
     if not frames:
         raise DatasetError(f"{root}: no frames in split(s) {', '.join(splits)} to export")

@@ -15,7 +15,7 @@ from .write import FORMAT
 # Paths a capture owns inside its folder; the only ones --overwrite removes.
 DATASET_PATHS = ("train", "val", "test", "depth", "normals", "masks", "points3d.ply", "transforms.json",
                  "transforms_train.json", "transforms_val.json", "transforms_test.json", capture_manifest.MANIFEST_DIR,
-                 transforms.NERFSTUDIO_DIR)
+                 transforms.NERFSTUDIO_DIR, "colmap")  # colmap: capture.py --colmap
 
 
 def _empty_tree(path: str) -> bool:

@@ -16,6 +16,7 @@ import json
 import os
 
 import bpy
+import numpy as np
 
 from ...bridge.core_contract import contract
 from ...dataset.cameras import camera_params, make_view_camera, use_view_resolution
@@ -164,3 +165,31 @@ def _clip_from_file(path: str, fmt: str):
     start = min(0.01, 0.5 * near) if ok[0] else 0.01
     end = max(1000.0, 4.0 * far) if ok[1] else 1000.0
     return start, end
+
+
+POINTS_TAG = "nerf_import_points"  # the points object's tag: the model it came from
+
+
+def import_points(scene, xyz, rgb, source: str, name: str = "Imported Points"):
+    """The sparse points of a reconstruction as one mesh of loose vertices (every renderer and exporter
+    reads a mesh; Blender's point-cloud objects are not yet everywhere) with a byte colour attribute
+    ``Col`` (the points' sRGB colours), in the "Imported Cameras" collection; an earlier import's points
+    object there is replaced. ``xyz`` (n, 3) float in the scene's frame, ``rgb`` (n, 3) uint8."""
+    coll = imported_collection(scene)
+    for old in [o for o in coll.objects if POINTS_TAG in o]:
+        data = old.data
+        bpy.data.objects.remove(old, do_unlink=True)
+        if data is not None and data.users == 0:
+            bpy.data.meshes.remove(data)
+    mesh = bpy.data.meshes.new(name)
+    xyz = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+    mesh.vertices.add(len(xyz))
+    mesh.vertices.foreach_set("co", xyz.ravel())
+    col = mesh.color_attributes.new("Col", "BYTE_COLOR", "POINT")
+    rgba = np.concatenate([np.asarray(rgb, np.float32).reshape(-1, 3) / 255.0, np.ones((len(xyz), 1), np.float32)], 1)
+    col.data.foreach_set("color_srgb", rgba.ravel())
+    mesh.update()
+    ob = bpy.data.objects.new(name, mesh)
+    ob[POINTS_TAG] = source
+    coll.objects.link(ob)
+    return ob
