@@ -1,4 +1,4 @@
-"""Loading NeRF datasets: the original synthetic layout and nerfstudio's ``transforms.json``.
+"""Loading NeRF datasets: the original synthetic layout, nerfstudio's ``transforms.json`` and COLMAP folders.
 
 Layouts:
 
@@ -9,6 +9,9 @@ Layouts:
   values override the global ones), file names with extensions and optional
   ``train_filenames``/``val_filenames``/``test_filenames``; without them every 8th frame is held
   out (the same frames serve as val and test).
+* colmap: ``images/`` and a sparse model in ``sparse/0`` or ``sparse`` (``.bin`` or ``.txt``), read by
+  ``contract.colmap_dataset`` into the same frames (poses converted to OpenGL camera-to-world, every 8th
+  image by name held out unless our export's manifest lists the splits; no normalisation).
 
 Memory: each image is stored once, as uint8 RGBA for PNGs (float32 for EXR), and composited onto a
 background per batch, so a 100-view 800x800 dataset costs 256 MB and not several float copies.
@@ -133,8 +136,8 @@ def load_dataset(
     scene box is estimated from the cameras (``Dataset.aabb_source`` says how).
 
     Args:
-        path: a dataset folder (``transforms_{train,val,test}.json`` or nerfstudio's ``transforms.json``)
-            or one transforms file in it.
+        path: a dataset folder (``transforms_{train,val,test}.json``, nerfstudio's ``transforms.json``, or a
+            COLMAP folder with ``images/`` and ``sparse/0``) or one transforms file in it.
         splits: names among "train", "val", "test" whose images to read.
         downscale: integer >= 1; box-filters the images and scales the intrinsics accordingly.
         min_train_views: fewest train views accepted (when "train" is in ``splits``).

@@ -287,3 +287,16 @@ def test_the_export_imports_without_torch():
             "assert 'torch' not in sys.modules\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
+
+
+def test_two_images_with_one_name_and_a_split_without_views(tmp_path, exported, dataset_factory):
+    m = cm.read_model(exported[1] / "sparse" / "0")
+    d = _copy(exported[1], tmp_path / "n")
+    m.images[2].name = m.images[1].name
+    cm.write_images_bin(d / "sparse" / "0" / "images.bin", m.images)
+    with pytest.raises(DatasetError, match=r"images\.bin: images 1 and 2 have the same name 'train_r_0\.png'"):
+        frame_infos(d)
+    ds = dataset_factory(tmp_path / "noval", n_train=2, n_val=0, n_test=1, layouts=("synthetic",), depth=False)
+    with pytest.raises(DatasetError, match=r"no frames in split\(s\) val to export"):
+        export_colmap(ds, tmp_path / "o", splits=["val"])
+    assert not (tmp_path / "o").exists()
