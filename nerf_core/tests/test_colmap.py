@@ -300,3 +300,30 @@ def test_two_images_with_one_name_and_a_split_without_views(tmp_path, exported, 
     with pytest.raises(DatasetError, match=r"no frames in split\(s\) val to export"):
         export_colmap(ds, tmp_path / "o", splits=["val"])
     assert not (tmp_path / "o").exists()
+
+
+def test_distorted_capture_projects_as_colmap_does(tmp_path, dataset_factory):
+    """An OPENCV lens is written as COLMAP's OPENCV camera, and each stored 2D point is where COLMAP's
+    own camera model puts the point (pycolmap's img_from_cam); the .txt twins read in pycolmap too."""
+    pycolmap = pytest.importorskip("pycolmap")
+    lens = {"camera_model": "OPENCV", "k1": -0.05, "k2": 0.01, "p1": 0.001, "p2": -0.002}
+    ds = dataset_factory(tmp_path / "ds", n_train=4, n_val=1, n_test=1, layouts=("synthetic",), lens=lens)
+    sphere_points(ds, n=150)
+    export_colmap(ds, tmp_path / "out")
+    rec = pycolmap.Reconstruction(str(tmp_path / "out" / "sparse" / "0"))
+    cam = rec.cameras[1]
+    assert cam.model.name == "OPENCV" and np.allclose(cam.params[4:], [-0.05, 0.01, 0.001, -0.002])
+    worst, n = 0.0, 0
+    for pt in rec.points3D.values():
+        for e in pt.track.elements:
+            im = rec.images[e.image_id]
+            pose = im.cam_from_world() if callable(im.cam_from_world) else im.cam_from_world
+            uv = np.asarray(cam.img_from_cam(np.asarray(pose * pt.xyz)[None])).ravel()[:2]
+            worst, n = max(worst, float(np.abs(uv - im.points2D[e.point2D_idx].xy).max())), n + 1
+    assert n > 0 and worst < 1e-6
+    txt = tmp_path / "txt"
+    txt.mkdir()
+    for f in (tmp_path / "out" / "sparse" / "0").glob("*.txt"):
+        (txt / f.name).write_bytes(f.read_bytes())
+    again = pycolmap.Reconstruction(str(txt))
+    assert set(again.images) == set(rec.images) and len(again.points3D) == len(rec.points3D)
