@@ -33,6 +33,7 @@ from nerf_core.check.scene import (
     training_plan,
     warn_empty_views,
 )
+from nerf_core.contract.colmap_model import find_sparse
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.intrinsics import angle_only_caveats
 from nerf_core.contract.transforms import frame_infos, resolve_image
@@ -76,6 +77,14 @@ def check_dataset(path: Path | str, background: str = "auto", for_training: bool
     report = CheckReport(root)
     if not root.is_dir():
         report.error(str(root), "dataset folder not found" if not root.exists() else "not a folder")
+        return report
+    if not any((root / f).exists() for f in ("transforms_train.json", "transforms.json")) and (
+            (root / "images").is_dir() and find_sparse(root) not in (None, root)):
+        # a COLMAP folder: its conventions are COLMAP's own (the readers check them); what train refuses
+        # is all there is to say
+        _check_loadable(report, root)
+        if report.ok:
+            training_plan(report, root, background)
         return report
 
     one_file = _check_root_json(report, root)

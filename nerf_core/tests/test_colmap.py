@@ -327,3 +327,14 @@ def test_distorted_capture_projects_as_colmap_does(tmp_path, dataset_factory):
         (txt / f.name).write_bytes(f.read_bytes())
     again = pycolmap.Reconstruction(str(txt))
     assert set(again.images) == set(rec.images) and len(again.points3D) == len(rec.points3D)
+
+
+def test_check_reads_a_colmap_folder_by_the_loaders_rules(tmp_path, exported):
+    """`check` of a COLMAP folder: no transforms-file conventions, but every problem train refuses."""
+    from nerf_core.check.dataset import check_dataset
+
+    assert check_dataset(exported[1]).ok
+    d = _copy(exported[1], tmp_path / "k")
+    (d / "images" / "train_r_2.png").unlink()
+    report = check_dataset(d)
+    assert not report.ok and "train_r_2.png" in report.format()
