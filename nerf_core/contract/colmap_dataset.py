@@ -116,7 +116,7 @@ def _splits(names: List[str], manifest: Optional[dict]) -> Tuple[Dict[str, str],
 def _scene(model: Model, poses: Dict[int, np.ndarray], manifest: Optional[dict], images_file: Path,
            recorded: Path) -> dict:
     """The scene fields (``aabb``, ``near``, ``far`` with ``KEY_file``) of a model, as ``frame_infos`` gives them."""
-    scene: dict = {"film_transparent": False}
+    scene: dict = {"film_transparent": False, "film_transparent_file": images_file}
     if manifest and isinstance(manifest.get("aabb"), list):
         scene["aabb"], scene["aabb_file"] = manifest["aabb"], recorded
     if manifest and all(isinstance(manifest.get(k), (int, float)) for k in ("near", "far")):
@@ -128,7 +128,8 @@ def _scene(model: Model, poses: Dict[int, np.ndarray], manifest: Optional[dict],
     if "aabb" not in scene:
         lo, hi = np.percentile(pts.xyz, BOX_PERCENTILES, axis=0)
         pad = BOX_PAD * np.maximum(hi - lo, 1e-6 * max(1.0, float(np.abs(hi).max())))
-        scene["aabb"], scene["aabb_file"] = [(lo - pad).tolist(), (hi + pad).tolist()], images_file
+        points_file = images_file.with_name(images_file.name.replace("images", "points3D"))
+        scene["aabb"], scene["aabb_file"] = [(lo - pad).tolist(), (hi + pad).tolist()], points_file
     # (point index, image id) of every observation; without tracks every point counts in every image
     owner = np.concatenate([np.full(len(t), k) for k, t in enumerate(pts.tracks)] + [np.zeros(0, int)]).astype(int)
     seen_by = np.concatenate([t[:, 0] for t in pts.tracks] + [np.zeros(0, np.int64)])
@@ -169,10 +170,12 @@ def colmap_frames(root: Path | str, splits: Sequence[str] = SPLITS) -> Tuple[Pat
     if not names:
         raise ColmapError(f"{images_file}: the model has no registered images")
     split_of, split_note = _splits(names, manifest)
-    cams = {cid: camera_intrinsics(c, str(sparse / images_file.name.replace("images", "cameras")))
-            for cid, c in model.cameras.items()}
+    cameras_file = str(sparse / images_file.name.replace("images", "cameras"))
+    cams: dict = {}  # only the cameras images use are read: an unused camera of another model is no obstacle
     masks = root / "masks"
     our_masks = bool(manifest and manifest.get("masks"))
+    # our export's masks are the film's alpha and its images the film on white: together, the RGBA film
+    restore = our_masks and manifest.get("background") == [1.0, 1.0, 1.0]
     out: Dict[str, List[FrameInfo]] = {s: [] for s in SPLITS}
     poses = {}
     for im in model.images.values():
@@ -187,18 +190,28 @@ def colmap_frames(root: Path | str, splits: Sequence[str] = SPLITS) -> Tuple[Pat
         image = root / "images" / im.name
         if not image.is_file():
             raise ColmapError(f"{where}: its file {image} {why_not_a_file(image, im.name)}")
+        if im.camera_id not in cams:
+            cams[im.camera_id] = camera_intrinsics(model.cameras[im.camera_id], cameras_file)
         intr, lens = cams[im.camera_id]
         mask = masks / Path(im.name).with_suffix(".png")
         info = FrameInfo(im.id, images_file, im.name, image, c2w, dict(intr), lens=lens,
-                         mask=mask if mask.is_file() and not our_masks else None)
+                         mask=mask if mask.is_file() and not our_masks else None,
+                         alpha=mask if restore and mask.is_file() else None)
         out[split_of[im.name]].append(info)
+    # the export's order (the capture's) when its manifest lists the images, else by name as 3DGS sorts them
+    listed = (manifest or {}).get("images") if isinstance((manifest or {}).get("images"), dict) else {}
+    rank = {n: k for names in listed.values() if isinstance(names, list) for k, n in enumerate(map(str, names))}
     for s in SPLITS:
-        out[s].sort(key=lambda f: f.file_path)
+        out[s].sort(key=lambda f: (rank.get(f.file_path, len(rank)), f.file_path))
     if manifest is None:
         out["val"] = list(out["test"])  # as nerfstudio: the held-out images serve as val and test
     scene = _scene(model, poses, manifest, images_file, root / MANIFEST)
     scene["notes"] = [split_note]
-    if our_masks:
+    if restore:
+        scene["film_transparent"], scene["film_transparent_file"] = True, root / MANIFEST
+        scene["notes"].append(f"{masks}: the film's alpha, as the export wrote it: the images are read as the "
+                              "RGBA film (composited onto white by the export), not masked")
+    elif our_masks:
         scene["notes"].append(f"{masks}: not read as training masks: the export made them from the film's transparency "
                               "(the images are composited, so every pixel trains)")
     return root, {s: out[s] for s in SPLITS if s in splits or s == "train"}, scene

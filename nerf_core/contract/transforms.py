@@ -154,6 +154,9 @@ class FrameInfo:
     outside: List[str] = field(default_factory=list)  # fields whose file lies outside the dataset folder
     name: Optional[str] = None  # the frame's optional ``name`` field (names its render outputs)
     lens: Optional[Lens] = None  # the distortion of its camera (``contract.lens``); None = a pinhole
+    # 8-bit alpha that ``image`` (RGB) was composited with onto white (our COLMAP export's masks/): the
+    # loader restores the RGBA film from the two; None for every other dataset
+    alpha: Optional[Path] = None
 
     @property
     def where(self) -> str:

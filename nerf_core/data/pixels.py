@@ -63,6 +63,8 @@ def load_pixels(fr: FrameInfo, downscale: int) -> tuple[np.ndarray, tuple[int, i
             img = read_png(fr.image)
             if img.ndim == 2:
                 img = np.repeat(img[..., None], 3, axis=-1)
+            if fr.alpha is not None:
+                img = restore_film(fr, img)
             if img.dtype == np.uint16:  # 16-bit PNG: keep the precision as float
                 img = img.astype(np.float32) / 65535.0
             elif img.dtype != np.uint8:
@@ -82,6 +84,18 @@ def load_pixels(fr: FrameInfo, downscale: int) -> tuple[np.ndarray, tuple[int, i
     if downscale > 1:
         img = downscale_image(img, downscale)
     return img, full
+
+
+def restore_film(fr: FrameInfo, rgb: np.ndarray) -> np.ndarray:
+    """The RGBA film (h, w, 4) uint8 of an RGB image composited onto white with the 8-bit alpha in
+    ``fr.alpha`` (our COLMAP export): colour = (composite - (1 - a)) / a, 0 where a = 0."""
+    a = read_png(fr.alpha)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3 or a.dtype != np.uint8 or a.shape != rgb.shape[:2]:
+        raise DatasetError(f"{fr.where}: {fr.alpha} is not the 8-bit alpha of {fr.image} (another size or kind)")
+    af = a.astype(np.float32)[..., None]
+    colour = (rgb.astype(np.float32) - (255.0 - af)) * 255.0 / np.maximum(af, 1.0)
+    colour = np.where(af > 0, np.clip(colour + 0.5, 0, 255), 0).astype(np.uint8)
+    return np.concatenate([colour, a[..., None]], axis=-1)
 
 
 def downscale_image(img: np.ndarray, f: int) -> np.ndarray:

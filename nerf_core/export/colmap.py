@@ -7,8 +7,8 @@
   pose as COLMAP's world-to-camera (``contract.colmap_model.pose_to_colmap``), the capture's
   ``points3d.ply`` as points whose tracks name the train images that see them (``tracks``);
 - ``OUT/images/NAME.png``: opaque RGB, the film composited onto the background (white), and, where
-  the film was transparent, ``OUT/masks/NAME.png`` (0 = transparent, 255 = shown: nerfstudio's
-  ``--masks-path`` convention, the mask named as the image with ``.png``);
+  the film was transparent, ``OUT/masks/NAME.png``: the film's 8-bit alpha (0 = transparent; nerfstudio's
+  ``--masks-path`` convention, the mask named as the image with ``.png``, keeps every non-zero pixel);
 - ``OUT/nerf_bridge_colmap.json`` (``contract.colmap_dataset.MANIFEST``): the source, splits, each
   split's image names, the scene box, and that no normalisation was applied (scene units and frame).
 
@@ -37,6 +37,7 @@ from nerf_core.export.ply import GeometryFileError, read_geometry
 from nerf_core.image.io import read_depth, read_png, write_png
 
 POINTS_FILE = "points3d.ply"
+OWN_ENTRIES = ("images", "masks", "sparse", MANIFEST)  # what an export writes: all --overwrite replaces
 CAPTURE_SUBDIR = "colmap"  # capture.py --colmap writes DATASET/colmap: the one place inside a dataset
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)  # captures on a transparent film are read composited onto white
 NO_POINTS_NOTE = ("{ply}: no point cloud; points3D is empty. 3D Gaussian Splatting and gsplat start from the "
@@ -68,6 +69,11 @@ def check_out(out: Path | str, dataset: Path, overwrite: bool, in_capture: bool 
         raise ValueError(f"--out {out}: exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise ValueError(f"--out {out}: exists and is not empty; pass --overwrite to replace it")
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in OWN_ENTRIES) if out.is_dir() else []
+    if foreign:
+        # --overwrite replaces a COLMAP export, never a folder of the user's other files
+        raise ValueError(f"--out {out}: holds files an export does not write ({', '.join(foreign[:5])}); "
+                         "choose another folder")
     if not out.parent.is_dir():
         raise ValueError(f"--out {out}: folder {out.parent} does not exist")
     return out
@@ -143,7 +149,9 @@ def _composite(fr: FrameInfo, background) -> tuple:
         return np.ascontiguousarray(img[..., :3]), None
     a = img[..., 3:].astype(np.float32) / 255.0
     rgb = img[..., :3].astype(np.float32) / 255.0 * a + np.asarray(background, np.float32) * (1.0 - a)
-    return np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8), np.where(img[..., 3] > 0, 255, 0).astype(np.uint8)
+    # the mask is the film's alpha itself: 0 where transparent, which every mask reader drops (nerfstudio keeps
+    # each non-zero pixel), and the levels let our loader restore the RGBA film exactly (colmap_dataset)
+    return np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8), np.ascontiguousarray(img[..., 3])
 
 
 def _depth(fr: FrameInfo, notes: list) -> Optional[np.ndarray]:
@@ -270,8 +278,8 @@ def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = 
                     "splits": list(splits), "images": names, "normalization": None,
                     "note": "no normalisation: poses and points are in the capture's own units and frame",
                     "background": [float(c) for c in background],
-                    "masks": "masks/NAME.png: 255 where the film showed the scene, 0 where it was transparent"
-                             if masks else None,
+                    "masks": "masks/NAME.png: the film's alpha (0 = transparent); images/ are composited onto "
+                             "background" if masks else None,
                     "aabb": scene.get("aabb"), "near": scene.get("near"), "far": scene.get("far")}
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2), encoding="utf-8")
         if out.is_dir():

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from nerf_core.contract import colmap_model as cm
 from nerf_core.contract.colmap_dataset import camera_intrinsics, colmap_camera
@@ -101,7 +102,7 @@ def test_round_trip_poses_and_intrinsics(exported):
     layout, _, back, scene = frame_infos(out)
     assert layout == "colmap"
     for split in ("train", "test"):
-        assert [f.image.name for f in back[split]] == sorted(f"{split}_{f.stem}.png" for f in src[split])
+        assert [f.image.name for f in back[split]] == [f"{split}_{f.stem}.png" for f in src[split]]  # in order
         for a, b in zip(src[split], back[split]):
             assert np.abs(a.c2w - b.c2w).max() < 1e-6
             for k in ("fl_x", "fl_y", "cx", "cy", "w", "h"):
@@ -112,11 +113,18 @@ def test_round_trip_poses_and_intrinsics(exported):
 def test_load_dataset_reads_a_colmap_folder(exported):
     import nerf_core
 
-    _, out, _ = exported
+    src, out, _ = exported
     ds = nerf_core.load_dataset(out)
     assert ds.layout == "colmap" and len(ds.split("train")) == 8 and len(ds.split("test")) == 2
-    assert ds.film_transparent is False and ds.split("train").images.shape[-1] == 3
     assert np.allclose(ds.aabb.numpy(), [[-1, -1, -1], [1, 1, 1]])  # the capture's box, recorded
+    # our export's masks are the film's alpha: the loader restores the RGBA film, which trains as the capture
+    assert ds.film_transparent is True and ds.split("train").images.shape[-1] == 4
+    orig = nerf_core.load_dataset(src).split("train")
+    new = ds.split("train")
+    assert torch.equal(orig.images[..., 3], new.images[..., 3])
+    for bg in ([1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [0.2, 0.9, 0.4]):  # any background composites alike
+        a, b = orig.image(0, torch.tensor(bg))[0], new.image(0, torch.tensor(bg))[0]
+        assert float((a - b).abs().max()) <= 1.01 / 255
 
 
 def test_foreign_model_splits_and_box_from_points(tmp_path, exported):
@@ -338,3 +346,23 @@ def test_check_reads_a_colmap_folder_by_the_loaders_rules(tmp_path, exported):
     (d / "images" / "train_r_2.png").unlink()
     report = check_dataset(d)
     assert not report.ok and "train_r_2.png" in report.format()
+
+
+def test_overwrite_replaces_an_export_but_not_a_folder_of_other_files(tmp_path, exported):
+    ds, out, _ = exported
+    assert export_colmap(ds, out, splits=["train"], overwrite=True)["images"] == {"train": 8}
+    assert not list((out / "images").glob("test_*"))  # the old export went, whole
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "thesis.tex").write_text("x")
+    with pytest.raises(ValueError, match=r"holds files an export does not write \(thesis\.tex\)"):
+        export_colmap(ds, tmp_path / "mine", overwrite=True)
+    assert (tmp_path / "mine" / "thesis.tex").read_text() == "x"
+
+
+def test_load_dataset_of_a_foreign_model_holds_out_every_8th(tmp_path, exported):
+    import nerf_core
+
+    d = _copy(exported[1], tmp_path / "f")  # no manifest: a reconstruction of another tool
+    ds = nerf_core.load_dataset(d)
+    assert len(ds.split("test")) == 2 and len(ds.split("val")) == 2 and len(ds.split("train")) == 8
+    assert ds.aabb_source == "dataset (points3D.bin)"  # the box of the sparse points
