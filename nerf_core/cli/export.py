@@ -36,9 +36,10 @@ def _events():
 
 def add_parser(sub, fmt) -> None:
     """Add the subcommand to ``sub`` (argparse subparsers); ``fmt``: the help formatter class."""
-    e = sub.add_parser("export", help="the trained scene as geometry: a coloured mesh (PLY) or a volume (npz)",
-                       formatter_class=fmt, description="Write the run's geometry in the scene's own frame. "
-                       "The last line of stdout is a JSON summary.")
+    e = sub.add_parser("export", help="the trained scene as geometry: a coloured mesh (PLY) or a volume (npz); "
+                       "a capture as a COLMAP model", formatter_class=fmt,
+                       description="Write the run's geometry in the scene's own frame (mesh, volume), or a capture "
+                       "as a COLMAP model (colmap). The last line of stdout is a JSON summary.")
     kinds = e.add_subparsers(dest="kind", metavar="KIND")
     kinds.required = True
     m = kinds.add_parser("mesh", help="marching cubes, culled and coloured: binary PLY", formatter_class=fmt)
