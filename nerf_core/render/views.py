@@ -227,7 +227,8 @@ def refuse_dataset_root_out(out) -> None:
         layout, _ = detect_layout(out)
     except DatasetError:
         return
-    found = "transforms_train.json" if layout == "synthetic" else "transforms.json"
+    found = {"synthetic": "transforms_train.json", "colmap": "a COLMAP model, images/ and sparse/"}.get(
+        layout, "transforms.json")
     raise RunError(f"--out {out}: this is a dataset folder (it holds {found}); renders.json and the renders would "
                    "sit beside its transforms files, and instant-ngp reads every *.json there as one. "
                    f"Choose another --out, e.g. {out / 'renders'}")
