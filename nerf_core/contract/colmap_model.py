@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import os
 import struct
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
@@ -330,6 +331,18 @@ def _numbers(path: Path, line: int, words: List[str], kind, what: str) -> list:
         raise ColmapError(f"{path}: line {line} ({what}): not a number in {' '.join(words)[:80]!r}") from None
 
 
+def _floats(path: Path, line: int, words: List[str], what: str) -> np.ndarray:
+    """``words`` as float64 in one C-level parse (a model's text holds millions of numbers); a word that
+    is not a number stops the parse short, which is how it is found."""
+    text = " ".join(words)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numpy warns where the parse stops; the count below says it
+        values = np.fromstring(text, dtype=np.float64, sep=" ")
+    if len(values) != len(words):
+        raise ColmapError(f"{path}: line {line} ({what}): not a number in {text[:80]!r}")
+    return values
+
+
 def read_cameras_txt(path: Path) -> Dict[int, Camera]:
     out = {}
     for line, w in _lines(path):
@@ -362,7 +375,7 @@ def read_images_txt(path: Path) -> Dict[int, Image]:
         pline, pw = rows[k + 1]
         if len(pw) % 3:
             raise ColmapError(f"{path}: line {pline}: image {iid}'s 2D points are not triples X Y POINT3D_ID")
-        pts = np.array(_numbers(path, pline, pw, float, f"image {iid}'s 2D points"), np.float64).reshape(-1, 3)
+        pts = _floats(path, pline, pw, f"image {iid}'s 2D points").reshape(-1, 3)
         out[iid] = Image(iid, np.array(vals[:4]), np.array(vals[4:7]), cid, name, pts[:, :2].copy(),
                          pts[:, 2].astype(np.int64))
     return out
@@ -385,11 +398,14 @@ def read_points_txt(path: Path) -> Points:
     for line, w in _lines(path):
         if len(w) < 8 or (len(w) - 8) % 2:
             raise ColmapError(f"{path}: line {line}: expected POINT3D_ID X Y Z R G B ERROR TRACK[]")
-        ids.append(_numbers(path, line, w[:1], int, "point")[0])
-        xyz.append(_numbers(path, line, w[1:4], float, f"point {ids[-1]}"))
-        rgb.append(_numbers(path, line, w[4:7], int, f"point {ids[-1]}"))
-        err.append(_numbers(path, line, w[7:8], float, f"point {ids[-1]}")[0])
-        tracks.append(np.array(_numbers(path, line, w[8:], int, f"point {ids[-1]}"), np.int64).reshape(-1, 2))
+        v = _floats(path, line, w, "point")
+        if not (v[:1] == np.round(v[:1])).all() or not (v[8:] == np.round(v[8:])).all():
+            raise ColmapError(f"{path}: line {line}: point {w[0]}: its id and track must be integers")
+        ids.append(int(v[0]))
+        xyz.append(v[1:4])
+        rgb.append(v[4:7])
+        err.append(v[7])
+        tracks.append(v[8:].astype(np.int64).reshape(-1, 2))
     if not ids:
         return Points.empty()
     return Points(np.array(ids, np.int64), np.array(xyz), np.clip(rgb, 0, 255).astype(np.uint8), np.array(err), tracks)
@@ -415,7 +431,9 @@ def write_images_txt(path: Path, images: Dict[int, Image]) -> None:
              f"# Number of images: {len(images)}, mean observations per image: {n2d / max(1, len(images)):g}"]
     for im in images.values():
         lines.append(" ".join([str(im.id)] + [_fmt(v) for v in (*im.qvec, *im.tvec)] + [str(im.camera_id), im.name]))
-        lines.append(" ".join(f"{_fmt(x)} {_fmt(y)} {int(p)}" for (x, y), p in zip(im.xys, im.point3D_ids)))
+        # one C-level format for the whole line (%r: the shortest text that reads back as the same float64)
+        xs, ys, ids = im.xys[:, 0].tolist(), im.xys[:, 1].tolist(), [int(v) for v in im.point3D_ids]
+        lines.append(("%r %r %d " * len(ids) % tuple(v for t in zip(xs, ys, ids) for v in t)).rstrip())
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
@@ -423,10 +441,11 @@ def write_points_txt(path: Path, pts: Points) -> None:
     lines = ["# 3D point list with one line of data per point:",
              "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
              f"# Number of points: {len(pts)}"]
-    for k in range(len(pts)):
-        lines.append(" ".join([str(int(pts.ids[k]))] + [_fmt(v) for v in pts.xyz[k]]
-                              + [str(int(v)) for v in pts.rgb[k]] + [_fmt(pts.error[k])]
-                              + [str(int(v)) for v in np.asarray(pts.tracks[k]).ravel()]))
+    xyz, rgb, err = pts.xyz.tolist(), pts.rgb.tolist(), pts.error.tolist()
+    for k, pid in enumerate(pts.ids.tolist()):
+        track = np.asarray(pts.tracks[k]).ravel().tolist()
+        lines.append(("%d %r %r %r %d %d %d %r" + " %d" * len(track))
+                     % (pid, *map(float, xyz[k]), *rgb[k], float(err[k]), *track))
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
@@ -453,12 +472,25 @@ def read_model(folder: Path | str) -> Model:
         if im.camera_id not in cameras:
             raise ColmapError(f"{files['images']}: image {im.id} ({im.name}) refers to camera {im.camera_id}, "
                               f"which {files['cameras'].name} lacks (it has {sorted(cameras)[:8]})")
-    for pid, track in zip(points.ids, points.tracks):
-        for iid, idx in track:
-            if int(iid) not in images or not 0 <= int(idx) < len(images[int(iid)].point3D_ids):
-                raise ColmapError(f"{files['points3D']}: point {int(pid)}'s track names image {int(iid)}, 2D point "
-                                  f"{int(idx)}, which {files['images'].name} does not have")
+    _check_tracks(points, images, files)
     return Model(cameras, images, points)
+
+
+def _check_tracks(points: Points, images: Dict[int, Image], files: Dict[str, Path]) -> None:
+    """ColmapError for the first track element naming an image or a 2D point ``images`` lacks (vectorised:
+    a model holds millions of observations)."""
+    if not len(points) or not any(len(t) for t in points.tracks):
+        return
+    elems = np.concatenate([np.asarray(t, np.int64).reshape(-1, 2) for t in points.tracks])
+    owner = np.repeat(points.ids, [len(t) for t in points.tracks])
+    ids = np.array(sorted(images), np.int64)
+    n2d = np.array([len(images[int(i)].point3D_ids) for i in ids], np.int64)
+    at = np.clip(np.searchsorted(ids, elems[:, 0]), 0, max(len(ids) - 1, 0))
+    ok = (len(ids) > 0) & (ids[at] == elems[:, 0]) & (elems[:, 1] >= 0) & (elems[:, 1] < n2d[at])
+    if not ok.all():
+        k = int(np.argmin(ok))
+        raise ColmapError(f"{files['points3D']}: point {int(owner[k])}'s track names image {int(elems[k, 0])}, "
+                          f"2D point {int(elems[k, 1])}, which {files['images'].name} does not have")
 
 
 def write_model(folder: Path | str, model: Model, exts: Tuple[str, ...] = (".bin", ".txt")) -> None:

@@ -198,15 +198,18 @@ def _points_model(root: Path, images: Dict[int, Image], track_views: List[dict],
         notes.append(f"{ply}: {int((~keep).sum())} of {len(keep)} point(s) are seen by no train image "
                      "(outside every frame, behind every camera, or hidden): dropped")
     new_id = np.cumsum(keep) * keep  # point k -> COLMAP id 1..m, 0 when dropped
-    per_point: List[list] = [[] for _ in range(len(keep))]
     for view, (idx, uv) in zip(track_views, seen):
         im = images[view["id"]]
         im.xys, im.point3D_ids = uv, new_id[idx].astype(np.int64)
-        for k2d, p in enumerate(idx):
-            per_point[p].append((view["id"], k2d))
+    # every observation (point, image id, index of the point among the image's 2D points), grouped by point
+    obs_p = np.concatenate([idx for idx, _ in seen] + [np.zeros(0, np.int64)]).astype(np.int64)
+    obs = np.concatenate([np.stack([np.full(len(idx), v["id"]), np.arange(len(idx))], 1)
+                          for v, (idx, _) in zip(track_views, seen)] + [np.zeros((0, 2), np.int64)]).astype(np.int64)
+    order = np.argsort(obs_p, kind="stable")
+    per_point = np.split(obs[order], np.cumsum(np.bincount(obs_p, minlength=len(keep)))[:-1])
     kept = np.nonzero(keep)[0]
     return Points(new_id[kept].astype(np.int64), geo.points[kept], colors[kept], np.zeros(len(kept)),
-                  [np.asarray(per_point[p], np.int64).reshape(-1, 2) for p in kept]), int((~keep).sum())
+                  [per_point[p] for p in kept]), int((~keep).sum())
 
 
 def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = ("train",), overwrite: bool = False,
