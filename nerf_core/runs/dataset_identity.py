@@ -36,7 +36,7 @@ def dataset_images(path) -> Optional[Dict[str, List[int]]]:
     out: Dict[str, List[int]] = {}
     for frames in splits.values():
         for fr in frames:
-            for f in (fr.image, fr.depth, fr.mask):
+            for f in (fr.image, fr.depth, fr.mask, fr.alpha):
                 if f is None:
                     continue
                 try:
