@@ -18,8 +18,8 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
 - ``film``: the ``pixel_filter`` field (the film filter a dataset's images were rendered through);
 - ``camera_path``: nerfstudio's camera_path.json, read and written; ``camera_files``: the cameras of any
   transforms file (imported into Blender); ``nerfstudio_frame``: nerfstudio's dataparser transform;
-- ``colmap_model``: COLMAP's sparse model files, read and written; ``colmap_dataset``: a COLMAP folder as
-  frames (the ``colmap`` layout) and our cameras as COLMAP's;
+- ``colmap_model``: COLMAP's sparse model files, read and written (``colmap_poses``: its pose rule);
+  ``colmap_dataset``: a COLMAP folder as frames (the ``colmap`` layout) and our cameras as COLMAP's;
 - ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run.
 """
 from __future__ import annotations
