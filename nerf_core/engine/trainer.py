@@ -357,7 +357,7 @@ class Trainer:
             callback.start(self)
         self._params_changed = False
         while not cfg.finished(state.step, state.elapsed):
-            if not self._step(batcher, stop):
+            if not self.step(batcher, stop):
                 continue
             bar.set(cfg.bar_done(bar_unit, state.step, state.elapsed),
                     info=f"step {state.step} loss {state.last_loss:.4f} psnr {state.last_psnr:.2f}")
@@ -372,7 +372,7 @@ class Trainer:
         last = state.last_loss
         bar.close(info=f"step {state.step} loss {last if last is not None else float('nan'):.4f}")
 
-    def _step(self, batcher: Batcher, stop: DeferredInterrupts) -> bool:
+    def step(self, batcher: Batcher, stop: DeferredInterrupts) -> bool:
         """One optimisation step; False when it was rolled back instead (a bad loss or gradient)."""
         state, model = self.state, self.model
         t0 = time.perf_counter()
