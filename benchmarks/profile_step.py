@@ -41,6 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("--batch-rays", type=int, default=64, help="rays per training step (--train; default 64)")
     ap.add_argument("--method", help="method to train (--train; default: the trainer's default)")
     ap.add_argument("--res", type=int, help="resample the grids to this many cells first (vmgrid)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="rebuild the run's model with this option changed (e.g. grid_optimizer=sparse; repeatable)")
     ap.add_argument("--rays", type=int, default=2048)
     ap.add_argument("--steps", type=int, help="steps to time (default 15; --train: 300)")
     ap.add_argument("--threads", type=int, default=1)
@@ -65,15 +67,20 @@ def main(argv=None) -> int:
     from bench.profiler import training_batch
     from nerf_core.contract.errors import DatasetError
     from nerf_core.engine.optim import make_optimizer
-    from nerf_core.errors import RunError
+    from nerf_core.errors import RunError, TrainError
     from nerf_core.methods.vmgrid import VMGrid
+    from nerf_core.cli.options import parse_options
     from nerf_core.runs.checkpoints import load_run
+    from nerf_core.runs.weights import model_from_checkpoint
 
     torch.set_num_threads(args.threads)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     try:
-        model, *_ = load_run(args.run, device)
-    except RunError as exc:
+        model, _, ckpt = load_run(args.run, device)
+        if args.set:  # the same weights in a model built with the changed options
+            ckpt = {**ckpt, "options": {**ckpt["options"], **parse_options(args.set)}}
+            model = model_from_checkpoint(ckpt, device, args.run)
+    except (RunError, TrainError, ValueError) as exc:
         raise SystemExit(f"profile_step: {exc}")
     model.train()
     if args.res:

@@ -287,6 +287,12 @@ class RadianceModel(nn.Module):
     def set_replica_stats(self, stats: dict[str, float]) -> None:
         """Take the rank-averaged values of ``replica_stats``."""
 
+    def replica_masks(self) -> list[torch.Tensor]:
+        """Bool tensors the method keeps from its own training batch (the cells a sparse optimiser will
+        step), which under ``torchrun`` the trainer ORs over the ranks in place after the backward pass,
+        so that every rank steps the same cells with the same averaged gradients."""
+        return []
+
     @classmethod
     def size_options(cls, fine_res: float, texture: float, fine_share: float) -> tuple[dict, list[str]]:
         """``--size auto`` for this method (``nerf_core.methods.sizing.auto_size`` answers the questions,

@@ -26,10 +26,12 @@ import torch
 
 from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
+from nerf_core.fields.vm_touched import TouchedRows
 from nerf_core.methods import growth
 from nerf_core.methods.base import MAX_GRID_RES, RadianceModel, density_length
 from nerf_core.methods.registry import register
 from nerf_core.methods.vmgrid_options import VMGridOptions
+from nerf_core.optim import RowSparseAdam
 from nerf_core.utils import profiling
 from nerf_core.utils.running_mean import RunningMean
 from nerf_core.volume import grad_scaling, marching, sampling, volrend
@@ -84,6 +86,9 @@ class VMGrid(RadianceModel):
                                    view_freqs=o.view_freqs, seed=o.seed, density_shift=shift,
                                    density_scale=density_scale, view_dependent=o.view_dependent)
         self.occupancy = OccupancyGrid(field_box, o.occ_res)
+        # The sparse grid optimiser updates only the cells the step's lookups read: the field records them.
+        # Its gradients go into buffers zeroed where they were written, unless the TV prior writes everywhere.
+        self.field.touched = TouchedRows(sinks=o.tv_weight == 0) if o.grid_optimizer == "sparse" else None
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
         # Running mean opacity of the training rays (see ``formed``): fed on the device every step, read
@@ -238,10 +243,37 @@ class VMGrid(RadianceModel):
     # ------------------------------------------------------------------ optimisation
 
     def param_groups(self, lr: float) -> list[dict]:
-        return [
-            {"params": self.field.grid_parameters(), "lr": lr * self.opts.grid_lr_scale, "name": "grids"},
-            {"params": self.field.network_parameters(), "lr": lr, "name": "networks"},
-        ]
+        grids = {"params": self.field.grid_parameters(), "lr": lr * self.opts.grid_lr_scale, "name": "grids"}
+        if self.field.touched is not None:
+            grids["row_sparse"] = True  # each cell's R components are one row (``RowSparseAdam``)
+        return [grids, {"params": self.field.network_parameters(), "lr": lr, "name": "networks"}]
+
+    def make_optimizer(self, lr: float):
+        if self.field.touched is None:
+            return super().make_optimizer(lr)
+        return RowSparseAdam(self.optimizer_groups(lr), eps=self.adam_eps, bias=self.opts.sparse_bias)
+
+    def optimizer_step(self, opt, out) -> None:
+        """Dense Adam, or the sparse one over the cells this step's lookups read; the L1 prior then
+        acts on those cells too (its gradient is added here, on them alone, instead of over the grid)."""
+        touched = self.field.touched
+        if touched is None:
+            opt.step()
+            return
+        f = self.field
+        names = ("density_planes_cl", "density_lines_cl", "app_planes_cl", "app_lines_cl")  # grid_parameters' order
+        rows = {p: touched.rows(name) for name, p in zip(names, f.grid_parameters())}
+        if self.opts.l1_weight > 0 and self.formed():
+            for p in (f.density_planes_cl, f.density_lines_cl):
+                idx = rows[p]
+                if p.grad is not None and idx is not None and idx.numel():
+                    table, grad = p.detach().view(-1, p.shape[-1]), p.grad.view(-1, p.shape[-1])
+                    # d/dx of l1_weight * mean|x| (``image.losses.l1_sparsity``), at the touched cells
+                    grad.index_add_(0, idx, table.index_select(0, idx).sign(), alpha=self.opts.l1_weight / p.numel())
+        opt.step(rows={p: idx for p, idx in rows.items() if idx is not None})
+
+    def replica_masks(self) -> list:
+        return [] if self.field.touched is None else self.field.touched.masks_for_replicas()
 
     def run_state(self) -> dict:
         return {"resolution": self.field.resolution, "res_final_budget": self.res_final_budget}
@@ -329,6 +361,8 @@ class VMGrid(RadianceModel):
         pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, 0.5 * (t0 + t1)))
         gscale = None
         if torch.is_grad_enabled():
+            if self.field.touched is not None:
+                self.field.touched.clear()  # the cells this render reads, and only those, are stepped
             # Early ray termination: find the visible samples without grad, then recompute their density
             # with grad (and even out the gradient near each lens when cameras are inside the box).
             with torch.no_grad():
@@ -378,7 +412,8 @@ class VMGrid(RadianceModel):
         # tiny, and Adam scales every parameter's step to the same size whatever its gradient, so L1
         # alone would drive both factors of the VM products to zero: a saddle (d(plane*line) = 0 there)
         # that training never leaves, seen as a run stuck at its initial PSNR for its whole budget.
-        use_l1 = o.l1_weight > 0 and self.formed()
+        # (The sparse grid optimiser applies it itself, at the touched cells: ``optimizer_step``.)
+        use_l1 = o.l1_weight > 0 and self.field.touched is None and self.formed()
         with profiling.stage("field"):
             if use_l1:
                 aux = aux + o.l1_weight * self.field.density_l1()
