@@ -156,7 +156,10 @@ def _train(args, out: str, profile: bool):
             cpu.append(time.thread_time() - c0)
             return ok
 
+    from nerf_core.cli.options import parse_options
+
     cfg = TrainConfig(dataset=args.train, out=out, method=args.method, max_steps=args.steps, seed=0,
+                      options=parse_options(args.set),
                       device=args.device, batch_rays=args.batch_rays, eval_views=0, preview_every=10 ** 9,
                       checkpoint_every=10 ** 9, stdout_events=False, show_bar=False)
     if not profile:

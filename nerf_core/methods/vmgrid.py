@@ -263,14 +263,10 @@ class VMGrid(RadianceModel):
         f = self.field
         names = ("density_planes_cl", "density_lines_cl", "app_planes_cl", "app_lines_cl")  # grid_parameters' order
         rows = {p: touched.rows(name) for name, p in zip(names, f.grid_parameters())}
-        if self.opts.l1_weight > 0 and self.formed():
-            for p in (f.density_planes_cl, f.density_lines_cl):
-                idx = rows[p]
-                if p.grad is not None and idx is not None and idx.numel():
-                    table, grad = p.detach().view(-1, p.shape[-1]), p.grad.view(-1, p.shape[-1])
-                    # d/dx of l1_weight * mean|x| (``image.losses.l1_sparsity``), at the touched cells
-                    grad.index_add_(0, idx, table.index_select(0, idx).sign(), alpha=self.opts.l1_weight / p.numel())
-        opt.step(rows={p: idx for p, idx in rows.items() if idx is not None})
+        # d/dx of l1_weight * mean|x| (``image.losses.l1_sparsity``) is l1_weight / numel * sign(x)
+        l1 = ({p: self.opts.l1_weight / p.numel() for p in (f.density_planes_cl, f.density_lines_cl)}
+              if self.opts.l1_weight > 0 and self.formed() else None)
+        opt.step(rows={p: idx for p, idx in rows.items() if idx is not None}, l1=l1)
 
     def replica_masks(self) -> list:
         return [] if self.field.touched is None else self.field.touched.masks_for_replicas()

@@ -56,12 +56,15 @@ class RowSparseAdam(TrainingOptimizer, torch.optim.Adam):
         return super().state_shape(key, param)
 
     @torch.no_grad()
-    def step(self, rows: Optional[Mapping[torch.Tensor, Optional[torch.Tensor]]] = None, closure=None):
+    def step(self, rows: Optional[Mapping[torch.Tensor, Optional[torch.Tensor]]] = None,
+             l1: Optional[Mapping[torch.Tensor, float]] = None, closure=None):
         """One update.
 
         Args:
             rows: parameter -> the rows (k,) long it touched, for the row-sparse parameters; a parameter
                 missing here (or ``rows`` None) is updated at every row (a dense step, still per row).
+            l1: parameter -> c: add the gradient of an L1 prior, ``c * sign(p)``, at the rows stepped
+                (a prior that acts on the touched cells, at no extra pass).
             closure: not supported (None).
         """
         if closure is not None:
@@ -79,9 +82,9 @@ class RowSparseAdam(TrainingOptimizer, torch.optim.Adam):
             if g["row_sparse"]:
                 for p in g["params"]:
                     if p.grad is not None:
-                        self._update_rows(p, g, None if rows is None else rows.get(p))
+                        self._update_rows(p, g, None if rows is None else rows.get(p), (l1 or {}).get(p, 0.0))
 
-    def _update_rows(self, p: torch.Tensor, group: dict, idx: Optional[torch.Tensor]) -> None:
+    def _update_rows(self, p: torch.Tensor, group: dict, idx: Optional[torch.Tensor], l1: float) -> None:
         st = self.state[p]
         table = _rows(p)
         if not st:
@@ -95,6 +98,9 @@ class RowSparseAdam(TrainingOptimizer, torch.optim.Adam):
         b1, b2 = group["betas"]
         m_all, v_all = _rows(st["exp_avg"]), _rows(st["exp_avg_sq"])
         g = p.grad.reshape(table.shape).index_select(0, idx)
+        values = table.index_select(0, idx)
+        if l1:
+            g = g.add_(values.sign(), alpha=l1)
         m = m_all.index_select(0, idx).mul_(b1).add_(g, alpha=1 - b1)
         v = v_all.index_select(0, idx).mul_(b2).addcmul_(g, g, value=1 - b2)
         m_all.index_copy_(0, idx, m)
@@ -104,4 +110,5 @@ class RowSparseAdam(TrainingOptimizer, torch.optim.Adam):
             st["row_step"].index_copy_(0, idx, s)
             m = m.div_((1.0 - torch.pow(b1, s)).unsqueeze(-1))
             v = v.div_((1.0 - torch.pow(b2, s)).unsqueeze(-1))
-        table.index_add_(0, idx, m.div_(v.sqrt_().add_(group["eps"])), alpha=-group["lr"])
+        # index_copy, not index_add: the rows are distinct, and a copy needs no accumulation
+        table.index_copy_(0, idx, values.sub_(m.div_(v.sqrt_().add_(group["eps"])), alpha=group["lr"]))

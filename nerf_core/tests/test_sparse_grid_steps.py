@@ -119,3 +119,11 @@ def test_vmgrid_with_the_sparse_optimiser_steps_only_touched_cells_and_trains(sp
         assert set(moved.nonzero().squeeze(-1).tolist()) <= set(marked.tolist())
     assert moved.float().mean() < 0.9  # a batch touches part of the grid
     assert losses[-1] < losses[0]
+
+
+def test_the_l1_prior_acts_at_the_stepped_rows_only():
+    p = torch.nn.Parameter(torch.tensor([[2.0, -2.0], [3.0, 3.0]]))
+    opt = RowSparseAdam([{"params": [p], "lr": 0.1, "row_sparse": True}], eps=1e-15)
+    p.grad = torch.zeros(2, 2)  # the rendering's gradient: nothing; the prior pulls towards 0
+    opt.step(rows={p: torch.tensor([0])}, l1={p: 0.5})
+    assert p.detach().reshape(-1).tolist() == pytest.approx([1.9, -1.9, 3.0, 3.0], abs=1e-6)
