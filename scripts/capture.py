@@ -240,7 +240,7 @@ def main(argv: list[str]) -> int:
         return 130
     bar.close("done")
     if args.save_blend:
-        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save_blend), copy=True)
+        _bootstrap.save_blend("capture", os.path.abspath(args.save_blend))
     print(json.dumps(summary), flush=True)
     return 0
 

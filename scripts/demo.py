@@ -31,6 +31,10 @@ import time
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPTS = os.path.join(REPO_ROOT, "scripts")
+if REPO_ROOT not in sys.path:
+    sys.path.insert(0, REPO_ROOT)
+
+from nerf_core.utils.atomic import open_exclusive  # noqa: E402  (each log is a new file, never through a link)
 
 
 class StepFailed(RuntimeError):
@@ -44,7 +48,7 @@ def run_step(title: str, cmd: list[str], log_dir: str, capture_stdout: bool = Fa
     start = time.monotonic()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    with open(log_path, "w") as log:
+    with open_exclusive(log_path, binary=False) as log:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
                                 cwd=REPO_ROOT)
         lines = []

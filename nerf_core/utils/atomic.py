@@ -1,5 +1,5 @@
-"""Atomic file writes: the one home of write-to-a-temporary-file-then-rename (standard library only,
-so the scripts import it under Blender's Python too).
+"""Atomic file writes: the one home of write-to-a-temporary-file-then-rename (standard library and
+``nerf_core.contract`` only, so the scripts import it under Blender's Python too).
 
 A reader (another process, a crash, a full disk) never sees a half-written file: the content goes
 to a temporary file beside the target, which replaces the target only once it is complete. On
@@ -26,10 +26,11 @@ import json
 import os
 import secrets
 import shutil
-import stat
 import tempfile
 from pathlib import Path
 from typing import IO, Any, Iterator
+
+from nerf_core.contract.outputs import link_problem
 
 # A temporary's name: ``.NAME.<random>.tmp`` (a file) or ``.NAME.<random>.tmpdir/NAME`` (a private
 # folder, for writers that take a path): hidden from a folder listing, recognisable as a leftover.
@@ -50,18 +51,11 @@ def temp_name(path: Path, suffix: str = TEMP_SUFFIX) -> Path:
 
 def refuse_link(path: Path | str, flag: str = "") -> None:
     """Raise ``LinkRefused`` when ``path`` is a symbolic link (dangling or not) or exists as something
-    other than a regular file: a write replacing it would silently retarget a name the user made."""
-    try:
-        mode = os.lstat(path).st_mode
-    except FileNotFoundError:
-        return
-    except OSError as exc:
-        raise LinkRefused(f"{_named(path, flag)}: cannot be written ({os.strerror(exc.errno or 0).lower()})") from None
-    if stat.S_ISLNK(mode):
-        raise LinkRefused(f"{_named(path, flag)}: is a symbolic link (to {os.readlink(path)}); nothing is written "
-                          "through a link. Remove the link or name another file")
-    if not stat.S_ISREG(mode):
-        raise LinkRefused(f"{_named(path, flag)}: exists and is not a regular file; name another file")
+    other than a regular file (``contract.outputs.link_problem``): replacing it would silently retarget
+    a name the user made, or write where no file should go."""
+    problem = link_problem(path)
+    if problem:
+        raise LinkRefused(f"{_named(path, flag)}: {problem}")
 
 
 def _named(path: Path | str, flag: str) -> str:
@@ -128,19 +122,34 @@ def atomic_file(path: Path | str, binary: bool = True, flag: str = "", replace: 
 
 
 @contextlib.contextmanager
-def atomic_path(path: Path | str, flag: str = "") -> Iterator[Path]:
+def atomic_path(path: Path | str, flag: str = "", beside: bool = False) -> Iterator[Path]:
     """Yield a fresh path to write (for writers that take a name: PIL, OpenEXR, Blender's
     ``save_as_mainfile``); on a clean exit that file replaces ``path``.
 
     The path lies in a new private folder beside ``path`` (``mkdtemp``: exclusive, mode 0700), with
-    ``path``'s own name, so a writer that adds its own temporary (Blender's ``NAME@``) or a backup
-    (``NAME1``) does so inside it; the folder is removed in every case.
+    ``path``'s own name, so a writer that adds its own temporary or a backup does so inside it; the
+    folder is removed in every case. ``beside``: the path is a new file (``.NAME.<random>.tmp``,
+    reserved with ``O_EXCL``) in ``path``'s own folder instead, for writers whose output refers to
+    files relative to its folder (Blender's ``save_as_mainfile``: its ``NAME@`` temporary and
+    ``NAME1`` backup are removed afterwards too).
 
     Raises:
         ``LinkRefused`` when ``path`` is a symbolic link or no regular file; whatever the body raised.
     """
     path = Path(path)
     refuse_link(path, flag)
+    if beside:
+        tmp, fh = _new_temp(path, binary=True)
+        fh.close()
+        try:
+            yield tmp
+            refuse_link(tmp, flag)  # the writer replaced our reservation by its own file, never a link
+            _commit(tmp, path, flag)
+        finally:
+            for p in (tmp, Path(f"{tmp}@"), Path(f"{tmp}1")):
+                with contextlib.suppress(OSError):
+                    p.unlink()
+        return
     folder = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=TEMP_DIR_SUFFIX, dir=path.parent))
     tmp = folder / path.name
     try:
