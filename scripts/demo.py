@@ -34,7 +34,10 @@ SCRIPTS = os.path.join(REPO_ROOT, "scripts")
 if REPO_ROOT not in sys.path:
     sys.path.insert(0, REPO_ROOT)
 
-from nerf_core.utils.atomic import open_exclusive  # noqa: E402  (each log is a new file, never through a link)
+from nerf_core.utils.atomic import open_exclusive, write_json_atomic  # noqa: E402  (never through a link)
+from nerf_core.utils.interrupts import honour_interrupts  # noqa: E402
+
+honour_interrupts()  # Ctrl-C stops the demo even when its parent left SIGINT ignored (scripts/_bootstrap.py)
 
 
 class StepFailed(RuntimeError):
@@ -191,8 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         summary["gallery"] = last_json(gallery_out)
     except StepFailed:
         pass
-    with open(os.path.join(out, "metrics.json"), "w") as fh:
-        json.dump(summary, fh, indent=2)
+    write_json_atomic(os.path.join(out, "metrics.json"), summary)
     print("\n=== Done. Where everything went:")
     for key in ("blend", "dataset", "run", "comparison_gallery_blend", "comparison_camera_blend"):
         print(f"  {key:26s} {summary[key]}")

@@ -144,6 +144,7 @@ def check_output(path: Path | str, overwrite: bool, inputs: Optional[Mapping[str
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             raise OutputError(f"{flag} {text}: a symbolic link loop in its folders; choose another name") from None
+    check_not_an_input(out, text, inputs or {}, flag)  # first: a link to an input is named as the input
     problem = link_problem(out)
     if problem:
         raise OutputError(f"{flag} {text}: {problem}")
@@ -151,7 +152,6 @@ def check_output(path: Path | str, overwrite: bool, inputs: Optional[Mapping[str
         raise OutputError(f"{flag} {text}: this command writes a {suffix} file; name one ending in {suffix}")
     if need_folder and not out.parent.is_dir():
         raise OutputError(f"{flag} {text}: folder {out.parent} does not exist")
-    check_not_an_input(out, text, inputs or {}, flag)
     check_not_a_dataset_file(out, text, datasets_around(out) if protected is None else protected, flag)
     if os.path.lexists(out) and not overwrite:
         raise OutputError(f"{flag} {text}: exists; pass --overwrite to replace it, or choose another name")
