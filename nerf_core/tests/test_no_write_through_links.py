@@ -12,7 +12,9 @@ import pytest
 
 from nerf_core.cli.main import main
 from nerf_core.errors import TrainError
-from nerf_core.runs.folder import RUN_LOCK, lock_run_folder
+from nerf_core.export import run_export
+from nerf_core.runs.folder import RUN_LOCK, lock_run_folder, trainer_written
+from nerf_core.tests.test_export_mesh import SphereModel
 from nerf_core.utils import atomic
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="links and flock are POSIX here")
@@ -109,6 +111,18 @@ def test_a_checkpoint_that_is_a_link_is_refused_naming_it(sphere_dataset, tmp_pa
     assert "latest.pt" in _one_line(capsys) and user_file.read_text() == USER_TEXT
 
 
+def test_a_killed_writers_temporary_is_the_runs_own_for_overwrite(sphere_dataset, tmp_path, user_file):
+    run = tmp_path / "run"
+    assert _train(sphere_dataset, run) == 0
+    leftover = run / "checkpoints" / ".latest.pt.0123456789abcdef.tmp"  # what SIGKILL mid-save leaves
+    leftover.write_bytes(b"PK half")
+    planted = run / "checkpoints" / ".latest.pt.fedcba9876543210.tmp"
+    planted.symlink_to(user_file)  # a link is never the run's own: --overwrite leaves it
+    assert leftover in trainer_written(run) and planted not in trainer_written(run)
+    assert _train(sphere_dataset, run, "--overwrite") == 0
+    assert not leftover.exists() and user_file.read_text() == USER_TEXT
+
+
 # ------------------------------------------------------------------------------------------------ utils.atomic
 
 
@@ -157,3 +171,33 @@ def test_a_killed_writers_temporaries_are_recognised():
     assert atomic.is_leftover_temp(".latest.pt.0123456789abcdef.tmp")
     assert atomic.is_leftover_temp(".scene.blend.k2j_9xq1.tmpdir")
     assert not atomic.is_leftover_temp("latest.pt.tmp") and not atomic.is_leftover_temp(".hidden.tmp")
+
+
+# ------------------------------------------------------------------------------------------------ export
+
+
+@pytest.fixture
+def sphere_run(monkeypatch, tmp_path):
+    """``export`` on a run whose model is the analytic sphere (as test_export_mesh's ``fake_run``)."""
+    monkeypatch.setattr(run_export, "load_run", lambda run, device, checkpoint=None: (
+        SphereModel(), {"dataset": None}, {"step": 7, "method": "sphere"}))
+    return tmp_path / "run"
+
+
+@pytest.mark.parametrize("kind, name", [("mesh", "mesh.ply"), ("volume", "volume.npz")])
+@pytest.mark.parametrize("planted", ["symlink", "hardlink"])
+def test_a_stale_temporary_beside_an_export_is_never_written_through(sphere_run, tmp_path, user_file, capsys,
+                                                                     kind, name, planted):
+    out = tmp_path / name
+    for stale in (tmp_path / f".{name}.tmp", tmp_path / f"{name}.tmp"):  # the fixed names writers used
+        stale.symlink_to(user_file) if planted == "symlink" else os.link(user_file, stale)
+    assert main(["export", kind, str(sphere_run), "--out", str(out), "--resolution", "16"]) == 0
+    assert user_file.read_text() == USER_TEXT and out.is_file() and not out.is_symlink()
+
+
+@pytest.mark.parametrize("kind, name", [("mesh", "mesh.ply"), ("volume", "volume.npz")])
+def test_an_export_out_that_is_a_link_is_refused_before_the_work(sphere_run, tmp_path, user_file, capsys, kind, name):
+    out = tmp_path / name
+    out.symlink_to(user_file)
+    assert main(["export", kind, str(sphere_run), "--out", str(out), "--resolution", "16", "--overwrite"]) == 2
+    assert "symbolic link" in _one_line(capsys) and user_file.read_text() == USER_TEXT
