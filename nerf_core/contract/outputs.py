@@ -52,7 +52,7 @@ def link_problem(path: Path | str) -> Optional[str]:
     or not), a link loop, or something that is no regular file."""
     try:
         mode = os.lstat(path).st_mode
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # nothing there (a file in the way is named by its writer)
         return None
     except (OSError, ValueError) as exc:
         return f"cannot be written ({os.strerror(getattr(exc, 'errno', 0) or errno.EINVAL).lower()})"
