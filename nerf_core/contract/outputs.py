@@ -154,7 +154,7 @@ def check_output(path: Path | str, overwrite: bool, inputs: Optional[Mapping[str
         raise OutputError(f"{flag} {text}: folder {out.parent} does not exist")
     check_not_a_dataset_file(out, text, datasets_around(out) if protected is None else protected, flag)
     if os.path.lexists(out) and not overwrite:
-        raise OutputError(f"{flag} {text}: exists; pass --overwrite to replace it, or choose another name")
+        raise OutputError(f"{flag} {text} already exists; pass --overwrite to replace it, or choose another name")
     return out
 
 

@@ -98,7 +98,7 @@ def test_import_geometry_keeps_an_existing_vdb_beside_geometry_without_overwrite
     vdb = tmp_path / "X.vdb"
     vdb.write_bytes(b"a user's volume")
     _refused(_script("import_geometry.py", "--run", fake_run, "--kind", "volume", "--geometry", tmp_path / "X.npz",
-                     "--out", tmp_path / "out.blend"), "--geometry", "X.vdb", "exists")
+                     "--out", tmp_path / "out.blend"), "--geometry", "X.vdb", "already exists")
     assert vdb.read_bytes() == b"a user's volume"
 
 
