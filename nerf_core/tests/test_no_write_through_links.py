@@ -201,3 +201,16 @@ def test_an_export_out_that_is_a_link_is_refused_before_the_work(sphere_run, tmp
     out.symlink_to(user_file)
     assert main(["export", kind, str(sphere_run), "--out", str(out), "--resolution", "16", "--overwrite"]) == 2
     assert "symbolic link" in _one_line(capsys) and user_file.read_text() == USER_TEXT
+
+
+def test_render_never_writes_through_a_dangling_link_in_out(trained_run, tmp_path, capsys):
+    run, ds, out = trained_run["run"], trained_run["dataset"], tmp_path / "views"
+    render = ["render", str(run), "--cameras", str(ds / "transforms_test.json"), "--out", str(out), "--no-bar"]
+    assert main(render) == 0
+    image = sorted(out.glob("*.png"))[0]
+    image.unlink()
+    image.symlink_to(tmp_path / "elsewhere.png")
+    capsys.readouterr()
+    assert main([*render, "--overwrite"]) == 2
+    line = _one_line(capsys)
+    assert image.name in line and "symbolic link" in line and not (tmp_path / "elsewhere.png").exists()
