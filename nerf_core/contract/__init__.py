@@ -18,7 +18,8 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
 - ``film``: the ``pixel_filter`` field (the film filter a dataset's images were rendered through);
 - ``camera_path``: nerfstudio's camera_path.json, read and written; ``camera_files``: the cameras of any
   transforms file (imported into Blender); ``nerfstudio_frame``: nerfstudio's dataparser transform;
-- ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run.
+- ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run;
+- ``outputs``: the output rule (no link written through, no input replaced or deleted, no dataset file written).
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ import os
 import re
 from typing import Any, Dict, Optional
 
-from . import camera_files, camera_path, eight_bit, nerfstudio_frame  # noqa: F401 (the add-on reaches them as contract.X)
+from . import camera_files, camera_path, eight_bit, nerfstudio_frame, outputs  # noqa: F401 (the add-on reaches them as contract.X)
 from .errors import DatasetError, PoseError  # noqa: F401
 from .film import (  # noqa: F401
     DEFAULT_FILTER_KIND,

@@ -66,6 +66,7 @@ from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import (
     check_progress_file,
     check_run_folder,
+    check_run_layout,
     check_run_vs_dataset,
     clear_run_folder,
     dataset_hash,
@@ -146,6 +147,7 @@ class Trainer:
             # mix the trainer's files with the user's data, and --overwrite would delete from the dataset.
             check_run_vs_dataset(self.run, cfg.dataset)
             if main and self.run.is_dir():
+                check_run_layout(self.run)  # before the lock is opened: a link in the run is refused untouched
                 # Before anything else, so that a second trainer into a busy run learns who holds it
                 # (rather than that the folder is not empty) and never reads a half-written checkpoint.
                 self._unlock = lock_run_folder(self.run)
