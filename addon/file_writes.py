@@ -4,37 +4,88 @@ no Pillow): the add-on's one home for both. Standard library and numpy only, so 
 
 A file is written under a temporary name beside it and renamed over the target, so a reader (or a
 crash, or a full disk) never meets a truncated file; the temporary file is removed when writing fails.
+Nothing is written through a link (nerf_core's ``utils.atomic`` holds the same rule for the library):
+every temporary is a new file (``O_EXCL | O_NOFOLLOW``, a random part in its name), and a target that
+is a symbolic link is refused.
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
+import secrets
+import stat
 import struct
 import zlib
-from typing import Callable, Optional, TextIO, Union
+from typing import IO, Callable, Iterator, Optional, TextIO, Union
 
 import numpy as np
 
 PARTIAL_SUFFIX = ".partial"  # the temporary name's default suffix: ``<path>.partial``
 
 
-def write_atomic(path: str, data: Union[bytes, str, Callable[[TextIO], None]], tmp: Optional[str] = None) -> None:
-    """Write ``data`` to ``tmp`` (default ``path + ".partial"``), then rename it to ``path``: bytes, text
-    (UTF-8), or a function that writes text to the open file (``lambda fh: json.dump(obj, fh)``). On
-    OSError the temporary file is removed and the error raised again."""
-    tmp = tmp or path + PARTIAL_SUFFIX
+def refuse_link(path: str) -> None:
+    """OSError naming ``path`` when it is a symbolic link (dangling or not) or no regular file."""
     try:
-        if isinstance(data, bytes):
-            with open(tmp, "wb") as fh:
-                fh.write(data)
-        else:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(data) if isinstance(data, str) else data(fh)
-        os.replace(tmp, path)
-    except OSError:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(mode):
+        raise OSError(f"{path} is a symbolic link (to {os.readlink(path)}); nothing is written through a link")
+    if not stat.S_ISREG(mode):
+        raise OSError(f"{path} exists and is not a regular file")
+
+
+def _open_new(tmp: str, binary: bool) -> IO:
+    def opener(name: str, flags: int) -> int:  # mode "x": O_CREAT | O_EXCL; never through a link
+        return os.open(name, flags | getattr(os, "O_NOFOLLOW", 0), 0o666)
+
+    return open(tmp, "xb", opener=opener) if binary else open(tmp, "x", encoding="utf-8", opener=opener)
+
+
+@contextlib.contextmanager
+def partial_file(path: str, tmp: Optional[str] = None, binary: bool = True) -> Iterator[IO]:
+    """Yield a new temporary file beside ``path`` (its name: ``tmp``, default ``path + ".partial"``, and a
+    random part), open for writing; on a clean exit it replaces ``path``, else it is removed."""
+    refuse_link(path)
+    name = f"{tmp or path + PARTIAL_SUFFIX}.{secrets.token_hex(4)}"
+    fh = _open_new(name, binary)
+    try:
+        with fh:
+            yield fh
+        refuse_link(path)
+        os.replace(name, path)
+    finally:
+        if os.path.lexists(name):
+            os.remove(name)
+
+
+@contextlib.contextmanager
+def partial_path(path: str, tmp: Optional[str] = None) -> Iterator[str]:
+    """``partial_file`` for writers that take a file name (Blender's ``save_render``, OpenVDB): the name
+    is reserved (created empty, exclusively), the writer replaces it, and it is renamed over ``path``."""
+    refuse_link(path)
+    stem, ext = os.path.splitext(tmp or path + PARTIAL_SUFFIX)
+    name = f"{stem}.{secrets.token_hex(4)}{ext}"  # the extension last: writers pick the format by it
+    _open_new(name, True).close()
+    try:
+        yield name
+        if os.path.islink(name):
+            raise OSError(f"{name} became a symbolic link while it was written")
+        refuse_link(path)
+        os.replace(name, path)
+    finally:
+        if os.path.lexists(name):
+            os.remove(name)
+
+
+def write_atomic(path: str, data: Union[bytes, str, Callable[[TextIO], None]], tmp: Optional[str] = None) -> None:
+    """Write ``data`` through a new temporary file (``partial_file``; named after ``tmp``, default
+    ``path + ".partial"``), then rename it to ``path``: bytes, text (UTF-8), or a function that writes
+    text to the open file (``lambda fh: json.dump(obj, fh)``). On OSError the temporary file is removed
+    and the error raised again."""
+    with partial_file(path, tmp, binary=isinstance(data, bytes)) as fh:
+        fh.write(data) if isinstance(data, (bytes, str)) else data(fh)
 
 
 def png_bytes(rows: bytes, width: int, height: int, bit_depth: int, colour_type: int) -> bytes:

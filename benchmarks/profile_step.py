@@ -41,6 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("--batch-rays", type=int, default=64, help="rays per training step (--train; default 64)")
     ap.add_argument("--method", help="method to train (--train; default: the trainer's default)")
     ap.add_argument("--res", type=int, help="resample the grids to this many cells first (vmgrid)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="rebuild the run's model with this option changed (e.g. grid_optimizer=sparse; repeatable)")
     ap.add_argument("--rays", type=int, default=2048)
     ap.add_argument("--steps", type=int, help="steps to time (default 15; --train: 300)")
     ap.add_argument("--threads", type=int, default=1)
@@ -62,40 +64,45 @@ def main(argv=None) -> int:
 
     import torch
 
-    from bench.profiler import training_rays
+    from bench.profiler import training_batch
+    from nerf_core.contract.errors import DatasetError
     from nerf_core.engine.optim import make_optimizer
-    from nerf_core.errors import RunError
+    from nerf_core.errors import RunError, TrainError
     from nerf_core.methods.vmgrid import VMGrid
+    from nerf_core.cli.options import parse_options
     from nerf_core.runs.checkpoints import load_run
+    from nerf_core.runs.weights import model_from_checkpoint
 
     torch.set_num_threads(args.threads)
     device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     try:
-        model, *_ = load_run(args.run, device)
-    except RunError as exc:
+        model, _, ckpt = load_run(args.run, device)
+        if args.set:  # the same weights in a model built with the changed options
+            ckpt = {**ckpt, "options": {**ckpt["options"], **parse_options(args.set)}}
+            model = model_from_checkpoint(ckpt, device, args.run)
+    except (RunError, TrainError, ValueError) as exc:
         raise SystemExit(f"profile_step: {exc}")
     model.train()
     if args.res:
         if not isinstance(model, VMGrid):
             raise SystemExit(f"profile_step: --res: method {model.method_name!r} has no grids to resample")
         model.field.upsample(args.res)
-    o, d, near, far, rgba, _ = training_rays(args.dataset, args.rays)
-    as_t = lambda a: torch.as_tensor(a, dtype=torch.float32, device=device)  # noqa: E731
-    rays_o, rays_d, t_near, t_far = as_t(o), as_t(d), as_t(near), as_t(far)
-    target = as_t(rgba[:, :3] * rgba[:, 3:] + (1 - rgba[:, 3:]))
-    background = torch.ones_like(target)
+    try:  # through the library's own loader: any layout it reads
+        batch, near, far = training_batch(args.dataset, model, args.rays, device)
+    except DatasetError as exc:
+        raise SystemExit(f"profile_step: {exc}")
     opt = make_optimizer(model, 1e-3)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     # CPU time of this thread is steadier on a shared machine, but counts one thread only: wall time
     # whenever torch (or the native kernel) may run on more than one.
     clock = time.thread_time if device.type == "cpu" and args.threads == 1 else time.perf_counter
 
-    def step():
-        out = model.render_rays(rays_o, rays_d, t_near, t_far, background, training=True)
-        loss, _ = model.loss(out, target, None)
+    def step():  # the trainer's step, less its checks: the method's render, loss and optimiser step
+        out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, near, far, training=True)
+        loss, _ = model.loss(out, batch.target, batch.weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
-        opt.step()
+        model.optimizer_step(opt, out)
 
     for _ in range(3):
         step()
@@ -124,7 +131,7 @@ def main(argv=None) -> int:
 
 
 def _train(args, out: str, profile: bool):
-    """Train a fresh run into ``out``. Returns ((wall, CPU time of this thread) in seconds per ``_step``
+    """Train a fresh run into ``out``. Returns ((wall, CPU time of this thread) in seconds per ``step``
     call, None) or, with ``profile``, (None, ``StepCounts``)."""
     import torch
 
@@ -134,36 +141,37 @@ def _train(args, out: str, profile: bool):
 
     cuda = args.device == "cuda"
     sync = torch.cuda.synchronize if cuda else (lambda: None)
-    original = trainer_mod.Trainer._step
     spent, cpu = [], []
 
-    def timed_step(self, *a, **k):
-        t0, c0 = time.perf_counter(), time.thread_time()
-        with torch.profiler.record_function(STEP_MARK):
-            ok = original(self, *a, **k)
-        if self.cfg.finished(self.state.step, self.state.elapsed):
-            sync()  # the last step's queued kernels belong to the steps' time
-        spent.append(time.perf_counter() - t0)
-        cpu.append(time.thread_time() - c0)
-        return ok
+    class TimedTrainer(trainer_mod.Trainer):
+        """The trainer, each of its steps timed and marked for the profiler."""
+
+        def step(self, *a, **k):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            with torch.profiler.record_function(STEP_MARK):
+                ok = super().step(*a, **k)
+            if self.cfg.finished(self.state.step, self.state.elapsed):
+                sync()  # the last step's queued kernels belong to the steps' time
+            spent.append(time.perf_counter() - t0)
+            cpu.append(time.thread_time() - c0)
+            return ok
+
+    from nerf_core.cli.options import parse_options
 
     cfg = TrainConfig(dataset=args.train, out=out, method=args.method, max_steps=args.steps, seed=0,
+                      options=parse_options(args.set),
                       device=args.device, batch_rays=args.batch_rays, eval_views=0, preview_every=10 ** 9,
                       checkpoint_every=10 ** 9, stdout_events=False, show_bar=False)
-    trainer_mod.Trainer._step = timed_step
-    try:
-        if not profile:
-            trainer_mod.train(cfg)
-            n = max(1, len(spent))
-            return (sum(spent) / n, sum(cpu) / n), None
-        from torch.profiler import ProfilerActivity, profile as torch_profile
+    if not profile:
+        TimedTrainer(cfg).fit()
+        n = max(1, len(spent))
+        return (sum(spent) / n, sum(cpu) / n), None
+    from torch.profiler import ProfilerActivity, profile as torch_profile
 
-        acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
-        with torch_profile(activities=acts) as prof:
-            trainer_mod.train(cfg)
-        return None, count_steps(prof.events())
-    finally:
-        trainer_mod.Trainer._step = original
+    acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+    with torch_profile(activities=acts) as prof:
+        TimedTrainer(cfg).fit()
+    return None, count_steps(prof.events())
 
 
 def train_counts(args) -> int:

@@ -33,7 +33,7 @@ def test_out_equal_to_scene_is_refused(setup):
     tmp, scene, run, call = setup
     before = scene.read_bytes()
     proc = call("--out", str(scene), "--overwrite")
-    assert proc.returncode == 2 and "is the scene file itself" in proc.stderr
+    assert proc.returncode == 2 and "is the same file as" in proc.stderr and "never replaces an input" in proc.stderr
     assert scene.read_bytes() == before
 
 

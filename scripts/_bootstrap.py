@@ -13,7 +13,6 @@ scripts share is here too: ``scene_parser`` (a parser with ``--blend``), ``add_p
 from __future__ import annotations
 
 import argparse
-import errno
 import os
 import sys
 
@@ -22,7 +21,14 @@ if REPO_ROOT not in sys.path:
     # Makes ``import addon`` and ``import nerf_core`` work from a checkout without installing.
     sys.path.insert(0, REPO_ROOT)
 
-from nerf_core.contract.paths import file_problem  # noqa: E402  (standard library + numpy: fine in Blender)
+from nerf_core.contract import outputs  # noqa: E402  (standard library + numpy: fine in Blender)
+from nerf_core.contract.paths import file_problem  # noqa: E402
+from nerf_core.utils.atomic import atomic_path  # noqa: E402  (standard library: fine in Blender)
+from nerf_core.utils.interrupts import honour_interrupts  # noqa: E402  (standard library)
+
+# Every stop is honoured: a script started with SIGINT ignored (as a farm manager or Blender starts
+# jobs) would ignore Ctrl-C and go on to save its output. The CLI does the same (cli/main.py).
+honour_interrupts()
 
 
 def inside_blender() -> bool:
@@ -66,52 +72,58 @@ def fail(prog: str, message: str) -> None:
     exit_code(2)
 
 
-def same_file(a: str, b: str) -> bool:
-    """Whether two paths name one file: by identity (device and inode), through links and relative
-    paths; two paths of which one does not exist are not the same file."""
-    try:
-        return os.path.samefile(a, b)
-    except (OSError, ValueError):
-        return False
-
-
-def check_output(prog: str, flag: str, path: str, overwrite: bool, inputs: dict) -> str:
-    """The one rule for every script's output file: an absolute path that is not a link loop, that
-    exists only with ``overwrite``, and that is none of the ``inputs`` ({flag: path or None}; under
-    Blender the open .blend counts as one). ``fail``s naming the flags otherwise."""
-    out = os.path.abspath(path)
-    try:
-        os.stat(out)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            fail(prog, f"{flag} {path}: a symbolic link loop (a link that points back to itself); remove it "
-                       "or choose another name")
-    except ValueError:
-        fail(prog, f"{flag} {path!r}: not a usable file name")
-    found = {k: v for k, v in inputs.items() if v}
+def _inputs(inputs: dict | None) -> dict:
+    """``inputs`` ({flag: path or None}), and under Blender the open .blend ("the open scene")."""
+    found = {k: v for k, v in (inputs or {}).items() if v}
     if inside_blender():
         import bpy
 
         if bpy.data.filepath:
             found.setdefault("the open scene", bpy.data.filepath)
-    for name, src in found.items():
-        if same_file(out, src):
-            fail(prog, f"{flag} {path} is the same file as {name} {src}; an output never replaces an input. "
-                       "Choose another name")
-    if os.path.lexists(out) and not overwrite:
-        fail(prog, f"{flag} {out} already exists; pass --overwrite or choose another file")
-    return out
+    return found
+
+
+def check_output(prog: str, flag: str, path: str, overwrite: bool, inputs: dict, suffix: str = "",
+                 need_folder: bool = False) -> str:
+    """The one output rule (``nerf_core.contract.outputs.check_output``) for a script's output file:
+    no link written through, no input replaced (compared by identity; under Blender the open .blend
+    counts as one), no dataset's own file, an existing file only with ``overwrite``; ``need_folder``:
+    its folder must exist (else the script makes it). Returns the
+    absolute path; ``fail``s with one line naming the flag otherwise."""
+    try:
+        return str(outputs.check_output(path, overwrite, _inputs(inputs), flag=flag, suffix=suffix,
+                                        need_folder=need_folder))
+    except outputs.OutputError as exc:
+        fail(prog, str(exc))
+
+
+def check_outputs_in(prog: str, flag: str, folder: str, names: list, overwrite: bool, inputs: dict) -> list:
+    """The output rule for the files ``names`` a script writes into ``folder`` (``check_output`` for each)."""
+    try:
+        return [str(p) for p in outputs.check_outputs_in(folder, names, overwrite, _inputs(inputs), flag=flag)]
+    except outputs.OutputError as exc:
+        fail(prog, str(exc))
 
 
 def out_blend(prog: str, path: str, overwrite: bool, inputs: dict | None = None) -> str:
-    """``--out OUT.blend`` as an absolute path; ``fail``s naming the flag when it does not end in .blend,
-    exists without ``overwrite``, is one of ``inputs`` (``check_output``) or its folder is missing."""
-    if not os.path.abspath(path).endswith(".blend"):
-        fail(prog, f"--out {path!r}: must name a .blend file")
-    out = check_output(prog, "--out", path, overwrite, inputs or {})
-    if not os.path.isdir(os.path.dirname(out)):
-        fail(prog, f"--out {out}: folder {os.path.dirname(out)} does not exist")
-    return out
+    """``--out OUT.blend`` as an absolute path, by the output rule (``check_output``): it must end in
+    .blend, sit in an existing folder, and be none of ``inputs`` (the open scene included)."""
+    return check_output(prog, "--out", path, overwrite, inputs or {}, suffix=".blend", need_folder=True)
+
+
+def save_blend(prog: str, out: str) -> None:
+    """Save the open scene as a copy at ``out`` (checked by ``out_blend``), atomically: Blender writes a
+    fresh private name (``utils.atomic.atomic_path``), never through a link, and a failed save leaves
+    ``out`` as it was. ``fail``s naming the file."""
+    import bpy
+
+    try:
+        with atomic_path(out, flag="--out", beside=True) as tmp:  # beside: relative paths stay right
+            bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, relative_remap=True)
+    except (OSError, RuntimeError) as exc:
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        hint = " (is the disk full?)" if "space" in text.lower() else ""
+        fail(prog, f"--out {out}: could not save the scene{hint}: {text}")
 
 
 def torch_python(prog: str, requested: str) -> str:

@@ -110,8 +110,11 @@ def stage(addon_dir: str, dest: str) -> None:
 def zip_with_python(stage_dir: str, manifest: dict, out_path: str) -> list:
     patterns = list(DEFAULT_EXCLUDES) + list(manifest.get("build", {}).get("paths_exclude_pattern", []))
     names = []
-    tmp = out_path + ".part"
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+    # A new temporary (mkstemp: exclusive, never through a link) beside the zip; this script runs on
+    # any Python without packages, so nerf_core.utils.atomic (numpy) is out of reach.
+    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(out_path)}.", suffix=".part",
+                               dir=os.path.dirname(os.path.abspath(out_path)))
+    with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as zf:
         for root, dirs, files in os.walk(stage_dir):
             rel_root = os.path.relpath(root, stage_dir).replace(os.sep, "/")
             rel_root = "" if rel_root == "." else rel_root + "/"
@@ -121,6 +124,7 @@ def zip_with_python(stage_dir: str, manifest: dict, out_path: str) -> list:
                 if not _excluded(rel, False, patterns):
                     zf.write(os.path.join(root, f), rel)
                     names.append(rel)
+    os.chmod(tmp, 0o644)  # mkstemp's file is private (0600); an add-on zip is for everyone
     os.replace(tmp, out_path)
     return names
 

@@ -223,6 +223,9 @@ def main(argv: list[str]) -> int:
         for e in errors:
             print(f"capture: error: {e}", file=sys.stderr)
         return 2
+    if args.save_blend:  # the output rule too: never an input, a dataset's file, or through a link
+        args.save_blend = _bootstrap.check_output("capture", "--save-blend", args.save_blend, False,
+                                                  {"--blend": args.blend}, need_folder=True)
     if args.merge:
         from addon.capture.run import merge
 
@@ -290,7 +293,7 @@ def main(argv: list[str]) -> int:
     if args.colmap:
         write_colmap(args, summary)
     if args.save_blend:
-        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.save_blend), copy=True)
+        _bootstrap.save_blend("capture", os.path.abspath(args.save_blend))
     print(json.dumps(summary), flush=True)
     return 0
 

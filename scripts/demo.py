@@ -31,6 +31,13 @@ import time
 
 REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPTS = os.path.join(REPO_ROOT, "scripts")
+if REPO_ROOT not in sys.path:
+    sys.path.insert(0, REPO_ROOT)
+
+from nerf_core.utils.atomic import open_exclusive, write_json_atomic  # noqa: E402  (never through a link)
+from nerf_core.utils.interrupts import honour_interrupts  # noqa: E402
+
+honour_interrupts()  # Ctrl-C stops the demo even when its parent left SIGINT ignored (scripts/_bootstrap.py)
 
 
 class StepFailed(RuntimeError):
@@ -44,7 +51,7 @@ def run_step(title: str, cmd: list[str], log_dir: str, capture_stdout: bool = Fa
     start = time.monotonic()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env["PYTHONPATH"] = REPO_ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    with open(log_path, "w") as log:
+    with open_exclusive(log_path, binary=False) as log:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
                                 cwd=REPO_ROOT)
         lines = []
@@ -187,8 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         summary["gallery"] = last_json(gallery_out)
     except StepFailed:
         pass
-    with open(os.path.join(out, "metrics.json"), "w") as fh:
-        json.dump(summary, fh, indent=2)
+    write_json_atomic(os.path.join(out, "metrics.json"), summary)
     print("\n=== Done. Where everything went:")
     for key in ("blend", "dataset", "run", "comparison_gallery_blend", "comparison_camera_blend"):
         print(f"  {key:26s} {summary[key]}")

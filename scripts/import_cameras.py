@@ -92,10 +92,7 @@ def main(argv) -> int:
         print(f"import_cameras: note: {note}", file=sys.stderr)
     for warning in summary["warnings"]:
         print(f"import_cameras: warning: {warning}", file=sys.stderr)
-    try:
-        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
-    except RuntimeError as exc:
-        fail(f"--out {out}: Blender could not save it: {str(exc).strip()}")
+    _bootstrap.save_blend("import_cameras", out)
     summary["out"] = out
     print(json.dumps(summary))
     return 0

@@ -18,8 +18,8 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _bootstrap import (add_python_option, exit_code, fail, open_blend, out_blend, scene_parser,  # noqa: E402
-                        script_args, torch_python)
+from _bootstrap import (add_python_option, check_output, exit_code, fail, open_blend, out_blend,  # noqa: E402
+                        save_blend, scene_parser, script_args, torch_python)
 
 PROG = "import_geometry.py"
 
@@ -34,7 +34,8 @@ def parse(argv):
     ap.add_argument("--resolution", type=int, metavar="N", help="samples per axis (default: the model's grid)")
     ap.add_argument("--faces", type=int, metavar="N", help="mesh: decimate to about N faces")
     add_python_option(ap, "the export")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an existing --out file (and a volume's .vdb beside --geometry)")
     return ap.parse_args(argv)
 
 
@@ -78,9 +79,8 @@ def main(argv) -> int:
     from nerf_core import contract
 
     run = os.path.abspath(args.run)
-    out = out_blend(PROG, args.out, args.overwrite)
-    if args.blend and os.path.abspath(args.blend) == out:
-        fail(PROG, f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
+    # The output rule: never the scene (by identity, so also through a linked folder), never a link.
+    out = out_blend(PROG, args.out, args.overwrite, {"--blend": args.blend, "--geometry": args.geometry})
     for flag, value in (("--resolution", args.resolution), ("--faces", args.faces)):
         if value is not None and value < (2 if flag == "--resolution" else 1):
             fail(PROG, f"{flag} {value}: must be at least {2 if flag == '--resolution' else 1}")
@@ -91,6 +91,13 @@ def main(argv) -> int:
         geometry = os.path.abspath(args.geometry) if args.geometry else geometry_job.fresh_file(run, args.kind)
     except child_process.SetupError as exc:
         fail(PROG, str(exc))
+    inputs = {"--blend": args.blend, "--out": out}
+    if os.path.lexists(geometry):
+        fail(PROG, f"--geometry {geometry}: exists; an export never replaces a file. Choose another name")
+    # A volume's .vdb, written beside the .npz, is an output too: the same rule.
+    check_output(PROG, "--geometry", geometry, True, inputs, suffix=geometry_job.SUFFIX[args.kind])
+    if args.kind == "volume":
+        check_output(PROG, "--geometry", os.path.splitext(geometry)[0] + ".vdb", args.overwrite, inputs)
     python = torch_python(PROG, args.python)
     cmd = child_process.export_command(python, args.kind, run, geometry, checkpoint=checkpoint)
     if args.resolution:
@@ -112,7 +119,7 @@ def main(argv) -> int:
             obj = geometry_import.import_volume(scene, geometry)
     except (ValueError, RuntimeError, OSError) as exc:
         fail(PROG, f"{geometry}: cannot import the {args.kind}: {exc}")
-    bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
+    save_blend(PROG, out)
     print(json.dumps({"out": out, "kind": args.kind, "object": obj.name, "collection": obj.users_collection[0].name,
                       "geometry": geometry, "export": summary}))
     return 0

@@ -73,10 +73,7 @@ def main(argv) -> int:
         except camera_import.CameraImportError as exc:
             fail(f"--camera-path: {exc}")
         summary["cameras"] = cams["cameras"]
-    try:
-        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True)
-    except RuntimeError as exc:
-        fail(f"--out {out}: Blender could not save it: {str(exc).strip()}")
+    _bootstrap.save_blend("import_nerfstudio", out)
     print(json.dumps(summary))
     return 0
 

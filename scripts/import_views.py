@@ -188,9 +188,8 @@ def main(argv) -> int:
         import bpy
 
         scene_file = bpy.data.filepath
-    if scene_file and (os.path.abspath(scene_file) == out or _bootstrap.same_file(scene_file, out)):
-        fail(f"--out {out} is the scene file itself; choose another name (the scene is never overwritten)")
-    out = _bootstrap.check_output("import_views", "--out", args.out, args.overwrite, {"--blend": args.blend})
+    out = _bootstrap.check_output("import_views", "--out", args.out, args.overwrite,
+                                  {"--blend": args.blend, "the scene": scene_file})
     if not os.path.isfile(contract.latest_checkpoint(run)) and not runs.step_checkpoints(run):
         fail(f"--run {run}: no {os.path.relpath(contract.latest_checkpoint(run), run)} "
              "(train it first with python -m nerf_core train)")
@@ -269,12 +268,9 @@ def main(argv) -> int:
         fail(child_process.describe_os_error(exc, render_dir))
     try:
         os.makedirs(os.path.dirname(out), exist_ok=True)
-        bpy.ops.wm.save_as_mainfile(filepath=out, copy=True, relative_remap=True)
-    except (OSError, RuntimeError) as exc:
-        if isinstance(exc, OSError):
-            fail(child_process.describe_os_error(exc, out))
-        hint = " (is the disk full?)" if "space" in str(exc).lower() else ""
-        fail(f"could not save {out}{hint}: {exc}")
+    except OSError as exc:
+        fail(child_process.describe_os_error(exc, out))
+    _bootstrap.save_blend("import_views", out)
 
     scored = [v for v in views if v.metrics]
     summary = {

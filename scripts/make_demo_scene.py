@@ -33,13 +33,7 @@ def main(argv: list[str]) -> int:
         return 0
     if not args.name or not args.out:
         ap.error("NAME and --out are required")
-    out = os.path.abspath(args.out)
-    if os.path.exists(out) and not args.overwrite:
-        print(f"make_demo_scene: error: {out} exists; pass --overwrite to replace it", file=sys.stderr)
-        return 2
-    if not os.path.isdir(os.path.dirname(out)):
-        print(f"make_demo_scene: error: folder {os.path.dirname(out)} does not exist", file=sys.stderr)
-        return 2
+    out = _bootstrap.out_blend("make_demo_scene", args.out, args.overwrite)
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -48,7 +42,7 @@ def main(argv: list[str]) -> int:
     except scenes.DemoSceneError as exc:
         print(f"make_demo_scene: error: {exc}", file=sys.stderr)
         return 2
-    bpy.ops.wm.save_as_mainfile(filepath=out)
+    _bootstrap.save_blend("make_demo_scene", out)
     print(f"make_demo_scene: wrote {args.name!r} to {out}")
     return 0
 

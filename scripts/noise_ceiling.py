@@ -27,6 +27,7 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402
+from nerf_core.utils.atomic import write_text_atomic  # noqa: E402
 
 PROG = "noise_ceiling.py"
 
@@ -108,8 +109,9 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     if args.views < 1:
         _bootstrap.fail(PROG, f"--views must be at least 1, got {args.views}")
-    if args.out and os.path.exists(args.out) and not args.overwrite:
-        _bootstrap.fail(PROG, f"{args.out} exists; pass --overwrite to replace it")
+    if args.out:  # the output rule: never an input, a dataset's file or through a link
+        args.out = _bootstrap.check_output(PROG, "--out", args.out, args.overwrite,
+                                           {"--blend": args.blend, "--dataset": args.dataset}, need_folder=True)
     if args.keep_renders and os.path.exists(args.keep_renders):
         _bootstrap.fail(PROG, f"{args.keep_renders} exists; --keep-renders writes a new folder")
     manifest_path = os.path.join(args.dataset, "nerf_capture", "manifest.json")
@@ -171,8 +173,7 @@ def main(argv: list[str]) -> int:
     print(f"{PROG}: two renders {result['psnr_two_renders']:.2f} dB; a noise-free model scores about "
           f"{result['model_ceiling']:.2f} dB", flush=True)
     if args.out:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            json.dump(result, fh, indent=1)
+        write_text_atomic(args.out, json.dumps(result, indent=1), flag="--out")
     return 0
 
 

@@ -17,6 +17,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402
+from nerf_core.utils.atomic import atomic_path  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
@@ -63,9 +64,12 @@ def main(argv: list[str]) -> int:
     scene.render.image_settings.file_format = "PNG"
     scene.render.image_settings.color_mode = "RGB"
     scene.render.resolution_percentage = args.percent
-    scene.render.filepath = out
     os.makedirs(os.path.dirname(out), exist_ok=True)
-    bpy.ops.render.render(write_still=True)
+    scene.render.use_file_extension = False  # the fresh name below is the file, as it is
+    # Blender writes a fresh private name, renamed over --out once whole: never through a link.
+    with atomic_path(out, flag="--out") as tmp:
+        scene.render.filepath = str(tmp)
+        bpy.ops.render.render(write_still=True)
     size = [v * args.percent // 100 for v in (scene.render.resolution_x, scene.render.resolution_y)]
     print(f"render_gallery: wrote {out} ({size[0]}x{size[1]}) "
           f"through {scene.camera.name!r}")

@@ -23,6 +23,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _bootstrap  # noqa: E402
 from _bootstrap import add_python_option, exit_code, open_blend, scene_parser, script_args  # noqa: E402
+from nerf_core.utils.atomic import atomic_path  # noqa: E402
 
 
 def parse(argv):
@@ -79,13 +80,10 @@ def main(argv) -> int:
     scene = bpy.context.scene
     frames = frame_range(args.frames, scene)
     out = os.path.abspath(args.out)
-    targets = [os.path.join(out, f"{f:04d}{suffix}") for f in frames
-               for suffix in ((".png", "_depth.exr") if args.depth else (".png",))]
-    existing = [t for t in targets if os.path.exists(t)]
-    if existing and not args.overwrite:
-        fail(f"--out {out} already holds {os.path.basename(existing[0])}"
-             + (f" and {len(existing) - 1} more" if len(existing) > 1 else "") + "; pass --overwrite or "
-                                                                                 "choose another folder")
+    names = [f"{f:04d}{suffix}" for f in frames for suffix in ((".png", "_depth.exr") if args.depth else (".png",))]
+    # The output rule: no link written through, no dataset's image replaced, existing files only with --overwrite.
+    _bootstrap.check_outputs_in("render_nerf", "--out", out, names, args.overwrite,
+                                {"--blend": args.blend, "--checkpoint": args.checkpoint})
     if scene.camera is None:
         fail(f"scene {scene.name!r} has no active camera")
     try:
@@ -123,8 +121,9 @@ def main(argv) -> int:
         entry = {"frame": frame, "png": os.path.join(out, f"{frame:04d}.png")}
         set_format(scene.render.image_settings, "PNG")
         try:
-            image.save_render(filepath=entry["png"], scene=scene)
-        except RuntimeError as exc:
+            with atomic_path(entry["png"], flag="--out") as tmp:
+                image.save_render(filepath=str(tmp), scene=scene)
+        except (RuntimeError, OSError) as exc:
             fail(f"frame {frame}: could not write {entry['png']}: {str(exc).strip().splitlines()[0]}")
         if args.depth:
             entry["depth"] = os.path.join(out, f"{frame:04d}_depth.exr")
@@ -134,7 +133,10 @@ def main(argv) -> int:
             aspect = (scene.render.pixel_aspect_x, scene.render.pixel_aspect_y)
             scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
             try:
-                image.save_render(filepath=entry["depth"], scene=scene)
+                with atomic_path(entry["depth"], flag="--out") as tmp:
+                    image.save_render(filepath=str(tmp), scene=scene)
+            except (RuntimeError, OSError) as exc:
+                fail(f"frame {frame}: could not write {entry['depth']}: {str(exc).strip().splitlines()[0]}")
             finally:
                 scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = aspect
         written.append(entry)

@@ -20,6 +20,8 @@ from typing import Sequence
 
 import numpy as np
 
+from ..file_writes import PARTIAL_SUFFIX, partial_path
+
 DENSITY, COLOR = "density", "color"
 FORMAT = "nerf_bridge.volume"
 
@@ -86,14 +88,8 @@ def npz_to_vdb(npz_path: str, vdb_path: str, openvdb_dirs: Sequence[str] = ()) -
     linear = srgb_to_linear(arrays["color"].astype(np.float32) / 255.0).astype(np.float32)
     color.copyFromArray(np.ascontiguousarray(linear))  # default tolerance: exact
     color.name, color.transform = COLOR, xform
-    tmp = vdb_path + ".tmp"
-    try:
+    with partial_path(vdb_path, os.path.splitext(vdb_path)[0] + PARTIAL_SUFFIX + ".vdb") as tmp:  # never through a link
         vdb.write(tmp, grids=[density, color])
-        os.replace(tmp, vdb_path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
     return arrays
 
 

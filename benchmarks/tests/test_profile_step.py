@@ -73,3 +73,22 @@ def test_sync_sources_names_the_lines_that_sync(tmp_path, tiny_dataset):
     rows = proc.stdout.splitlines()[1:]
     assert rows and all(".py:" in r for r in rows), proc.stdout  # each row names a source line
     assert any("aten._fused_adam_" in r and "engine/trainer.py" in r for r in rows), proc.stdout
+
+
+def test_profiles_a_run_of_a_capture_in_the_original_synthetic_layout(tmp_path, tiny_dataset):
+    """Only ``camera_angle_x`` and the frames, as the original NeRF scenes have them: no w, fl_x or aabb
+    (the profile once read the JSON by hand and failed with KeyError 'w')."""
+    import json
+
+    data = tiny_dataset(tmp_path / "data", n_train=6)
+    for split in ("train", "test"):
+        path = data / f"transforms_{split}.json"
+        meta = json.loads(path.read_text())
+        path.write_text(json.dumps({"camera_angle_x": meta["camera_angle_x"], "frames": meta["frames"]}))
+    train = _run("-m", "nerf_core", "train", data, "--out", tmp_path / "run", "--max-steps", "2", "--no-bar",
+                 "--eval-views", "0")
+    assert train.returncode == 0, train.stderr
+    proc = _run(REPO / "benchmarks" / "profile_step.py", tmp_path / "run", data, "--steps", "1", "--rays", "16",
+                "--table", "0")
+    assert proc.returncode == 0, proc.stderr
+    assert "median step" in proc.stdout

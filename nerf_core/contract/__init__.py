@@ -20,7 +20,8 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
   transforms file (imported into Blender); ``nerfstudio_frame``: nerfstudio's dataparser transform;
 - ``colmap_model``: COLMAP's sparse model files, read and written (``colmap_poses``: its pose rule);
   ``colmap_dataset``: a COLMAP folder as frames (the ``colmap`` layout) and our cameras as COLMAP's;
-- ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run.
+- ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run;
+- ``outputs``: the output rule (no link written through, no input replaced or deleted, no dataset file written).
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ from . import (  # noqa: F401
     colmap_model,
     eight_bit,
     nerfstudio_frame,
+    outputs,
 )
 from .errors import DatasetError, PoseError  # noqa: F401
 from .film import (  # noqa: F401

@@ -1,6 +1,10 @@
-"""Training batches: ``RayBatcher`` draws random rays (and their target colours) from a ``Split``.
+"""Training batches: what a step trains on (``RayBatch``), the type that draws them (``Batcher``,
+which a method chooses with ``RadianceModel.make_batcher``) and the default, ``RayBatcher``: random
+rays (and their target colours) from a ``Split``.
 """
 from __future__ import annotations
+
+from typing import NamedTuple, Optional
 
 import torch
 
@@ -13,12 +17,41 @@ from nerf_core.utils import arguments
 TRAINING_BACKGROUNDS = ("environment", "random", "white", "black", "white-then-random")
 
 
-class RayBatcher:
+class RayBatch(NamedTuple):
+    """One training step's rays and what they should render, all on the training device.
+
+    Attributes:
+        rays_o: (n, 3) float32 origins in world space.
+        rays_d: (n, 3) float32 unit directions.
+        background: (n, 3) float32 colour behind each ray (the ground truth was composited onto it).
+        target: (n, 3) float32 ground-truth colour.
+        weight: (n,) float32 per-ray weight of the colour error (1 use, 0 ignore), or None (no masks).
+    """
+
+    rays_o: torch.Tensor
+    rays_d: torch.Tensor
+    background: torch.Tensor
+    target: torch.Tensor
+    weight: Optional[torch.Tensor]
+
+
+class Batcher:
+    """What the trainer draws each step's rays from (``RadianceModel.make_batcher`` makes one).
+
+    A batcher draws every random number from the generator it was given, so that a saved generator
+    state (checkpoints keep it) replays the same batches on ``--resume``."""
+
+    def sample(self, n: int, frac: float = 1.0) -> RayBatch:
+        """The batch of ``n`` rays (a method's own batcher may read ``n`` as its budget) at ``frac``
+        (in [0, 1]) of the training budget."""
+        raise NotImplementedError
+
+
+class RayBatcher(Batcher):
     """Random ray batches over every pixel of a (train) split; images stay uint8 on the CPU.
 
-    ``sample(n, frac)`` returns one batch: rays_o (n, 3), rays_d (n, 3) unit, background (n, 3),
-    ground-truth colour (n, 3) composited onto that background (all float32 on ``device``), and the
-    mask weight (n,) float32 (1 = use the pixel, 0 = ignore it) or None when the split has no masks.
+    ``sample(n, frac)`` returns one ``RayBatch`` of ``n`` rays drawn uniformly over every pixel, each
+    through its pixel's centre.
 
     Args:
         split: the ``Split`` to draw pixels from (uniformly over all its views' pixels).
@@ -51,11 +84,10 @@ class RayBatcher:
         # few transparent pixels an opaque capture may have); the model's environment replaces ``bg``.
         self.fixed_bg = torch.tensor([0.0, 0.0, 0.0] if background == "black" else [1.0, 1.0, 1.0])
 
-    def sample(self, n: int, frac: float = 1.0):
-        """``n`` random rays at ``frac`` (in [0, 1]) of the training budget.
-
-        Returns rays_o (n, 3), rays_d (n, 3), background (n, 3), ground-truth colour (n, 3) composited
-        onto that background, and the mask weight (n,) or None, all on ``device``.
+    def sample(self, n: int, frac: float = 1.0) -> RayBatch:
+        """``n`` random rays at ``frac`` (in [0, 1]) of the training budget: a ``RayBatch`` of rays_o
+        (n, 3), rays_d (n, 3), background (n, 3), ground-truth colour (n, 3) composited onto that
+        background, and the mask weight (n,) or None, all on ``device``.
         """
 
         flat = torch.randint(0, self.total, (n,), generator=self.gen)
@@ -73,5 +105,5 @@ class RayBatcher:
         rays_o, rays_d, _ = rays_for_pixels(self.split.cameras, view, i, j)
         weight = self.split.masks[view, j, i].float() if self.split.masks is not None else None
         d = self.device
-        return (rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
-                None if weight is None else weight.to(d))
+        return RayBatch(rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
+                        None if weight is None else weight.to(d))

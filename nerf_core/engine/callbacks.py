@@ -4,17 +4,21 @@ checkpoints.
 
 After every optimisation step the trainer calls each callback's ``after_step`` in the order of
 ``default_callbacks``; when the budget is spent, each callback's ``end``, which does the run's last
-preview, checkpoint and evaluation. A callback reads the trainer's ``state`` (a ``TrainState``: step,
-elapsed training time), ``model``, ``log`` and ``decisions`` and may write files; it must not draw
-random numbers, so that a seeded run trains the same with or without it. Only rank 0 of a
+preview, checkpoint and evaluation. A callback reads the trainer's declared attributes (``state``, a
+``TrainState``; ``model``, ``opt``, ``gen``, ``log``, ``cfg``, ``decisions``, ``facts``, ``dist``,
+``replicas``, ``previews``, ``dataset``) and keeps its own schedule; it calls no method of the trainer.
+It may write files; it must not draw random numbers, so that a seeded run trains the same with or
+without it. Only rank 0 of a
 ``torchrun`` job writes; the others keep the same schedule.
 """
 from __future__ import annotations
 
 import sys
 import time
-from typing import List, Sequence
+from pathlib import Path
+from typing import List, Optional, Sequence
 
+from nerf_core.engine.checkpointing import write_checkpoint
 from nerf_core.engine.report import emit_step, final_eval, held_out_eval
 
 STEP_EVENT_SECONDS = 5.0  # slow steps still produce a step event this often
@@ -112,28 +116,79 @@ class PreviewEvery(TrainingCallback):
         state = trainer.state
         if done or not trainer.previews.due(state.step, self.last_step, state.elapsed, self.last_elapsed):
             return False
-        trainer.preview()
+        self.write(trainer)
         self.last_step, self.last_elapsed = state.step, state.elapsed
         return True
 
     def end(self, trainer) -> dict:
-        trainer.preview()
+        self.write(trainer)
         return {}
+
+    @staticmethod
+    def write(trainer) -> None:
+        """One preview of the model as it is now (rank 0 only), and its ``preview`` event."""
+        if not trainer.dist.is_main:
+            return
+        path = trainer.previews.write(trainer.model, trainer.state.step)
+        if path is not None:
+            trainer.log.emit("preview", step=trainer.state.step, path=str(path))
 
 
 class CheckpointEvery(TrainingCallback):
     """A checkpoint every ``--checkpoint-every`` steps, or every ``checkpoint_seconds`` of wall time,
-    and one of the final model (the summary's ``checkpoint``)."""
+    and one of the final model (the summary's ``checkpoint``). It owns the schedule; ``save`` is also
+    what an interrupted run calls to keep its work.
+
+    Under ``torchrun`` rank 0's wall clock decides for every rank: the trainer sends
+    ``wall_clock_due()`` through the step's reduce and hands the agreed answer back
+    (``agree_wall_clock``), so that every rank takes the same (collective) checkpoint steps.
+
+    Args:
+        every_steps: ``--checkpoint-every`` (None: by wall time).
+        every_seconds: ``checkpoint_seconds``.
+    """
+
+    def __init__(self, every_steps: Optional[int], every_seconds: float):
+        self.every_steps, self.every_seconds = every_steps, every_seconds
+        self.last_step, self.last_wall = 0, time.monotonic()
+        self.agreed_due = False
+
+    def start(self, trainer) -> None:
+        self.last_step, self.last_wall = trainer.state.step, time.monotonic()
+        self.agreed_due = False
+
+    def wall_clock_due(self) -> bool:
+        """This process's own clock says a checkpoint is due (never with ``--checkpoint-every``)."""
+        return not self.every_steps and time.monotonic() - self.last_wall >= self.every_seconds
+
+    def agree_wall_clock(self, due: bool) -> None:
+        """The step's reduce agreed on rank 0's ``wall_clock_due`` (under torchrun)."""
+        self.agreed_due = due
+
+    def due(self, step: int, replicated: bool) -> bool:
+        if self.every_steps:
+            return step - self.last_step >= self.every_steps
+        return self.agreed_due if replicated else self.wall_clock_due()
 
     def after_step(self, trainer, done: bool) -> bool:
-        if done or not trainer.checkpoint_due():
+        if done or not self.due(trainer.state.step, trainer.replicas is not None):
             return False
-        trainer.save_checkpoint()
+        self.save(trainer)
         return True
 
     def end(self, trainer) -> dict:
-        latest = trainer.save_checkpoint()
+        latest = self.save(trainer)
         return {"checkpoint": str(latest)} if latest is not None else {}
+
+    def save(self, trainer) -> Optional[Path]:
+        """Write a checkpoint of the run as it is now (rank 0; the other ranks only keep the schedule);
+        returns latest.pt, or None on the other ranks."""
+        latest = None
+        if trainer.dist.is_main:
+            latest = write_checkpoint(trainer.facts, trainer.model, trainer.opt, trainer.state, trainer.gen,
+                                      trainer.log)
+        self.last_wall, self.last_step = time.monotonic(), trainer.state.step
+        return latest
 
 
 class FinalEvaluation(TrainingCallback):
@@ -148,10 +203,11 @@ class FinalEvaluation(TrainingCallback):
                                       trainer.state.elapsed)}
 
 
-def default_callbacks(cfg) -> List[TrainingCallback]:
+def default_callbacks(cfg, checkpoints: CheckpointEvery) -> List[TrainingCallback]:
     """The trainer's callbacks for ``cfg`` (a ``TrainConfig``), in the order they run after a step and
-    at the end (the final preview, then checkpoint, then evaluation)."""
-    return [EvalAtTimes(cfg.eval_at), StepEvents(), PreviewEvery(), CheckpointEvery(), FinalEvaluation()]
+    at the end (the final preview, then checkpoint, then evaluation); ``checkpoints`` is the trainer's
+    own schedule, which an interrupt also saves through."""
+    return [EvalAtTimes(cfg.eval_at), StepEvents(), PreviewEvery(), checkpoints, FinalEvaluation()]
 
 
 class StepInterval:

@@ -1,8 +1,9 @@
-"""The optimiser and the learning-rate schedule of training.
+"""The optimiser's life in a run and the learning-rate schedule of training.
 
-Adam over the model's parameter groups (``RadianceModel.optimizer_groups``), each group with its own
-``base_lr``; every step the trainer sets ``lr = base_lr * schedule_factor(...)``: a short linear
-warm-up, then exponential decay to a tenth at the end of the training budget.
+The method chooses its optimiser (``RadianceModel.make_optimizer``, Adam by default: ``nerf_core.optim``)
+over its parameter groups, each group with its own ``base_lr``; every step the trainer sets
+``lr = base_lr * schedule_factor(...)``: a short linear warm-up, then exponential decay to a tenth at
+the end of the training budget.
 """
 from __future__ import annotations
 
@@ -10,36 +11,30 @@ from typing import Optional
 
 import torch
 
+from nerf_core.optim import TrainingOptimizer
+
 WARMUP_MAX_FRACTION = 0.02  # warm-up never takes more than this share of the budget
 
 
-def make_optimizer(model, lr: float) -> torch.optim.Optimizer:
-    """Adam over ``model.optimizer_groups(lr)``; each group remembers its rate as ``base_lr``."""
-    groups = model.optimizer_groups(lr)
-    for g in groups:
+def make_optimizer(model, lr: float) -> TrainingOptimizer:
+    """The method's optimiser (``model.make_optimizer(lr)``); each group remembers its rate as
+    ``base_lr``, which the schedule scales. Raises TypeError when the method returns something that is
+    not a ``nerf_core.optim.TrainingOptimizer`` (the trainer relies on its state check)."""
+    opt = model.make_optimizer(lr)
+    if not isinstance(opt, TrainingOptimizer):
+        raise TypeError(f"method {model.method_name!r}: make_optimizer must return a nerf_core.optim."
+                        f"TrainingOptimizer, got a {type(opt).__name__}")
+    for g in opt.param_groups:
         g["base_lr"] = g["lr"]  # the schedule scales each group's own base rate
-    return torch.optim.Adam(groups, betas=(0.9, 0.99), eps=model.adam_eps, **fused_adam_kwargs(groups))
+    return opt
 
 
-def fused_adam_kwargs(groups) -> dict:
-    """``fused=True`` where every parameter allows it (float tensors on the CPU or CUDA): one kernel per
-    step instead of a chain of elementwise ops per tensor, measured 17x faster on a 1.5 M-parameter
-    texture on a 2-core CPU (3.5 ms against 59 ms a step)."""
-    params = [p for g in groups for p in g["params"]]
-    ok = params and all(p.dtype in (torch.float32, torch.float64, torch.float16, torch.bfloat16)
-                        and p.device.type in ("cpu", "cuda") for p in params)
-    return {"fused": True} if ok else {}
-
-
-def rebuild_optimizer(model, old: torch.optim.Optimizer, lr: float) -> torch.optim.Optimizer:
-    """A new optimiser for the model's current parameters; Adam moments are carried over for
-    parameters that are unchanged (same object and shape), grown tensors start fresh."""
+def rebuild_optimizer(model, old: TrainingOptimizer, lr: float) -> TrainingOptimizer:
+    """A new optimiser for the model's current parameters (after growth); the new optimiser decides
+    what of ``old``'s state it keeps (``TrainingOptimizer.carry_state_from``: unchanged parameters keep
+    their moments, grown ones start afresh)."""
     new = make_optimizer(model, lr)
-    for g in new.param_groups:
-        for p in g["params"]:
-            st = old.state.get(p)
-            if st and all((not torch.is_tensor(v)) or v.dim() == 0 or v.shape == p.shape for v in st.values()):
-                new.state[p] = st
+    new.carry_state_from(old)
     return new
 
 

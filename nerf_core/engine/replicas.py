@@ -86,6 +86,13 @@ class Replicas:
                  float(checkpoint_due and ctx.is_main)] + seconds + [float(stats[n]) for n in names]
         self._t_reduce = time.perf_counter()
         summed = distributed.average_gradients(params, ctx.world_size, extra)
+        masks = model.replica_masks()
+        if masks:  # the cells any rank touched: every rank steps them all (``RadianceModel.replica_masks``)
+            union = distributed.all_reduce(torch.cat([m.reshape(-1).float() for m in masks]))
+            at = 0
+            for m in masks:
+                m.copy_(union[at:at + m.numel()].reshape(m.shape) > 0)
+                at += m.numel()
         w = ctx.world_size
         if names:
             model.set_replica_stats({n: v / w for n, v in zip(names, summed[5 + w:])})

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -27,11 +28,12 @@ import torch
 from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.data import backgrounds
-from nerf_core.data.batcher import RayBatcher
+from nerf_core.data.batcher import Batcher
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
-from nerf_core.engine.callbacks import StepInterval, default_callbacks
+from nerf_core.engine.callbacks import CheckpointEvery, StepInterval, default_callbacks
+from nerf_core.engine.checkpointing import RunFacts
 from nerf_core.engine.config import TrainConfig, check_field_types, default_method, merge_resumed_config
 from nerf_core.engine.model_setup import build_seeded, default_batch_rays, model_options, prefit_environment
 from nerf_core.engine.optim import (
@@ -43,7 +45,7 @@ from nerf_core.engine.optim import (
 )
 from nerf_core.engine.previews import Previews
 from nerf_core.engine.replicas import Replicas
-from nerf_core.engine.report import emit_start, evaluation_problem, failure_line, run_config
+from nerf_core.engine.report import emit_start, evaluation_problem, failure_line
 from nerf_core.engine.rollback import (
     SNAPSHOT_EVERY,
     gradient_problem,
@@ -57,17 +59,14 @@ from nerf_core.errors import RunError, TrainError
 from nerf_core.image.losses import backward
 from nerf_core.image.metrics import mse_to_psnr as psnr_from_mse
 from nerf_core.methods.base import RadianceModel
-from nerf_core.runs.checkpoint_checks import check_optimizer_state
-from nerf_core.runs.checkpoints import (
-    read_resume_checkpoint,
-    save_checkpoint,
-    versions,
-)
+from nerf_core.optim import TrainingOptimizer
+from nerf_core.runs.checkpoints import read_resume_checkpoint
 from nerf_core.runs.dataset_identity import dataset_images
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import (
     check_progress_file,
     check_run_folder,
+    check_run_layout,
     check_run_vs_dataset,
     clear_run_folder,
     dataset_hash,
@@ -79,7 +78,7 @@ from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
 from nerf_core.utils.interrupts import DeferredInterrupts, terminate_as_interrupt
 from nerf_core.utils.progressbar import ProgressBar
-from nerf_core.utils.seeding import rng_state, set_rng_state
+from nerf_core.utils.seeding import set_rng_state
 
 __all__ = ["TrainConfig", "TrainError", "Trainer", "train", "default_method"]
 
@@ -88,15 +87,20 @@ class Trainer:
     """One training run. ``fit()`` opens the run folder, builds the model and trains it.
 
     What it holds while training: ``cfg`` (the ``TrainConfig``), ``decisions`` (``RunDecisions``, made
-    once at the start), ``state`` (``TrainState``: step, elapsed, learning-rate scale, rollbacks,
-    loss average), ``model``, ``opt``, ``dataset``, ``log`` (events) and ``dist`` (torchrun)."""
+    once at the start), ``facts`` (``RunFacts``: what config.json records), ``state`` (``TrainState``:
+    step, elapsed, learning-rate scale, rollbacks, loss average), ``model``, ``opt`` (the method's
+    ``TrainingOptimizer``), ``gen`` (the batches' generator), ``dataset``, ``log`` (events), ``dist``
+    and ``replicas`` (torchrun), ``checkpoints`` (the checkpoint schedule)."""
 
     def __init__(self, cfg: TrainConfig):
         self.cfg = cfg
         self.run = Path(cfg.out).resolve()
         self.state = TrainState()
         self.model: Optional[RadianceModel] = None
-        self.opt: Optional[torch.optim.Optimizer] = None
+        self.opt: Optional[TrainingOptimizer] = None
+        self.facts: Optional[RunFacts] = None  # set once the run's decisions are made (``_fit``)
+        # The checkpoint schedule, also what an interrupt saves through (so it exists from the start).
+        self.checkpoints = CheckpointEvery(cfg.checkpoint_every, cfg.checkpoint_seconds)
         self.resumed_checkpoint = ""
         self.dataset_hash: Optional[str] = None
         self.dataset_images: Optional[dict] = None
@@ -143,6 +147,7 @@ class Trainer:
             # mix the trainer's files with the user's data, and --overwrite would delete from the dataset.
             check_run_vs_dataset(self.run, cfg.dataset)
             if main and self.run.is_dir():
+                check_run_layout(self.run)  # before the lock is opened: a link in the run is refused untouched
                 # Before anything else, so that a second trainer into a busy run learns who holds it
                 # (rather than that the folder is not empty) and never reads a half-written checkpoint.
                 self._unlock = lock_run_folder(self.run)
@@ -213,7 +218,7 @@ class Trainer:
                 # rank must not cut the save short and lose every step since the last checkpoint.
                 with DeferredInterrupts(True, reraise=False):
                     distributed.report_checksum(self.model, self.dist, self.state.step)
-                    path = self.save_checkpoint() if self.opt is not None else None
+                    path = self.checkpoints.save(self) if self.opt is not None else None
             except TrainError as err:
                 self.log.emit("error", message=f"interrupted at step {self.state.step}; {err}")
                 raise
@@ -261,44 +266,19 @@ class Trainer:
         return opt_state
 
     def _restore(self, ckpt: dict, opt_state: Optional[dict]) -> None:
-        """Continue from a checkpoint: counters, optimiser (fresh Adam if it does not fit) and RNGs."""
+        """Continue from a checkpoint: counters, optimiser (a fresh one if its state does not fit) and RNGs."""
         self.state = TrainState.from_checkpoint(ckpt)
         lr = self.decisions.base_lr * self.state.lr_scale
         self.opt = make_optimizer(self.model, lr)
         try:
-            # checked first: the fused Adam kernel trusts the moments' shapes and would write out of bounds
-            check_optimizer_state(opt_state, self.opt, self.resumed_checkpoint)
+            # checked first, by the optimiser itself: a fused kernel trusts the shapes and would write out of bounds
+            self.opt.check_state(opt_state, self.resumed_checkpoint)
             self.opt.load_state_dict(opt_state)
         except (ValueError, KeyError, RunError) as exc:
-            print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting Adam afresh",
-                  file=sys.stderr)
+            print(f"train: optimiser state in the checkpoint does not fit ({exc}); starting "
+                  f"{type(self.opt).__name__} afresh", file=sys.stderr)
         rescale_base_lrs(self.opt, self.model, lr)
         set_rng_state(ckpt["rng"], self.gen)
-
-    # ------------------------------------------------------------------ checkpoints
-
-    def save_checkpoint(self) -> Optional[Path]:
-        state = self.state
-        if not self.dist.is_main:  # the other ranks only keep the schedule (checkpoint_every)
-            self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), state.step
-            return None
-        record = {
-            "format": 1, "method": self.decisions.method, "options": self.model.options,
-            "method_state": self.model.run_state(), "aabb": self.model.aabb.detach().cpu(),
-            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
-            "optimizer": self.opt.state_dict(), **state.checkpoint_entries(),
-            "rng": rng_state(self.gen), "config": self._run_config(), "size_reasons": self.decisions.size_reasons,
-            "versions": versions(),
-        }
-        latest = save_checkpoint(self.run, record, state.step, self.cfg.keep_checkpoints)
-        self.log.emit("checkpoint", step=state.step, path=str(latest))
-        self._last_ckpt_wall = time.monotonic()
-        self._last_ckpt_step = state.step
-        return latest
-
-    def _run_config(self) -> dict:
-        return run_config(self.cfg, self.decisions, self.model, self.dataset, self.run, self.device,
-                          self.dist.world_size, self.dataset_hash, self.dataset_images)
 
     # ------------------------------------------------------------------ loop
 
@@ -308,6 +288,8 @@ class Trainer:
         train = dataset.split("train")
         opt_state = self._build(dataset, ckpt)
         self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.facts = RunFacts(self.cfg, self.decisions, dataset, self.run, self.device, self.dist.world_size,
+                              self.dataset_hash, self.dataset_images)
         self.opt = make_optimizer(self.model, self.decisions.base_lr)
         resumed_from = None
         if ckpt is not None:
@@ -317,7 +299,7 @@ class Trainer:
         if self.dist.is_main:
             config = Path(contract.config_path(self.run))
             record_written(self.run, config)
-            write_json_atomic(config, self._run_config(), default=str)
+            write_json_atomic(config, self.facts.config(self.model), default=str)
         emit_start(self.log, cfg, self.decisions, self.model, dataset, self.run, self.device, self.dist,
                    resumed_from)
         if ckpt is None and self.model.models_world and not self.model.contracted:
@@ -332,9 +314,10 @@ class Trainer:
             self.state.elapsed = self.replicas.start(self.model, self.state.elapsed)
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
                                  self.decisions.eval_background, cfg.chunk)
-        self.callbacks = default_callbacks(cfg)
+        self.callbacks = default_callbacks(cfg, self.checkpoints)
+        batcher = self.model.make_batcher(train, self.decisions.background, self.gen, self.device)
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
-            self._train_loop(RayBatcher(train, self.decisions.background, self.gen, self.device), stop)
+            self._train_loop(batcher, stop)
         if self.state.step == (resumed_from or 0):
             # A budget spent before the first step (fitting the world counts as training time): a
             # checkpoint and metrics of an untrained model must not look like a finished run.
@@ -362,22 +345,21 @@ class Trainer:
                              f"which meets {' and '.join(spent)}; nothing is left to train. Give a larger budget "
                              "to continue it")
 
-    def _train_loop(self, batcher: RayBatcher, stop: DeferredInterrupts) -> None:
+    def _train_loop(self, batcher: Batcher, stop: DeferredInterrupts) -> None:
         """Train until the budget is spent. Under torchrun, ``stop`` holds a SIGINT/SIGTERM until the
         step's reduce tells every rank to stop."""
         cfg, state = self.cfg, self.state
         self.snap = take_snapshot(self.model, self.opt, state)
         state.steps_since_rollback = 0
-        self._last_ckpt_wall, self._last_ckpt_step = time.monotonic(), state.step
         self.interval = StepInterval()
         state.last_loss = state.last_psnr = None
         bar_total, bar_unit = cfg.bar_total()
         bar = ProgressBar(total=bar_total, label="train", enabled=cfg.show_bar and self.dist.is_main)
         for callback in self.callbacks:
             callback.start(self)
-        self._params_changed = self._ckpt_wall_due = False
+        self._params_changed = False
         while not cfg.finished(state.step, state.elapsed):
-            if not self._step(batcher, stop):
+            if not self.step(batcher, stop):
                 continue
             bar.set(cfg.bar_done(bar_unit, state.step, state.elapsed),
                     info=f"step {state.step} loss {state.last_loss:.4f} psnr {state.last_psnr:.2f}")
@@ -392,79 +374,95 @@ class Trainer:
         last = state.last_loss
         bar.close(info=f"step {state.step} loss {last if last is not None else float('nan'):.4f}")
 
-    def _step(self, batcher: RayBatcher, stop: DeferredInterrupts) -> bool:
+    def step(self, batcher: Batcher, stop: DeferredInterrupts) -> bool:
         """One optimisation step; False when it was rolled back instead (a bad loss or gradient)."""
-        cfg, dataset, rep, state, model = self.cfg, self.dataset, self.replicas, self.state, self.model
+        state, model = self.state, self.model
         t0 = time.perf_counter()
-        hook_frac, frac = state.update_budget(cfg.max_steps, cfg.max_seconds)  # once per step
+        hook_frac, frac = state.update_budget(self.cfg.max_steps, self.cfg.max_seconds)  # once per step
+        self._hook(hook_frac, frac)
+        batch = batcher.sample(self.decisions.batch_rays, frac)
+        out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, self.dataset.near, self.dataset.far,
+                                 training=True)
+        loss, mse = model.loss(out, batch.target, batch.weight)
+        self.opt.zero_grad(set_to_none=True)
+        backward(loss)  # even for a bad loss (rolled back below): one read of what to check
+        checked = self._checked(loss, mse, out, t0, stop)
+        if checked.problem is not None:
+            self._roll_back(checked.problem)
+            return False
+        t1 = time.perf_counter()
+        model.optimizer_step(self.opt, out)
+        self._advance(checked, t0, t1)
+        return True
+
+    def _hook(self, hook_frac: Optional[float], frac: float) -> None:
+        """The method's hook (occupancy, growth: a new optimiser when the parameters changed), then
+        this step's learning rates; under torchrun each with its random streams seeded."""
+        state, rep = self.state, self.replicas
         if rep is not None:  # the hook's random draws (occupancy jitter) must be equal on every rank
             rep.seed_shared(state.step, state.rollbacks)
-        if model.training_hook(state.step, hook_frac):
-            self.opt = rebuild_optimizer(model, self.opt, self.decisions.base_lr * state.lr_scale)
+        if self.model.training_hook(state.step, hook_frac):
+            self.opt = rebuild_optimizer(self.model, self.opt, self.decisions.base_lr * state.lr_scale)
             self._params_changed = True
         if rep is not None:
             rep.seed_rank(self.gen, state.step, state.rollbacks)
         factor = schedule_factor(state.step, frac, self.decisions.warmup)
         for g in self.opt.param_groups:
             g["lr"] = g["base_lr"] * factor
-        rays_o, rays_d, bg, gt, weight = batcher.sample(self.decisions.batch_rays, frac)
-        out = model.render_batch(rays_o, rays_d, bg, dataset.near, dataset.far, training=True)
-        loss, mse = model.loss(out, gt, weight)
+
+    def _checked(self, loss: torch.Tensor, mse: torch.Tensor, out: dict, t0: float,
+                 stop: DeferredInterrupts) -> StepCheck:
+        """The step's numbers read once from the device (under torchrun: reduced over the ranks, with
+        the gradients) and whether it may be applied."""
+        state, rep = self.state, self.replicas
         n_samples = int(out.get("n_samples", self.decisions.batch_rays))
-        if rep is None:  # backward even for a bad loss (rolled back below): one read of what to check
-            self.opt.zero_grad(set_to_none=True)
-            backward(loss)
-            loss_value, mse, grad_bad = step_values(loss, mse, self.opt)
-            bad = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback) or grad_bad
+        if rep is None:
+            loss_value, mse_value, grad_bad = step_values(loss, mse, self.opt)
             state.elapsed += time.perf_counter() - t0
-        else:  # every rank takes the same decisions from the same (reduced) numbers
-            self.opt.zero_grad(set_to_none=True)
-            backward(loss)
-            params = [p for g in self.opt.param_groups for p in g["params"]]
-            shared = rep.reduce(params, model, loss, mse, n_samples, t0, stop.requested(),
-                                self.dist.is_main and self.checkpoint_due(wall_clock=True))
-            state.elapsed += shared.seconds
-            if shared.stop:
-                raise KeyboardInterrupt
-            loss_value, mse, n_samples = shared.loss, shared.mse, shared.n_samples
-            self._ckpt_wall_due = shared.checkpoint_due
-            bad = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback) or gradient_problem(self.opt)
-        if bad is not None:
-            if rep is not None:
-                rep.end_step()
-            self.opt.zero_grad(set_to_none=True)
-            self.opt = roll_back(model, self.snap, state, self.decisions.base_lr, cfg.max_rollbacks, bad, self.log)
-            return False
-        t1 = time.perf_counter()
-        self.opt.step()
+            problem = loss_problem(loss_value, state.loss_ema, state.steps_since_rollback) or grad_bad
+            return StepCheck(loss_value, mse_value, n_samples, problem)
+        # every rank takes the same decisions from the same (reduced) numbers
+        params = [p for g in self.opt.param_groups for p in g["params"]]
+        shared = rep.reduce(params, self.model, loss, mse, n_samples, t0, stop.requested(),
+                            self.dist.is_main and self.checkpoints.wall_clock_due())
+        state.elapsed += shared.seconds
+        if shared.stop:
+            raise KeyboardInterrupt
+        self.checkpoints.agree_wall_clock(shared.checkpoint_due)
+        problem = loss_problem(shared.loss, state.loss_ema, state.steps_since_rollback) or gradient_problem(self.opt)
+        return StepCheck(shared.loss, shared.mse, shared.n_samples, problem)
+
+    def _roll_back(self, problem: str) -> None:
+        if self.replicas is not None:
+            self.replicas.end_step()
+        self.opt.zero_grad(set_to_none=True)
+        self.opt = roll_back(self.model, self.snap, self.state, self.decisions.base_lr, self.cfg.max_rollbacks,
+                             problem, self.log)
+
+    def _advance(self, checked: StepCheck, t0: float, t1: float) -> None:
+        """Count the applied step: counters, the loss average, the step's time and its report."""
+        state = self.state
         state.step += 1
         state.steps_since_rollback += 1
+        loss_value = checked.loss
         state.loss_ema = loss_value if state.loss_ema is None else 0.98 * state.loss_ema + 0.02 * loss_value
-        if rep is not None:
-            rep.end_step()
+        if self.replicas is not None:
+            self.replicas.end_step()
         else:
             state.elapsed += time.perf_counter() - t1
-        self.interval.add(time.perf_counter() - t0, n_samples, loss_value)
-        state.last_loss, state.last_psnr = loss_value, psnr_from_mse(mse.detach() if torch.is_tensor(mse) else mse)
-        return True
+        self.interval.add(time.perf_counter() - t0, checked.n_samples, loss_value)
+        state.last_loss, state.last_psnr = loss_value, psnr_from_mse(checked.mse)
 
-    # ------------------------------------------------------------------ reporting
 
-    def checkpoint_due(self, wall_clock: bool = False) -> bool:
-        """Step-based (``checkpoint_every``) or by rank 0's wall clock, which under torchrun every rank
-        learns from the step's reduce (``wall_clock=True``: rank 0 asks its own clock)."""
-        if self.cfg.checkpoint_every:
-            return not wall_clock and self.state.step - self._last_ckpt_step >= self.cfg.checkpoint_every
-        if self.replicas is not None and not wall_clock:
-            return self._ckpt_wall_due
-        return time.monotonic() - self._last_ckpt_wall >= self.cfg.checkpoint_seconds
+@dataclass(frozen=True)
+class StepCheck:
+    """What a step's checks read from the device: loss, photometric MSE (floats), samples evaluated,
+    and why the step must not be applied (None when it may)."""
 
-    def preview(self) -> None:
-        if not self.dist.is_main:
-            return
-        path = self.previews.write(self.model, self.state.step)
-        if path is not None:
-            self.log.emit("preview", step=self.state.step, path=str(path))
+    loss: float
+    mse: float
+    n_samples: int
+    problem: Optional[str]
 
 
 def train(cfg: TrainConfig) -> dict:

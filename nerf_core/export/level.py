@@ -37,6 +37,7 @@ import torch
 
 from nerf_core.cameras.rays import Cameras, ray_bounds, rays_for_pixels
 from nerf_core.export import field
+from nerf_core.volume import volrend
 
 OPAQUE = 0.9  # rays whose final opacity is at least this count: they end on a surface
 CONTACT = 0.95  # the transmittance at which a ray has met the surface
@@ -78,13 +79,13 @@ def rendered_surface_level(model, cameras: Cameras, box: np.ndarray, n_rays: int
         pts = (o[:, None] + d[:, None] * t[..., None]).reshape(-1, 3).to(device)
         sigma = field.density(model, pts).float().cpu().reshape(t.shape)
         step = ((b - a) / samples * d.norm(dim=-1))[:, None]  # (m, 1) scene units a sample
-        depth = torch.cumsum(sigma * step, dim=1)  # optical depth after each sample
+        starts = step * torch.arange(samples, dtype=torch.float32)  # (m, samples) in scene units along the ray
+        depth = volrend.optical_depth(starts, starts + step, sigma)  # after each sample
         opaque = depth[:, -1] >= -math.log(1.0 - OPAQUE)
-        sigma, depth, step = sigma[opaque], depth[opaque], step[opaque]
+        sigma, depth, step, starts = sigma[opaque], depth[opaque], step[opaque], starts[opaque]
         if not len(sigma):
             continue
-        alpha_depth = sigma * step
-        weight = torch.exp(-(depth - alpha_depth)) * -torch.expm1(-alpha_depth)  # T_i alpha_i, (k, samples)
+        weight, _, _ = volrend.render_weight_from_density(starts, starts + step, sigma)  # T_i alpha_i, (k, samples)
         surface = weight.argmax(dim=1)  # (k,)
         start = (surface - (window_voxels * voxel / step[:, 0]).long().clamp_min(1)).clamp_min(0)
         before = torch.where(start > 0, depth.gather(1, (start - 1).clamp_min(0)[:, None])[:, 0],

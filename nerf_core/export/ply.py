@@ -15,7 +15,7 @@ from typing import Optional
 import numpy as np
 
 from nerf_core.contract.paths import file_problem
-from nerf_core.utils.atomic import atomic_path
+from nerf_core.utils.atomic import atomic_file
 
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
           "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -57,11 +57,10 @@ def write_mesh_ply(path: Path | str, vertices: np.ndarray, faces: np.ndarray, co
     vrec["p"], vrec["c"] = vertices, colors
     frec = np.empty(f, dtype=[("k", "u1"), ("i", "<i4", 3)])
     frec["k"], frec["i"] = 3, faces
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            fh.write(header)
-            fh.write(vrec.tobytes())
-            fh.write(frec.tobytes())
+    with atomic_file(path) as fh:
+        fh.write(header)
+        fh.write(vrec.tobytes())
+        fh.write(frec.tobytes())
 
 
 def _header(fh, where: str) -> tuple[str, list]:

@@ -18,7 +18,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from nerf_core.export import grid
-from nerf_core.utils.atomic import atomic_path
+from nerf_core.utils.atomic import atomic_file
 
 FORMAT, VERSION = "nerf_bridge.volume", 1
 MIN_STEP_ALPHA = 1e-3  # colour only where one grid step is more opaque than this
@@ -67,9 +67,8 @@ def volume_grids(model, box: np.ndarray, resolution: int,
 
 def write_volume(path: Path | str, arrays: dict) -> None:
     """Save the volume arrays as an uncompressed ``.npz`` at ``path``, atomically."""
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:  # a file object: np.savez would append ".npz" to a bare path
-            np.savez(fh, **arrays)
+    with atomic_file(path) as fh:  # a file object: np.savez would append ".npz" to a bare path
+        np.savez(fh, **arrays)
 
 
 def read_volume(path: Path | str) -> dict:

@@ -15,6 +15,8 @@ non-cubic box; cheaper than ragged planes, see above).
 """
 from __future__ import annotations
 
+from typing import Optional
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -28,6 +30,7 @@ from nerf_core.fields.vm_products import (
     planes_to_stored,
     vm_products,
 )
+from nerf_core.fields.vm_touched import TouchedRows
 from nerf_core.image.losses import l1_sparsity, total_variation_2d
 from nerf_core.utils.derived_cache import DerivedCache
 
@@ -102,6 +105,9 @@ class TensorVMField(nn.Module):
         nn.init.constant_(self.mlp[-1].bias, 0.0)
         self._lookup: DerivedCache[VMLookup] = DerivedCache(follow_optimizers=True)  # never saved
         self._box: DerivedCache[tuple] = DerivedCache(follow_optimizers=False)  # (min corner, extent) of aabb
+        # The cells each lookup with grad reads, for a row-sparse optimiser (``fields.vm_touched``); None:
+        # nobody asks, nothing is recorded.
+        self.touched: Optional[TouchedRows] = None
 
     # ------------------------------------------------------------------ parameters
     #
@@ -171,12 +177,26 @@ class TensorVMField(nn.Module):
         """(m, 3) positions -> (m,) density per scene unit."""
         if x.shape[0] == 0:
             return x.new_zeros(0)
-        raw = vm_products(self.density_planes, self.density_lines, self._unit(x)).sum(dim=(1, 2))
+        u = self._unit(x)
+        sink = self._mark("density_planes_cl", "density_lines_cl", u)
+        raw = vm_products(self.density_planes, self.density_lines, u, sink).sum(dim=(1, 2))
         return self.density_scale * F.softplus(raw + self.density_shift)
 
     def app_features(self, x: Tensor) -> Tensor:
         """(m, 3) positions -> (m, 3 Ra) plane-line products of the appearance grid (the basis input)."""
-        return vm_products(self.app_planes, self.app_lines, self._unit(x)).reshape(x.shape[0], -1)
+        u = self._unit(x)
+        sink = self._mark("app_planes_cl", "app_lines_cl", u)
+        return vm_products(self.app_planes, self.app_lines, u, sink).reshape(x.shape[0], -1)
+
+    def _mark(self, planes_key: str, lines_key: str, u: Tensor) -> Optional[tuple]:
+        """Record the cells a lookup with grad reads (``touched``, when a row-sparse optimiser asks);
+        returns the gradient buffers the kernel adds into, or None (a fresh zero grid)."""
+        if self.touched is None or not torch.is_grad_enabled() or not self.density_planes_cl.requires_grad:
+            return None
+        planes, lines = getattr(self, planes_key), getattr(self, lines_key)
+        sinks = self.touched.sink(planes_key, planes), self.touched.sink(lines_key, lines)
+        self.touched.mark(planes_key, lines_key, u, self.resolution)
+        return None if sinks[0] is None else sinks
 
     def color(self, x: Tensor, d: Tensor) -> Tensor:
         """(m, 3) positions and unit directions -> (m, 3) colours in [0, 1]."""

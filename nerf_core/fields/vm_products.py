@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import ctypes
 from pathlib import Path
+from typing import Optional
 
 import torch
 import torch.nn.functional as F
@@ -119,7 +120,7 @@ class _NativeVMProducts(torch.autograd.Function):
     permutes below are views; any other layout is copied here, per call."""
 
     @staticmethod
-    def forward(ctx, planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
+    def forward(ctx, planes: Tensor, lines: Tensor, u: Tensor, sink: Optional[tuple] = None) -> Tensor:
         lib = _library()[0]
         r, n, m = planes.shape[1], planes.shape[-1], u.shape[0]
         planes_cl, lines_cl = planes_to_stored(planes.detach()), lines_to_stored(lines.detach())
@@ -130,6 +131,7 @@ class _NativeVMProducts(torch.autograd.Function):
                                 out.data_ptr(), taps.data_ptr(), _threads())
         ctx.save_for_backward(planes_cl, lines_cl, taps)
         ctx.shape = (m, r, n)
+        ctx.sink = sink
         return out
 
     @staticmethod
@@ -137,8 +139,11 @@ class _NativeVMProducts(torch.autograd.Function):
         planes_cl, lines_cl, taps = ctx.saved_tensors
         m, r, n = ctx.shape
         need_p, need_l = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
-        gp = torch.zeros_like(planes_cl) if need_p else None
-        gl = torch.zeros_like(lines_cl) if need_l else None
+        if ctx.sink is not None:  # buffers kept zero between steps by their owner (``vm_touched``): no fill
+            gp, gl = (ctx.sink[0] if need_p else None), (ctx.sink[1] if need_l else None)
+        else:
+            gp = torch.zeros_like(planes_cl) if need_p else None
+            gl = torch.zeros_like(lines_cl) if need_l else None
         if m and (need_p or need_l):
             g = grad_out.contiguous()
             _library()[0].vm_products_backward(planes_cl.data_ptr(), lines_cl.data_ptr(), taps.data_ptr(), m, r, n,
@@ -147,7 +152,7 @@ class _NativeVMProducts(torch.autograd.Function):
         # Views with channels-last strides: the same strides as the parameters that ``tensorf`` keeps
         # channels-last, so autograd stores them as they are (any other layout gets copied there).
         return (planes_from_stored(gp) if gp is not None else None,
-                lines_from_stored(gl) if gl is not None else None, None)
+                lines_from_stored(gl) if gl is not None else None, None, None)
 
 
 NO_GRAD_CHUNK = 1 << 16  # points per kernel call without autograd: bounds the scratch taps to 9 MiB
@@ -170,15 +175,17 @@ def _native_no_grad(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
     return out
 
 
-def vm_products(planes: Tensor, lines: Tensor, u: Tensor) -> Tensor:
+def vm_products(planes: Tensor, lines: Tensor, u: Tensor, sink: Optional[tuple] = None) -> Tensor:
     """(3, R, N, N) planes, (3, R, N, 1) lines, (m, 3) points in [-1, 1] -> (m, 3, R) products.
 
     Differentiable in ``planes`` and ``lines``; takes the native CPU kernel when :func:`backend` allows,
-    else :func:`reference`.
+    else :func:`reference`. ``sink``: (planes (3, N, N, R), lines (3, N, R)) stored-layout buffers, zero
+    everywhere, that the native kernel's backward adds the gradients into (and returns as them) instead
+    of filling a fresh zero grid each step; their owner zeroes what was written (``vm_touched``).
     """
     if (backend(planes, u)[0] != "native" or lines.dtype != torch.float32 or u.dtype != torch.float32
             or lines.device.type != "cpu" or u.device.type != "cpu" or not _kernel_shapes_ok(planes, lines, u)):
         return reference(planes, lines, u)
     if torch.is_grad_enabled() and (planes.requires_grad or lines.requires_grad):
-        return _NativeVMProducts.apply(planes, lines, u)
+        return _NativeVMProducts.apply(planes, lines, u, sink)
     return _native_no_grad(planes, lines, u)

@@ -6,7 +6,6 @@ render never leaves a truncated image behind.
 """
 from __future__ import annotations
 
-import os
 import warnings
 from pathlib import Path
 from typing import Dict, Optional, Sequence
@@ -16,7 +15,7 @@ from PIL import Image
 
 from nerf_core.contract.eight_bit import to_8bit
 from nerf_core.errors import ImageReadError
-from nerf_core.utils.atomic import atomic_path
+from nerf_core.utils.atomic import atomic_file, atomic_path
 
 
 def _openexr(path: Path | str, doing: str):
@@ -297,8 +296,8 @@ def write_png(path: Path | str, image: np.ndarray) -> None:
     arr = np.asarray(image)
     if arr.dtype != np.uint8:
         arr = to_8bit(arr)
-    with atomic_path(path, _pid_temp(path)) as tmp:
-        Image.fromarray(arr).save(tmp, format="PNG")
+    with atomic_file(path) as fh:
+        Image.fromarray(arr).save(fh, format="PNG")
 
 
 def write_exr(path: Path | str, channels: Dict[str, np.ndarray]) -> None:
@@ -308,10 +307,6 @@ def write_exr(path: Path | str, channels: Dict[str, np.ndarray]) -> None:
     path = Path(path)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
-    with atomic_path(path, _pid_temp(path)) as tmp, OpenEXR.File(header, data) as f:
+    with atomic_path(path) as tmp, OpenEXR.File(header, data) as f:
         f.write(str(tmp))
 
-
-def _pid_temp(path: Path) -> Path:
-    """``.NAME.tmpPID``: image writers of several processes (render shards) may share a folder."""
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")

@@ -15,10 +15,13 @@ import torch
 from torch import nn
 
 from nerf_core.cameras.rays import ray_bounds
+from nerf_core.data.batcher import Batcher, RayBatcher
 from nerf_core.data.scene_box import box_length_unit
+from nerf_core.data.split import Split
 from nerf_core.image.losses import masked_mse
 from nerf_core.methods.options import MAX_GRID_RES, MethodOptions, PluginOptions
 from nerf_core.methods.registry import current_option_names
+from nerf_core.optim import Adam, TrainingOptimizer
 
 __all__ = ["RadianceModel", "MAX_GRID_RES", "density_length"]
 
@@ -230,6 +233,37 @@ class RadianceModel(nn.Module):
                            "name": "environment"})
         return groups
 
+    # ------------------------------------------------------------------ the training step
+    # The trainer's step is: budget, ``training_hook``, ``make_batcher``'s batch, ``render_batch``,
+    # ``loss``, backward, checks, ``optimizer_step``. What differs between methods is theirs to say.
+
+    def make_batcher(self, split: Split, background: str, gen: torch.Generator, device: torch.device) -> Batcher:
+        """What the trainer draws each step's rays from: by default ``RayBatcher``, one ray through the
+        centre of each of ``batch_rays`` random pixels.
+
+        Args:
+            split: the train ``Split``.
+            background: the training background mode (``data.backgrounds``; "auto" already decided).
+            gen: the CPU generator every random draw must come from (checkpoints save its state).
+            device: where the batches go.
+        """
+        return RayBatcher(split, background, gen, device)
+
+    def make_optimizer(self, lr: float) -> TrainingOptimizer:
+        """The optimiser over ``optimizer_groups(lr)``: by default Adam (fused where it can be).
+        Called at the start, after growth (``training_hook`` returned True) and after a rollback."""
+        return Adam(self.optimizer_groups(lr), eps=self.adam_eps)
+
+    def optimizer_step(self, opt: TrainingOptimizer, out: Dict[str, torch.Tensor]) -> None:
+        """Apply one step's gradients.
+
+        Args:
+            opt: what ``make_optimizer`` returned (its learning rates already scheduled).
+            out: what ``render_batch`` returned for the step's batch: a method that reports what the
+                step touched there (the cells of a grid, say) can update only that.
+        """
+        opt.step()
+
     def training_hook(self, step: int, frac: float | None) -> bool:
         """Called by the trainer before each step (occupancy updates, coarse-to-fine growth).
 
@@ -252,6 +286,12 @@ class RadianceModel(nn.Module):
 
     def set_replica_stats(self, stats: dict[str, float]) -> None:
         """Take the rank-averaged values of ``replica_stats``."""
+
+    def replica_masks(self) -> list[torch.Tensor]:
+        """Bool tensors the method keeps from its own training batch (the cells a sparse optimiser will
+        step), which under ``torchrun`` the trainer ORs over the ranks in place after the backward pass,
+        so that every rank steps the same cells with the same averaged gradients."""
+        return []
 
     @classmethod
     def size_options(cls, fine_res: float, texture: float, fine_share: float) -> tuple[dict, list[str]]:

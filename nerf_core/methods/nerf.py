@@ -48,7 +48,7 @@ from nerf_core.methods.base import RadianceModel, density_length
 from nerf_core.methods.nerf_options import NeRFOptions
 from nerf_core.methods.registry import register
 from nerf_core.utils import profiling
-from nerf_core.volume import grad_scaling, ray_termination, sampling, volrend
+from nerf_core.volume import grad_scaling, marching, ray_termination, sampling, volrend
 from nerf_core.volume.occupancy import OccupancyGrid
 
 Tensor = torch.Tensor
@@ -141,8 +141,7 @@ class NeRF(RadianceModel):
     def _density_chunked(self, pts: Tensor) -> Tensor:
         """(m, 3) -> (m,) density without grad, in chunks, marked as the profile's ``field`` stage."""
         with profiling.stage("field"):
-            return torch.cat([self.coarse.density(pts[i:i + self.render_chunk])
-                              for i in range(0, max(1, pts.shape[0]), self.render_chunk)])
+            return marching.chunked(self.coarse.density, pts, self.render_chunk)
 
     def _render_occupancy(self, rays_o, rays_d, near, far, background, training: bool):
         n_rays = rays_o.shape[0]
@@ -171,15 +170,10 @@ class NeRF(RadianceModel):
             t0, t1, ridx, mids, weights, rgb, n_evaluated = self._render_visible(
                 t0, t1, ridx, mids, pts, rays_d, n_rays
             )
-        with profiling.stage("rendering"):
-            color = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, rgb)
-            acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
-            depth = volrend.accumulate_along_rays_packed(weights, ridx, n_rays, mids.unsqueeze(-1)).squeeze(-1)
-            depth = depth / acc.clamp_min(1e-6)
-            color = volrend.composite_background(color, acc, background.to(color.dtype))
+        out = marching.composite(weights, ridx, t0, t1, n_rays, background, rgb)
         # Rendering reports what it cost (``render_rays_chunked`` sizes its calls from it).
-        return {"rgb": color, "depth": depth, "acc": acc,
-                "n_samples": int(ridx.shape[0]) if n_evaluated is None else n_evaluated}
+        out["n_samples"] = int(ridx.shape[0]) if n_evaluated is None else n_evaluated
+        return out
 
     # The early-termination pass costs at most about a third of a training pass over the same samples
     # (density only, no backward, and none behind opaque points), so it pays while it keeps less than
@@ -240,9 +234,9 @@ class NeRF(RadianceModel):
     def _visible(self, t0, t1, ridx, mids, pts, n_rays):
         """The packed samples (same tuple) whose transmittance is still above 1e-4, found front to back
         (``ray_termination.visible_samples``): no density is evaluated behind a ray's opaque point."""
-        keep, _ = ray_termination.visible_samples(t0, t1, ridx, n_rays, lambda sel: self._density_chunked(pts[sel]),
-                                                  t_min=1e-4, round_size=self.render_round_size)
-        return t0[keep], t1[keep], ridx[keep], mids[keep], pts[keep]
+        keep, _ = marching.visible_front_to_back(t0, t1, ridx, n_rays, lambda sel: self._density_chunked(pts[sel]),
+                                                 round_size=self.render_round_size)
+        return tuple(x.index_select(0, keep) for x in (t0, t1, ridx, mids, pts))
 
     # ------------------------------------------------------------------ hierarchical sampler
 

@@ -26,12 +26,15 @@ import torch
 
 from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
-from nerf_core.methods import growth, vmgrid_render
+from nerf_core.fields.vm_touched import TouchedRows
+from nerf_core.methods import growth
 from nerf_core.methods.base import MAX_GRID_RES, RadianceModel, density_length
 from nerf_core.methods.registry import register
 from nerf_core.methods.vmgrid_options import VMGridOptions
+from nerf_core.optim import RowSparseAdam
 from nerf_core.utils import profiling
-from nerf_core.volume import grad_scaling, ray_termination, sampling
+from nerf_core.utils.running_mean import RunningMean
+from nerf_core.volume import grad_scaling, marching, sampling, volrend
 from nerf_core.volume.contraction import outer_box, squeeze_into_outer_box
 from nerf_core.volume.occupancy import OccupancyGrid
 
@@ -83,10 +86,14 @@ class VMGrid(RadianceModel):
                                    view_freqs=o.view_freqs, seed=o.seed, density_shift=shift,
                                    density_scale=density_scale, view_dependent=o.view_dependent)
         self.occupancy = OccupancyGrid(field_box, o.occ_res)
+        # The sparse grid optimiser updates only the cells the step's lookups read: the field records them.
+        # Its gradients go into buffers zeroed where they were written, unless the TV prior writes everywhere.
+        self.field.touched = TouchedRows(sinks=o.tv_weight == 0) if o.grid_optimizer == "sparse" else None
         self.render_step_chunk = 1 << 18  # samples per no-grad density chunk at eval time
         self.render_round_size = 32  # samples per ray per front-to-back round when rendering without grad
-        self._acc_ema = 0.0  # running mean opacity of training rays (see ``formed``), as the host last read it
-        self._acc_dev, self._acc_read = None, 0.0  # the same on the device (``vmgrid_render.track_opacity``)
+        # Running mean opacity of the training rays (see ``formed``): fed on the device every step, read
+        # by the host on the periodic steps only (``RunningMean``).
+        self.opacity = RunningMean(0.0)
         self._near_gate, self._reach_units = grad_scaling.NearCameraGate(), None
         self._last_growth_step = 0
 
@@ -121,14 +128,14 @@ class VMGrid(RadianceModel):
         interior demo scene the occupancy grid was still 100 % occupied after 150 s, so the run kept
         the coarse warm-up step and never started the L1 prior.
         """
-        return self.pruned() or self._acc_ema > self.OPAQUE_RAYS
+        return self.pruned() or self.opacity.value > self.OPAQUE_RAYS
 
     def replica_stats(self) -> dict[str, float]:
-        # ``_acc_ema`` gates ``formed()``, hence the marching step, the L1 prior and growth.
-        return {"acc_ema": vmgrid_render.read_opacity(self)}
+        # The opacity gates ``formed()``, hence the marching step, the L1 prior and growth.
+        return {"acc_ema": self.opacity.read()}
 
     def set_replica_stats(self, stats: dict[str, float]) -> None:
-        self._acc_ema = float(stats["acc_ema"])
+        self.opacity.set(stats["acc_ema"])
 
     def step_size(self) -> float:
         """Marching step in scene units: ``step_ratio`` voxels, coarser until the occupancy grid prunes.
@@ -146,7 +153,7 @@ class VMGrid(RadianceModel):
         # sparser later when the grid is stable.
         every = o.occ_every if step < 50 * o.occ_every else 2 * o.occ_every
         if step > 0 and step % every == 0:  # periodic steps may wait for the device: read what it keeps
-            vmgrid_render.read_opacity(self)
+            self.opacity.read()
             self._near_gate.recheck()
             self.update_occupancy()
         if frac is None:  # no budget given: growth follows an assumed ``budget_steps``
@@ -236,10 +243,33 @@ class VMGrid(RadianceModel):
     # ------------------------------------------------------------------ optimisation
 
     def param_groups(self, lr: float) -> list[dict]:
-        return [
-            {"params": self.field.grid_parameters(), "lr": lr * self.opts.grid_lr_scale, "name": "grids"},
-            {"params": self.field.network_parameters(), "lr": lr, "name": "networks"},
-        ]
+        grids = {"params": self.field.grid_parameters(), "lr": lr * self.opts.grid_lr_scale, "name": "grids"}
+        if self.field.touched is not None:
+            grids["row_sparse"] = True  # each cell's R components are one row (``RowSparseAdam``)
+        return [grids, {"params": self.field.network_parameters(), "lr": lr, "name": "networks"}]
+
+    def make_optimizer(self, lr: float):
+        if self.field.touched is None:
+            return super().make_optimizer(lr)
+        return RowSparseAdam(self.optimizer_groups(lr), eps=self.adam_eps, bias=self.opts.sparse_bias)
+
+    def optimizer_step(self, opt, out) -> None:
+        """Dense Adam, or the sparse one over the cells this step's lookups read; the L1 prior then
+        acts on those cells too (its gradient is added here, on them alone, instead of over the grid)."""
+        touched = self.field.touched
+        if touched is None:
+            opt.step()
+            return
+        f = self.field
+        names = ("density_planes_cl", "density_lines_cl", "app_planes_cl", "app_lines_cl")  # grid_parameters' order
+        rows = {p: touched.rows(name) for name, p in zip(names, f.grid_parameters())}
+        # d/dx of l1_weight * mean|x| (``image.losses.l1_sparsity``) is l1_weight / numel * sign(x)
+        l1 = ({p: self.opts.l1_weight / p.numel() for p in (f.density_planes_cl, f.density_lines_cl)}
+              if self.opts.l1_weight > 0 and self.formed() else None)
+        opt.step(rows={p: idx for p, idx in rows.items() if idx is not None}, l1=l1)
+
+    def replica_masks(self) -> list:
+        return [] if self.field.touched is None else self.field.touched.masks_for_replicas()
 
     def run_state(self) -> dict:
         return {"resolution": self.field.resolution, "res_final_budget": self.res_final_budget}
@@ -325,27 +355,72 @@ class VMGrid(RadianceModel):
         n_rays = rays_o.shape[0]
         t0, t1, ridx = self._samples(rays_o, rays_d, near, far, training)
         pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, 0.5 * (t0 + t1)))
+        gscale = None
         if torch.is_grad_enabled():
-            t0, t1, ridx, pts, weights, gscale = vmgrid_render.visible_with_grad(self, t0, t1, ridx, pts, n_rays,
-                                                                                 training)
+            if self.field.touched is not None:
+                self.field.touched.clear()  # the cells this render reads, and only those, are stepped
+            # Early ray termination: find the visible samples without grad, then recompute their density
+            # with grad (and even out the gradient near each lens when cameras are inside the box).
+            with torch.no_grad():
+                sigma = marching.chunked(self._density, pts, self.render_step_chunk)
+            keep = marching.visible_after_one_pass(t0, t1, ridx, n_rays, sigma)
+            t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
+            sigma = self._density(pts)
+            gscale = self._near_gate.scales(0.5 * (t0 + t1), self._reach()) if training else None
+            if gscale is not None:
+                sigma = grad_scaling.scale_gradient(sigma, gscale)
+            with profiling.stage("rendering"):
+                weights, _, _ = volrend.render_weight_from_density_packed(t0, t1, sigma, ridx, n_rays)
             color_fn = self.field.color
         else:
             # Nothing to differentiate (render, eval): the same kept samples and weights, without the
             # density of samples behind opaque surfaces or a second density pass over the survivors,
             # and every lookup from tables laid out for reading (``fields.vm_lookup``).
             lookup = self.field.lookup()
-            color_fn, gscale = lookup.color, None
-            keep, weights = ray_termination.visible_samples(
-                t0, t1, ridx, n_rays, self._density_of(pts, lookup), t_min=1e-4, round_size=self.render_round_size)
-            keep = keep.nonzero().squeeze(-1)
+            color_fn = lookup.color
+            keep, weights = marching.visible_front_to_back(t0, t1, ridx, n_rays, self._density_of(pts, lookup),
+                                                           round_size=self.render_round_size)
             t0, t1, ridx, pts = (x.index_select(0, keep) for x in (t0, t1, ridx, pts))
-        out = vmgrid_render.composite(self, t0, t1, ridx, pts, weights, gscale, color_fn, rays_d, n_rays, background)
+        with profiling.stage("rendering"):  # the output's own opacity, summed once
+            acc = volrend.accumulate_along_rays_packed(weights, ridx, n_rays)
+        # Colour only where it can matter; one index for every gather (boolean masks would each search again).
+        vis = marching.colour_where_it_matters(weights, acc, ridx, self.opts.color_weight)
+        with profiling.stage("field"):
+            rgb = color_fn(pts.index_select(0, vis), rays_d.index_select(0, ridx.index_select(0, vis)))
+        if gscale is not None:
+            rgb = grad_scaling.scale_gradient(rgb, gscale.index_select(0, vis))
+        out = marching.composite(weights, ridx, t0, t1, n_rays, background, rgb, coloured=vis, acc=acc)
+        out["n_samples"] = int(ridx.shape[0])
         if training:
-            vmgrid_render.track_opacity(self, out["acc"])  # on the device; the host reads it on periodic steps
-            aux = vmgrid_render.regularisers(self, weights, t0, t1, ridx, n_rays)
+            self.opacity.add(out["acc"])  # on the device; the host reads it on periodic steps
+            aux = self._regularisers(weights, t0, t1, ridx, n_rays)
             if torch.is_tensor(aux):
                 out["aux_loss"] = aux
         return out
+
+    def _regularisers(self, weights, t0, t1, ridx, n_rays):
+        """The training step's extra loss: L1 and TV on the density planes, the distortion loss; 0.0
+        when none applies."""
+        aux = 0.0
+        o = self.opts
+        # The L1 prior waits until geometry has formed (``formed``: the occupancy grid prunes, or nearly
+        # every ray is stopped). Before that the rendering gradient on the nearly transparent field is
+        # tiny, and Adam scales every parameter's step to the same size whatever its gradient, so L1
+        # alone would drive both factors of the VM products to zero: a saddle (d(plane*line) = 0 there)
+        # that training never leaves, seen as a run stuck at its initial PSNR for its whole budget.
+        # (The sparse grid optimiser applies it itself, at the touched cells: ``optimizer_step``.)
+        use_l1 = o.l1_weight > 0 and self.field.touched is None and self.formed()
+        with profiling.stage("field"):
+            if use_l1:
+                aux = aux + o.l1_weight * self.field.density_l1()
+            if o.tv_weight > 0:
+                aux = aux + o.tv_weight * self.field.density_tv()
+        if o.dist_weight > 0:
+            scale = float((self.aabb[1] - self.aabb[0]).norm())
+            with profiling.stage("rendering"):
+                dist = volrend.distortion_loss_packed(weights, t0 / scale, t1 / scale, ridx, n_rays)
+            aux = aux + o.dist_weight * dist.mean()
+        return aux
 
     def _samples(self, rays_o, rays_d, near, far, training):
         """Samples where the occupancy grid says something may be: (t0, t1, ray index), each (m,)."""

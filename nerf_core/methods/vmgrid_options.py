@@ -9,6 +9,7 @@ from typing import List
 
 from nerf_core.methods import growth
 from nerf_core.methods.options import MethodOptions, grid_option, option
+from nerf_core.optim.row_adam import BIAS_MODES
 from nerf_core.volume import grad_scaling
 
 BIG = 4096  # ranks and widths above this would need gigabytes per sample batch, not train
@@ -60,3 +61,7 @@ class VMGridOptions(MethodOptions):
     budget_growth_steps: int = option(growth.BASE_STEPS,
                                       "a run predicted to make more steps than this grows past res_final (0: never)")
     res_budget_max: int = grid_option(320, "the most cells per axis a long run grows to")
+    grid_optimizer: str = option("adam", "how the grids are stepped: dense Adam over every cell, or a lazy Adam "
+                                 "over the cells the step's rays touched", choices=("adam", "sparse"))
+    sparse_bias: str = option("per_row", "the sparse Adam's bias correction: a step count per cell, or none",
+                              choices=BIAS_MODES)

@@ -5,7 +5,7 @@ dataset files an output must never overwrite.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import numpy as np
 
@@ -16,11 +16,10 @@ from nerf_core.contract.intrinsics import resolve_intrinsics
 from nerf_core.contract.jsonfile import parse_json_file
 from nerf_core.contract.lens import parse_lens
 from nerf_core.contract.naming import frame_stem, unique_stems
+from nerf_core.contract.outputs import dataset_files  # noqa: F401 (the output rule's; render uses it from here)
 from nerf_core.contract.poses import check_pose
 from nerf_core.contract.transforms import (
-    SPLITS,
     FrameInfo,
-    frame_infos,
     read_transforms,
 )
 from nerf_core.data.loading import cameras_of_frames, load_cameras, load_split
@@ -131,27 +130,3 @@ def ground_truth_split(frame: Optional[FrameInfo], cameras: Cameras, view: int, 
             f"{frame.image} is {size[0]}x{size[1]} px (downscaled by {downscale}), the render {want[0]}x{want[1]}",
         )
     return split, None
-
-
-def dataset_files(*paths) -> Dict[Path, str]:
-    """{resolved file: 'FILE: frame K (PATH)'} of every image, depth, normal and mask file of the datasets
-    (folders or transforms files) at ``paths``, all splits; a path that is not a dataset adds nothing.
-    ``render`` never writes over these, even with --overwrite."""
-
-    out: Dict[Path, str] = {}
-    for path in paths:
-        if not path:
-            continue
-        try:
-            _, _, infos, _ = frame_infos(path, SPLITS)
-        except (DatasetError, OSError, ValueError):
-            continue
-        for frames in infos.values():
-            for fr in frames:
-                for f in (fr.image, fr.depth, fr.normal, fr.mask):
-                    if f is not None:
-                        try:
-                            out.setdefault(Path(f).resolve(), fr.where)
-                        except (OSError, RuntimeError):  # a symlink loop: not a file we could overwrite
-                            pass
-    return out

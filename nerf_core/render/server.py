@@ -46,6 +46,7 @@ from nerf_core.image.pixel_filter import of_run
 from nerf_core.render.frame import render_view, straight_rgba
 from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory
 from nerf_core.runs.checkpoints import load_trained
+from nerf_core.utils.atomic import LinkRefused, atomic_file
 from nerf_core.utils.device import pick_device
 
 PROGRESS_EVERY_S = 0.5
@@ -141,23 +142,13 @@ def _save_npy(path: str, array: np.ndarray) -> None:
     file) without replacing a file: ``parse_request`` refused existing outputs, but one created while
     the view rendered was replaced by the rename. A hard link fails where the name exists; where the
     file system has no hard links, the check is repeated just before the rename."""
-    tmp = f"{path}.partial{os.getpid()}"
     try:
-        with open(tmp, "wb") as fh:
+        with atomic_file(path, replace=False) as fh:
             np.save(fh, np.ascontiguousarray(array, dtype=np.float32))
-        try:
-            os.link(tmp, path)
-        except FileExistsError:
-            raise RequestError(f"{path} appeared while the view rendered; the server never overwrites a file") from None
-        except OSError:  # no hard links here (FAT, some network shares)
-            if os.path.exists(path):
-                raise RequestError(
-                    f"{path} appeared while the view rendered; the server never overwrites a file"
-                ) from None
-            os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    except FileExistsError:
+        raise RequestError(f"{path} appeared while the view rendered; the server never overwrites a file") from None
+    except LinkRefused as exc:
+        raise RequestError(str(exc)) from None
 
 
 class NotUtf8(str):

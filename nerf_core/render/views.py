@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 import sys
 import time
 from pathlib import Path
@@ -22,6 +23,7 @@ from nerf_core.cameras.rays import Cameras
 from nerf_core.contract import config_path
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.naming import render_files, unique_stems
+from nerf_core.contract.outputs import OutputError, check_not_a_dataset_file, link_problem
 from nerf_core.contract.transforms import FrameInfo, detect_layout
 
 # Checkpoint reading moved to nerf_core.runs.checkpoints; the names stay importable from here for callers
@@ -125,8 +127,9 @@ def render_to_dir(
 
 def _refuse_targets(out: Path, stems: List[str], gt_frames: list, overwrite: bool,
                     protected: Optional[Dict[Path, str]]) -> None:
-    """RunError when a file ``render_to_dir`` would write is a dataset's own (``protected``), or exists
-    and ``overwrite`` is off; nothing is written before this passes."""
+    """RunError when a file ``render_to_dir`` would write is a dataset's own (``protected``), a link,
+    or exists and ``overwrite`` is off (the output rule, ``contract.outputs``); nothing is written
+    before this passes."""
     targets = [out / "renders.json"]
     for s, fr in zip(stems, gt_frames):
         files = render_files(s)
@@ -135,13 +138,13 @@ def _refuse_targets(out: Path, stems: List[str], gt_frames: list, overwrite: boo
             targets.append(out / files["error_map"])
     for t in targets:
         try:
-            frame = (protected or {}).get(t.resolve())
-        except (OSError, RuntimeError):
-            frame = None
-        if frame is not None:
-            raise RunError(f"--out {out}: would write {t.name} over the dataset's own file ({frame}); "
-                           "renders never replace a dataset's images, even with --overwrite. Choose another --out")
-    existing = [t for t in targets if t.exists()]
+            check_not_a_dataset_file(t, t.name, protected or {}, f"--out {out}: would write")
+        except OutputError as exc:
+            raise RunError(str(exc)) from None
+        problem = link_problem(t)
+        if problem:
+            raise RunError(f"--out {out}: {t.name} {problem}")
+    existing = [t for t in targets if os.path.lexists(t)]
     if existing and not overwrite:
         names = ", ".join(t.name for t in existing[:5]) + (
             f" and {len(existing) - 5} more" if len(existing) > 5 else ""

@@ -10,8 +10,8 @@ in a matmul traceback or in scores of a broken model. So every reader (``load_ru
   average, the RNG state, the optimiser's layout) is of the kind and range the trainer writes;
 - ``check_weights``: every weight has the name, dtype and shape of the model it loads into (shapes
   may differ only where the method declares growth, ``RadianceModel.growing``), and is finite;
-- ``check_optimizer_state``: every optimiser moment has its parameter's shape and is finite, and
-  the parameter groups match the optimiser's.
+- the optimiser's state is checked by the optimiser itself (``nerf_core.optim.TrainingOptimizer.check_state``),
+  which alone knows its layout.
 
 Each problem is a RunError naming the file and the entry.
 """
@@ -168,36 +168,3 @@ def check_weights(model: RadianceModel, weights: Dict[str, torch.Tensor], where:
     if len(set(sizes.values())) > 1:
         shown = ", ".join(f"{name} dim {d}: {n}" for (name, d), n in list(sizes.items())[:6])
         raise RunError(f"{where}: the grids must all have one resolution, got {shown}")
-
-
-def check_optimizer_state(state: dict, optimizer: torch.optim.Optimizer, where: str) -> None:
-    """Refuse (RunError) optimiser state that does not fit ``optimizer`` (built over the model that the
-    checkpoint's weights were loaded into): group layout, moment shapes, finite values.
-
-    Nothing mis-shaped may reach ``optimizer.load_state_dict``: the fused Adam kernel trusts the shapes
-    and would write out of bounds.
-    """
-    groups, mine = state["param_groups"], optimizer.param_groups
-    if len(groups) != len(mine) or any(len(g["params"]) != len(m["params"]) for g, m in zip(groups, mine)):
-        raise RunError(f"{where}: entry 'optimizer' has {[len(g['params']) for g in groups]} parameters per group; "
-                       f"the model's optimiser has {[len(m['params']) for m in mine]}")
-    params = [p for m in mine for p in m["params"]]
-    ids = [i for g in groups for i in g["params"]]
-    if any(not _whole(i, 0) for i in ids) or sorted(ids) != list(range(len(params))):
-        raise RunError(f"{where}: entry 'optimizer' numbers its parameters {ids[:8]}..., not 0..{len(params) - 1}")
-    index = {pid: params[k] for k, pid in enumerate(ids)}
-    for pid, moments in state["state"].items():
-        if pid not in index or not isinstance(moments, dict):
-            raise RunError(f"{where}: entry 'optimizer' has state for parameter {pid!r}, which the model lacks")
-        param = index[pid]
-        for key, value in moments.items():
-            if not isinstance(value, torch.Tensor):
-                raise RunError(f"{where}: optimiser state {key!r} of parameter {pid} must be a tensor")
-            want = () if key == "step" else param.shape
-            if value.shape != want:
-                raise RunError(f"{where}: optimiser state {key!r} of parameter {pid} has shape {tuple(value.shape)}; "
-                               f"it must be {tuple(want)} to fit the model")
-            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
-                raise RunError(f"{where}: optimiser state {key!r} of parameter {pid} holds NaN or infinite values")
-            if key == "step" and float(value) < 0:
-                raise RunError(f"{where}: optimiser state 'step' of parameter {pid} is negative")

@@ -38,7 +38,7 @@ from nerf_core.runs.folder import (
 from nerf_core.runs.record import RunRecord, read_run_record
 from nerf_core.runs.weights import first_line, model_from_checkpoint
 from nerf_core.utils import arguments
-from nerf_core.utils.atomic import atomic_path
+from nerf_core.utils.atomic import atomic_file
 
 # ----------------------------------------------------------------------------------------------
 # reading
@@ -288,12 +288,12 @@ def versions() -> dict:
 
 
 def atomic_torch_save(obj, path: Path) -> None:
-    """Write ``path`` through ``path.tmp`` and a rename. On failure (a full disk) the temporary file is
-    removed, ``path`` keeps its previous content, and TrainError names the file and the cause."""
+    """Write ``path`` through a new temporary file and a rename (``utils.atomic``: never through a
+    link). On failure (a full disk) the temporary file is removed, ``path`` keeps its previous content,
+    and TrainError names the file and the cause."""
     try:
-        # NAME.tmp (not hidden): RUN/.written.json and --overwrite know checkpoints' leftovers by it
-        with atomic_path(path, path.with_name(path.name + ".tmp")) as tmp:
-            torch.save(obj, tmp)
+        with atomic_file(path) as fh:
+            torch.save(obj, fh)
     except (OSError, RuntimeError) as exc:  # torch.save reports a failed write as RuntimeError too
         raise TrainError(f"{path}: cannot write checkpoint: {os_reason(exc)}") from None
 

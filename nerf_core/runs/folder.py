@@ -20,8 +20,10 @@ import errno
 import json
 import os
 import re
+import stat
 import sys
 import time
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Callable, List, Optional
 
@@ -35,7 +37,7 @@ from nerf_core.errors import TrainError
 
 # The dataset a run belongs to has its own module; these names stay importable from here.
 from nerf_core.runs.dataset_identity import dataset_changed_note, dataset_hash, resume_dataset  # noqa: F401
-from nerf_core.utils.atomic import write_json_atomic
+from nerf_core.utils.atomic import is_leftover_temp, write_json_atomic
 
 RUN_LOCK = contract.LOCK  # RUN/.lock: held (flock) by the one trainer writing RUN; holds its PID
 WRITTEN_LIST = contract.WRITTEN_LIST  # RUN/.written.json: every file (relative path) this run's trainers wrote
@@ -51,7 +53,8 @@ LEGACY_WRITTEN = re.compile(
 # Files a trainer writes before its first checkpoint: a folder holding only these can be started again.
 PRE_CHECKPOINT = re.compile(
     f"{re.escape(contract.CONFIG)}|{re.escape(contract.PROGRESS)}|{_PV}/{_STEP_PNG}|{re.escape(WRITTEN_LIST)}"
-    f"|{_CK}/({re.escape(contract.LATEST_CHECKPOINT)}|{_STEP_PT})\\.tmp")
+    f"|{_CK}/({re.escape(contract.LATEST_CHECKPOINT)}|{_STEP_PT})\\.tmp"  # an older trainer's fixed temporary
+    f"|{_CK}/\\.({re.escape(contract.LATEST_CHECKPOINT)}|{_STEP_PT})\\.[0-9a-f]{{16}}\\.tmp")  # utils.atomic's
 
 
 def read_written(run: Path) -> Optional[List[str]]:
@@ -155,7 +158,7 @@ def trainer_written(run: Path) -> List[Path]:
             p = removable(run, rel)
             if p is None:
                 continue
-            for cand in (p, p.with_name(p.name + ".tmp")):
+            for cand in (p, p.with_name(p.name + ".tmp"), *_leftover_temps(p)):
                 if cand.is_file() and not cand.is_symlink() and cand not in found:
                     found.append(cand)
         if (run / WRITTEN_LIST).is_file():
@@ -168,6 +171,14 @@ def trainer_written(run: Path) -> List[Path]:
         if p.is_file() and LEGACY_WRITTEN.fullmatch(rel) and removable(run, rel) is not None:
             found.append(p)
     return found
+
+
+def _leftover_temps(path: Path) -> List[Path]:
+    """The temporaries of ``path`` that a killed writer left (``utils.atomic``'s ``.NAME.<random>.tmp``)."""
+    if not path.parent.is_dir():
+        return []
+    return [p for p in path.parent.glob(f".{glob_escape(path.name)}.*") if is_leftover_temp(p.name)
+            and p.name[1:].rsplit(".", 2)[0] == path.name]
 
 
 def run_contents(run: Path) -> List[str]:
@@ -192,12 +203,21 @@ def check_run_layout(run: Path) -> None:
     would reach a user's file outside the run) or whose checkpoints/previews folder is a file."""
     if not run.is_dir():
         return
-    for name in (contract.CONFIG, contract.PROGRESS, WRITTEN_LIST, contract.METRICS, contract.CHECKPOINTS_DIR,
-                 contract.PREVIEWS_DIR):
+    for name in (RUN_LOCK, contract.CONFIG, contract.PROGRESS, WRITTEN_LIST, contract.METRICS,
+                 contract.CHECKPOINTS_DIR, contract.PREVIEWS_DIR, *_checkpoint_names(run)):
         _own_file(run, run / name)  # TrainError naming the link
     for name in (contract.CHECKPOINTS_DIR, contract.PREVIEWS_DIR):
         if (run / name).exists() and not (run / name).is_dir():
             raise TrainError(f"{run / name}: is a file, and the run keeps a folder there; move the file away")
+
+
+def _checkpoint_names(run: Path) -> List[str]:
+    """The checkpoints a resume reads and a checkpoint replaces, relative to ``run``."""
+    ck = run / contract.CHECKPOINTS_DIR
+    names = [f"{contract.CHECKPOINTS_DIR}/{contract.LATEST_CHECKPOINT}"]
+    if ck.is_dir() and not ck.is_symlink():
+        names += [f"{contract.CHECKPOINTS_DIR}/{p.name}" for p in ck.glob(contract.step_glob(".pt"))]
+    return names
 
 
 def check_run_folder(run: Path, resume: bool, overwrite: bool) -> None:
@@ -323,6 +343,10 @@ def lock_run_folder(run: Path) -> Callable[[], None]:
     Releasing unlinks the file while still holding the lock, so a finished run leaves no lock file;
     that is why a winner checks that the file it locked is still the one at ``RUN/.lock``: it may
     have opened the file just before the previous holder unlinked it.
+
+    The lock file is never opened through a link (``O_NOFOLLOW``) and nothing is ever truncated: a
+    link, a hard link (a second name of some other file), or anything but a small regular file at
+    ``RUN/.lock`` is refused with a TrainError naming it, before a byte is written.
     """
     if fcntl is None:
         # Windows has no flock. msvcrt.locking (mandatory byte-range locks) could stand in, but it
@@ -331,10 +355,7 @@ def lock_run_folder(run: Path) -> Callable[[], None]:
         return lambda: None
     path = run / RUN_LOCK
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:  # a folder we may not write to: training could not write there either
-            raise TrainError(f"{path}: cannot create the run folder's lock file ({exc.strerror})") from None
+        fd = _open_lock_file(path)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -356,8 +377,8 @@ def lock_run_folder(run: Path) -> Callable[[], None]:
         if current is not None and os.path.samestat(os.fstat(fd), current):
             break
         os.close(fd)  # we locked a file the previous holder had just unlinked: lock the new one
-    os.ftruncate(fd, 0)
-    os.write(fd, f"{os.getpid()}\n".encode("ascii"))
+    # A fixed-width record over what an earlier holder wrote (a PID is shorter): no truncation.
+    os.pwrite(fd, f"{os.getpid()}".ljust(_LOCK_RECORD - 1).encode("ascii") + b"\n", 0)
 
     def release() -> None:
         try:
@@ -367,6 +388,36 @@ def lock_run_folder(run: Path) -> Callable[[], None]:
         os.close(fd)
 
     return release
+
+
+_LOCK_RECORD = 32  # bytes: the PID, padded with spaces, and a newline; a larger file is no lock file
+
+
+def _open_lock_file(path: Path) -> int:
+    """Open (or create) ``RUN/.lock`` for reading and writing, never through a link; a TrainError names
+    it when it is a link, a hard link, or no lock file (not a regular file, or larger than a record)."""
+    flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags | getattr(os, "O_NONBLOCK", 0), 0o644)  # (a FIFO must not block the open)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or os.path.islink(path):
+            raise TrainError(f"{path}: is a symbolic link (to {os.readlink(path)}); the run's lock file is never "
+                             "opened through a link. Remove the link, or choose another --out") from None
+        # a folder we may not write to: training could not write there either
+        raise TrainError(f"{path}: cannot create the run folder's lock file ({exc.strerror})") from None
+    st = os.fstat(fd)
+    problem = None
+    if not stat.S_ISREG(st.st_mode):
+        problem = "is not a regular file"
+    elif st.st_nlink > 1:
+        problem = f"is a hard link (one of {st.st_nlink} names of one file)"
+    elif st.st_size > _LOCK_RECORD:
+        problem = f"holds {st.st_size} bytes, more than a trainer's lock file"
+    if problem:
+        os.close(fd)
+        raise TrainError(f"{path}: {problem}; the run's lock file is written only when it is the trainer's own. "
+                         "Move it away, or choose another --out")
+    return fd
 
 
 def _lock_holder_pid(fd: int) -> Optional[int]:

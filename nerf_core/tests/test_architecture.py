@@ -184,3 +184,42 @@ def test_lines_are_at_most_120_characters():
                                str(REPO / "pyproject.toml"), "--stdin-filename", "nerf_core/probe.py", "-"],
                               input=line, cwd=REPO, capture_output=True, text=True)
         assert (proc.returncode != 0) == flagged, (length, proc.stdout)
+
+
+# Names that are private by spelling but are the documented way to reach a library's feature.
+LIBRARY_PRIVATE_ATTRIBUTES = {
+    "_foreach_norm",  # torch._foreach_norm: every gradient's norm in one call (rollback's check)
+    "_version",  # a tensor's in-place version counter (derived caches)
+    "_exit",  # os._exit: leave a child process without running the parent's handlers
+    "_get_help_string", "_load_from_state_dict",  # the overridable hooks of argparse and nn.Module
+}
+
+
+def private_reads(tree: ast.AST) -> list[tuple[int, str]]:
+    """``(line, expression)`` of every read of another object's private attribute (``x._name`` where x
+    is not ``self``, ``cls``, ``super()`` or a class of the same module), less the library names above."""
+    own_classes = {n.name for n in ast.walk(tree) if isinstance(n, ast.ClassDef)}
+    found = []
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")):
+            continue
+        owner = ast.unparse(node.value)
+        if owner in ("self", "cls", "super()") or owner in own_classes or node.attr in LIBRARY_PRIVATE_ATTRIBUTES:
+            continue
+        found.append((node.lineno, f"{owner}.{node.attr}"))
+    return found
+
+
+def test_no_module_reads_another_objects_private_attributes():
+    """State belongs to its owner: a renderer that reads a model's ``_acc_ema`` breaks when the model
+    changes how it keeps it (issue 55: vmgrid's renderer read 13 of them)."""
+    found = [f"{rel}:{line}: {expr}" for rel, path in _sources(*CHECKED_ROOTS)
+             for line, expr in private_reads(ast.parse(path.read_text(encoding="utf-8")))]
+    assert not found, "reads of another object's private state; give its owner a public way:\n" + "\n".join(found)
+
+
+def test_the_private_read_rule_fails_on_a_private_read():
+    code = ("class Own:\n    _k = 1\n"
+            "def f(model, self):\n    a = model._acc_ema\n    b = self._x\n    c = Own._k\n"
+            "    d = super()._y\n    e = torch._foreach_norm\n    g = other.field._state\n")
+    assert [expr for _, expr in private_reads(ast.parse(code))] == ["model._acc_ema", "other.field._state"]

@@ -363,6 +363,6 @@ def test_vmgrid_counts_geometry_as_formed_when_every_ray_is_stopped_even_without
     model = build_model("vmgrid", torch.tensor([[-3.0, -2.5, 0.0], [3.0, 2.5, 3.0]]))
     assert not model.pruned() and not model.formed()
     coarse = model.step_size()
-    model._acc_ema = 0.95  # what render_rays tracks while training in a room
+    model.opacity.set(0.95)  # what render_rays tracks while training in a room
     assert model.formed() and not model.pruned()
     assert model.step_size() == pytest.approx(coarse / model.options["warmup_step_scale"])

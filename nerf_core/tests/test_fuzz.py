@@ -32,7 +32,7 @@ from nerf_core.engine.config import TrainConfig
 from nerf_core.engine.optim import make_optimizer
 from nerf_core.errors import ImageReadError, RunError, TrainError
 from nerf_core.render.server import RenderServer, RequestError, parse_request
-from nerf_core.runs.checkpoint_checks import check_entries, check_optimizer_state
+from nerf_core.runs.checkpoint_checks import check_entries
 from nerf_core.runs.checkpoints import model_from_checkpoint, read_checkpoint
 
 settings.register_profile("ci", max_examples=60, deadline=None, derandomize=True, database=None,
@@ -155,7 +155,7 @@ def test_checkpoints_end_in_a_run_error_or_load_and_step(base_checkpoint):
             check_entries(ckpt, "ck", for_resume=True)
             model = model_from_checkpoint(ckpt, torch.device("cpu"), "ck").train()
             opt = make_optimizer(model, 1e-3)
-            check_optimizer_state(ckpt["optimizer"], opt, "ck")
+            opt.check_state(ckpt["optimizer"], "ck")
         except RunError as exc:
             assert str(exc).startswith("ck")
             return

@@ -105,6 +105,94 @@ def test_a_method_in_one_file_trains_renders_and_evaluates_through_the_cli(spher
     assert proc.returncode == 0 and "samples = 16\n    samples per ray" in proc.stdout
 
 
+
+# A method that owns its whole step, in one file: its own batcher (one view per step, half the rays it
+# is asked for), its own optimiser (SGD with a state layout Adam's would refuse: a count per row of each
+# parameter) and its own optimizer_step, which reads what the step rendered.
+TOY_STEP = TOY.replace('@register("toy")', '@register("toy-step")').replace("class Toy(", "class ToyStep(") + """
+
+from nerf_core.cameras.rays import rays_for_pixels
+from nerf_core.data.batcher import Batcher, RayBatch
+from nerf_core.optim import TrainingOptimizer
+
+
+class OneView(Batcher):
+    def __init__(self, split, background, gen, device):
+        self.split, self.gen, self.device = split, gen, device
+
+    def sample(self, n, frac=1.0):
+        n = n // 2
+        view = torch.randint(0, len(self.split), (1,), generator=self.gen).expand(n)
+        j = torch.randint(0, self.split.height, (n,), generator=self.gen)
+        i = torch.randint(0, self.split.width, (n,), generator=self.gen)
+        bg = torch.ones(n, 3)
+        rgb, _ = self.split.pixels(view, j, i, bg)
+        o, d, _ = rays_for_pixels(self.split.cameras, view, i, j)
+        return RayBatch(o, d, bg, rgb, None)
+
+
+class CountingSGD(TrainingOptimizer, torch.optim.SGD):
+    def __init__(self, groups):
+        super().__init__(groups, momentum=0.9)
+
+    def state_shape(self, key, param):
+        return {"rows": (param.shape[0],), "rays": ()}.get(key, tuple(param.shape))
+
+
+ToyStep.make_batcher = lambda self, split, background, gen, device: OneView(split, background, gen, device)
+ToyStep.make_optimizer = lambda self, lr: CountingSGD(self.optimizer_groups(lr))
+
+
+def optimizer_step(self, opt, out):
+    opt.step()
+    for group in opt.param_groups:
+        for p in group["params"]:
+            st = opt.state[p]
+            st["rows"] = st.get("rows", torch.zeros(p.shape[0])) + 1
+            st["rays"] = st.get("rays", torch.zeros(())) + out["rgb"].shape[0]
+
+
+ToyStep.optimizer_step = optimizer_step
+"""
+
+
+def test_a_method_with_its_own_batcher_and_optimiser_trains_resumes_renders_and_evaluates(sphere_dataset, tmp_path):
+    plugins = tmp_path / "plugins"
+    plugins.mkdir()
+    (plugins / "toy_method.py").write_text(TOY_STEP)
+    run = tmp_path / "run"
+    proc = _cli("train", str(sphere_dataset), "--out", str(run), "--method", "toy-step", "--max-steps", "20",
+                "--checkpoint-every", "10", "--no-bar", cwd=tmp_path, plugin_dir=plugins)
+    assert proc.returncode == 0, proc.stderr
+    state = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)["optimizer"]["state"]
+    # The method's optimizer_step ran every step, on its own batcher's 128 rays (half of batch_rays 256).
+    assert {float(s["rays"]) for s in state.values()} == {20 * 128.0}
+    assert all(torch.equal(s["rows"], torch.full_like(s["rows"], 20.0)) for s in state.values())
+    assert all("momentum_buffer" in s for s in state.values())  # SGD's, not Adam's moments
+    # The optimiser checks its own saved layout: --resume keeps it rather than starting afresh.
+    proc = _cli("train", str(sphere_dataset), "--out", str(run), "--resume", "--max-steps", "30", "--no-bar",
+                cwd=tmp_path, plugin_dir=plugins)
+    assert proc.returncode == 0, proc.stderr
+    assert "afresh" not in proc.stderr
+    state = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)["optimizer"]["state"]
+    assert {float(s["rays"]) for s in state.values()} == {30 * 128.0}
+    proc = _cli("render", str(run), "--out", str(tmp_path / "renders"), "--no-bar", cwd=tmp_path, plugin_dir=plugins)
+    assert proc.returncode == 0, proc.stderr
+    proc = _cli("eval", str(run), "--no-bar", cwd=tmp_path, plugin_dir=plugins)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout.strip().splitlines()[-1])["psnr"] > 5
+    # A damaged count is refused by that same check, naming the file: the trainer starts SGD afresh.
+    ckpt = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)
+    first = next(iter(ckpt["optimizer"]["state"].values()))
+    first["rows"] = torch.zeros(3)
+    for name in ("latest.pt", *[p.name for p in (run / "checkpoints").glob("step_*.pt")]):
+        torch.save(ckpt, run / "checkpoints" / name)
+    proc = _cli("train", str(sphere_dataset), "--out", str(run), "--resume", "--max-steps", "31", "--no-bar",
+                cwd=tmp_path, plugin_dir=plugins)
+    assert proc.returncode == 0, proc.stderr
+    assert "optimiser state 'rows' of parameter" in proc.stderr and "starting CountingSGD afresh" in proc.stderr
+
+
 @pytest.mark.parametrize("name, options, words", [
     ("vmgrid", {"res_init": 1}, "option 'res_init' must be in [2, 2048], got 1"),
     ("vmgrid", {"occ_alpha": 1.0}, "option 'occ_alpha' must be in (0, 1), got 1.0"),

@@ -271,7 +271,7 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
     import os
     import signal
 
-    from nerf_core.engine.trainer import Trainer
+    from nerf_core.engine.callbacks import CheckpointEvery
     from nerf_core.methods.registry import method_class
 
     def hook(self, step, frac):
@@ -279,14 +279,14 @@ def test_a_second_ctrl_c_during_the_interrupted_runs_save_does_not_lose_it(spher
             raise KeyboardInterrupt
         return False
 
-    save = Trainer.save_checkpoint
+    save = CheckpointEvery.save
 
-    def impatient_save(self):
+    def impatient_save(self, trainer):
         os.kill(os.getpid(), signal.SIGINT)  # pressed again while the checkpoint is being written
-        return save(self)
+        return save(self, trainer)
 
     monkeypatch.setattr(method_class("test-grid"), "training_hook", hook)
-    monkeypatch.setattr(Trainer, "save_checkpoint", impatient_save)
+    monkeypatch.setattr(CheckpointEvery, "save", impatient_save)
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
         train(_cfg(sphere_dataset, run, max_steps=15))

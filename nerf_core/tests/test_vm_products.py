@@ -200,7 +200,6 @@ def test_a_checkpoint_from_before_the_layout_change_loads_to_the_same_field():
 
 def test_old_adam_moments_are_upgraded_for_resume():
     from nerf_core.engine.optim import make_optimizer
-    from nerf_core.runs.checkpoint_checks import check_optimizer_state
 
     model = build_model("vmgrid", BOX, res_init=12)
     opt = make_optimizer(model, 1e-3)
@@ -219,7 +218,7 @@ def test_old_adam_moments_are_upgraded_for_resume():
         }
     old_weights = _old_layout(model.state_dict(), "field.")
     _, upgraded = model.upgrade_checkpoint(old_weights, old_state)
-    check_optimizer_state(upgraded, opt, "old.pt")
+    opt.check_state(upgraded, "old.pt")
     for pid in ids:
         for k, v in state["state"][pid].items():
             assert torch.equal(upgraded["state"][pid][k], v)

@@ -50,6 +50,12 @@ def render_transmittance_from_density(t_starts: Tensor, t_ends: Tensor, sigmas: 
     return transmittance, alphas
 
 
+def optical_depth(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor) -> Tensor:
+    """Optical depth after each sample, sum_{j<=i} sigma_j delta_j: (n_rays, n_samples), from the same
+    (n_rays, n_samples) inputs as ``render_transmittance_from_density`` (T after sample i is exp(-it))."""
+    return torch.cumsum(_as_float(sigmas) * (_as_float(t_ends) - _as_float(t_starts)), dim=-1)
+
+
 def render_weight_from_density(t_starts: Tensor, t_ends: Tensor, sigmas: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
     """Compositing weights of a dense batch of samples.
 

@@ -5,8 +5,12 @@ from __future__ import annotations
 import os
 import shutil
 
+import bpy
+
+from ...bridge.core_contract import contract
 from ...dataset import capture_manifest, transforms
 from ...dataset.errors import ExportError
+from ...file_writes import partial_file
 from ..plan import frame_plan
 from ..plan.frame_plan import CaptureError
 from . import shards
@@ -100,7 +104,7 @@ class FolderInspection:
         try:
             os.makedirs(os.path.join(self.out, capture_manifest.MANIFEST_DIR), exist_ok=True)
             probe = os.path.join(self.out, capture_manifest.MANIFEST_DIR, f".write_probe.{shards.unique_suffix()}")
-            with open(probe, "w") as fh:
+            with partial_file(probe, binary=False) as fh:
                 fh.write("ok")
             os.remove(probe)
         except OSError as exc:
@@ -111,8 +115,13 @@ class FolderInspection:
         return manifest
 
     def _delete_dataset(self) -> None:
-        for rel in DATASET_PATHS:
-            path = os.path.join(self.out, rel)
+        doomed = [os.path.join(self.out, rel) for rel in DATASET_PATHS]
+        try:  # the output rule: never through a link, never an input (the open scene, by identity)
+            contract.outputs.refuse_deleting_inputs(doomed, {"the scene being captured": bpy.data.filepath},
+                                                     flag="output folder")
+        except contract.outputs.OutputError as exc:
+            raise CaptureError(str(exc)) from None
+        for path in doomed:
             if os.path.isdir(path):
                 shutil.rmtree(path)
             elif os.path.exists(path):

@@ -12,7 +12,7 @@ import bpy
 import numpy as np
 
 from ...dataset import points
-from ...file_writes import write_png_gray
+from ...file_writes import partial_file, partial_path, write_png_gray
 from ...scene import passes, point_normals
 from ..plan.frame_plan import CaptureError
 from .shards import unique_suffix
@@ -33,9 +33,8 @@ def save_png(scene, result, path: str) -> None:
     img.file_format = "PNG"
     img.color_mode = "RGBA"
     img.color_depth = "8"
-    tmp = path[:-4] + PARTIAL_TAG + ".png"
-    result.save_render(tmp, scene=scene)
-    os.replace(tmp, path)
+    with partial_path(path, path[:-4] + PARTIAL_TAG + ".png") as tmp:  # a new name, never through a link
+        result.save_render(tmp, scene=scene)
 
 
 def read_png_rgba(path: str) -> np.ndarray:
@@ -108,7 +107,5 @@ def save_passes(scene, result, fr: dict, out: str, s, engine: str, scratch_dir: 
             pick = np.random.default_rng(s.seed + fr["index"]).choice(len(pts), points_budget, replace=False)
             pts, cols, nrm = pts[pick], cols[pick], nrm[pick]
         path = os.path.join(out, fr["points_cache"])
-        tmp = f"{path}.{unique_suffix()}{PARTIAL_TAG}"
-        with open(tmp, "wb") as fh:
+        with partial_file(path, f"{path}.{unique_suffix()}{PARTIAL_TAG}") as fh:
             np.savez(fh, points=pts, colors=cols, normals=nrm)
-        os.replace(tmp, path)
