@@ -78,7 +78,8 @@ def _shifted_model(folder):
     pts = cm.Points(np.array([1, 2, 3]), np.array([[0, 0, 0], [1, 0, 0], [0, 1, 2.0]]),
                     np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255]], np.uint8), np.zeros(3),
                     [np.zeros((0, 2), np.int64)] * 3)
-    cm.write_model(folder, cm.Model(cams, images, pts), exts=(".bin",))
+    for name, data in cm.model_files_bytes(cm.Model(cams, images, pts), (".bin",)).items():
+        (folder / name).write_bytes(data)
     return cams, images
 
 

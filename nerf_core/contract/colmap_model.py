@@ -20,12 +20,13 @@ Every problem raises ``ColmapError`` (a ``DatasetError``) naming the file and th
 """
 from __future__ import annotations
 
+import io
 import os
 import struct
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import BinaryIO, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -225,34 +226,32 @@ def read_points_bin(path: Path) -> Points:
     return Points(ids, xyz, rgb, err, tracks)
 
 
-def write_cameras_bin(path: Path, cameras: Dict[int, Camera]) -> None:
-    with open(path, "wb") as fh:
-        fh.write(struct.pack("<Q", len(cameras)))
-        for c in cameras.values():
-            fh.write(struct.pack("<iiQQ", c.id, MODEL_IDS[c.model], c.width, c.height))
-            fh.write(np.asarray(c.params, "<f8").tobytes())
+# The writers take an open binary file: the caller's atomic home opens it (``model_files_bytes``).
+def write_cameras_bin(fh: BinaryIO, cameras: Dict[int, Camera]) -> None:
+    fh.write(struct.pack("<Q", len(cameras)))
+    for c in cameras.values():
+        fh.write(struct.pack("<iiQQ", c.id, MODEL_IDS[c.model], c.width, c.height))
+        fh.write(np.asarray(c.params, "<f8").tobytes())
 
 
-def write_images_bin(path: Path, images: Dict[int, Image]) -> None:
-    with open(path, "wb") as fh:
-        fh.write(struct.pack("<Q", len(images)))
-        for im in images.values():
-            fh.write(struct.pack("<i4d3di", im.id, *im.qvec, *im.tvec, im.camera_id))
-            fh.write(im.name.encode("utf-8") + b"\0")
-            rec = np.zeros(len(im.point3D_ids), np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")]))
-            rec["x"], rec["y"], rec["id"] = im.xys[:, 0], im.xys[:, 1], im.point3D_ids
-            fh.write(struct.pack("<Q", len(rec)) + rec.tobytes())
+def write_images_bin(fh: BinaryIO, images: Dict[int, Image]) -> None:
+    fh.write(struct.pack("<Q", len(images)))
+    for im in images.values():
+        fh.write(struct.pack("<i4d3di", im.id, *im.qvec, *im.tvec, im.camera_id))
+        fh.write(im.name.encode("utf-8") + b"\0")
+        rec = np.zeros(len(im.point3D_ids), np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")]))
+        rec["x"], rec["y"], rec["id"] = im.xys[:, 0], im.xys[:, 1], im.point3D_ids
+        fh.write(struct.pack("<Q", len(rec)) + rec.tobytes())
 
 
-def write_points_bin(path: Path, pts: Points) -> None:
+def write_points_bin(fh: BinaryIO, pts: Points) -> None:
     head = np.dtype([("id", "<u8"), ("xyz", "<f8", 3), ("rgb", "u1", 3), ("err", "<f8"), ("len", "<u8")])
-    with open(path, "wb") as fh:
-        fh.write(struct.pack("<Q", len(pts)))
-        for k in range(len(pts)):
-            rec = np.zeros(1, head)
-            rec["id"], rec["xyz"], rec["rgb"], rec["err"], rec["len"] = (pts.ids[k], pts.xyz[k], pts.rgb[k],
-                                                                         pts.error[k], len(pts.tracks[k]))
-            fh.write(rec.tobytes() + np.asarray(pts.tracks[k], "<i4").tobytes())
+    fh.write(struct.pack("<Q", len(pts)))
+    rec = np.zeros(len(pts), head)
+    rec["id"], rec["xyz"], rec["rgb"], rec["err"] = pts.ids, pts.xyz, pts.rgb, pts.error
+    rec["len"] = [len(t) for t in pts.tracks]
+    for k in range(len(pts)):
+        fh.write(rec[k].tobytes() + np.asarray(pts.tracks[k], "<i4").tobytes())
 
 
 # -- text -------------------------------------------------------------------------------------------
@@ -359,15 +358,15 @@ def _fmt(v: float) -> str:
     return repr(float(v))  # shortest text that reads back as the same float64
 
 
-def write_cameras_txt(path: Path, cameras: Dict[int, Camera]) -> None:
+def write_cameras_txt(fh: BinaryIO, cameras: Dict[int, Camera]) -> None:
     lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
              f"# Number of cameras: {len(cameras)}"]
     lines += [" ".join([str(c.id), c.model, str(c.width), str(c.height)] + [_fmt(p) for p in c.params])
               for c in cameras.values()]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    fh.write(("\n".join(lines) + "\n").encode("utf-8"))
 
 
-def write_images_txt(path: Path, images: Dict[int, Image]) -> None:
+def write_images_txt(fh: BinaryIO, images: Dict[int, Image]) -> None:
     n2d = sum(len(im.point3D_ids) for im in images.values())
     lines = ["# Image list with two lines of data per image:",
              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
@@ -378,10 +377,10 @@ def write_images_txt(path: Path, images: Dict[int, Image]) -> None:
         # one C-level format for the whole line (%r: the shortest text that reads back as the same float64)
         xs, ys, ids = im.xys[:, 0].tolist(), im.xys[:, 1].tolist(), [int(v) for v in im.point3D_ids]
         lines.append(("%r %r %d " * len(ids) % tuple(v for t in zip(xs, ys, ids) for v in t)).rstrip())
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    fh.write(("\n".join(lines) + "\n").encode("utf-8"))
 
 
-def write_points_txt(path: Path, pts: Points) -> None:
+def write_points_txt(fh: BinaryIO, pts: Points) -> None:
     lines = ["# 3D point list with one line of data per point:",
              "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
              f"# Number of points: {len(pts)}"]
@@ -390,7 +389,7 @@ def write_points_txt(path: Path, pts: Points) -> None:
         track = np.asarray(pts.tracks[k]).ravel().tolist()
         lines.append(("%d %r %r %r %d %d %d %r" + " %d" * len(track))
                      % (pid, *map(float, xyz[k]), *rgb[k], float(err[k]), *track))
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    fh.write(("\n".join(lines) + "\n").encode("utf-8"))
 
 
 _READERS = {".bin": (read_cameras_bin, read_images_bin, read_points_bin),
@@ -437,15 +436,17 @@ def _check_tracks(points: Points, images: Dict[int, Image], files: Dict[str, Pat
                           f"2D point {int(elems[k, 1])}, which {files['images'].name} does not have")
 
 
-def write_model(folder: Path | str, model: Model, exts: Tuple[str, ...] = (".bin", ".txt")) -> None:
-    """Write ``model`` into ``folder`` (which must exist) in each format of ``exts``."""
-    folder = Path(folder)
+_WRITERS = {".bin": (write_cameras_bin, write_images_bin, write_points_bin),
+            ".txt": (write_cameras_txt, write_images_txt, write_points_txt)}
+
+
+def model_files_bytes(model: Model, exts: Tuple[str, ...] = (".bin", ".txt")) -> Dict[str, bytes]:
+    """{file name: content} of ``model`` in each format of ``exts`` (``cameras.bin``, ...): the caller
+    writes them through its atomic home (this module writes no file: the add-on loads it too)."""
+    out = {}
     for ext in exts:
-        if ext == ".bin":
-            write_cameras_bin(folder / "cameras.bin", model.cameras)
-            write_images_bin(folder / "images.bin", model.images)
-            write_points_bin(folder / "points3D.bin", model.points)
-        else:
-            write_cameras_txt(folder / "cameras.txt", model.cameras)
-            write_images_txt(folder / "images.txt", model.images)
-            write_points_txt(folder / "points3D.txt", model.points)
+        for name, write, part in zip(MODEL_FILES, _WRITERS[ext], (model.cameras, model.images, model.points)):
+            buf = io.BytesIO()
+            write(buf, part)
+            out[f"{name}{ext}"] = buf.getvalue()
+    return out

@@ -12,14 +12,14 @@
 - ``OUT/nerf_bridge_colmap.json`` (``contract.colmap_dataset.MANIFEST``): the source, splits, each
   split's image names, the scene box, and that no normalisation was applied (scene units and frame).
 
-Everything goes into a hidden folder beside OUT, renamed to OUT at the end: a failure leaves nothing
+Everything goes into a new hidden folder beside OUT (``mkdtemp``), renamed to OUT at the end: a failure leaves nothing
 half-written. Importable without torch, so a capture in Blender runs the same code.
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
+import tempfile
 import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
@@ -28,13 +28,14 @@ import numpy as np
 
 from nerf_core.contract.camera_files import image_size
 from nerf_core.contract.colmap_dataset import MANIFEST, MANIFEST_FORMAT, colmap_camera
-from nerf_core.contract.colmap_model import Camera, Image, Model, Points, pose_to_colmap, write_model
+from nerf_core.contract.colmap_model import Camera, Image, Model, Points, model_files_bytes, pose_to_colmap
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.intrinsics import resolve_intrinsics
 from nerf_core.contract.transforms import SPLITS, FrameInfo, frame_infos
 from nerf_core.errors import ImageReadError
 from nerf_core.export.ply import GeometryFileError, read_geometry
 from nerf_core.image.io import read_depth, read_png, write_png
+from nerf_core.utils.atomic import TEMP_DIR_SUFFIX, write_bytes_atomic, write_json_atomic
 
 POINTS_FILE = "points3d.ply"
 OWN_ENTRIES = ("images", "masks", "sparse", MANIFEST)  # what an export writes: all --overwrite replaces
@@ -243,9 +244,8 @@ def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = 
     images: Dict[int, Image] = {}
     names: Dict[str, List[str]] = {s: [] for s in splits}
     views, used = [], {}
-    tmp = out.with_name(f".{out.name}.colmap-tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    # a new private folder beside OUT (mkdtemp: exclusive, never a link), renamed to OUT when complete
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=TEMP_DIR_SUFFIX, dir=out.parent))
     try:
         for sub in ("sparse/0", "images"):
             (tmp / sub).mkdir(parents=True)
@@ -276,7 +276,9 @@ def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = 
             if split == "train" or "train" not in splits:
                 views.append({"id": k + 1, "c2w": fr.c2w, "intr": intr, "lens": fr.lens, "frame": fr})
         points, dropped = _points_model(root, images, views, notes)
-        write_model(tmp / "sparse" / "0", Model({c.id: c for c in cameras.values()}, images, points))
+        model = Model({c.id: c for c in cameras.values()}, images, points)
+        for name, data in model_files_bytes(model).items():
+            write_bytes_atomic(tmp / "sparse" / "0" / name, data)
         manifest = {"format": MANIFEST_FORMAT, "version": 1, "source": str(root), "source_layout": layout,
                     "splits": list(splits), "images": names, "normalization": None,
                     "note": "no normalisation: poses and points are in the capture's own units and frame",
@@ -284,10 +286,12 @@ def export_colmap(dataset: Path | str, out: Path | str, splits: Sequence[str] = 
                     "masks": "masks/NAME.png: the film's alpha (0 = transparent); images/ are composited onto "
                              "background" if masks else None,
                     "aabb": scene.get("aabb"), "near": scene.get("near"), "far": scene.get("far")}
-        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2), encoding="utf-8")
+        write_json_atomic(tmp / MANIFEST, manifest)
+        if os.path.islink(out):  # again: OUT may have changed while we worked
+            raise ValueError(f"--out {out}: became a symbolic link while the export ran; nothing was written")
         if out.is_dir():
             shutil.rmtree(out)
-        os.replace(tmp, out)
+        os.rename(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -203,6 +203,11 @@ def test_pose_conversion_is_exact_for_any_rotation():
 
 
 # -- bad input: one line naming the file and the camera or image -----------------------------------------
+def _write(folder: Path, model, exts=(".bin",)) -> None:
+    for name, data in cm.model_files_bytes(model, exts).items():
+        (folder / name).write_bytes(data)
+
+
 def _copy(out: Path, dst: Path) -> Path:
     (dst / "sparse" / "0").mkdir(parents=True)
     for f in (out / "sparse" / "0").glob("*.bin"):
@@ -239,12 +244,12 @@ def test_missing_image_and_missing_camera_and_nan_pose(tmp_path, exported):
     m = cm.read_model(exported[1] / "sparse" / "0")
     d2 = _copy(exported[1], tmp_path / "c")
     m.images[1].camera_id = 9
-    cm.write_images_bin(d2 / "sparse" / "0" / "images.bin", m.images)
+    _write(d2 / "sparse" / "0", m)
     with pytest.raises(DatasetError, match=r"image 1 \(train_r_0\.png\) refers to camera 9, which cameras\.bin lacks"):
         frame_infos(d2)
     m.images[1].camera_id = 1
     m.images[1].tvec = np.array([np.nan, 0, 0])
-    cm.write_images_bin(d2 / "sparse" / "0" / "images.bin", m.images)
+    _write(d2 / "sparse" / "0", m)
     with pytest.raises(DatasetError, match=r"image 1 \(train_r_0\.png\): its pose .* is not finite"):
         frame_infos(d2)
 
@@ -301,7 +306,7 @@ def test_two_images_with_one_name_and_a_split_without_views(tmp_path, exported, 
     m = cm.read_model(exported[1] / "sparse" / "0")
     d = _copy(exported[1], tmp_path / "n")
     m.images[2].name = m.images[1].name
-    cm.write_images_bin(d / "sparse" / "0" / "images.bin", m.images)
+    _write(d / "sparse" / "0", m)
     with pytest.raises(DatasetError, match=r"images\.bin: images 1 and 2 have the same name 'train_r_0\.png'"):
         frame_infos(d)
     ds = dataset_factory(tmp_path / "noval", n_train=2, n_val=0, n_test=1, layouts=("synthetic",), depth=False)

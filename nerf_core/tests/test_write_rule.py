@@ -47,6 +47,9 @@ ALLOWED = {
         "opens os.devnull to silence a broken stdout: no file of the user's",
     ("scripts/build_addon.py", "shutil.copytree"):
         "copies the add-on into its own new staging folder (tempfile.mkdtemp)",
+    ("nerf_core/export/colmap.py", "os.rename"):
+        "renames the export's own new mkdtemp folder (every file in it written by the atomic homes) onto --out, "
+        "checked as no link just before: a rename writes no content",
     ("addon/capture/files/frame_files.py", "save_render"):
         "the render passes' scratch EXR, in the capture's private scratch folder, read and removed at once",
 }
