@@ -63,5 +63,5 @@ class VMGridOptions(MethodOptions):
     res_budget_max: int = grid_option(320, "the most cells per axis a long run grows to")
     grid_optimizer: str = option("adam", "how the grids are stepped: dense Adam over every cell, or a lazy Adam "
                                  "over the cells the step's rays touched", choices=("adam", "sparse"))
-    sparse_bias: str = option("per_row", "the sparse Adam's bias correction: a step count per cell, or none",
+    sparse_bias: str = option("none", "the sparse Adam's bias correction: none, or a step count per cell",
                               choices=BIAS_MODES)
