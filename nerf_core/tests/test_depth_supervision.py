@@ -1,0 +1,68 @@
+"""Depth as supervision (``train --depth``): the loss against hand-computed values, the carving of
+free space from a capture, and the refusals that name the frame."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nerf_core.data.carving import free_cells
+from nerf_core.data.depth import check_depth
+from nerf_core.data.loading import load_dataset
+from nerf_core.errors import DatasetError
+from nerf_core.image.io import write_exr
+from nerf_core.image.losses import depth_loss
+
+
+def test_depth_loss_by_hand():
+    depth = torch.tensor([2.2, 1.0, 5.0])
+    acc = torch.tensor([1.0, 0.5, 0.3])
+    target = torch.tensor([2.0, 1.0, 0.0])  # the third ray has no known surface
+    # ray 1: |1 * 0.2| / 2 + 0 = 0.1; ray 2: 0 + 0.5; mean over the two rays with a surface
+    assert float(depth_loss(depth, acc, target)) == pytest.approx(0.3)
+    assert float(depth_loss(depth, acc, torch.zeros(3))) == 0.0
+
+
+def test_the_carved_grid_keeps_every_surface_point_and_stays_near_the_true_volume(tmp_path):
+    from nerf_core.tests.conftest import make_dataset
+
+    ds = load_dataset(make_dataset(tmp_path / "ds", n_train=16, w=48, h=40))
+    tr = ds.split("train")
+    r = 64
+    free = free_cells(ds.aabb, r, tr, tr.depth)
+    lo, hi = ds.aabb[0], ds.aabb[1]
+    pts = torch.randn(50000, 3, generator=torch.Generator().manual_seed(0))
+    pts = pts / pts.norm(dim=-1, keepdim=True) * 0.6  # the sphere's surface
+    u = ((pts - lo) / (hi - lo) * r).floor().long().clamp(0, r - 1)
+    assert not free[u[:, 0], u[:, 1], u[:, 2]].any()
+    sphere = 4 / 3 * math.pi * 0.6 ** 3 / 8.0  # share of the box
+    occupied = 1 - float(free.float().mean())
+    assert sphere < occupied < 2.5 * sphere  # 16 views of 48x40 px: measured 2.1x
+
+
+def test_depth_with_nan_or_missing_frames_is_refused_naming_the_frame(tmp_path):
+    from nerf_core.tests.conftest import make_dataset
+
+    root = make_dataset(tmp_path / "ds")
+    ds = load_dataset(root)
+    check_depth(ds, ds.split("train"))  # the clean capture passes
+    bad = root / "train" / "r_1_depth.exr"
+    z = np.full((20, 24), np.nan, np.float32)
+    write_exr(bad, {"Z": z})
+    ds = load_dataset(root)
+    with pytest.raises(DatasetError, match=r"r_1.*NaN or negative"):
+        check_depth(ds, ds.split("train"))
+    write_exr(bad, {"Z": np.full((20, 24), 3000.0, np.float32)})  # millimetres in a metre scene
+    ds = load_dataset(root)
+    with pytest.raises(DatasetError, match="not in the units"):
+        check_depth(ds, ds.split("train"))
+
+
+def test_train_flags_refuse_depth_weight_without_depth(sphere_dataset, tmp_path):
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.errors import TrainError
+
+    with pytest.raises(TrainError, match="--depth-weight"):
+        TrainConfig(dataset=str(sphere_dataset), out=str(tmp_path / "r"), depth_weight=0.1).check()
