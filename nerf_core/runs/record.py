@@ -14,6 +14,8 @@ from typing import Optional, Tuple
 
 from nerf_core import contract
 from nerf_core.contract.paths import file_problem, not_a_regular_file
+from nerf_core.data.batcher import RECORDED_BEFORE_TRAIN_RAYS, TRAIN_RAYS
+from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
 from nerf_core.errors import RunError
 
 WHITE = (1.0, 1.0, 1.0)
@@ -97,3 +99,22 @@ def _check_run_config(config: dict, cfg_path: Path) -> None:
     if near is not None and far is not None and far <= near:  # each alone is fine; together no ray has samples
         raise RunError(f"{cfg_path}: field 'far' ({far}) must be greater than field 'near' ({near}); every view would "
                        "render empty")
+
+
+def trained_with(config: dict) -> dict:
+    """What a run's training used beyond the colours, from its config.json dict, for every score to
+    carry (``eval``'s JSON and metrics.json, the benchmark tables): a score with depth supervision is
+    not comparable with a colours-only peer's. Runs from before the flags trained without depth and
+    through the pixel centres.
+
+    Returns:
+        {"depth": bool, "depth_weight": float or None (the weight used; None without depth),
+         "train_rays": "centre" or "filter"}.
+    """
+    depth = config.get("depth") is True
+    weight = config.get("depth_weight")
+    if depth and not (isinstance(weight, (int, float)) and not isinstance(weight, bool)):
+        weight = DEFAULT_DEPTH_WEIGHT  # the flag was left out: the documented default was used
+    rays = config.get("train_rays")
+    return {"depth": depth, "depth_weight": float(weight) if depth else None,
+            "train_rays": rays if rays in TRAIN_RAYS else RECORDED_BEFORE_TRAIN_RAYS}

@@ -2,6 +2,7 @@
 free space from a capture, and the refusals that name the frame."""
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -66,3 +67,64 @@ def test_train_flags_refuse_depth_weight_without_depth(sphere_dataset, tmp_path)
 
     with pytest.raises(TrainError, match="--depth-weight"):
         TrainConfig(dataset=str(sphere_dataset), out=str(tmp_path / "r"), depth_weight=0.1).check()
+
+
+def _cli(*args):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "nerf_core", *map(str, args)], capture_output=True, text=True,
+                          env=env)
+
+
+def test_a_depth_run_records_what_it_trained_with_and_eval_says_so(sphere_dataset, tmp_path):
+    run = tmp_path / "run"
+    p = _cli("train", sphere_dataset, "--out", run, "--max-steps", 30, "--depth", "--depth-weight", 0.1,
+             "--train-rays", "filter", "--eval-views", 1, "--no-bar", "--device", "cpu")
+    assert p.returncode == 0, p.stderr
+    assert "the occupancy grid starts with" in p.stderr  # the carving says what it did
+    config = json.loads((run / "config.json").read_text())
+    assert (config["depth"], config["depth_weight"], config["train_rays"]) == (True, 0.1, "filter")
+    used = {"depth": True, "depth_weight": 0.1, "train_rays": "filter"}
+    assert json.loads((run / "metrics.json").read_text())["trained_with"] == used
+    p = _cli("eval", run, "--views", 1, "--device", "cpu", "--no-bar")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout.strip().splitlines()[-1])["trained_with"] == used
+
+
+def test_depth_on_a_dataset_without_depth_is_one_line_before_the_run_folder(tmp_path):
+    from nerf_core.tests.conftest import make_dataset
+
+    ds = make_dataset(tmp_path / "ds", depth=False)
+    run = tmp_path / "run"
+    p = _cli("train", ds, "--out", run, "--max-steps", 5, "--depth", "--no-bar", "--device", "cpu")
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr
+    assert "--depth" in p.stderr and "no train frame has a depth map" in p.stderr
+    assert not run.exists()
+    p = _cli("train", ds, "--out", run, "--max-steps", 5, "--depth-weight", 0.5, "--no-bar")
+    assert p.returncode == 2 and "pass --depth too" in p.stderr and not run.exists()
+
+
+def test_some_frames_without_depth_are_refused_naming_the_first(tmp_path):
+    from nerf_core.tests.conftest import make_dataset
+
+    root = make_dataset(tmp_path / "ds")
+    path = root / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    del meta["frames"][2]["depth_file_path"]
+    path.write_text(json.dumps(meta))
+    ds = load_dataset(root)
+    with pytest.raises(DatasetError, match=r"frame 2.*no depth map.*7 of the 8 train frames"):
+        check_depth(ds, ds.split("train"))
+
+
+@pytest.mark.parametrize("weight", [0.0, -1.0, math.inf, math.nan, 1e9])
+def test_depth_weight_out_of_range_is_refused_naming_the_flag(sphere_dataset, tmp_path, weight):
+    from nerf_core.engine.config import TrainConfig
+    from nerf_core.errors import TrainError
+
+    with pytest.raises(TrainError, match=r"--depth-weight\)? must be a finite number"):
+        TrainConfig(dataset=str(sphere_dataset), out=str(tmp_path / "r"), depth=True, depth_weight=weight).check()
