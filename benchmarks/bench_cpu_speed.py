@@ -17,8 +17,8 @@ From each run's progress.jsonl it reads the steps made, the steps per second aft
 events from ``--after`` of the budget to the end: vmgrid's last growth stage is at 0.36) and the test
 PSNR of the final evaluation. Writes DIR/results.json and DIR/summary.md (a table with the ratios, the
 command, both commits and the machine) and DIR/cpu_speed.png (both, per scene). ``--baseline-args`` and
-``--new-args`` add train flags to one side (``--baseline . --new-args "--train-rays filter"`` measures a
-flag against the default on this very tree, side by side). ``--report-only``
+``--new-args`` add train flags to one side: ``--baseline . --new-args="--train-rays filter"`` (with the
+``=``) measures a flag against the default on this very tree, side by side. ``--report-only``
 rewrites the summary from results.json. Run again into the same folder (same commits and budget), it
 keeps the scenes already measured and adds the others.
 """
@@ -55,8 +55,6 @@ def parse_args(argv):
                     help="share of the budget after which the step rate counts as 'after growth' (default 0.4)")
     ap.add_argument("--capture-depth", action="store_true",
                     help="capture with depth maps (capture.py --depth), for runs with train --depth")
-    ap.add_argument("--baseline-args", default="", help="extra train flags for the baseline's runs (one string)")
-    ap.add_argument("--new-args", default="", help="extra train flags for this tree's runs (one string)")
     ap.add_argument("--baseline-args", default="", help="extra train flags for the baseline's runs (one string)")
     ap.add_argument("--new-args", default="", help="extra train flags for this tree's runs (one string)")
     ap.add_argument("--report-only", action="store_true", help="train nothing: rewrite summary.md from results.json")
