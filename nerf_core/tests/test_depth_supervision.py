@@ -29,7 +29,7 @@ def test_depth_loss_by_hand():
 def test_the_carved_grid_keeps_every_surface_point_and_stays_near_the_true_volume(tmp_path):
     from nerf_core.tests.conftest import make_dataset
 
-    ds = load_dataset(make_dataset(tmp_path / "ds", n_train=16, w=48, h=40))
+    ds = load_dataset(make_dataset(tmp_path / "ds", n_train=32, w=64, h=64))
     tr = ds.split("train")
     r = 64
     free = free_cells(ds.aabb, r, tr, tr.depth)
@@ -40,7 +40,9 @@ def test_the_carved_grid_keeps_every_surface_point_and_stays_near_the_true_volum
     assert not free[u[:, 0], u[:, 1], u[:, 2]].any()
     sphere = 4 / 3 * math.pi * 0.6 ** 3 / 8.0  # share of the box
     occupied = 1 - float(free.float().mean())
-    assert sphere < occupied < 2.5 * sphere  # 16 views of 48x40 px: measured 2.1x
+    # issue 56: less than twice the truly occupied volume at step 0 (measured 1.35x with 32 views of
+    # 64 px; 2.05x with 16 views of 48x40, whose rays leave gaps between them)
+    assert sphere < occupied < 2.0 * sphere
 
 
 def test_depth_with_nan_or_missing_frames_is_refused_naming_the_frame(tmp_path):
