@@ -7,15 +7,21 @@ its pixel filter (``nerf_core.image.pixel_filter``), so a ray cast at an offset 
 has the pixel's colour as its expected colour, and a model fitted to such rays renders the capture's
 soft silhouettes rather than the sharper ones that rays through the centres fit. It costs one ray a
 pixel, as the centre ray does (four numbers more per ray from the generator).
+
+Which pixels a step trains on (``train --ray-sampling``): uniformly over every pixel, or in proportion
+to a running estimate of their error (``nerf_core.data.error_map``), weighted so that the loss stays an
+estimate of the uniform one.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple, Optional
 
 import torch
 
 from nerf_core.cameras.rays import rays_for_pixels
 from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
+from nerf_core.data.error_map import ErrorMap
 from nerf_core.data.split import Split
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
 from nerf_core.image.pixel_filter import POINT, PixelFilter
@@ -28,6 +34,9 @@ TRAIN_RAYS = ("filter", "centre")
 DEFAULT_TRAIN_RAYS = "centre"
 # what runs recorded before the flag existed trained with
 RECORDED_BEFORE_TRAIN_RAYS = "centre"
+# ``train --ray-sampling``: which pixels a step draws (uniformly, or by their running error)
+RAY_SAMPLING = ("uniform", "error")
+DEFAULT_RAY_SAMPLING = "uniform"
 
 
 def footprint(pixel_filter: Optional[PixelFilter], train_rays: str) -> PixelFilter:
@@ -38,6 +47,23 @@ def footprint(pixel_filter: Optional[PixelFilter], train_rays: str) -> PixelFilt
     if train_rays == "centre":
         return POINT
     return pixel_filter if pixel_filter is not None else DEFAULT_FILTER
+
+
+@dataclass(frozen=True, eq=False)
+class BatchOptions:
+    """What the run's flags ask of its batches, for ``RadianceModel.make_batcher``.
+
+    Attributes:
+        footprint: what a ray's sub-pixel offset is drawn from (``train --train-rays``, ``footprint``):
+            the split's pixel filter, or ``POINT`` for the pixel centres.
+        depth: (v, h, w) float32 planar depth targets of the split's pixels (``train --depth``;
+            ``data.depth.depth_targets``, 0 = unknown) that the batches carry as ``RayBatch.depth``, or None.
+        sampling: which pixels are drawn (``train --ray-sampling``, one of ``RAY_SAMPLING``).
+    """
+
+    footprint: PixelFilter = POINT
+    depth: Optional[torch.Tensor] = None
+    sampling: str = DEFAULT_RAY_SAMPLING
 
 
 class RayBatch(NamedTuple):
@@ -72,12 +98,17 @@ class Batcher:
         (in [0, 1]) of the training budget."""
         raise NotImplementedError
 
+    def observe(self, batch: RayBatch, out: dict) -> None:
+        """What the step rendered for ``batch`` (``render_batch``'s dict; the trainer calls this after a
+        step that was not rolled back): a batcher that adapts its draws learns from it. By default nothing."""
+
 
 class RayBatcher(Batcher):
     """Random ray batches over every pixel of a (train) split; images stay uint8 on the CPU.
 
-    ``sample(n, frac)`` returns one ``RayBatch`` of ``n`` rays drawn uniformly over every pixel, each
-    through its pixel's centre, or at an offset drawn from ``footprint``.
+    ``sample(n, frac)`` returns one ``RayBatch`` of ``n`` rays drawn uniformly over every pixel (or by
+    their running error: ``options.sampling``), each through its pixel's centre or at an offset drawn
+    from ``options.footprint``.
 
     Args:
         split: the ``Split`` to draw pixels from (uniformly over all its views' pixels).
@@ -87,14 +118,11 @@ class RayBatcher(Batcher):
         gen: a CPU ``torch.Generator`` that draws every random number (pixels, random colours), so a
             saved generator state replays the same batches.
         device: where the batches go.
-        footprint: what each ray's sub-pixel offset is drawn from: the split's ``pixel_filter`` (one
-            ray a pixel whose expected colour is the filtered pixel) or ``POINT`` (the centres).
-        depth: (v, h, w) float32 planar depth targets of the split's pixels (``data.depth.depth_targets``,
-            0 = unknown), for ``train --depth``; None: the batches carry no depth.
+        options: the run's ``BatchOptions`` (the footprint, depth targets and sampling).
     """
 
     def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device,
-                 footprint: PixelFilter = POINT, depth: Optional[torch.Tensor] = None):
+                 options: BatchOptions = BatchOptions()):
         arguments.instance("RayBatcher", "split", split, Split, "a nerf_core.Split (Dataset.split('train'))")
         arguments.choice("RayBatcher", "background", background, TRAINING_BACKGROUNDS)
         arguments.instance("RayBatcher", "gen", gen, torch.Generator, "a CPU torch.Generator")
@@ -107,13 +135,17 @@ class RayBatcher(Batcher):
         arguments.instance("RayBatcher", "device", device, torch.device, "a torch.device (or 'cpu', 'cuda')")
         if len(split) == 0 or split.images is None:
             raise ValueError("RayBatcher: split has no views with images to draw rays from")
-        arguments.instance("RayBatcher", "footprint", footprint, PixelFilter, "a nerf_core PixelFilter")
+        arguments.instance("RayBatcher", "options", options, BatchOptions, "a nerf_core BatchOptions")
+        arguments.instance("RayBatcher", "options.footprint", options.footprint, PixelFilter, "a nerf_core PixelFilter")
+        arguments.choice("RayBatcher", "options.sampling", options.sampling, RAY_SAMPLING)
         self.split, self.gen, self.device = split, gen, device
-        self.footprint = footprint
+        self.footprint, depth = options.footprint, options.depth
         if depth is not None and tuple(depth.shape) != (len(split), split.height, split.width):
             raise ValueError(f"RayBatcher: depth must be ({len(split)}, {split.height}, {split.width}) like the "
                              f"split's images, got {tuple(depth.shape)}")
         self.depth = depth
+        self.errors = ErrorMap(len(split), split.height, split.width) if options.sampling == "error" else None
+        self._tiles: Optional[torch.Tensor] = None  # the error map's tiles of the last batch drawn
         self.background = background
         self.hw = split.height * split.width
         self.total = len(split) * self.hw
@@ -127,10 +159,14 @@ class RayBatcher(Batcher):
         background, and the mask weight (n,) or None, all on ``device``.
         """
 
-        flat = torch.randint(0, self.total, (n,), generator=self.gen)
-        view = flat // self.hw
-        pix = flat % self.hw
-        j, i = pix // self.split.width, pix % self.split.width
+        if self.errors is None:
+            flat = torch.randint(0, self.total, (n,), generator=self.gen)
+            view = flat // self.hw
+            pix = flat % self.hw
+            j, i = pix // self.split.width, pix % self.split.width
+            importance = None
+        else:
+            view, j, i, self._tiles, importance = self.errors.draw(n, self.gen)
         random_bg = self.background == "random" or (
             self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION
         )
@@ -143,8 +179,16 @@ class RayBatcher(Batcher):
         offset = None if self.footprint.is_point else self.footprint.offsets(n, 1, gen=self.gen)[:, 0]
         rays_o, rays_d, z_per_t = rays_for_pixels(self.split.cameras, view, i, j, offset)
         weight = self.split.masks[view, j, i].float() if self.split.masks is not None else None
+        if importance is not None:  # the weighted mean of the loss is then an estimate of the uniform one
+            weight = importance if weight is None else weight * importance
         # planar z-depth to distance along the unit ray (0 stays 0: unknown)
         depth = None if self.depth is None else self.depth[view, j, i] / z_per_t
         d = self.device
         return RayBatch(rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
                         None if weight is None else weight.to(d), None if depth is None else depth.to(d))
+
+    def observe(self, batch: RayBatch, out: dict) -> None:
+        """Error-weighted sampling: the squared colour error of each ray moves its tile's estimate."""
+        if self.errors is None or self._tiles is None:
+            return
+        self.errors.update(self._tiles, (out["rgb"].detach() - batch.target).square().mean(-1))

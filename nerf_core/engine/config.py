@@ -12,7 +12,13 @@ from typing import Dict, List, Optional, Sequence
 
 from nerf_core import contract
 from nerf_core.data.backgrounds import BACKGROUNDS
-from nerf_core.data.batcher import DEFAULT_TRAIN_RAYS, RECORDED_BEFORE_TRAIN_RAYS, TRAIN_RAYS
+from nerf_core.data.batcher import (
+    DEFAULT_RAY_SAMPLING,
+    DEFAULT_TRAIN_RAYS,
+    RAY_SAMPLING,
+    RECORDED_BEFORE_TRAIN_RAYS,
+    TRAIN_RAYS,
+)
 from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
 from nerf_core.errors import TrainError
 from nerf_core.methods import catalog
@@ -149,6 +155,10 @@ class TrainConfig:
                                                "1.5 px Blackman-Harris when it records none), so one ray a pixel has "
                                                "the rendered pixel as its expected colour; centre = through the "
                                                "pixel's centre", choices=TRAIN_RAYS)
+    ray_sampling: str = flag(DEFAULT_RAY_SAMPLING, "which pixels a step trains on: uniform = every pixel alike; "
+                                                   "error = in proportion to a running estimate of their error "
+                                                   "(half of each batch stays uniform), with the loss weighted so "
+                                                   "that it still estimates the uniform one", choices=RAY_SAMPLING)
     depth: bool = flag(False, "also supervise with the capture's depth maps (every train frame needs one): a loss "
                               "on the rendered depth, and the occupancy grid starts with the space the depth shows "
                               "empty. Off by default, so that scores compare with colours-only tools", kind="switch")
@@ -377,6 +387,8 @@ def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
         merged["max_steps"], merged["max_seconds"] = saved.get("max_steps"), saved.get("max_seconds")
     if "train_rays" not in saved:  # a run from before the flag: it trained through the pixel centres
         merged["train_rays"] = RECORDED_BEFORE_TRAIN_RAYS
+    if "ray_sampling" not in saved:  # ... and drew its pixels uniformly
+        merged["ray_sampling"] = DEFAULT_RAY_SAMPLING
     merged["resume"], merged["overwrite"] = True, False
     merged["dataset"], merged["dataset_moved"] = dataset, cli.dataset_moved
     return TrainConfig(**merged)

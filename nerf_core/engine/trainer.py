@@ -28,15 +28,15 @@ import torch
 from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.data import backgrounds
-from nerf_core.data.batcher import Batcher, footprint
-from nerf_core.data.depth import check_depth, depth_targets, depth_term
+from nerf_core.data.batcher import Batcher
+from nerf_core.data.depth import check_depth, depth_term
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
+from nerf_core.engine.batches import training_batcher
 from nerf_core.engine.callbacks import CheckpointEvery, StepInterval, default_callbacks
 from nerf_core.engine.checkpointing import RunFacts
 from nerf_core.engine.config import TrainConfig, check_field_types, default_method, merge_resumed_config
-from nerf_core.engine.depth_start import carve_free_space
 from nerf_core.engine.model_setup import build_seeded, default_batch_rays, model_options, prefit_environment
 from nerf_core.engine.optim import (
     make_optimizer,
@@ -319,10 +319,8 @@ class Trainer:
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
                                  self.decisions.eval_background, cfg.chunk)
         self.callbacks = default_callbacks(cfg, self.checkpoints)
-        if cfg.depth:  # the grid starts from the capture; the batches carry depth
-            carve_free_space(self.model, train, self.decisions.method, self.log, self.dist.is_main)
-        batcher = self.model.make_batcher(train, self.decisions.background, self.gen, self.device, footprint(
-            dataset.pixel_filter, cfg.train_rays), depth_targets(train) if cfg.depth else None)
+        batcher = training_batcher(self.model, dataset, cfg, self.decisions.background, self.gen, self.device,
+                                   self.log, self.dist.is_main, self.decisions.method)  # --depth carves here
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
             self._train_loop(batcher, stop)
         if self.state.step == (resumed_from or 0):
@@ -400,6 +398,7 @@ class Trainer:
             return False
         t1 = time.perf_counter()
         model.optimizer_step(self.opt, out)
+        batcher.observe(batch, out)  # an error-weighted sampler learns where the error is
         self._advance(checked, t0, t1)
         return True
 

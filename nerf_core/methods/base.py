@@ -15,11 +15,10 @@ import torch
 from torch import nn
 
 from nerf_core.cameras.rays import ray_bounds
-from nerf_core.data.batcher import Batcher, RayBatcher
+from nerf_core.data.batcher import Batcher, BatchOptions, RayBatcher
 from nerf_core.data.scene_box import box_length_unit
 from nerf_core.data.split import Split
 from nerf_core.image.losses import masked_mse
-from nerf_core.image.pixel_filter import POINT, PixelFilter
 from nerf_core.methods.options import MAX_GRID_RES, MethodOptions, PluginOptions
 from nerf_core.methods.registry import current_option_names
 from nerf_core.optim import Adam, TrainingOptimizer
@@ -240,21 +239,19 @@ class RadianceModel(nn.Module):
     # ``loss``, backward, checks, ``optimizer_step``. What differs between methods is theirs to say.
 
     def make_batcher(self, split: Split, background: str, gen: torch.Generator, device: torch.device,
-                     footprint: PixelFilter = POINT, depth: Optional[torch.Tensor] = None) -> Batcher:
+                     options: BatchOptions = BatchOptions()) -> Batcher:
         """What the trainer draws each step's rays from: by default ``RayBatcher``, one ray through each
-        of ``batch_rays`` random pixels, at an offset drawn from ``footprint``.
+        of ``batch_rays`` random pixels, as the run's ``options`` say.
 
         Args:
             split: the train ``Split``.
             background: the training background mode (``data.backgrounds``; "auto" already decided).
             gen: the CPU generator every random draw must come from (checkpoints save its state).
             device: where the batches go.
-            footprint: what a ray's sub-pixel offset is drawn from (``train --train-rays``): the
-                split's pixel filter, or ``POINT`` for the pixel centres.
-            depth: (v, h, w) planar depth targets (``train --depth``; ``data.depth.depth_targets``) that
-                the batches carry as ``RayBatch.depth``, or None.
+            options: the run's ``BatchOptions``: each ray's sub-pixel footprint (``--train-rays``), the
+                depth targets the batches carry (``--depth``), which pixels are drawn (``--ray-sampling``).
         """
-        return RayBatcher(split, background, gen, device, footprint, depth)
+        return RayBatcher(split, background, gen, device, options)
 
     def occupancy_grid(self) -> Optional[OccupancyGrid]:
         """The grid that skips empty space, over the scene box in world coordinates, for the trainer

@@ -14,7 +14,7 @@ from typing import Optional, Tuple
 
 from nerf_core import contract
 from nerf_core.contract.paths import file_problem, not_a_regular_file
-from nerf_core.data.batcher import RECORDED_BEFORE_TRAIN_RAYS, TRAIN_RAYS
+from nerf_core.data.batcher import DEFAULT_RAY_SAMPLING, RAY_SAMPLING, RECORDED_BEFORE_TRAIN_RAYS, TRAIN_RAYS
 from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
 from nerf_core.errors import RunError
 
@@ -109,12 +109,13 @@ def trained_with(config: dict) -> dict:
 
     Returns:
         {"depth": bool, "depth_weight": float or None (the weight used; None without depth),
-         "train_rays": "centre" or "filter"}.
+         "train_rays": "centre" or "filter", "ray_sampling": "uniform" or "error"}.
     """
     depth = config.get("depth") is True
     weight = config.get("depth_weight")
     if depth and not (isinstance(weight, (int, float)) and not isinstance(weight, bool)):
         weight = DEFAULT_DEPTH_WEIGHT  # the flag was left out: the documented default was used
-    rays = config.get("train_rays")
+    rays, sampling = config.get("train_rays"), config.get("ray_sampling")
     return {"depth": depth, "depth_weight": float(weight) if depth else None,
-            "train_rays": rays if rays in TRAIN_RAYS else RECORDED_BEFORE_TRAIN_RAYS}
+            "train_rays": rays if rays in TRAIN_RAYS else RECORDED_BEFORE_TRAIN_RAYS,
+            "ray_sampling": sampling if sampling in RAY_SAMPLING else DEFAULT_RAY_SAMPLING}

@@ -12,7 +12,7 @@ import math
 import pytest
 import torch
 
-from nerf_core.data.batcher import RayBatcher, footprint
+from nerf_core.data.batcher import BatchOptions, RayBatcher, footprint
 from nerf_core.data.loading import load_dataset
 from nerf_core.engine.config import TrainConfig, merge_resumed_config
 from nerf_core.image.pixel_filter import DEFAULT, POINT, PixelFilter
@@ -49,7 +49,8 @@ def test_filter_rays_spread_as_the_filter_and_keep_the_centre_rays_pixels_and_co
     box = PixelFilter("BOX", 1.0)  # uniform over the pixel: offsets have variance 1/12 a side
     n = 20000
     centre = RayBatcher(split, "white", torch.Generator().manual_seed(5), torch.device("cpu")).sample(n)
-    drawn = RayBatcher(split, "white", torch.Generator().manual_seed(5), torch.device("cpu"), box).sample(n)
+    drawn = RayBatcher(split, "white", torch.Generator().manual_seed(5), torch.device("cpu"),
+                       BatchOptions(box)).sample(n)
     # the same pixels and colours: offsets are drawn after them from the same generator
     assert torch.equal(centre.target, drawn.target) and torch.equal(centre.rays_o, drawn.rays_o)
     off = _pixel_coords(split, drawn, n) - _pixel_coords(split, centre, n)
@@ -70,7 +71,7 @@ def test_blackman_harris_offsets_have_the_filters_variance(split):
     n = 40000
     centre = RayBatcher(split, "white", torch.Generator().manual_seed(7), torch.device("cpu")).sample(n)
     drawn = RayBatcher(split, "white", torch.Generator().manual_seed(7), torch.device("cpu"),
-                       PixelFilter("BLACKMAN_HARRIS", width)).sample(n)
+                       BatchOptions(PixelFilter("BLACKMAN_HARRIS", width))).sample(n)
     off = _pixel_coords(split, drawn, n) - _pixel_coords(split, centre, n)
     assert off.abs().max() <= width / 2 + 1e-3
     assert off.var(0).tolist() == pytest.approx([var, var], rel=0.05)
