@@ -82,18 +82,18 @@ def _face_lists(faces: dict, where: str):
 def _triangles(rows, n_points: int, where: str) -> np.ndarray:
     """Polygons (a (f, k) array or a list of index arrays) -> (f', 3) int64 triangles (fans), checked:
     whole indices of existing vertices."""
-    if isinstance(rows, np.ndarray):
-        groups = [rows]
-    else:  # polygons of several sizes: one array per size
-        by_size: dict = {}
-        for r in rows:
-            by_size.setdefault(len(r), []).append(r)
-        groups = [np.asarray(v).reshape(len(v), k) for k, v in by_size.items()]
-    tris = []
-    for g in groups:
-        if g.shape[1] >= 3:
-            tris += [np.stack([g[:, 0], g[:, k], g[:, k + 1]], axis=1) for k in range(1, g.shape[1] - 1)]
-    faces = np.concatenate(tris) if tris else np.empty((0, 3))
+    if isinstance(rows, np.ndarray):  # (f, k): every polygon of k corners
+        lens, flat = np.full(len(rows), rows.shape[1] if rows.ndim == 2 else 0), rows.reshape(-1)
+    else:
+        lens = np.asarray([len(r) for r in rows], dtype=np.int64)
+        flat = np.concatenate([np.asarray(r).reshape(-1) for r in rows]) if len(rows) else np.empty(0)
+    # polygon r of k corners -> (c0, c1, c2), (c0, c2, c3), ...: in file order, as a fan per polygon
+    starts = np.cumsum(lens) - lens
+    per = np.clip(lens - 2, 0, None)
+    owner = np.repeat(np.arange(len(lens)), per)
+    j = np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per) + 1
+    first = starts[owner]
+    faces = np.stack([flat[first], flat[first + j], flat[first + j + 1]], axis=1) if len(owner) else np.empty((0, 3))
     if faces.size and not np.all(np.isfinite(faces) & (faces == np.round(faces))):
         raise GeometryFileError(f"{where}: element 'face' holds vertex indices that are not whole numbers")
     if faces.size and (faces.min() < 0 or faces.max() >= n_points):
