@@ -57,7 +57,10 @@ def run(a) -> int:
         raise ValueError(f"--truth {a.truth}: {problem}")
     cams = load_cameras(a.cameras, "train")[0] if a.cameras else None
     taus = a.tau or [0.01]
-    results = [score(pred, truth, tau_share=t, cameras=cams, max_points=a.max_points) for t in taus]
+    try:
+        results = [score(pred, truth, tau_share=t, cameras=cams, max_points=a.max_points) for t in taus]
+    except ValueError as exc:  # what the truth cannot give (no point in any camera's image): named by the file
+        raise ValueError(f"--truth {a.truth}: {exc}") from None
     out = dict(results[0])
     if len(results) > 1:
         out["by_tau"] = [{k: r[k] for k in ("tau_share", "tau", "precision", "recall", "fscore")} for r in results]

@@ -108,3 +108,15 @@ def test_a_truth_spanning_no_bounding_box_is_refused_naming_the_file(tmp_path, c
     # a one-point prediction against a real truth is scored, not refused
     assert main(["score-mesh", str(tmp_path / "one.ply"), "--truth", str(tmp_path / "pred.ply")]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["n_pred"] == len(truth)
+
+
+def test_a_truth_no_training_camera_sees_is_named(tmp_path, capsys):
+    from nerf_core.tests.conftest import make_dataset
+
+    ds = make_dataset(tmp_path / "ds", layouts=("synthetic",), depth=False)
+    far = np.array([[100.0, 100, 100], [101, 100, 100], [100, 101, 100]])  # far behind every ring camera's view
+    _write_points(tmp_path / "far.ply", far)
+    assert main(["score-mesh", str(tmp_path / "far.ply"), "--truth", str(tmp_path / "far.ply"),
+                 "--cameras", str(ds)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--truth {tmp_path / 'far.ply'}: no point of the truth" in err[0], err
