@@ -66,6 +66,21 @@ def add_python_option(ap: argparse.ArgumentParser, used_by: str) -> None:
                     help=f"interpreter with torch for {used_by} (default: $NERF_PYTHON, else this Python)")
 
 
+def whole_number(low: int, high: int, why: str = ""):
+    """An argparse ``type``: an integer in ``low..high``; otherwise one line naming the flag (argparse
+    adds it) and the range, ``why`` saying what the range is."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must lie in {low}..{high}{' (' + why + ')' if why else ''}, "
+                                             f"got {value}")
+        return value
+    return parse
+
+
 def fail(prog: str, message: str) -> None:
     """A script's expected failure: one ``prog: error: message`` line on stderr, exit code 2."""
     print(f"{prog}: error: {message}", file=sys.stderr)

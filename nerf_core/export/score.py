@@ -24,8 +24,27 @@ from nerf_core.cameras.rays import Cameras
 from nerf_core.export import extra
 from nerf_core.export.mesh import face_areas, seen_by_cameras, vertex_normals
 from nerf_core.export.ply import Geometry
+from nerf_core.utils.arguments import integer, number
 
 MAX_POINTS = 200_000
+# The most points a side (``--max-points``): about 500 bytes a point while both sides are sampled and
+# searched, so 5 GB at the limit; past a few million points the scores no longer move.
+MAX_POINTS_LIMIT = 10_000_000
+BYTES_PER_POINT = 500
+
+
+def truth_problem(truth: Geometry) -> Optional[str]:
+    """Why ``truth`` cannot be scored against, or None. ``tau`` is a share of the truth's bounding-box
+    diagonal: a truth whose points all lie at one place (one point) has none, and every distance would
+    count as a miss, scoring any mesh 0."""
+    diag = float(np.linalg.norm(truth.points.max(axis=0) - truth.points.min(axis=0)))
+    if not (np.isfinite(diag) and diag > 0):
+        n = len(truth.points)
+        held = "it holds one point" if n == 1 else f"its {n} points all lie at one place"
+        return (f"{held}, which spans no bounding box; tau is a share of the truth's bounding-box diagonal, so "
+                "there is nothing to score against (use a truth of the scene's surfaces, such as a capture's "
+                "points3d.ply)")
+    return None
 
 
 def surface_points(geo: Geometry, n: int, seed: int = 0) -> tuple[np.ndarray, Optional[np.ndarray]]:
@@ -58,10 +77,19 @@ def score(pred: Geometry, truth: Geometry, tau_share: float = 0.01, cameras: Opt
           max_points: int = MAX_POINTS, seed: int = 0) -> dict:
     """Precision, recall, F-score, Chamfer-L1 and normal consistency of ``pred`` against ``truth``.
 
+    Raises:
+        ValueError: ``max_points`` outside 1..MAX_POINTS_LIMIT, ``tau_share`` outside (0, 1], a truth that
+            spans no bounding box (``truth_problem``), or one that no camera sees.
+
     Returns a dict: ``precision``, ``recall``, ``fscore`` (shares in [0, 1]), ``chamfer`` (scene units),
     ``tau`` (scene units), ``tau_share``, ``accuracy`` and ``completeness`` (the two mean distances),
     ``normal_consistency`` (None without normals on both sides), ``n_pred``, ``n_truth``.
     """
+    max_points = integer("score", "max_points", max_points, low=1, high=MAX_POINTS_LIMIT)
+    tau_share = number("score", "tau_share", tau_share, above=0, high=1)
+    problem = truth_problem(truth)
+    if problem:
+        raise ValueError(f"the truth: {problem}")
     spatial = extra.load("scipy.spatial", "score-mesh (nearest neighbours)")
     p, pn = surface_points(pred, max_points, seed)
     t, tn = surface_points(truth, max_points, seed + 1)

@@ -75,3 +75,48 @@ def test_a_truth_that_is_not_a_point_set_or_mesh_is_one_line(tmp_path, capsys, c
     assert len(err) == 1 and "truth.ply" in err[0]
     assert main(["score-mesh", str(tmp_path / "mesh.ply"), "--truth", str(tmp_path)]) == 2
     assert "is a folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value, words", [("2e9", ("must lie in 1..10000000", "GB", "got 2e9")),
+                                          ("2000000000", ("must lie in 1..10000000",)), ("0", ("must lie in",)),
+                                          ("1.5", ("expected a whole number",))])
+def test_max_points_is_bounded_by_memory_naming_the_flag(tmp_path, capsys, value, words):
+    v, f = _square()
+    write_mesh_ply(tmp_path / "mesh.ply", v, f, np.zeros((4, 3), np.uint8))
+    with pytest.raises(SystemExit) as info:
+        main(["score-mesh", str(tmp_path / "mesh.ply"), "--truth", str(tmp_path / "mesh.ply"), "--max-points", value])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--max-points" in err and all(w in err for w in words), err
+    with pytest.raises(ValueError, match="max_points must be an integer in 1..10000000"):
+        score(Geometry(v, faces=f), Geometry(v, faces=f), max_points=2_000_000_000)
+    assert main(["score-mesh", str(tmp_path / "mesh.ply"), "--truth", str(tmp_path / "mesh.ply"),
+                 "--max-points", "1e3"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["n_pred"] == 1000
+
+
+@pytest.mark.parametrize("truth", [[[1.0, 2.0, 3.0]], [[1.0, 2.0, 3.0]] * 50])
+def test_a_truth_spanning_no_bounding_box_is_refused_naming_the_file(tmp_path, capsys, truth):
+    # tau is a share of the truth's diagonal: with none, every mesh would score 0, as if it were wrong.
+    _write_points(tmp_path / "pred.ply", _clusters()[0])
+    _write_points(tmp_path / "one.ply", truth)
+    assert main(["score-mesh", str(tmp_path / "pred.ply"), "--truth", str(tmp_path / "one.ply")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--truth {tmp_path / 'one.ply'}" in err[0] and "spans no bounding box" in err[0]
+    with pytest.raises(ValueError, match="the truth: .*spans no bounding box"):
+        score(Geometry(_clusters()[0]), Geometry(np.asarray(truth)))
+    # a one-point prediction against a real truth is scored, not refused
+    assert main(["score-mesh", str(tmp_path / "one.ply"), "--truth", str(tmp_path / "pred.ply")]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["n_pred"] == len(truth)
+
+
+def test_a_truth_no_training_camera_sees_is_named(tmp_path, capsys):
+    from nerf_core.tests.conftest import make_dataset
+
+    ds = make_dataset(tmp_path / "ds", layouts=("synthetic",), depth=False)
+    far = np.array([[100.0, 100, 100], [101, 100, 100], [100, 101, 100]])  # far behind every ring camera's view
+    _write_points(tmp_path / "far.ply", far)
+    assert main(["score-mesh", str(tmp_path / "far.ply"), "--truth", str(tmp_path / "far.ply"),
+                 "--cameras", str(ds)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--truth {tmp_path / 'far.ply'}: no point of the truth" in err[0], err
