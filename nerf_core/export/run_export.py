@@ -14,8 +14,9 @@ from nerf_core.export import field, grid, mesh, ply, volume
 from nerf_core.export.output import check_output
 from nerf_core.runs.checkpoints import load_run
 from nerf_core.utils.device import pick_device
+from nerf_core.utils.memory import named_out_of_memory
 
-MESH_BYTES_PER_SAMPLE = 4 + 8 + 4  # the density grid, marching cubes' float64 copy, its working set
+OUT_OF_MEMORY_ADVICE = "lower the resolution (or --device cpu, when the GPU's memory is the smaller)"
 WORLD_NOTE = ("the run models the world beyond its scene box (light from infinity or a contracted world): "
               "that is not geometry; the export covers the scene box only")
 
@@ -66,14 +67,15 @@ def export_mesh(
     notes: list = []
     model, config, ckpt, box = _load(run, checkpoint, device, notes)
     res = int(resolution or field.grid_resolution(model))
-    grid.check_fits(res, MESH_BYTES_PER_SAMPLE)
+    grid.check_fits(res, mesh.BYTES_PER_SAMPLE, fixed=grid.CHUNK_BYTES)
     cams = _training_cameras(config, notes) if cull_unseen else None
     for n in notes:
         (on_note or (lambda s: None))(n)
-    m = mesh.extract_mesh(model, box, res, level=level, n_faces=n_faces, cameras=cams,
-                          min_component=min_component, fill_inside=fill_inside, on_progress=on_progress)
-    check_output(out, overwrite, suffix=".ply")  # again: the path may have changed while we worked
-    ply.write_mesh_ply(out, m.vertices, m.faces, m.colors)
+    with named_out_of_memory(f"--resolution {res}", OUT_OF_MEMORY_ADVICE):
+        m = mesh.extract_mesh(model, box, res, level=level, n_faces=n_faces, cameras=cams,
+                              min_component=min_component, fill_inside=fill_inside, on_progress=on_progress)
+        check_output(out, overwrite, suffix=".ply")  # again: the path may have changed while we worked
+        ply.write_mesh_ply(out, m.vertices, m.faces, m.colors)
     return {"out": str(Path(out).resolve()), "kind": "mesh", "run": str(Path(run).resolve()),
             "step": ckpt.get("step"), "method": ckpt.get("method"), "box": box.tolist(), **m.info,
             "seconds": round(time.perf_counter() - started, 3), "notes": notes}
@@ -92,13 +94,14 @@ def export_volume(run, out, resolution: Optional[int] = None, overwrite: bool = 
     notes: list = []
     model, config, ckpt, box = _load(run, checkpoint, device, notes)
     res = int(resolution or field.grid_resolution(model))
-    grid.check_fits(res, volume.BYTES_PER_SAMPLE)
+    grid.check_fits(res, volume.BYTES_PER_SAMPLE, fixed=grid.CHUNK_BYTES)
     for n in notes:
         (on_note or (lambda s: None))(n)
-    arrays = volume.volume_grids(model, box, res, on_progress=on_progress)
-    d = arrays["density"]
-    check_output(out, overwrite, suffix=".npz")
-    volume.write_volume(out, arrays)
+    with named_out_of_memory(f"--resolution {res}", OUT_OF_MEMORY_ADVICE):
+        arrays = volume.volume_grids(model, box, res, on_progress=on_progress)
+        d = arrays["density"]
+        check_output(out, overwrite, suffix=".npz")
+        volume.write_volume(out, arrays)
     return {"out": str(Path(out).resolve()), "kind": "volume", "run": str(Path(run).resolve()),
             "step": ckpt.get("step"), "method": ckpt.get("method"), "resolution": res, "box": box.tolist(),
             "level": float(arrays["level"]), "density_range": [float(np.min(d)), float(np.max(d))],
