@@ -30,11 +30,12 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras, project_points
+from nerf_core.contract.exports import MESH, option
 from nerf_core.export import extra, grid
 from nerf_core.export import level as surface_level
 from nerf_core.utils.memory import available_memory, size_text
 
-DEFAULT_MIN_COMPONENT = 0.005
+DEFAULT_MIN_COMPONENT = option(MESH, "min_component").default  # --min-component's, declared once
 # Memory, measured with tracemalloc on foggy fields (nerf_core/tests/test_export_memory.py holds the
 # budgets to it). Before sampling: the density grid (4 B a sample) and the filling of enclosed space
 # (labels, masks and the sort inside ``np.isin``: 30 B at peak). Per cell that the surface crosses,

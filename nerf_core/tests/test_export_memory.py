@@ -22,8 +22,9 @@ import pytest
 import torch
 
 from nerf_core.cli.main import main
-from nerf_core.export import grid, mesh, run_export, volume
+from nerf_core.export import grid, mesh, volume
 from nerf_core.methods.base import RadianceModel
+from nerf_core.tests.conftest import use_model
 from nerf_core.utils import memory
 
 REPO = Path(__file__).resolve().parents[2]
@@ -53,17 +54,9 @@ class Fog(RadianceModel):
         return torch.sigmoid(p)
 
 
-def use_model(model) -> None:
-    """Make ``export`` open ``model`` whatever the run folder (the loader replaced; undone by the caller)."""
-    run_export.load_run = lambda run, device, checkpoint=None: (model, {"dataset": None}, {"step": 1})
-
-
 @pytest.fixture
 def fog_run(monkeypatch):
-    def use(model):
-        monkeypatch.setattr(run_export, "load_run", lambda run, device, checkpoint=None:
-                            (model, {"dataset": None}, {"step": 1}))
-    return use
+    return lambda model: use_model(monkeypatch, model)
 
 
 def _peak(fn) -> int:
@@ -121,9 +114,10 @@ def test_export_under_ulimit_v_is_refused_before_the_work_naming_the_resolution(
     script = f"""
 import resource, sys
 sys.path.insert(0, {str(Path(__file__).parent)!r})
-from test_export_memory import Fog, use_model
+from test_export_memory import Fog
+from nerf_core.tests.conftest import use_model
 from nerf_core.cli.main import main
-use_model(Fog(freq=20.0))
+use_model(None, Fog(freq=20.0))
 vm = next(int(ln.split()[1]) * 1024 for ln in open("/proc/self/status") if ln.startswith("VmSize:"))
 resource.setrlimit(resource.RLIMIT_AS, (vm + (600 << 20), resource.getrlimit(resource.RLIMIT_AS)[1]))
 sys.exit(main(["export", "volume", "run", "--out", {str(out)!r}, "--resolution", "512"]))
