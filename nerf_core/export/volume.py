@@ -12,6 +12,7 @@
 """
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -71,9 +72,14 @@ def volume_grids(model, box: np.ndarray, resolution: int,
 
 
 def write_volume(path: Path | str, arrays: dict) -> None:
-    """Save the volume arrays as an uncompressed ``.npz`` at ``path``, atomically."""
+    """Save the volume arrays as an uncompressed ``.npz`` at ``path``, atomically: ``np.savez``'s layout
+    (one ``NAME.npy`` member per array, zip64), written here so that a write that fails (a full disk,
+    ``ulimit -f``) closes the zip file once, raising, instead of again at garbage collection."""
     with atomic_file(path) as fh:  # a file object: np.savez would append ".npz" to a bare path
-        np.savez(fh, **arrays)
+        with zipfile.ZipFile(fh, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, value in arrays.items():
+                with zf.open(name + ".npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def read_volume(path: Path | str) -> dict:

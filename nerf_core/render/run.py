@@ -51,6 +51,7 @@ class Run:
         self.step = int(checkpoint.get("step", 0))
         self._dataset: Optional[Dataset] = None
         self.notes: list = []  # what reading the run's dataset had to say (it changed since training)
+        self._identity_checked = False
 
     def _dataset_path(self, consequence: str) -> str:
         """The recorded dataset's path, after the one check of whether it still holds what the run
@@ -58,10 +59,12 @@ class Run:
         warning and a line in ``notes``, as ``eval`` prints it."""
         if not self.config.dataset:
             raise RunError(f"{self.config.path}: no 'dataset' recorded")
-        note = dataset_changed_note(self.config.raw, consequence)
-        if note and note not in self.notes:
-            self.notes.append(note)
-            warnings.warn(note, DatasetChanged, stacklevel=3)
+        if not self._identity_checked:  # once a Run: the hash reads every transforms file, and one word is enough
+            self._identity_checked = True
+            note = dataset_changed_note(self.config.raw, consequence)
+            if note:
+                self.notes.append(note)
+                warnings.warn(note, DatasetChanged, stacklevel=3)
         return self.config.dataset
 
     @property
