@@ -249,3 +249,16 @@ def test_summary_of_a_fog_volume_is_whole(fog_run, tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     arrays = volume.read_volume(out)
     assert summary["resolution"] == 40 and np.count_nonzero(arrays["color"].any(axis=-1)) > 0.9 * 40 ** 3
+
+
+def test_an_allocation_that_fails_inside_eval_names_the_chunk(run_copy, monkeypatch, capsys):
+    from nerf_core.evaluation import evaluate
+
+    def fail(*a, **k):
+        raise MemoryError()
+    monkeypatch.setattr(evaluate, "evaluate_split", fail)
+    metrics = (run_copy / "metrics.json").read_bytes()
+    assert main(["eval", str(run_copy), "--chunk", "4096", "--no-bar"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--chunk 4096: not enough memory (MemoryError" in err[0], err
+    assert (run_copy / "metrics.json").read_bytes() == metrics
