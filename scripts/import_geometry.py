@@ -20,14 +20,18 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _bootstrap import (add_python_option, check_output, exit_code, fail, open_blend, out_blend,  # noqa: E402
                         save_blend, scene_parser, script_args, torch_python)
+from nerf_core.contract.exports import EXPORTS  # noqa: E402  (standard library only: fine in Blender)
 
 PROG = "import_geometry.py"
+# the exports of the table (nerf_core/contract/exports.py) that this script can bring into Blender
+IMPORTERS = {"mesh": "import_mesh", "volume": "import_volume"}
+assert set(IMPORTERS) <= set(EXPORTS), "an importer for an export the table does not declare"
 
 
 def parse(argv):
     ap = scene_parser(PROG, __doc__, "scene to import into")
     ap.add_argument("--run", required=True, help="training run folder (has checkpoints/latest.pt)")
-    ap.add_argument("--kind", required=True, choices=("mesh", "volume"), help="a coloured mesh or a volume")
+    ap.add_argument("--kind", required=True, choices=sorted(IMPORTERS), help="a coloured mesh or a volume")
     ap.add_argument("--out", required=True, help=".blend to write")
     ap.add_argument("--geometry", metavar="FILE",
                     help="where the export goes (default: a new RUN/geometry/<kind>_NNN.ply or .npz)")
@@ -113,10 +117,7 @@ def main(argv) -> int:
     open_blend(args.blend)
     scene = bpy.context.scene
     try:
-        if args.kind == "mesh":
-            obj = geometry_import.import_mesh(scene, geometry)
-        else:
-            obj = geometry_import.import_volume(scene, geometry)
+        obj = getattr(geometry_import, IMPORTERS[args.kind])(scene, geometry)
     except (ValueError, RuntimeError, OSError) as exc:
         fail(PROG, f"{geometry}: cannot import the {args.kind}: {exc}")
     save_blend(PROG, out)

@@ -8,11 +8,14 @@ from __future__ import annotations
 import os
 
 from ..bridge import child_process
+from ..bridge.core_contract import contract
 from ..common.jobs import ProcessJob
 from . import geometry_import
 
 GEOMETRY_DIR = "geometry"
-SUFFIX = {"mesh": ".ply", "volume": ".npz"}
+# the exports' table (nerf_core/contract/exports.py): each format's suffix, and the files written beside it
+SUFFIX = {name: fmt.suffix for name, fmt in contract.exports.EXPORTS.items()}
+BESIDE = {name: fmt.beside for name, fmt in contract.exports.EXPORTS.items()}
 
 
 def fresh_file(run: str, kind: str) -> str:
@@ -26,9 +29,9 @@ def fresh_file(run: str, kind: str) -> str:
     except OSError as exc:
         raise child_process.SetupError(child_process.describe_os_error(exc, folder, "creating")) from None
     k = 1
-    while any(os.path.lexists(os.path.join(folder, f"{kind}_{k:03d}{ext}")) for ext in (SUFFIX[kind], ".vdb")):
+    while any(os.path.lexists(os.path.join(folder, f"{kind}_{k:03d}{ext}")) for ext in (SUFFIX[kind],) + BESIDE[kind]):
         k += 1
-    return os.path.join(folder, f"{kind}_{k:03d}{SUFFIX[kind]}")
+    return os.path.join(folder, contract.exports.export_file_name(kind, k))
 
 
 def stage_text(event) -> str:

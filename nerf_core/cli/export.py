@@ -1,8 +1,10 @@
-"""``python -m nerf_core export mesh|volume RUN --out FILE``: the trained scene as geometry; and
-``export colmap DATASET --out DIR``: a capture as a COLMAP sparse model (``nerf_core.export.colmap``).
+"""``python -m nerf_core export NAME RUN --out FILE``: the trained scene as geometry, one subcommand per
+declared format (``nerf_core.contract.exports``, made by ``nerf_core.export.formats``); and ``export
+colmap DATASET --out DIR``: a capture as a COLMAP sparse model (``nerf_core.export.colmap``).
 
-stdout: ``{"event": "progress", "stage", "fraction", "time"}`` lines (at most every 0.5 s) and
-``{"event": "note", "message", "time"}`` lines while it works, then the summary JSON as the last line.
+stdout: ``{"event": "progress", "time", "stage", "fraction"}`` lines (at most every 0.5 s) and
+``{"event": "note", "time", "message"}`` lines while it works, through the event log
+(``runs.events.EventLog``, names in ``contract.EVENTS``), then the summary JSON as the last line.
 """
 from __future__ import annotations
 
@@ -11,57 +13,64 @@ import json
 import time
 
 from nerf_core.cli.options import checked_number, positive_float, positive_int
-from nerf_core.export import colmap, mesh
-from nerf_core.export.run_export import export_mesh, export_volume
+from nerf_core.contract.exports import EXPORTS, ExportFormat
+from nerf_core.export import colmap, formats
+from nerf_core.export.run_export import export_run
+from nerf_core.runs.events import EventLog
 
 share = checked_number(float, "a number", lambda v: 0 <= v < 1, "must lie in [0, 1)")
 grid_res = checked_number(int, "an integer", lambda v: v >= 2, "must be at least 2 samples per axis")
+PARSERS = {"positive_int": positive_int, "positive_float": positive_float, "share": share}
+PROGRESS_EVERY = 0.5  # seconds between progress events (the last, fraction 1, always goes)
 
 
 def _events():
-    """(on_progress, on_note) printing JSON event lines, progress at most every 0.5 s."""
+    """(on_progress, on_note) emitting ``progress`` and ``note`` events, progress at most every 0.5 s."""
+    log = EventLog(stdout=True)
     last = [0.0]
 
     def progress(stage: str, fraction: float) -> None:
         now = time.time()
-        if now - last[0] >= 0.5 or fraction >= 1.0:
+        if now - last[0] >= PROGRESS_EVERY or fraction >= 1.0:
             last[0] = now
-            print(json.dumps({"event": "progress", "stage": stage, "fraction": round(float(fraction), 4),
-                              "time": now}), flush=True)
+            log.emit("progress", stage=stage, fraction=round(float(fraction), 4))
 
     def note(message: str) -> None:
-        print(json.dumps({"event": "note", "message": message, "time": time.time()}), flush=True)
+        log.emit("note", message=message)
     return progress, note
+
+
+def _add_format(kinds, fmt: ExportFormat, help_fmt) -> None:
+    p = kinds.add_parser(fmt.name, help=fmt.help, formatter_class=help_fmt,
+                         description=f"{fmt.help}: {fmt.extracts}. The last line of stdout is a JSON summary.")
+    p.add_argument("run", metavar="RUN", help="run folder written by `train`")
+    p.add_argument("--out", required=True, metavar="FILE", help=f"file to write (a {fmt.suffix} file)")
+    p.add_argument("--resolution", type=grid_res, metavar="N",
+                   help="samples per axis of the scene box (default: the model's own grid; 256 for nerf)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
+    p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
+    for o in fmt.options:
+        if o.kind == "switch":
+            p.add_argument(o.flag, dest=o.dest, action="store_true", help=o.help)
+        else:
+            p.add_argument(o.flag, dest=o.dest, type=PARSERS[o.kind], default=o.default, metavar=o.metavar,
+                           help=o.help)
+    p.set_defaults(handler=run_format, format=fmt)
 
 
 def add_parser(sub, fmt) -> None:
     """Add the subcommand to ``sub`` (argparse subparsers); ``fmt``: the help formatter class."""
-    e = sub.add_parser("export", help="the trained scene as geometry: a coloured mesh (PLY) or a volume (npz); "
-                       "a capture as a COLMAP model", formatter_class=fmt,
-                       description="Write the run's geometry in the scene's own frame (mesh, volume), or a capture "
-                       "as a COLMAP model (colmap). The last line of stdout is a JSON summary.")
+    made = [f for name, f in EXPORTS.items() if name in formats.WRITERS]
+    e = sub.add_parser("export", help="the trained scene as geometry (" + ", ".join(f.name for f in made) +
+                       "); a capture as a COLMAP model", formatter_class=fmt,
+                       description="Write the run's geometry in the scene's own frame (" +
+                       ", ".join(f"{f.name}: {f.suffix}" for f in made) + "), or a capture as a COLMAP model "
+                       "(colmap). The last line of stdout is a JSON summary.")
     kinds = e.add_subparsers(dest="kind", metavar="KIND")
     kinds.required = True
-    m = kinds.add_parser("mesh", help="marching cubes, culled and coloured: binary PLY", formatter_class=fmt)
-    v = kinds.add_parser("volume", help="density and colour grids (.npz) for a Blender Volume", formatter_class=fmt)
-    for p in (m, v):
-        p.add_argument("run", metavar="RUN", help="run folder written by `train`")
-        p.add_argument("--out", required=True, metavar="FILE",
-                       help="file to write (.ply for a mesh, .npz for a volume)")
-        p.add_argument("--resolution", type=grid_res, metavar="N",
-                       help="samples per axis of the scene box (default: the model's own grid; 256 for nerf)")
-        p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
-        p.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
-        p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")
-    m.add_argument("--faces", type=positive_int, metavar="N", help="decimate to about N faces")
-    m.add_argument("--level", type=positive_float, metavar="SIGMA",
-                   help="surface density per scene unit (default: where the training rays first meet the surface, "
-                        "transmittance 0.95 over the 4 grid steps before it)")
-    m.add_argument("--min-component", type=share, default=mesh.DEFAULT_MIN_COMPONENT, metavar="SHARE",
-                   help="drop connected pieces with less than this share of the total area (floaters; 0 keeps all)")
-    m.add_argument("--keep-unseen", action="store_true", help="keep what no training camera sees")
-    m.set_defaults(handler=run_mesh)
-    v.set_defaults(handler=run_volume)
+    for f in made:
+        _add_format(kinds, f, fmt)
     c = kinds.add_parser("colmap", formatter_class=fmt,
                          help="a capture folder as a COLMAP model (sparse/0, images/, masks/) for splatting trainers",
                          description="Write DATASET's views as a COLMAP folder: sparse/0/{cameras,images,points3D}"
@@ -82,19 +91,11 @@ def _splits(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def run_mesh(a) -> int:
+def run_format(a) -> int:
     progress, note = _events()
-    summary = export_mesh(a.run, a.out, resolution=a.resolution, n_faces=a.faces, level=a.level,
-                          min_component=a.min_component, cull_unseen=not a.keep_unseen, overwrite=a.overwrite,
-                          checkpoint=a.checkpoint, device=a.device, on_progress=progress, on_note=note)
-    print(json.dumps(summary))
-    return 0
-
-
-def run_volume(a) -> int:
-    progress, note = _events()
-    summary = export_volume(a.run, a.out, resolution=a.resolution, overwrite=a.overwrite, checkpoint=a.checkpoint,
-                            device=a.device, on_progress=progress, on_note=note)
+    options = {o.dest: getattr(a, o.dest) for o in a.format.options}
+    summary = export_run(a.format.name, a.run, a.out, resolution=a.resolution, overwrite=a.overwrite,
+                         checkpoint=a.checkpoint, device=a.device, on_progress=progress, on_note=note, **options)
     print(json.dumps(summary))
     return 0
 

@@ -11,6 +11,7 @@ import argparse
 import importlib
 import json
 import os
+import signal
 import sys
 from typing import List, Optional
 
@@ -84,6 +85,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     expected = (DatasetError, RunError, TrainError, ImageReadError, ValueError, OSError)
     honour_interrupts()  # a Cancel (SIGINT/SIGTERM) must stop us cleanly, whatever the parent ignored
+    if hasattr(signal, "SIGXFSZ"):  # past ``ulimit -f`` a write raises EFBIG, named, instead of killing us
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     plain_stdout, sys.stdout = sys.stdout, NamedStdout(sys.stdout)  # a full or closed stdout is named
     try:
         _load_plugins()

@@ -38,6 +38,7 @@ from . import (  # noqa: F401
     colmap_dataset,
     colmap_model,
     eight_bit,
+    exports,
     nerfstudio_frame,
     outputs,
 )
@@ -164,7 +165,8 @@ def budget_fraction(step: Optional[float], elapsed: Optional[float], max_steps: 
 
 
 # -- progress events ------------------------------------------------------------------------------
-EVENTS = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error", "note")
+# (``progress``: an export's stages, nerf_core/cli/export.py; EventLog refuses a name not listed here)
+EVENTS = ("start", "step", "preview", "rollback", "checkpoint", "eval", "done", "error", "note", "progress")
 
 
 def parse_json_line(line: str) -> Optional[Dict[str, Any]]:

@@ -31,6 +31,7 @@ from nerf_core.runs.record import trained_with
 from nerf_core.utils import arguments
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
+from nerf_core.utils.memory import named_out_of_memory
 from nerf_core.utils.progressbar import ProgressBar
 
 
@@ -318,8 +319,9 @@ def evaluate_run(
         bar.update(1, info=entry["name"])
 
     film_filter = POINT if pixel_filter == "none" else ds.pixel_filter
-    result = evaluate_split(model, sp, views, background=bg, near=record.near, far=record.far, chunk=chunk,
-                            on_view=show, pixel_filter=film_filter)
+    with named_out_of_memory(f"--chunk {chunk}", "lower --chunk, or evaluate at a larger --downscale"):
+        result = evaluate_split(model, sp, views, background=bg, near=record.near, far=record.far, chunk=chunk,
+                                on_view=show, pixel_filter=film_filter)
     bar.close()
     step = ckpt.get("step")
     result["trained_with"] = trained_with(record.raw)  # a score with depth is not a colours-only score

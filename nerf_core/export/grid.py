@@ -7,52 +7,34 @@ box[0]) / (n - 1)``: the first and last samples lie on the box's faces, like the
 from __future__ import annotations
 
 import math
-import os
 from typing import Callable, Optional
 
 import numpy as np
 import torch
 
 from nerf_core.export import field
+from nerf_core.utils.memory import available_memory, size_text
 
 Tensor = torch.Tensor
 MAX_RESOLUTION = 2048
 CHUNK_POINTS = 1 << 18  # points per model call: ~100 MB of activations for the nerf MLP, far less for vmgrid
+# The bounded working set of one chunk outside the model (slab points, their float64 coordinates,
+# directions and colours; measured 183 B a point at 64^3 = one chunk, nerf_core/tests/test_export_memory.py)
+CHUNK_BYTES = CHUNK_POINTS * 200
 
 
-def available_memory() -> Optional[int]:
-    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), or None when unknown."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def _size(n: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if n < 1024 or unit == "TB":
-            return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
-        n /= 1024
-    return f"{n:.1f} TB"
-
-
-def check_fits(resolution: int, bytes_per_sample: int, flag: str = "--resolution") -> None:
+def check_fits(resolution: int, bytes_per_sample: float, flag: str = "--resolution", fixed: int = 0) -> None:
     """Refuse (ValueError naming ``flag`` and the memory needed) a grid of ``resolution``^3 samples of
-    ``bytes_per_sample`` bytes each that is above MAX_RESOLUTION or needs more than the memory available."""
-    need = float(resolution) ** 3 * bytes_per_sample
+    ``bytes_per_sample`` bytes each, plus ``fixed`` bytes of bounded working set, that is above
+    MAX_RESOLUTION or needs more than ``utils.memory.available_memory`` (free memory, ``ulimit -v``, a
+    container's limit: the smallest)."""
     if resolution < 2:
         raise ValueError(f"{flag} {resolution}: a grid needs at least 2 samples per axis")
+    need = float(resolution) ** 3 * bytes_per_sample + fixed
     avail = available_memory()
     if resolution > MAX_RESOLUTION or (avail is not None and need > avail):
-        have = f"{_size(avail)} is available" if avail is not None else f"the limit is {MAX_RESOLUTION} per axis"
-        raise ValueError(f"{flag} {resolution}: a {resolution}^3 grid needs {_size(need)} of memory and {have}; "
+        have = f"{size_text(avail)} is available" if avail is not None else f"the limit is {MAX_RESOLUTION} per axis"
+        raise ValueError(f"{flag} {resolution}: a {resolution}^3 grid needs {size_text(need)} of memory and {have}; "
                          "lower the resolution")
 
 

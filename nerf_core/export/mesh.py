@@ -30,10 +30,19 @@ import numpy as np
 import torch
 
 from nerf_core.cameras.rays import Cameras, project_points
+from nerf_core.contract.exports import MESH, option
 from nerf_core.export import extra, grid
 from nerf_core.export import level as surface_level
+from nerf_core.utils.memory import available_memory, size_text
 
-DEFAULT_MIN_COMPONENT = 0.005
+DEFAULT_MIN_COMPONENT = option(MESH, "min_component").default  # --min-component's, declared once
+# Memory, measured with tracemalloc on foggy fields (nerf_core/tests/test_export_memory.py holds the
+# budgets to it). Before sampling: the density grid (4 B a sample) and the filling of enclosed space
+# (labels, masks and the sort inside ``np.isin``: 30 B at peak). Per cell that the surface crosses,
+# known once the density is sampled: up to 3.4 faces on a white-noise fog, each about 300 B at the
+# peak of floater removal and vertex normals (face corners in float64, the adjacency's indices).
+BYTES_PER_SAMPLE = 4 + 32
+BYTES_PER_CROSSED_CELL = 1200
 
 
 class NoSurface(ValueError):
@@ -74,6 +83,38 @@ def marching_cubes(density: np.ndarray, box: np.ndarray, level: float) -> tuple[
     if len(faces) and _inward_share(verts, faces, density, box) > 0.5:
         faces = faces[:, ::-1].copy()
     return verts, faces
+
+
+def crossing_cells(density: np.ndarray, level: float) -> int:
+    """How many grid cells (8 neighbouring samples) straddle ``level``: the cells marching cubes puts
+    faces in (at most 5 each, about 2 on a fog), counted slab by slab so that the count itself needs
+    no grid-sized array."""
+    res = density.shape[0]
+    per_slab = max(2, (1 << 22) // max(1, density.shape[1] * density.shape[2]))
+    n = 0
+    for i0 in range(0, res - 1, per_slab - 1):
+        above = density[i0:min(res, i0 + per_slab)] >= level
+        every = above[:-1, :-1, :-1] & above[1:, :-1, :-1] & above[:-1, 1:, :-1] & above[:-1, :-1, 1:]
+        some = above[:-1, :-1, :-1] | above[1:, :-1, :-1] | above[:-1, 1:, :-1] | above[:-1, :-1, 1:]
+        for corner in ((1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1)):
+            c = above[corner[0]:, corner[1]:, corner[2]:][:above.shape[0] - 1, :above.shape[1] - 1,
+                                                         :above.shape[2] - 1]
+            every &= c
+            some |= c
+        n += int(np.count_nonzero(some & ~every))
+    return n
+
+
+def check_surface_fits(cells: int, resolution: int, level: float, flag: str = "--resolution") -> None:
+    """Refuse (ValueError naming ``flag``) a surface of ``cells`` crossed cells whose faces would not fit
+    in the memory available (``BYTES_PER_CROSSED_CELL`` each, besides the grid), before marching cubes."""
+    need = cells * BYTES_PER_CROSSED_CELL + float(resolution) ** 3 * 4
+    avail = available_memory()
+    if avail is not None and need > avail:
+        raise ValueError(f"{flag} {resolution}: the surface at density level {level:.4g} crosses {cells} cells of "
+                         f"the grid ({cells / (resolution - 1) ** 3:.0%}: a fog more than a surface), whose faces "
+                         f"need about {size_text(need)} of memory and {size_text(avail)} is available; lower "
+                         "the resolution, or pass a higher --level")
 
 
 def _inward_share(verts, faces, density, box) -> float:
@@ -269,6 +310,8 @@ def extract_mesh(model, box: np.ndarray, resolution: int, level: Optional[float]
         say("filling", 0.0)
         viewpoints = cameras.c2w[:, :3, 3].double().numpy() if cameras is not None else None
         density, info["enclosed_samples_filled"] = fill_unseen_inside(density, box, level, viewpoints)
+    if lo < level < hi:
+        check_surface_fits(crossing_cells(density, level), resolution, level)
     verts, faces = marching_cubes(density, box, level)
     info["faces_extracted"] = int(len(faces))
     del density

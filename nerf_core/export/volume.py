@@ -12,6 +12,7 @@
 """
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -22,7 +23,7 @@ from nerf_core.utils.atomic import atomic_file
 
 FORMAT, VERSION = "nerf_bridge.volume", 1
 MIN_STEP_ALPHA = 1e-3  # colour only where one grid step is more opaque than this
-BYTES_PER_SAMPLE = 4 + 3 + 8  # density, colour, and the float64 gradient of the coloured nodes at worst
+BYTES_PER_SAMPLE = 4 + 3 + 1  # density, colour, slack; the colouring's working set is bounded (grid.CHUNK_BYTES)
 
 
 def _into(density: np.ndarray, idx: np.ndarray, step: np.ndarray) -> np.ndarray:
@@ -51,24 +52,34 @@ def volume_grids(model, box: np.ndarray, resolution: int,
     step = grid.spacing(box, resolution)
     threshold = -np.log1p(-MIN_STEP_ALPHA) / float(step.mean())
     color = np.zeros(density.shape + (3,), dtype=np.uint8)
-    idx = np.argwhere(density > threshold)
     say("colour", 0.0)
-    chunk = grid.CHUNK_POINTS
-    for s in range(0, len(idx), chunk):
-        part = idx[s:s + chunk]
-        pts = box[0] + part * step
-        rgb = grid.colour_at(model, pts, _into(density, part, step))
-        color[part[:, 0], part[:, 1], part[:, 2]] = np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
-        say("colour", min(1.0, (s + chunk) / len(idx)))
+    # slab by slab: the coloured nodes' indices (24 B each) and their float64 points and directions never
+    # cover the whole grid, so a fog (every node coloured) needs no more than a surface (BYTES_PER_SAMPLE)
+    res = density.shape[0]
+    per_slab = max(1, grid.CHUNK_POINTS // (res * res))
+    for i0 in range(0, res, per_slab):
+        i1 = min(res, i0 + per_slab)
+        part = np.argwhere(density[i0:i1] > threshold)
+        part[:, 0] += i0
+        for s in range(0, len(part), grid.CHUNK_POINTS):
+            idx = part[s:s + grid.CHUNK_POINTS]
+            rgb = grid.colour_at(model, box[0] + idx * step, _into(density, idx, step))
+            color[idx[:, 0], idx[:, 1], idx[:, 2]] = np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
+        say("colour", i1 / res)
     return {"density": density, "color": color, "box": np.asarray(box, dtype=np.float64), "spacing": step,
             "level": np.float64(grid.iso_level(box, resolution)), "format": np.str_(FORMAT),
             "version": np.int64(VERSION)}
 
 
 def write_volume(path: Path | str, arrays: dict) -> None:
-    """Save the volume arrays as an uncompressed ``.npz`` at ``path``, atomically."""
+    """Save the volume arrays as an uncompressed ``.npz`` at ``path``, atomically: ``np.savez``'s layout
+    (one ``NAME.npy`` member per array, zip64), written here so that a write that fails (a full disk,
+    ``ulimit -f``) closes the zip file once, raising, instead of again at garbage collection."""
     with atomic_file(path) as fh:  # a file object: np.savez would append ".npz" to a bare path
-        np.savez(fh, **arrays)
+        with zipfile.ZipFile(fh, mode="w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, value in arrays.items():
+                with zf.open(name + ".npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def read_volume(path: Path | str) -> dict:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Union
 
 import torch
 
@@ -180,13 +180,24 @@ def edge_pixels(image: Tensor, threshold: float = EDGE_THRESHOLD) -> Tensor:
     return lap.abs().amax(dim=0)[0] > threshold
 
 
-def of_run(config: dict, mode: str = "auto", downscale: float = 1) -> PixelFilter:
+MODES = ("none", "auto")  # the two names every renderer takes; None means "none" everywhere (``render_view``'s)
+
+
+def of_run(config: dict, mode: Union[str, PixelFilter, None] = "auto", downscale: float = 1,
+           where: str = "pixel_filter") -> PixelFilter:
     """The filter to render a run's views with: the one its dataset recorded (``RUN/config.json``
     ``pixel_filter``, the dataset's at full resolution; runs trained before it was recorded get
-    Blender's default), box-filtered by an integer ``downscale`` like ``eval``'s ground truth; ``mode``
-    "none": one ray through each pixel centre."""
-    if mode == "none":
+    Blender's default), box-filtered by an integer ``downscale`` like ``eval``'s ground truth.
+
+    ``mode``: "auto" that filter; "none" or None one ray through each pixel centre (None means this in
+    ``render_view`` too); a ``PixelFilter`` itself. Anything else is refused (ValueError naming
+    ``where``): an unknown name was once taken as "auto"."""
+    if isinstance(mode, PixelFilter):
+        return mode
+    if mode is None or mode == "none":
         return POINT
+    if mode != "auto":
+        raise ValueError(f"{where}: must be 'none', 'auto', None or a PixelFilter, got {mode!r}")
     try:
         film = parse(config.get("pixel_filter"), "config.json")
     except ValueError as exc:

@@ -4,9 +4,9 @@ the machine has (a view too large is refused before it starts, naming its size).
 from __future__ import annotations
 
 import math
-import os
 
 from nerf_core.errors import RunError
+from nerf_core.utils.memory import available_memory
 
 # Bytes per pixel that rendering a whole view holds at once: ray origins/directions and their pixel
 # grid, per-ray bounds, the chunk outputs and their concatenation, the RGBA result and its PNG bytes.
@@ -23,28 +23,14 @@ def render_rate(seconds: float, rays: int) -> dict:
     return {"render_seconds": seconds, "rays": int(rays), "rays_per_s": rays / seconds if seconds > 0 else None}
 
 
-def available_memory() -> int:
-    """Bytes of memory this process could still get (MemAvailable on Linux, else physical memory)."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        return 1 << 62
-
-
 def check_view_memory(w: int, h: int, where: str) -> None:
-    """Refuse (RunError) to render a w x h view that would not fit in memory, before allocating any of it."""
+    """Refuse (RunError) to render a w x h view that would not fit in memory (``utils.memory.available_memory``:
+    free memory, ``ulimit -v``, a container's limit), before allocating any of it."""
     if w < 1 or h < 1:
         raise RunError(f"{where}: image size {w}x{h} px is empty; use a smaller --downscale")
     need = int(w) * int(h) * BYTES_PER_PIXEL
     have = available_memory()
-    if w * h > MIN_PIXELS_CHECKED and need > have:
+    if w * h > MIN_PIXELS_CHECKED and have is not None and need > have:
         raise RunError(f"{where}: {w}x{h} px needs about {need / 1e9:.1f} GB of memory to render, more than the "
                        f"{have / 1e9:.1f} GB available; render at a lower resolution (--downscale "
                        f"{math.ceil(math.sqrt(need / max(have, 1)))} or more)")

@@ -42,6 +42,7 @@ from nerf_core.runs.folder import dataset_changed_note
 from nerf_core.utils import arguments
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
+from nerf_core.utils.memory import named_out_of_memory
 from nerf_core.utils.progressbar import ProgressBar
 from nerf_core.volume.volrend import composite_background
 
@@ -312,14 +313,15 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
         cams = cams.scaled(1.0 / downscale)
     # Ground truth is box-filtered like eval's; a fractional downscale has no such image: no metrics.
     gt_downscale = int(downscale) if float(downscale).is_integer() and downscale >= 1 else None
-    return render_to_dir(
-        model, cams, stems, out, overwrite=overwrite, near=near, far=far, chunk=chunk,
-        extra={"run": str(Path(run).resolve()), "step": ckpt.get("step"), "method": ckpt.get("method"),
-               "cameras": str(Path(cameras_path).resolve()), **({"notes": notes} if notes else {})},
-        show_progress=show_progress,
-        ground_truth=frames if gt_downscale else None,
-        metrics_background=list(record.eval_background), gt_downscale=gt_downscale or 1,
-        pixel_filter=pf.of_run(record.raw, pixel_filter, downscale),
-        # and any dataset that --out is or lies in (dataset_files skips folders that hold none)
-        protected=dataset_files(cameras_path, record.dataset, out, *Path(out).resolve().parents),
-    )
+    with named_out_of_memory(f"--chunk {chunk}", "lower --chunk, or render smaller views with a larger --downscale"):
+        return render_to_dir(
+            model, cams, stems, out, overwrite=overwrite, near=near, far=far, chunk=chunk,
+            extra={"run": str(Path(run).resolve()), "step": ckpt.get("step"), "method": ckpt.get("method"),
+                   "cameras": str(Path(cameras_path).resolve()), **({"notes": notes} if notes else {})},
+            show_progress=show_progress,
+            ground_truth=frames if gt_downscale else None,
+            metrics_background=list(record.eval_background), gt_downscale=gt_downscale or 1,
+            pixel_filter=pf.of_run(record.raw, pixel_filter, downscale),
+            # and any dataset that --out is or lies in (dataset_files skips folders that hold none)
+            protected=dataset_files(cameras_path, record.dataset, out, *Path(out).resolve().parents),
+        )

@@ -95,11 +95,16 @@ def dataset_hash(path) -> str:
     return h.hexdigest()
 
 
-def dataset_changed_note(config: dict) -> Optional[str]:
+SCORES = "the scores compare the model with the data there now"
+
+
+def dataset_changed_note(config: dict, consequence: str = SCORES) -> Optional[str]:
     """A note when the dataset a run's config.json names no longer holds the data it trained on (its
-    transforms files' hash differs, or images were replaced, removed or added), else None: ``eval``
-    and ``render`` still work on it, but their scores then compare the model with other data
-    (``--resume`` refuses it outright)."""
+    transforms files' hash differs, or images were replaced, removed or added), else None: ``eval``,
+    ``render``, ``export`` and ``open_run(...).dataset`` still work on it, but what they make of it then
+    compares the model with other data (``consequence`` says what: the scores, the culling) and
+    ``--resume`` refuses it outright. The one test of "the dataset changed": every loader of a run's
+    dataset calls it (nerf_core/tests/test_dataset_identity_everywhere.py)."""
     path, want = config.get("dataset"), config.get("dataset_hash")
     if not (isinstance(path, str) and isinstance(want, str) and Path(path).exists()):
         return None
@@ -109,11 +114,10 @@ def dataset_changed_note(config: dict) -> Optional[str]:
         return None  # loading the dataset reports it, naming the file
     if have != want:
         return (f"{path} changed since the run trained on it (transforms hash {have[:12]}, trained on {want[:12]}); "
-                "the scores compare the model with the data there now")
+                + consequence)
     images = images_changed(config.get("dataset_images"), dataset_images(path), same_place=True)
     if images:
-        return (f"{path}: images changed since the run trained on it ({images}); the scores compare the model "
-                "with the images there now")
+        return f"{path}: images changed since the run trained on it ({images}); " + consequence
     return None
 
 

@@ -51,6 +51,9 @@ class EventLog:
         self.events: List[dict] = []  # kept for callers (tests, the trainer's summary)
 
     def emit(self, event: str, **fields) -> dict:
+        """Write one event (a name of ``contract.EVENTS``: the readers know no other) to every stream."""
+        if event not in contract.EVENTS:
+            raise ValueError(f"event {event!r} is not one of contract.EVENTS {contract.EVENTS}: declare it there")
         record = {"event": event, "time": time.time(), **contract.json_safe(fields)}
         line = json.dumps(record, allow_nan=False)
         # The files first: a closed stdout stops the run, and this event must still reach the log.

@@ -22,6 +22,8 @@ from nerf_core.cameras.rays import Cameras, rays_for_view
 from nerf_core.image.io import write_exr, write_png
 from nerf_core.methods.base import RadianceModel
 from nerf_core.methods.registry import register
+from nerf_core.render.run import Run
+from nerf_core.runs.record import RunRecord
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -281,3 +283,25 @@ def api_example(dataset, run) -> str:
 def api_example_code():
     """``api_example`` as a fixture (see ``dataset_factory`` for why not an import)."""
     return api_example
+
+
+def opened_run(model, config: Optional[dict] = None, step: int = 7, method: str = "sphere", path="run") -> Run:
+    """A ``Run`` around ``model``, as ``open_run`` gives it, with ``config`` as its config.json (no dataset
+    by default): for export tests that replace the loader (``use_model``)."""
+    config = {"dataset": None, **(config or {})}
+    record = RunRecord(Path(path) / "config.json", config.get("dataset"), config.get("dataset_hash"), method,
+                       None, None, (1.0, 1.0, 1.0), 1, config)
+    return Run(Path(path), model, record, {"step": step, "method": method})
+
+
+def use_model(monkeypatch, model, **kw) -> None:
+    """Make ``export`` open ``model`` whatever the run folder (``run_export.open_run`` replaced); ``kw``
+    go to ``opened_run``. ``monkeypatch`` None: replaced for good (a child process's script)."""
+    from nerf_core.export import run_export
+
+    def fake(run, device=None, checkpoint=None):
+        return opened_run(model, path=run, **kw)
+    if monkeypatch is None:
+        run_export.open_run = fake
+    else:
+        monkeypatch.setattr(run_export, "open_run", fake)

@@ -10,9 +10,10 @@ import torch
 
 from nerf_core.cameras.rays import Cameras
 from nerf_core.cli.main import main
-from nerf_core.export import grid, mesh, run_export
+from nerf_core.export import grid, mesh
 from nerf_core.export.ply import read_geometry, write_mesh_ply
 from nerf_core.methods.base import RadianceModel
+from nerf_core.tests.conftest import use_model
 
 RADIUS = 0.6
 
@@ -179,10 +180,8 @@ def test_a_grid_too_large_says_how_much_memory_it_needs():
 
 @pytest.fixture
 def fake_run(monkeypatch, tmp_path):
-    """``export`` on a run whose model is the analytic sphere (load_run replaced)."""
-    def load(run, device, checkpoint=None):
-        return SphereModel(), {"dataset": None}, {"step": 7, "method": "sphere"}
-    monkeypatch.setattr(run_export, "load_run", load)
+    """``export`` on a run whose model is the analytic sphere (open_run replaced)."""
+    use_model(monkeypatch, SphereModel())
     return tmp_path / "run"
 
 
@@ -215,7 +214,7 @@ def test_cli_refuses_an_output_that_is_not_a_file(fake_run, tmp_path, capsys, ki
 
 
 def test_cli_no_surface_and_huge_grid_are_one_line_with_nothing_written(monkeypatch, tmp_path, capsys):
-    monkeypatch.setattr(run_export, "load_run", lambda *a, **k: (SphereModel(peak=0.1), {}, {}))
+    use_model(monkeypatch, SphereModel(peak=0.1))
     out = tmp_path / "m.ply"
     assert main(["export", "mesh", "run", "--out", str(out), "--resolution", "16"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -12,7 +12,7 @@ import pytest
 
 from nerf_core.cli.main import main
 from nerf_core.errors import TrainError
-from nerf_core.export import run_export
+from nerf_core.tests.conftest import use_model
 from nerf_core.runs.folder import RUN_LOCK, lock_run_folder, trainer_written
 from nerf_core.tests.test_export_mesh import SphereModel
 from nerf_core.utils import atomic
@@ -179,8 +179,7 @@ def test_a_killed_writers_temporaries_are_recognised():
 @pytest.fixture
 def sphere_run(monkeypatch, tmp_path):
     """``export`` on a run whose model is the analytic sphere (as test_export_mesh's ``fake_run``)."""
-    monkeypatch.setattr(run_export, "load_run", lambda run, device, checkpoint=None: (
-        SphereModel(), {"dataset": None}, {"step": 7, "method": "sphere"}))
+    use_model(monkeypatch, SphereModel())
     return tmp_path / "run"
 
 

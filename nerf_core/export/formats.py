@@ -1,0 +1,108 @@
+"""How each declared export (``nerf_core.contract.exports``) is made: its writer, registered once.
+
+A writer says what one sample of its grid costs in memory (``bytes_per_sample``, checked before the
+work by ``grid.check_fits``), how it extracts its result from an ``ExportJob`` and how it writes that
+result, atomically, to the output file, and what of it goes into the summary. The orchestrator
+(``export.run_export.export_run``) does everything else, the same for every format: the output rule,
+loading the run, the memory check, notes, progress, one-line errors.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, Optional
+
+import numpy as np
+
+from nerf_core.cameras.rays import Cameras
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.exports import MESH, VOLUME, ExportFormat, export_format
+from nerf_core.errors import RunError
+from nerf_core.export import mesh, ply, volume
+from nerf_core.render.run import DatasetChanged, Run
+
+CULLING = "the culling uses the cameras there now"
+
+
+@dataclass
+class ExportJob:
+    """What a writer's ``extract`` gets: the opened ``run`` (``render.run.Run``), its ``model``, the scene
+    ``box`` (2, 3) float64, the grid ``resolution``, the format's ``options`` (by ``Option.dest``),
+    ``say(stage, share)`` for progress and ``note(message)`` for what the user should read."""
+
+    run: Run
+    box: np.ndarray
+    resolution: int
+    options: Dict[str, Any]
+    say: Callable[[str, float], None]
+    note: Callable[[str], None]
+    notes: list = field(default_factory=list)
+
+    @property
+    def model(self):
+        return self.run.model
+
+    def training_cameras(self) -> Optional[Cameras]:
+        """The run's training cameras (a changed dataset is noted: the one check, ``Run.cameras``), or
+        None with a note when its dataset cannot be read any more."""
+        with warnings.catch_warnings():  # said once, as a note event, not as a Python warning on stderr
+            warnings.simplefilter("ignore", DatasetChanged)
+            try:
+                return self.run.cameras("train", consequence=CULLING)
+            except (DatasetError, RunError) as exc:
+                self.note(f"no culling by training cameras: {exc}")
+                return None
+            finally:
+                for n in self.run.notes:
+                    self.note(n)
+
+
+@dataclass(frozen=True)
+class Writer:
+    """The making of format ``fmt``: ``extract(job) -> result``, ``write(path, result)`` (atomic),
+    ``summary(result) -> dict`` (merged into the export's summary), ``bytes_per_sample`` of its grid."""
+
+    fmt: ExportFormat
+    bytes_per_sample: float
+    extract: Callable[[ExportJob], Any]
+    write: Callable[[Path, Any], None]
+    summary: Callable[[Any], dict]
+
+
+WRITERS: Dict[str, Writer] = {}
+
+
+def writer(name: str, bytes_per_sample: float, extract, write, summary=lambda result: {}) -> Writer:
+    """Register the writer of the declared format ``name`` (``contract.exports.declare`` first)."""
+    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary)
+    WRITERS[name] = w
+    return w
+
+
+def writer_of(name: str) -> Writer:
+    """The writer of format ``name``; ValueError naming the formats that have one."""
+    export_format(name)
+    if name not in WRITERS:
+        raise ValueError(f"export {name!r} is declared but has no writer; one of {', '.join(sorted(WRITERS))}")
+    return WRITERS[name]
+
+
+def _extract_mesh(job: ExportJob) -> mesh.Mesh:
+    o = job.options
+    cams = job.training_cameras() if not o.get("keep_unseen") else None
+    return mesh.extract_mesh(job.model, job.box, job.resolution, level=o.get("level"), n_faces=o.get("n_faces"),
+                             cameras=cams, min_component=o.get("min_component", mesh.DEFAULT_MIN_COMPONENT),
+                             fill_inside=o.get("fill_inside", True), on_progress=job.say)
+
+
+def _volume_summary(arrays: dict) -> dict:
+    d = arrays["density"]
+    return {"level": float(arrays["level"]), "density_range": [float(np.min(d)), float(np.max(d))]}
+
+
+writer(MESH.name, mesh.BYTES_PER_SAMPLE, _extract_mesh,
+       lambda path, m: ply.write_mesh_ply(path, m.vertices, m.faces, m.colors), lambda m: dict(m.info))
+writer(VOLUME.name, volume.BYTES_PER_SAMPLE,
+       lambda job: volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say),
+       volume.write_volume, _volume_summary)
