@@ -125,7 +125,7 @@ class NeRF(RadianceModel):
         """Marching step in scene units: ``march_steps`` per box diagonal, coarser until the grid prunes."""
         diag = float((self.aabb[1] - self.aabb[0]).norm())
         step = diag / float(self.opts.march_steps)
-        pruned = self.occupancy is not None and self.occupancy.occupied_fraction < 0.95
+        pruned = self.occupancy is not None and self.occupancy.learnt_fraction < 0.95
         return step if pruned else step * float(self.opts.warmup_step_scale)
 
     def training_hook(self, step, frac) -> bool:

@@ -113,7 +113,7 @@ class VMGrid(RadianceModel):
 
     def pruned(self) -> bool:
         """True once the occupancy grid has started skipping space (it starts fully occupied)."""
-        return self.occupancy.occupied_fraction < 0.95
+        return self.occupancy.learnt_fraction < 0.95  # of the cells the capture did not show empty
 
     # Share of training rays that must be stopped by the scene before geometry counts as formed in a
     # box with no empty space to prune: an interior, where every ray ends on a wall. An object scene's

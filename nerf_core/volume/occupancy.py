@@ -54,6 +54,7 @@ class OccupancyGrid(nn.Module):
         # The share of occupied cells, read from the device only when the mask changes (an update, a
         # load): methods ask for it several times a step (``VMGrid.formed``), and each read waits for a GPU.
         self._fraction: DerivedCache[float] = DerivedCache(follow_optimizers=False)
+        self._learnt: DerivedCache[float] = DerivedCache(follow_optimizers=False)
         self._box: DerivedCache[dict] = DerivedCache(follow_optimizers=False)  # ``_cell_index``'s terms
         # ``near_reach``: asked once a training step, read from the device only when the box changes
         self._reach: DerivedCache[float] = DerivedCache(follow_optimizers=False)
@@ -61,6 +62,16 @@ class OccupancyGrid(nn.Module):
     @property
     def occupied_fraction(self) -> float:
         return self._fraction.get([self.binary], lambda: float(self.binary.float().mean()))
+
+    @property
+    def learnt_fraction(self) -> float:
+        """The share of the cells that the capture did not show empty (``mark_known_free``) that are
+        occupied: what training has pruned, and what a method's "has the grid started pruning" asks.
+        Equal to ``occupied_fraction`` without a mark. With one, the box is mostly empty from step 0,
+        but the field has learnt nothing yet: a method that took that for formed geometry would start
+        its fine step, its sparsity prior and its growth on a field still at its initial density."""
+        return self._learnt.get([self.binary, self.known_free], lambda: float(
+            self.binary.sum() / (~self.known_free).sum().clamp_min(1)))
 
     def cell_size(self) -> Tensor:
         """(3,) size of one cell in scene units."""
