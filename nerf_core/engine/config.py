@@ -14,6 +14,7 @@ from nerf_core import contract
 from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.errors import TrainError
 from nerf_core.methods import catalog
+from nerf_core.methods.options import OptionError
 from nerf_core.methods.registry import available_methods, method_class
 from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.runs.folder import resume_dataset
@@ -228,6 +229,8 @@ class TrainConfig:
             raise TrainError(f"unknown method {self.method!r}; choose one of {', '.join(available_methods())}")
         try:
             cls.parse_options(self.options)  # the method's typed options: the same rules as build_model
+        except OptionError as exc:
+            raise TrainError(f"--set {exc.option}: {exc}") from None
         except (TypeError, ValueError) as exc:
             raise TrainError(f"--set: {exc}") from None
 

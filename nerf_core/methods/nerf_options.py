@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Union
 
-from nerf_core.methods.options import MethodOptions, grid_option, option
+from nerf_core.methods.options import MethodOptions, OptionError, grid_option, option
 from nerf_core.volume import grad_scaling
 
 SAMPLERS = ("occupancy", "hierarchical")
@@ -31,8 +31,9 @@ class NeRFOptions(MethodOptions):
                           choices=SAMPLERS)
     march_steps: int = option(128, "marching steps per box diagonal once the occupancy grid prunes", low=1,
                               high=1 << 16)
+    # Coarser means >= 1 (1e-9 asked for a billion samples a ray); beyond 64 the warm-up step crosses the box.
     warmup_step_scale: float = option(4.0, "the step is this many times coarser until the grid first prunes",
-                                      low=0, open_low=True)
+                                      low=1, high=64)
     occ_res: int = grid_option(48, "occupancy grid cells per axis")
     occ_every: int = option(16, "training steps between occupancy updates", low=1)
     occ_decay: float = option(0.8, "share of a cell's remembered density kept per update", low=0, high=1)
@@ -51,4 +52,4 @@ class NeRFOptions(MethodOptions):
 
     def check_together(self, method: str) -> None:
         if self.skip > self.depth:
-            raise ValueError(f"{method}: option 'skip' ({self.skip}) must be at most 'depth' ({self.depth})")
+            raise OptionError("skip", f"{method}: option 'skip' ({self.skip}) must be at most 'depth' ({self.depth})")
