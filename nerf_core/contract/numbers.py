@@ -38,3 +38,19 @@ def is_number(value) -> bool:
         return math.isfinite(value)
     except OverflowError:  # an int too large for a float is no measurement either
         return False
+
+
+def plain(value):
+    """``value`` with numpy's scalars (at any depth of lists, tuples and dicts) as Python's own, so that
+    JSON can hold it: a config built with ``np.int64(4)`` must not fail when config.json is written."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if is_bool(value):
+        return bool(value)
+    if is_whole(value):
+        return int(value)
+    if is_real(value) and not isinstance(value, float):
+        return float(value)
+    return value

@@ -18,6 +18,9 @@ from nerf_core.contract.numbers import is_bool, is_number, is_whole
 
 MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
 MAX_SEED = 2 ** 63 - 1  # torch's generators take a signed 64-bit seed (as ``--seed``)
+MAX_STEPS = 10 ** 9  # step counts beyond this are no schedule a run reaches (a CPU makes ~10^4 steps an hour)
+MAX_WEIGHT = 100.0  # a loss weight beyond this drowns the photometric loss; the defaults are 1e-4 or 0
+MAX_REACH = 10.0  # shares of the box diagonal: beyond, every sample of every ray is "near a camera"
 
 
 def option(default: Any, doc: str, *, low: Optional[float] = None, high: Optional[float] = None,
