@@ -335,7 +335,7 @@ def _resume_conflicts(cli: TrainConfig, saved: dict) -> list:
 
 def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
     """The config to continue a run with: the checkpoint's, with the settings in ``RESUME_MAY_CHANGE``
-    taken from ``cli`` (the command line), and the dataset checked by ``runfolder.resume_dataset``.
+    taken from ``cli`` (the command line), and the dataset checked by ``runs.dataset_identity.resume_dataset``.
     Raises TrainError when the command line names another method or another dataset."""
     saved = dict(ckpt.get("config") or {})
     if cli.method and saved.get("method") and cli.method != saved["method"]:
