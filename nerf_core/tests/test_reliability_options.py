@@ -4,6 +4,7 @@ with the transforms files' JSON reader and one declaration of its fields (``runs
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -156,3 +157,18 @@ def test_the_writer_checks_what_it_writes_by_the_readers_declaration(trained_run
             check_run_config({**cfg, key: value}, "config.json")
     record = read_run_record(trained_run["run"])
     assert record.aabb is not None and record.dataset_hash == cfg["dataset_hash"]
+
+
+def test_a_config_with_numpy_numbers_is_stored_as_python_numbers():
+    cfg = TrainConfig(dataset="d", out="o", method="vmgrid", max_steps=np.int64(5), seed=np.int32(3),
+                      options={"res_final": np.int64(64), "upsample_at": [np.float32(0.5)]}, eval_at=[np.float64(2)])
+    cfg.check()
+    assert type(cfg.max_steps) is int and type(cfg.seed) is int and type(cfg.options["res_final"]) is int
+    json.dumps(dataclasses.asdict(cfg))  # config.json and checkpoints can hold it
+
+
+def test_every_number_option_has_a_ceiling():
+    for options, name in [({"l1_weight": 1e9}, "l1_weight"), ({"occ_every": 10 ** 12}, "occ_every"),
+                          ({"grid_lr_scale": 1e300}, "grid_lr_scale"), ({"grad_reach": 1e6}, "grad_reach")]:
+        with pytest.raises(OptionError, match=f"option '{name}' must be"):
+            build_model("vmgrid", BOX, **options)
