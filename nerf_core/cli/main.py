@@ -68,11 +68,11 @@ def _cmd_methods(a) -> int:
     cls = method_class(a.name)
     if cls is None:
         raise ValueError(f"unknown method {a.name!r}; choose one of {', '.join(available_methods())}")
-    defaults, docs = cls.parse_options({}).to_dict(), cls.Options.docs()
+    defaults, docs, allowed = cls.parse_options({}).to_dict(), cls.Options.docs(), cls.Options.allowed()
     if not docs:
         print(f"{a.name}: declares no options")
     for key, doc in docs.items():
-        fixed = " (fixed)" if key in cls.forced_options else ""
+        fixed = " (fixed)" if key in cls.forced_options else f"  ({allowed[key]})"
         print(f"{key} = {json.dumps(defaults[key])}{fixed}\n    {doc}")
     return 0
 

@@ -68,6 +68,21 @@ class MethodOptions:
         return {name: f.metadata.get("doc", "") for name, f in cls.declared().items()}
 
     @classmethod
+    def allowed(cls) -> Dict[str, str]:
+        """name -> what each declared option may be, in the words of its error ("in [0.05, 64]", "one of
+        ...", "true or false"), for ``python -m nerf_core methods``."""
+        out = {}
+        for name, f in cls.declared().items():
+            meta, default = f.metadata, _default_of(f)
+            if meta.get("choices") is not None:
+                out[name] = "one of " + ", ".join(_shown(c) for c in meta["choices"])
+            elif isinstance(default, bool):
+                out[name] = "true or false"
+            else:
+                out[name] = ("a list of numbers " if isinstance(default, list) else "") + _range_text(meta)
+        return out
+
+    @classmethod
     def defaults(cls) -> Dict[str, Any]:
         """name -> default of each declared option."""
         return cls().to_dict()

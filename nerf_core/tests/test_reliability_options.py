@@ -172,3 +172,11 @@ def test_every_number_option_has_a_ceiling():
                           ({"grid_lr_scale": 1e300}, "grid_lr_scale"), ({"grad_reach": 1e6}, "grad_reach")]:
         with pytest.raises(OptionError, match=f"option '{name}' must be"):
             build_model("vmgrid", BOX, **options)
+
+
+def test_methods_lists_what_each_option_may_be(capsys):
+    from nerf_core.cli.main import main
+
+    assert main(["methods", "vmgrid"]) == 0
+    out = capsys.readouterr().out
+    assert "step_ratio = 0.5  (in [0.05, 64])" in out and 'occ_probe = "max"  (one of "max", "random")' in out
