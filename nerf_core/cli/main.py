@@ -72,8 +72,8 @@ def _cmd_methods(a) -> int:
     if not docs:
         print(f"{a.name}: declares no options")
     for key, doc in docs.items():
-        fixed = " (fixed)" if key in cls.forced_options else f"  ({allowed[key]})"
-        print(f"{key} = {json.dumps(defaults[key])}{fixed}\n    {doc}")
+        fixed = " (fixed)" if key in cls.forced_options else ""
+        print(f"{key} = {json.dumps(defaults[key])}{fixed}\n    {doc}" + ("" if fixed else f" ({allowed[key]})"))
     return 0
 
 

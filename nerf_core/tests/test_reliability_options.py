@@ -179,4 +179,5 @@ def test_methods_lists_what_each_option_may_be(capsys):
 
     assert main(["methods", "vmgrid"]) == 0
     out = capsys.readouterr().out
-    assert "step_ratio = 0.5  (in [0.05, 64])" in out and 'occ_probe = "max"  (one of "max", "random")' in out
+    assert "step_ratio = 0.5\n    marching step in voxels (in [0.05, 64])\n" in out
+    assert '(one of "max", "random")' in out
