@@ -2,7 +2,7 @@
 
     python benchmarks/bench_cpu_speed.py --baseline REV_OR_DIR --out DIR [--scenes diffuse,glossy,...]
                                       [--seconds 300] [--resolution 200] [--datasets DIR] [--after 0.4]
-                                      [--report-only]
+                                      [--baseline-args "FLAGS"] [--new-args "FLAGS"] [--report-only]
 
 For each demo scene (captured once at ``--resolution`` px, 100 train / 20 test views, Cycles 16
 samples, as ``benchmarks/benchmark.py`` does, and cached in ``--datasets``), it starts
@@ -16,7 +16,9 @@ checkout, or a git revision, checked out into a temporary worktree that is remov
 From each run's progress.jsonl it reads the steps made, the steps per second after growth (step
 events from ``--after`` of the budget to the end: vmgrid's last growth stage is at 0.36) and the test
 PSNR of the final evaluation. Writes DIR/results.json and DIR/summary.md (a table with the ratios, the
-command, both commits and the machine) and DIR/cpu_speed.png (both, per scene). ``--report-only``
+command, both commits and the machine) and DIR/cpu_speed.png (both, per scene). ``--baseline-args`` and
+``--new-args`` add train flags to one side: ``--baseline . --new-args="--train-rays filter"`` (with the
+``=``) measures a flag against the default on this very tree, side by side. ``--report-only``
 rewrites the summary from results.json. Run again into the same folder (same commits and budget), it
 keeps the scenes already measured and adds the others.
 """
@@ -51,6 +53,10 @@ def parse_args(argv):
     ap.add_argument("--datasets", help="capture cache folder (default OUT/datasets)")
     ap.add_argument("--after", type=float, default=0.4,
                     help="share of the budget after which the step rate counts as 'after growth' (default 0.4)")
+    ap.add_argument("--capture-depth", action="store_true",
+                    help="capture with depth maps (capture.py --depth), for runs with train --depth")
+    ap.add_argument("--baseline-args", default="", help="extra train flags for the baseline's runs (one string)")
+    ap.add_argument("--new-args", default="", help="extra train flags for this tree's runs (one string)")
     ap.add_argument("--report-only", action="store_true", help="train nothing: rewrite summary.md from results.json")
     args = ap.parse_args(argv)
     if not 0 <= args.after < 1:
@@ -95,7 +101,8 @@ def train_pair(trees: dict, dataset: str, out: str, args) -> dict:
         env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
         env.pop("PYTHONPATH", None)  # each tree imports its own nerf_core (python -m from its root)
         cmd = [sys.executable, "-m", "nerf_core", "train", os.path.abspath(dataset), "--out", os.path.abspath(run),
-               "--max-seconds", f"{args.seconds:g}", "--seed", "0", "--eval-views", str(args.eval_views), "--no-bar"]
+               "--max-seconds", f"{args.seconds:g}", "--seed", "0", "--eval-views", str(args.eval_views), "--no-bar",
+               *shlex.split(args.baseline_args if name == "baseline" else args.new_args)]
         procs[name] = (subprocess.Popen(cmd, cwd=tree, env=env, stdout=log, stderr=subprocess.STDOUT), log, run)
     result = {}
     for name, (proc, log, run) in procs.items():
@@ -119,6 +126,8 @@ def summary(results: dict) -> str:
         f"Each pair trained at the same time, one thread each ({results['seconds']:g} s budget, seed 0); "
         f"test PSNR on {results['eval_views']} evenly spaced test views at the end. Steps per second "
         f"after growth: step events from {results['after']:.0%} of the budget to the end.",
+        f"Train flags: baseline `{results.get('baseline_args') or '(defaults)'}`, new "
+        f"`{results.get('new_args') or '(defaults)'}`.",
         "",
         "| scene | steps (base / new) | steps/s after growth (base / new) | ratio | PSNR base | PSNR new | gain dB |",
         "|---|---|---|---|---|---|---|",
@@ -214,12 +223,14 @@ def main(argv=None) -> int:
     results = {"command": "python benchmarks/bench_cpu_speed.py " + shlex.join(sys.argv[1:] if argv is None else argv),
                "baseline_commit": git_commit(baseline), "commit": git_commit(REPO_ROOT),
                "machine": machine_info(),
-               "seconds": args.seconds, "eval_views": args.eval_views, "after": args.after, "scenes": {}}
+               "seconds": args.seconds, "eval_views": args.eval_views, "after": args.after,
+               "baseline_args": args.baseline_args, "new_args": args.new_args, "scenes": {}}
     if os.path.isfile(path):  # an earlier invocation into the same folder: keep its scenes, add the rest
         with open(path, encoding="utf-8") as fh:
             earlier = json.load(fh)
         if earlier.get("baseline_commit") == results["baseline_commit"] and earlier.get("commit") == results["commit"] \
-                and earlier.get("seconds") == args.seconds:
+                and earlier.get("seconds") == args.seconds and earlier.get("new_args", "") == args.new_args \
+                and earlier.get("baseline_args", "") == args.baseline_args:
             results["scenes"] = earlier.get("scenes", {})
             results["command"] = earlier.get("command", results["command"]) + "; then " + results["command"]
     try:
@@ -228,7 +239,8 @@ def main(argv=None) -> int:
                 print(f"bench_cpu_speed: [{i}/{len(scenes)}] {scene}: already in {path}", flush=True)
                 continue
             settings = {"resolution": args.resolution, "count": args.views, "val_count": 1,
-                        "test_count": args.test_views, "engine": "cycles", "samples": 16}
+                        "test_count": args.test_views, "engine": "cycles", "samples": 16,
+                        **({"depth": True} if args.capture_depth else {})}
             ds, _ = datasets.ensure_dataset(scene, cache, settings, log_path=os.path.join(args.out, "capture.log"))
             out = os.path.join(args.out, "runs", scene)
             os.makedirs(out, exist_ok=True)

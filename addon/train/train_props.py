@@ -46,6 +46,11 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
                                description="Stop after this many seconds (0: no time limit; at most 7 days)")
     max_steps: IntProperty(name="Max Steps", default=0, min=0, description="Stop after this many steps (0: no limit)")
     seed: IntProperty(name="Seed", default=0, min=0)
+    use_depth: BoolProperty(name="Use Depth", default=True,
+                            description="When every train view of the capture has a depth map (Capture > Depth), "
+                                        "train with them too: a depth loss, and empty space known from the first "
+                                        "step (train --depth). Its scores are then not comparable with a "
+                                        "colours-only tool's")
     # live state, mirrored from the job for drawing
     status: StringProperty(name="Status", default="")
     error: StringProperty(name="Last Error", default="")
@@ -58,6 +63,7 @@ class NerfTrainSettings(bpy.types.PropertyGroup):
     fraction: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     rollbacks: IntProperty(default=0)
     background: StringProperty(default="", description="What stands behind the scene in this run, and why")
+    depth_note: StringProperty(default="", description="Whether this run trains with the capture's depth, and why")
     preview_path: StringProperty(default="")
     runs: CollectionProperty(type=NerfRunItem)
     runs_index: IntProperty(default=0)

@@ -80,15 +80,37 @@ def start_training(context, resume: bool = False) -> TrainJob:
         raise SetupError(f"Time Budget is {s.max_seconds:g} s, more than 7 days ({train_props.MAX_TIME_BUDGET_S:g} s): "
                          "lower it (0 means no time limit).")
     python = child_process.resolve_interpreter(prefs.python_preference(context))
+    depth, depth_note = depth_choice(dataset, s.use_depth, resume)
     cmd = child_process.train_command(python, dataset, run, method=s.method.strip(), max_seconds=s.max_seconds,
-                                        max_steps=s.max_steps, seed=s.seed, resume=resume)
+                                        max_steps=s.max_steps, seed=s.seed, resume=resume,
+                                        extra=["--depth"] if depth else [])
     job = TrainJob(context.scene.name, python, dataset, run, cmd)
     job.on_update, job.on_end = sync_train_settings, refresh_after
     jobs.add(TRAIN, job)
     s.running, s.error, s.step, s.loss, s.psnr, s.fraction, s.rollbacks = True, "", 0, 0.0, 0.0, 0.0, 0
-    s.elapsed, s.eta, s.preview_path, s.background = 0.0, -1.0, "", ""
+    s.elapsed, s.eta, s.preview_path, s.background, s.depth_note = 0.0, -1.0, "", "", depth_note
     s.status = f"Checking dataset {os.path.basename(dataset)}..."
     return job
+
+
+def depth_choice(dataset: str, use_depth: bool, resume: bool) -> tuple[bool, str]:
+    """Whether to pass ``train --depth``, and the line the panel shows about it: on when Use Depth is
+    checked and every train frame of the capture names a depth map (metadata only; the trainer checks
+    the maps and refuses bad ones naming the frame). A resumed run keeps what it trained with."""
+    if resume:
+        return False, "Depth: as the run started (a resumed run keeps its own settings)"
+    if not use_depth:
+        return False, "Depth: off (Use Depth is unchecked); colours only"
+    try:
+        with_depth, total = contract.depth_coverage(dataset)
+    except (contract.DatasetError, OSError):
+        return False, "Depth: off (the dataset's frames could not be read here; the check says why)"
+    if total and with_depth == total:
+        return True, f"Depth: on, every one of the {total} train views has a depth map (train --depth)"
+    if with_depth:
+        return False, (f"Depth: off, only {with_depth} of the {total} train views have a depth map; "
+                       "capture again with Depth for all")
+    return False, "Depth: off, the capture has no depth maps (Capture > Depth adds them); colours only"
 
 
 def sync_train_settings(job: TrainJob) -> None:
@@ -317,6 +339,7 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
         col.prop(s, "max_seconds")
         col.prop(s, "max_steps")
         col.prop(s, "seed")
+        col.prop(s, "use_depth")
         row = layout.row(align=True)
         # The flag is saved with the file and survives an add-on reload; a job only lives in this
         # session: a flag without a job is stale (the panel would otherwise offer only a dead Cancel).
@@ -346,6 +369,8 @@ class NERF_PT_train(NerfPanel, bpy.types.Panel):
             if s.background:
                 # Which background model the run uses: a learned world (opaque captures) or random colours.
                 box.label(text=f"Background: {s.background}"[:120], icon="WORLD")
+            if s.depth_note:  # whether the run learns from the capture's depth too, and why
+                box.label(text=s.depth_note[:120], icon="MOD_OPACITY")
             if _PREVIEWS is not None and "latest" in _PREVIEWS and s.preview_path:
                 box.template_icon(icon_value=_PREVIEWS["latest"].icon_id, scale=8.0)
         elif s.status:

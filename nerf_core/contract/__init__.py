@@ -79,6 +79,7 @@ from .transforms import (  # noqa: F401
     INTRINSIC_KEYS,
     SPLITS,
     FrameInfo,
+    depth_coverage,
     detect_layout,
     frame_infos,
     parse_intrinsics,

@@ -398,3 +398,17 @@ def _nerfstudio_splits(meta: dict, jf: Path, frames: List[FrameInfo], splits: Se
         f"{jf}: no train_filenames/val_filenames/test_filenames; held out every {HOLDOUT_EVERY}th frame "
         f"(by file name) as val/test: {len(held)} of {len(frames)}"
     )
+
+
+def depth_coverage(path: Path | str) -> tuple[int, int]:
+    """How many of a dataset's train frames name a depth map, of how many: (with depth, train frames).
+
+    Metadata only (no pixel is read), so that the add-on's Train panel can decide ``train --depth``
+    without torch; the trainer checks the maps themselves (``nerf_core.data.depth.check_depth``).
+
+    Raises:
+        DatasetError: the dataset cannot be parsed (as ``frame_infos``).
+    """
+    _, _, splits, _ = frame_infos(path, ("train",))
+    frames = splits.get("train") or []
+    return sum(f.depth is not None for f in frames), len(frames)

@@ -1,17 +1,67 @@
 """Training batches: what a step trains on (``RayBatch``), the type that draws them (``Batcher``,
 which a method chooses with ``RadianceModel.make_batcher``) and the default, ``RayBatcher``: random
 rays (and their target colours) from a ``Split``.
+
+Where a training ray goes through its pixel (``train --train-rays``): a Cycles pixel is the mean over
+its pixel filter (``nerf_core.image.pixel_filter``), so a ray cast at an offset drawn from that filter
+has the pixel's colour as its expected colour, and a model fitted to such rays renders the capture's
+soft silhouettes rather than the sharper ones that rays through the centres fit. It costs one ray a
+pixel, as the centre ray does (four numbers more per ray from the generator).
+
+Which pixels a step trains on (``train --ray-sampling``): uniformly over every pixel, or in proportion
+to a running estimate of their error (``nerf_core.data.error_map``), weighted so that the loss stays an
+estimate of the uniform one.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple, Optional
 
 import torch
 
 from nerf_core.cameras.rays import rays_for_pixels
 from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION, TRAINING_BACKGROUNDS
+from nerf_core.data.error_map import ErrorMap
 from nerf_core.data.split import Split
+from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
+from nerf_core.image.pixel_filter import POINT, PixelFilter
 from nerf_core.utils import arguments
+
+# ``train --train-rays``: where a training ray goes through its pixel (``footprint``)
+TRAIN_RAYS = ("filter", "centre")
+DEFAULT_TRAIN_RAYS = "centre"
+# what runs recorded before the flag existed trained with
+RECORDED_BEFORE_TRAIN_RAYS = "centre"
+# ``train --ray-sampling``: which pixels a step draws (uniformly, or by their running error)
+RAY_SAMPLING = ("uniform", "error")
+DEFAULT_RAY_SAMPLING = "uniform"
+
+
+def footprint(pixel_filter: Optional[PixelFilter], train_rays: str) -> PixelFilter:
+    """What ``RayBatcher`` draws a ray's offset in its pixel from, for ``train --train-rays``: the
+    dataset's ``pixel_filter`` at its loaded resolution (``Dataset.pixel_filter``; Blender's default
+    where it is None) for "filter", the centre (``POINT``) for "centre"."""
+    arguments.choice("footprint", "train_rays", train_rays, TRAIN_RAYS)
+    if train_rays == "centre":
+        return POINT
+    return pixel_filter if pixel_filter is not None else DEFAULT_FILTER
+
+
+@dataclass(frozen=True, eq=False)
+class BatchOptions:
+    """What the run's flags ask of its batches, for ``RadianceModel.make_batcher``.
+
+    Attributes:
+        footprint: what a ray's sub-pixel offset is drawn from (``train --train-rays``, ``footprint``):
+            the split's pixel filter, or ``POINT`` for the pixel centres.
+        depth: (v, h, w) float32 planar depth targets of the split's pixels (``train --depth``;
+            ``data.depth.depth_targets``, 0 = unknown) that the batches carry as ``RayBatch.depth``, or None.
+        sampling: which pixels are drawn (``train --ray-sampling``, one of ``RAY_SAMPLING``).
+    """
+
+    footprint: PixelFilter = POINT
+    depth: Optional[torch.Tensor] = None
+    sampling: str = DEFAULT_RAY_SAMPLING
 
 
 class RayBatch(NamedTuple):
@@ -23,6 +73,8 @@ class RayBatch(NamedTuple):
         background: (n, 3) float32 colour behind each ray (the ground truth was composited onto it).
         target: (n, 3) float32 ground-truth colour.
         weight: (n,) float32 per-ray weight of the colour error (1 use, 0 ignore), or None (no masks).
+        depth: (n,) float32 true distance along each ray to its surface, 0 where it is not known
+            (``train --depth``; ``data.depth.depth_targets``), or None (colours only).
     """
 
     rays_o: torch.Tensor
@@ -30,6 +82,7 @@ class RayBatch(NamedTuple):
     background: torch.Tensor
     target: torch.Tensor
     weight: Optional[torch.Tensor]
+    depth: Optional[torch.Tensor] = None
 
 
 class Batcher:
@@ -43,12 +96,17 @@ class Batcher:
         (in [0, 1]) of the training budget."""
         raise NotImplementedError
 
+    def observe(self, batch: RayBatch, out: dict) -> None:
+        """What the step rendered for ``batch`` (``render_batch``'s dict; the trainer calls this after a
+        step that was not rolled back): a batcher that adapts its draws learns from it. By default nothing."""
+
 
 class RayBatcher(Batcher):
     """Random ray batches over every pixel of a (train) split; images stay uint8 on the CPU.
 
-    ``sample(n, frac)`` returns one ``RayBatch`` of ``n`` rays drawn uniformly over every pixel, each
-    through its pixel's centre.
+    ``sample(n, frac)`` returns one ``RayBatch`` of ``n`` rays drawn uniformly over every pixel (or by
+    their running error: ``options.sampling``), each through its pixel's centre or at an offset drawn
+    from ``options.footprint``.
 
     Args:
         split: the ``Split`` to draw pixels from (uniformly over all its views' pixels).
@@ -58,9 +116,11 @@ class RayBatcher(Batcher):
         gen: a CPU ``torch.Generator`` that draws every random number (pixels, random colours), so a
             saved generator state replays the same batches.
         device: where the batches go.
+        options: the run's ``BatchOptions`` (the footprint, depth targets and sampling).
     """
 
-    def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device):
+    def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device,
+                 options: BatchOptions = BatchOptions()):
         arguments.instance("RayBatcher", "split", split, Split, "a nerf_core.Split (Dataset.split('train'))")
         arguments.choice("RayBatcher", "background", background, TRAINING_BACKGROUNDS)
         arguments.instance("RayBatcher", "gen", gen, torch.Generator, "a CPU torch.Generator")
@@ -73,7 +133,17 @@ class RayBatcher(Batcher):
         arguments.instance("RayBatcher", "device", device, torch.device, "a torch.device (or 'cpu', 'cuda')")
         if len(split) == 0 or split.images is None:
             raise ValueError("RayBatcher: split has no views with images to draw rays from")
+        arguments.instance("RayBatcher", "options", options, BatchOptions, "a nerf_core BatchOptions")
+        arguments.instance("RayBatcher", "options.footprint", options.footprint, PixelFilter, "a nerf_core PixelFilter")
+        arguments.choice("RayBatcher", "options.sampling", options.sampling, RAY_SAMPLING)
         self.split, self.gen, self.device = split, gen, device
+        self.footprint, depth = options.footprint, options.depth
+        if depth is not None and tuple(depth.shape) != (len(split), split.height, split.width):
+            raise ValueError(f"RayBatcher: depth must be ({len(split)}, {split.height}, {split.width}) like the "
+                             f"split's images, got {tuple(depth.shape)}")
+        self.depth = depth
+        self.errors = ErrorMap(len(split), split.height, split.width) if options.sampling == "error" else None
+        self._tiles: Optional[torch.Tensor] = None  # the error map's tiles of the last batch drawn
         self.background = background
         self.hw = split.height * split.width
         self.total = len(split) * self.hw
@@ -87,10 +157,14 @@ class RayBatcher(Batcher):
         background, and the mask weight (n,) or None, all on ``device``.
         """
 
-        flat = torch.randint(0, self.total, (n,), generator=self.gen)
-        view = flat // self.hw
-        pix = flat % self.hw
-        j, i = pix // self.split.width, pix % self.split.width
+        if self.errors is None:
+            flat = torch.randint(0, self.total, (n,), generator=self.gen)
+            view = flat // self.hw
+            pix = flat % self.hw
+            j, i = pix // self.split.width, pix % self.split.width
+            importance = None
+        else:
+            view, j, i, self._tiles, importance = self.errors.draw(n, self.gen)
         random_bg = self.background == "random" or (
             self.background == "white-then-random" and frac >= AUTO_WHITE_FRACTION
         )
@@ -99,8 +173,20 @@ class RayBatcher(Batcher):
         else:
             bg = self.fixed_bg.expand(n, 3)
         rgb, _ = self.split.pixels(view, j, i, bg)
-        rays_o, rays_d, _ = rays_for_pixels(self.split.cameras, view, i, j)
+        # drawn after the colours, so that centre rays replay the generator exactly as before
+        offset = None if self.footprint.is_point else self.footprint.offsets(n, 1, gen=self.gen)[:, 0]
+        rays_o, rays_d, z_per_t = rays_for_pixels(self.split.cameras, view, i, j, offset)
         weight = self.split.masks[view, j, i].float() if self.split.masks is not None else None
+        if importance is not None:  # the weighted mean of the loss is then an estimate of the uniform one
+            weight = importance if weight is None else weight * importance
+        # planar z-depth to distance along the unit ray (0 stays 0: unknown)
+        depth = None if self.depth is None else self.depth[view, j, i] / z_per_t
         d = self.device
         return RayBatch(rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
-                        None if weight is None else weight.to(d))
+                        None if weight is None else weight.to(d), None if depth is None else depth.to(d))
+
+    def observe(self, batch: RayBatch, out: dict) -> None:
+        """Error-weighted sampling: the squared colour error of each ray moves its tile's estimate."""
+        if self.errors is None or self._tiles is None:
+            return
+        self.errors.update(self._tiles, (out["rgb"].detach() - batch.target).square().mean(-1))

@@ -13,6 +13,14 @@ from typing import Dict, List, Optional, Sequence
 from nerf_core import contract
 from nerf_core.contract.numbers import is_number, is_real, is_whole, plain
 from nerf_core.data.backgrounds import BACKGROUNDS
+from nerf_core.data.batcher import (
+    DEFAULT_RAY_SAMPLING,
+    DEFAULT_TRAIN_RAYS,
+    RAY_SAMPLING,
+    RECORDED_BEFORE_TRAIN_RAYS,
+    TRAIN_RAYS,
+)
+from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
 from nerf_core.errors import TrainError
 from nerf_core.methods import catalog
 from nerf_core.methods.options import OptionError
@@ -21,6 +29,7 @@ from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.runs.folder import resume_dataset
 
 MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
+MAX_DEPTH_WEIGHT = 100.0  # the depth loss at 100x the colour error would teach geometry without colour
 
 
 def flag(default, help: str, *, name: Optional[str] = None, kind: str = "str", metavar: Optional[str] = None,
@@ -143,6 +152,21 @@ class TrainConfig:
                                    "the first 20%% of the budget, then random. auto picks environment or random from "
                                    "the dataset's film_transparent and the images' alpha, and says why",
                            choices=BACKGROUNDS)
+    train_rays: str = flag(DEFAULT_TRAIN_RAYS, "where a training ray goes through its pixel: filter = at an offset "
+                                               "drawn from the capture's pixel filter (its `pixel_filter`; Blender's "
+                                               "1.5 px Blackman-Harris when it records none), so one ray a pixel has "
+                                               "the rendered pixel as its expected colour; centre = through the "
+                                               "pixel's centre", choices=TRAIN_RAYS)
+    ray_sampling: str = flag(DEFAULT_RAY_SAMPLING, "which pixels a step trains on: uniform = every pixel alike; "
+                                                   "error = in proportion to a running estimate of their error "
+                                                   "(half of each batch stays uniform), with the loss weighted so "
+                                                   "that it still estimates the uniform one", choices=RAY_SAMPLING)
+    depth: bool = flag(False, "also supervise with the capture's depth maps (every train frame needs one): a loss "
+                              "on the rendered depth, and the occupancy grid starts with the space the depth shows "
+                              "empty. Off by default, so that scores compare with colours-only tools", kind="switch")
+    depth_weight: Optional[float] = flag(None, f"with --depth: the depth loss's weight against the colour error "
+                                               f"(default {DEFAULT_DEPTH_WEIGHT:g})", kind="positive_float",
+                                         metavar="W")
     downscale: int = flag(1, "train on images downscaled by F", kind="positive_int", metavar="F")
     log_every: int = flag(50, "emit a step event every N steps", kind="positive_int", metavar="N")
     preview_every: Optional[int] = flag(None, "preview every N steps (default: every 30 s of training)",
@@ -222,6 +246,13 @@ class TrainConfig:
         if beyond:
             raise TrainError(f"--eval-at {beyond[0]:g} lies beyond --max-seconds {self.max_seconds:g}: training stops "
                              "first, so nothing would be evaluated there. Lower the mark or raise the budget")
+        if self.depth_weight is not None:
+            if not self.depth:
+                raise TrainError("--depth-weight weighs the depth loss that --depth adds: pass --depth too, or "
+                                 "leave --depth-weight out")
+            if not (math.isfinite(self.depth_weight) and 0 < self.depth_weight <= MAX_DEPTH_WEIGHT):
+                raise TrainError(f"--depth-weight must be a finite number in (0, {MAX_DEPTH_WEIGHT:g}], got "
+                                 f"{self.depth_weight}")
         if self.method is not None and not self.method.strip():
             raise TrainError("--method is empty; leave it out for the default method, or name one")
 
@@ -351,6 +382,10 @@ def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
             merged[k] = v
     if cli.max_steps is None and cli.max_seconds is None:
         merged["max_steps"], merged["max_seconds"] = saved.get("max_steps"), saved.get("max_seconds")
+    if "train_rays" not in saved:  # a run from before the flag: it trained through the pixel centres
+        merged["train_rays"] = RECORDED_BEFORE_TRAIN_RAYS
+    if "ray_sampling" not in saved:  # ... and drew its pixels uniformly
+        merged["ray_sampling"] = DEFAULT_RAY_SAMPLING
     merged["resume"], merged["overwrite"] = True, False
     merged["dataset"], merged["dataset_moved"] = dataset, cli.dataset_moved
     return TrainConfig(**merged)

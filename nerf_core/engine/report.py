@@ -22,7 +22,7 @@ from nerf_core.image.metrics import SSIM_WINDOW
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
 from nerf_core.runs.checkpoints import versions
 from nerf_core.runs.folder import record_written
-from nerf_core.runs.record import check_run_config
+from nerf_core.runs.record import check_run_config, trained_with
 
 
 def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float, interval: dict) -> None:
@@ -129,9 +129,10 @@ def final_eval(log, model, dataset, cfg, background, run: Path, step: int, elaps
     metrics = Path(contract.metrics_path(run))
     record_written(run, metrics)
     _set_aside_if_damaged(metrics)
+    result["trained_with"] = trained_with(asdict(cfg))  # a score with depth is not a colours-only score
     update_metrics_file(metrics, split_name, result, step)
     log.emit("eval", step=step, split=split_name, psnr=result["psnr"], ssim=result["ssim"],
-             n_views=result["n_views"], depth_mae=result.get("depth_mae"))
+             n_views=result["n_views"], depth_mae=result.get("depth_mae"), trained_with=result["trained_with"])
     return {k: v for k, v in result.items() if k != "per_view"} | {"split": split_name}
 
 

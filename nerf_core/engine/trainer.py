@@ -6,9 +6,9 @@ the loop and the rollback, everything else it uses has its own module.
 * Budgets: ``--max-steps`` and/or ``--max-seconds`` (training time only: previews, checkpoints and
   evaluation are not counted). The learning-rate schedule (``nerf_core.engine.optim``) and the methods'
   own schedules follow whichever budget is nearer (``contract.budget_fraction``).
-* Robust: a NaN/inf loss or gradient, or a loss far above its running average, rolls the model
-  and optimiser back to the last good in-memory snapshot and halves the learning rate
-  (``rollback`` event); after too many rollbacks training stops with an ``error`` event.
+* Robust: a NaN/inf loss or gradient, or a loss far above its running average, rolls the model and optimiser
+  back to the last good in-memory snapshot and halves the learning rate (``rollback`` event); after too many
+  rollbacks training stops with an ``error`` event.
 * Never destroys data, one writer per run folder (``nerf_core.runs.folder``); weights-only
   checkpoints (``nerf_core.runs.checkpoints``). docs/CONTRACTS.md has the files and the events.
 * Data-parallel under ``torchrun`` (``nerf_core.engine.distributed``, ``nerf_core.engine.replicas``): every rank
@@ -29,9 +29,11 @@ from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.data import backgrounds
 from nerf_core.data.batcher import Batcher
+from nerf_core.data.depth import check_depth, depth_term
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
+from nerf_core.engine.batches import training_batcher
 from nerf_core.engine.callbacks import CheckpointEvery, StepInterval, default_callbacks
 from nerf_core.engine.checkpointing import RunFacts
 from nerf_core.engine.config import TrainConfig, check_field_types, default_method, merge_resumed_config
@@ -165,6 +167,8 @@ class Trainer:
                 check_run_vs_dataset(self.run, self.cfg.dataset)
             self.dataset_hash, self.dataset_images = dataset_hash(self.cfg.dataset), dataset_images(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
+            if self.cfg.depth:  # before the run folder: missing, damaged or mis-scaled depth is refused
+                check_depth(dataset, dataset.split("train"))
             unscorable = evaluation_problem(dataset, self.cfg)
             if unscorable:
                 raise TrainError(unscorable)
@@ -315,7 +319,8 @@ class Trainer:
         self.previews = Previews(self.run, dataset, cfg.preview_size, cfg.preview_every, cfg.preview_seconds,
                                  self.decisions.eval_background, cfg.chunk)
         self.callbacks = default_callbacks(cfg, self.checkpoints)
-        batcher = self.model.make_batcher(train, self.decisions.background, self.gen, self.device)
+        batcher = training_batcher(self.model, dataset, cfg, self.decisions.background, self.gen, self.device,
+                                   self.log, self.dist.is_main, self.decisions.method)  # --depth carves here
         with DeferredInterrupts(self.replicas is not None) as stop:  # torchrun: ranks stop together
             self._train_loop(batcher, stop)
         if self.state.step == (resumed_from or 0):
@@ -384,6 +389,7 @@ class Trainer:
         out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, self.dataset.near, self.dataset.far,
                                  training=True)
         loss, mse = model.loss(out, batch.target, batch.weight)
+        loss = loss + depth_term(out, batch.depth, self.cfg.depth_weight)  # train --depth; 0 without
         self.opt.zero_grad(set_to_none=True)
         backward(loss)  # even for a bad loss (rolled back below): one read of what to check
         checked = self._checked(loss, mse, out, t0, stop)
@@ -392,6 +398,7 @@ class Trainer:
             return False
         t1 = time.perf_counter()
         model.optimizer_step(self.opt, out)
+        batcher.observe(batch, out)  # an error-weighted sampler learns where the error is
         self._advance(checked, t0, t1)
         return True
 

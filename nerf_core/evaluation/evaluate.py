@@ -27,6 +27,7 @@ from nerf_core.render.scoring import score_view
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.runs.events import EventLog
 from nerf_core.runs.folder import dataset_changed_note
+from nerf_core.runs.record import trained_with
 from nerf_core.utils import arguments
 from nerf_core.utils.atomic import write_json_atomic
 from nerf_core.utils.device import pick_device
@@ -324,12 +325,13 @@ def evaluate_run(
                             on_view=show, pixel_filter=film_filter)
     bar.close()
     step = ckpt.get("step")
+    result["trained_with"] = trained_with(record.raw)  # a score with depth is not a colours-only score
     update_metrics_file(metrics_path, split, result, step)
     with EventLog([contract.progress_path(run)], stdout=False) as log:
         log.emit("eval", step=step, split=split, psnr=result["psnr"], ssim=result["ssim"])
     summary = {"psnr": result["psnr"], "ssim": result["ssim"], "split": split, "n_views": result["n_views"],
                "n_views_total": result["n_views_total"], "step": step, "method": ckpt.get("method"),
-               "pixel_filter": film_filter.to_json()}
+               "pixel_filter": film_filter.to_json(), "trained_with": result["trained_with"]}
     for key in ("depth_mae", "depth_rel"):
         if key in result:
             summary[key] = result[key]

@@ -200,8 +200,11 @@ def read_exr_rgba(path: Path | str) -> np.ndarray:
     return np.stack([layer[c] for c in "RGBA" if c in layer], axis=-1)
 
 
-def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
+def read_depth(path: Path | str, png_scale: float = 1e-3, refuse_invalid: bool = False) -> np.ndarray:
     """Depth map as float32 (h, w) in scene units; 0 where there is no value.
+
+    NaN and negative values read as 0 (no value), unless ``refuse_invalid`` (training with depth):
+    then the first such pixel raises ImageReadError, naming it. Infinity is no surface either way.
 
     EXR: channel ``Z`` (else ``R``/``Y``/``V``/``D``/the only channel), already in scene units; in a
     multilayer EXR, the ``Depth`` pass (Blender's name for Z).
@@ -232,6 +235,13 @@ def read_depth(path: Path | str, png_scale: float = 1e-3) -> np.ndarray:
         if raw.ndim == 3:
             raw = raw[..., 0]
         depth = raw.astype(np.float32) * np.float32(png_scale)
+    if refuse_invalid:
+        bad = np.isnan(depth) | (depth < 0)
+        if bad.any():
+            y, x = (int(v) for v in np.argwhere(bad)[0])
+            raise ImageReadError(f"{path}: depth at pixel (x {x}, y {y}) is {float(depth[y, x])!r} "
+                                 f"({int(bad.sum())} pixels are NaN or negative); a depth map holds distances "
+                                 "(0 or inf where there is no surface)")
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
     return depth
 

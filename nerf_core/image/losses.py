@@ -23,6 +23,32 @@ def masked_mse(pred: Tensor, gt: Tensor, weight: Optional[Tensor]) -> Tensor:
     return (err * weight).sum() / weight.sum().clamp_min(1.0)
 
 
+def depth_loss(depth: Tensor, acc: Tensor, target: Tensor) -> Tensor:
+    """The depth supervision of ``train --depth``: the mean over rays with a known surface of the
+    relative error of the rendered depth, |acc depth - acc target| / target, plus the transparency left
+    on those rays, 1 - acc.
+
+    ``acc depth`` is the weights' sum of the sample distances, linear in the weights: the normalised
+    depth alone has gradients that grow as 1 / acc, without bound on the transparent rays of a field
+    at initialisation. Once a ray is opaque the term is the relative error of its expected depth.
+    Relative, so that the term means the same in any scene's units (1 % too far is 0.01 whether the
+    scene is a room in metres or a toy in millimetres). Rays whose target is 0 (no surface, or a
+    depth edge where one pixel's depth does not describe the pixel: ``depth_targets``) do not count.
+
+    Args:
+        depth: (n,) the rendered expected distance along each unit ray (normalised by the opacity).
+        acc: (n,) the rendered opacity.
+        target: (n,) the true distance along each ray, 0 where it is not known.
+    Returns:
+        () the loss, 0 when no ray has a surface.
+    """
+    has = target > 0
+    n = has.sum().clamp_min(1)
+    t = torch.where(has, target, torch.ones_like(target))
+    err = torch.where(has, (acc * (depth - t)).abs() / t + (1.0 - acc), torch.zeros_like(depth))
+    return err.sum() / n
+
+
 def total_variation_2d(planes: Tensor) -> Tensor:
     """Mean squared difference between neighbouring texels of (..., H, W) planes (smoothness prior)."""
     return (planes[..., 1:, :] - planes[..., :-1, :]).square().mean() + (

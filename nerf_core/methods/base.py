@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from nerf_core.cameras.rays import ray_bounds
-from nerf_core.data.batcher import Batcher, RayBatcher
+from nerf_core.data.batcher import Batcher, BatchOptions, RayBatcher
 from nerf_core.data.scene_box import box_length_unit
 from nerf_core.data.split import Split
 from nerf_core.image.losses import masked_mse
@@ -23,6 +23,7 @@ from nerf_core.methods.environment_options import checked_environment
 from nerf_core.methods.options import MAX_GRID_RES, MethodOptions, PluginOptions
 from nerf_core.methods.registry import current_option_names
 from nerf_core.optim import Adam, TrainingOptimizer
+from nerf_core.volume.occupancy import OccupancyGrid
 
 __all__ = ["RadianceModel", "MAX_GRID_RES", "density_length"]
 
@@ -240,17 +241,26 @@ class RadianceModel(nn.Module):
     # The trainer's step is: budget, ``training_hook``, ``make_batcher``'s batch, ``render_batch``,
     # ``loss``, backward, checks, ``optimizer_step``. What differs between methods is theirs to say.
 
-    def make_batcher(self, split: Split, background: str, gen: torch.Generator, device: torch.device) -> Batcher:
-        """What the trainer draws each step's rays from: by default ``RayBatcher``, one ray through the
-        centre of each of ``batch_rays`` random pixels.
+    def make_batcher(self, split: Split, background: str, gen: torch.Generator, device: torch.device,
+                     options: BatchOptions = BatchOptions()) -> Batcher:
+        """What the trainer draws each step's rays from: by default ``RayBatcher``, one ray through each
+        of ``batch_rays`` random pixels, as the run's ``options`` say.
 
         Args:
             split: the train ``Split``.
             background: the training background mode (``data.backgrounds``; "auto" already decided).
             gen: the CPU generator every random draw must come from (checkpoints save its state).
             device: where the batches go.
+            options: the run's ``BatchOptions``: each ray's sub-pixel footprint (``--train-rays``), the
+                depth targets the batches carry (``--depth``), which pixels are drawn (``--ray-sampling``).
         """
-        return RayBatcher(split, background, gen, device)
+        return RayBatcher(split, background, gen, device, options)
+
+    def occupancy_grid(self) -> Optional[OccupancyGrid]:
+        """The grid that skips empty space, over the scene box in world coordinates, for the trainer
+        to mark what the capture shows empty (``train --depth``: ``OccupancyGrid.mark_known_free``);
+        None when the method has none, or when its grid spans a contracted world."""
+        return None
 
     def make_optimizer(self, lr: float) -> TrainingOptimizer:
         """The optimiser over ``optimizer_groups(lr)``: by default Adam (fused where it can be).

@@ -118,6 +118,9 @@ class NeRF(RadianceModel):
 
     # ------------------------------------------------------------------ occupancy sampler
 
+    def occupancy_grid(self):
+        return self.occupancy  # None where the method marches without one (the hierarchical sampler)
+
     def step_size(self) -> float:
         """Marching step in scene units: ``march_steps`` per box diagonal, coarser until the grid prunes."""
         diag = float((self.aabb[1] - self.aabb[0]).norm())

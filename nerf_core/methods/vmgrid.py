@@ -249,6 +249,10 @@ class VMGrid(RadianceModel):
             grids["row_sparse"] = True  # each cell's R components are one row (``RowSparseAdam``)
         return [grids, {"params": self.field.network_parameters(), "lr": lr, "name": "networks"}]
 
+    def occupancy_grid(self):
+        # with contraction the grid spans the contracted world, which the capture's rays do not index
+        return None if self.contracted else self.occupancy
+
     def make_optimizer(self, lr: float):
         if self.field.touched is None:
             return super().make_optimizer(lr)

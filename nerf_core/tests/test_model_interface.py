@@ -139,7 +139,7 @@ class CountingSGD(TrainingOptimizer, torch.optim.SGD):
         return {"rows": (param.shape[0],), "rays": ()}.get(key, tuple(param.shape))
 
 
-ToyStep.make_batcher = lambda self, split, background, gen, device: OneView(split, background, gen, device)
+ToyStep.make_batcher = lambda self, split, background, gen, device, *extra: OneView(split, background, gen, device)
 ToyStep.make_optimizer = lambda self, lr: CountingSGD(self.optimizer_groups(lr))
 
 

@@ -302,15 +302,13 @@ def test_white_then_random_background(sphere_dataset):
 
     split = load_dataset(sphere_dataset).splits["train"]
     b = _Batcher(split, "white-then-random", torch.Generator().manual_seed(0), torch.device("cpu"))
-    _, _, bg_early, gt_early, _ = b.sample(512, frac=AUTO_WHITE_FRACTION / 2)
-    _, _, bg_late, gt_late, _ = b.sample(512, frac=AUTO_WHITE_FRACTION)
-    assert torch.all(bg_early == 1.0)
-    assert bg_late.std() > 0.2  # one random colour per ray
+    early = b.sample(512, frac=AUTO_WHITE_FRACTION / 2)
+    late = b.sample(512, frac=AUTO_WHITE_FRACTION)
+    assert torch.all(early.background == 1.0)
+    assert late.background.std() > 0.2  # one random colour per ray
     # Transparent pixels show exactly the background they were composited onto.
-    _, _, bg_rand, gt_rand, _ = _Batcher(split, "random", torch.Generator().manual_seed(1), torch.device("cpu")).sample(
-        4096
-    )
-    assert ((gt_rand - bg_rand).abs().amax(-1) < 1e-6).float().mean() > 0.3
+    rand = _Batcher(split, "random", torch.Generator().manual_seed(1), torch.device("cpu")).sample(4096)
+    assert ((rand.target - rand.background).abs().amax(-1) < 1e-6).float().mean() > 0.3
 
 
 def test_eval_at_evaluates_at_training_times_inside_one_run(sphere_dataset, tmp_path):

@@ -45,6 +45,9 @@ class OccupancyGrid(nn.Module):
         self.register_buffer("density_ema", torch.zeros(r, r, r))
         # Everything starts occupied: before the first update nothing is known about the scene.
         self.register_buffer("binary", torch.ones(r, r, r, dtype=torch.bool))
+        # Cells the capture shows empty (``mark_known_free``; ``train --depth``): never occupied again.
+        # Not saved in checkpoints: the trainer marks them again from the capture on ``--resume``.
+        self.register_buffer("known_free", torch.zeros(r, r, r, dtype=torch.bool), persistent=False)
         self.n_resets = 0
         # The dilated mask ``query_near`` reads; the mask is never written by an optimiser.
         self._near: DerivedCache[Tensor] = DerivedCache(follow_optimizers=False)
@@ -117,6 +120,16 @@ class OccupancyGrid(nn.Module):
         return self.aabb[0] + (ijk + off) / r * (self.aabb[1] - self.aabb[0])
 
     @torch.no_grad()
+    def mark_known_free(self, free: Tensor) -> None:
+        """Mark the cells ``free`` (r, r, r) bool empty from now on (``volume.carving.free_cells``: what
+        the capture's depth maps show empty), so that rays skip them from the first step; every later
+        update keeps them empty."""
+        if tuple(free.shape) != tuple(self.binary.shape):
+            raise ValueError(f"mark_known_free: free must be {tuple(self.binary.shape)}, got {tuple(free.shape)}")
+        self.known_free.copy_(free.to(self.known_free.device))
+        self.binary &= ~self.known_free
+
+    @torch.no_grad()
     def update(self, density_fn: Callable[[Tensor], Tensor] | None, step_size: float, alpha_threshold: float = 1e-3,
                decay: float = 0.95, chunk: int = 1 << 18, dilate: bool = True,
                cell_density: Tensor | None = None) -> None:
@@ -152,13 +165,15 @@ class OccupancyGrid(nn.Module):
             # Collapsed (all-zero density): reopen everything rather than render nothing forever.
             self.n_resets += 1
             self.binary.fill_(True)
+            self.binary &= ~self.known_free
             return
         if dilate:
             occ = F.max_pool3d(occ[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
-        self.binary.copy_(occ > 0)
+        self.binary.copy_((occ > 0) & ~self.known_free)
 
     @torch.no_grad()
     def reset(self) -> None:
-        """Mark every cell occupied again and forget the density history."""
+        """Mark every cell occupied again (but those known to be empty) and forget the density history."""
         self.density_ema.zero_()
         self.binary.fill_(True)
+        self.binary &= ~self.known_free
