@@ -181,3 +181,13 @@ def test_methods_lists_what_each_option_may_be(capsys):
     out = capsys.readouterr().out
     assert "step_ratio = 0.5\n    marching step in voxels (in [0.05, 64])\n" in out
     assert '(one of "max", "random")' in out
+
+
+def test_out_of_memory_advice_names_the_runs_own_options_first():
+    from nerf_core.engine.report import failure_line
+
+    line = failure_line(RuntimeError("CUDA out of memory. Tried to allocate 60 GiB"), 2048,
+                        {"environment": {"width": 4096}, "res_final": 320})
+    assert "this run sets --set environment={'width': 4096} res_final=320; lower --batch-rays (now 2048)" in line
+    assert "step_ratio" in line and "\n" not in line
+    assert "this run sets" not in failure_line(MemoryError(), 1024, {})
