@@ -151,3 +151,28 @@ def test_config_json_is_read_only_by_the_record():
 def test_the_config_reader_rule_fails_on_a_second_reader(body, found):
     source = f"def read(run):\n    {body}\n    return cfg\n"
     assert bool(config_json_readers(Path("nerf_core/x.py"), source)) is found
+
+
+def background_lists(source: str) -> list:
+    """Lines of ``source`` with a tuple, list or set literal of two or more background names."""
+    names = {"environment", "random", "white", "black", "white-then-random"}
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+            words = {e.value for e in node.elts if isinstance(e, ast.Constant) and isinstance(e.value, str)}
+            if len(words & names) >= 2 and "white-then-random" in words:
+                found.append(node.lineno)
+    return found
+
+
+def test_the_background_names_are_listed_once():
+    home = Path("nerf_core/data/backgrounds.py")
+    copies = [f"{rel}:{line}" for rel, text in _sources() if rel != home for line in background_lists(text)]
+    assert not copies, "background names listed again; import them from nerf_core.data.backgrounds:\n" + "\n".join(
+        copies)
+    assert len(background_lists((REPO / home).read_text(encoding="utf-8"))) == 1  # FIXED_BACKGROUNDS, the rest built
+
+
+def test_the_background_rule_fails_on_a_second_list():
+    assert background_lists('MODES = ("environment", "random", "white", "black", "white-then-random")\n') == [1]
+    assert background_lists('PAIR = ("white", "black")\n') == []
