@@ -69,12 +69,12 @@ def _cmd_methods(a) -> int:
     cls = method_class(a.name)
     if cls is None:
         raise ValueError(f"unknown method {a.name!r}; choose one of {', '.join(available_methods())}")
-    defaults, docs = cls.parse_options({}).to_dict(), cls.Options.docs()
+    defaults, docs, allowed = cls.parse_options({}).to_dict(), cls.Options.docs(), cls.Options.allowed()
     if not docs:
         print(f"{a.name}: declares no options")
     for key, doc in docs.items():
         fixed = " (fixed)" if key in cls.forced_options else ""
-        print(f"{key} = {json.dumps(defaults[key])}{fixed}\n    {doc}")
+        print(f"{key} = {json.dumps(defaults[key])}{fixed}\n    {doc}" + ("" if fixed else f" ({allowed[key]})"))
     return 0
 
 

@@ -16,10 +16,10 @@ from nerf_core.cli.options import (
     positive_int,
     seconds_list,
 )
-from nerf_core.engine.config import TrainConfig
+from nerf_core.engine.config import TrainConfig, default_method
 from nerf_core.engine.trainer import train
 from nerf_core.errors import TrainError
-from nerf_core.methods.registry import current_option_names
+from nerf_core.methods.registry import current_option_names, method_class
 
 # A flag's ``kind`` (``engine.config.flag``) -> argparse keyword arguments.
 _KINDS = {
@@ -84,7 +84,9 @@ def _options(a) -> dict:
     """``--set`` options (old option names mapped to today's), with ``--unbounded`` as ``unbounded=true``;
     the two flags must not disagree."""
     try:
-        options = current_option_names(parse_options(a.options))
+        cls = method_class(a.method or default_method())  # an unknown method: ``TrainConfig.check`` says so
+        known = (cls.Options.declared() or None) if cls is not None else None
+        options = current_option_names(parse_options(a.options), known)
     except ValueError as exc:
         raise TrainError(f"--set: {exc}") from None
     if a.unbounded:

@@ -71,6 +71,7 @@ from .naming import (  # noqa: F401
     render_files,
     unique_stems,
 )
+from .numbers import is_number
 from .paths import IMAGE_EXTS, file_problem, why_not_a_file  # noqa: F401
 from .poses import check_pose, parse_pose  # noqa: F401
 from .transforms import (  # noqa: F401
@@ -195,7 +196,7 @@ def parse_event_line(line: str) -> Optional[Dict[str, Any]]:
 def json_safe(value: Any) -> Any:
     """``value`` with every non-finite float (NaN, inf) inside dicts, lists and tuples replaced by None:
     ``json.dumps`` would write NaN/Infinity, which strict JSON readers (and JavaScript) reject."""
-    if isinstance(value, float) and not math.isfinite(value):
+    if isinstance(value, float) and not is_number(value):
         return None
     if isinstance(value, dict):
         return {k: json_safe(v) for k, v in value.items()}

@@ -33,6 +33,7 @@ from .errors import DatasetError
 from .intrinsics import resolve_intrinsics
 from .jsonfile import read_json
 from .lens import Lens
+from .numbers import is_whole
 from .transforms import SPLITS, read_frames
 
 
@@ -112,7 +113,7 @@ def _file_views(meta: dict, jf: Path, split: Optional[str], add_png: bool, notes
             raise
         frame_no = raw[f.index].get("blender_frame")
         views.append(CameraView(f.stem, split, f.index, f.where, f.c2w, fx, fy, cx, cy, int(w), int(h), f.lens,
-                                frame_no if isinstance(frame_no, int) and not isinstance(frame_no, bool) else None))
+                                frame_no if is_whole(frame_no) else None))
     if guessed:
         notes.append(f"{jf}: {len(guessed)} frame(s) give no 'w'/'h' and have no image ({', '.join(guessed[:5])}"
                      f"{', ...' if len(guessed) > 5 else ''}): they take the size of the file's other images, "

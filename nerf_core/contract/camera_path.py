@@ -27,6 +27,7 @@ from typing import List, Sequence
 import numpy as np
 
 from .errors import PoseError
+from .numbers import is_number
 from .poses import parse_pose
 from .transforms import MAX_FOCAL_PX, MIN_FOCAL_PX
 
@@ -48,8 +49,7 @@ def is_camera_path(data) -> bool:
 
 def _positive_int(data: dict, key: str, src: Path) -> int:
     value = data.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 1 <= value <= MAX_SIDE or int(value) != value:
+    if not is_number(value) or not 1 <= value <= MAX_SIDE or int(value) != value:
         raise CameraPathError(
             f"{src}: field {key!r} must be a positive whole number of pixels, at most {MAX_SIDE}, got {value!r}"
         )
@@ -111,7 +111,7 @@ def path_views(data: dict, src: Path | str) -> List[dict]:
         except PoseError as exc:
             raise CameraPathError(str(exc)) from None
         fov = cam.get("fov")
-        if isinstance(fov, bool) or not isinstance(fov, (int, float)) or not 0.0 < fov < 180.0:
+        if not is_number(fov) or not 0.0 < fov < 180.0:
             raise CameraPathError(f"{where}: field 'fov' must be the vertical field of view in degrees "
                                   f"(0 < fov < 180), got {fov!r}")
         fx, fy, cx, cy = camera_path_intrinsics(float(fov), w, h)
@@ -130,7 +130,7 @@ def path_range(data: dict, src: Path | str) -> tuple:
     if near is None and far is None:
         return None, None
     for key, value in (("near", near), ("far", far)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        if not is_number(value) or not value > 0:
             raise CameraPathError(f"{src}: field {key!r} must be a positive distance, got {value!r}")
     if far <= near:
         raise CameraPathError(f"{src}: field 'far' ({far!r}) must be greater than 'near' ({near!r})")

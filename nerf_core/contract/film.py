@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from typing import Optional
 
+from .numbers import is_number, is_whole
+
 FILTER_KINDS = ("BLACKMAN_HARRIS", "GAUSSIAN", "BOX", "NONE")
 DEFAULT_FILTER_KIND, DEFAULT_FILTER_WIDTH = "BLACKMAN_HARRIS", 1.5  # Blender's defaults, Cycles and EEVEE alike
 MIN_FILTER_WIDTH, MAX_FILTER_WIDTH = 0.01, 10.0  # Blender's own range for Cycles' filter width (pixels)
@@ -42,11 +44,10 @@ def parse_film_filter(value, where: str) -> tuple[str, float, int]:
     if kind == "NONE":
         return kind, 0.0, 1
     width = value.get("width", DEFAULT_FILTER_WIDTH)
-    if isinstance(width, bool) or not isinstance(width, (int, float)) or not (
-            MIN_FILTER_WIDTH <= float(width) <= MAX_FILTER_WIDTH):
+    if not is_number(width) or not MIN_FILTER_WIDTH <= float(width) <= MAX_FILTER_WIDTH:
         raise ValueError(f"{where}: field 'pixel_filter.width' must be a number of pixels from {MIN_FILTER_WIDTH:g} "
                          f"to {MAX_FILTER_WIDTH:g}, got {width!r}")
     down = value.get("downscale", 1)
-    if isinstance(down, bool) or not isinstance(down, int) or down < 1:
+    if not is_whole(down) or down < 1:
         raise ValueError(f"{where}: field 'pixel_filter.downscale' must be a whole number >= 1, got {down!r}")
     return kind, float(width), down

@@ -14,7 +14,6 @@ Blender scene's frame.
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Tuple
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from .errors import DatasetError
 from .jsonfile import read_json
+from .numbers import is_number
 
 DATAPARSER_FILE = "dataparser_transforms.json"
 ROTATION_TOLERANCE = 1e-5  # |R^T R - I|: a transform that is not a rotation is refused, not guessed at
@@ -57,7 +57,7 @@ def read_dataparser_transform(path: Path | str) -> Tuple[np.ndarray, float]:
     if np.abs(m[:, :3].T @ m[:, :3] - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(m[:, :3]) < 0:
         raise DatasetError(f"{path}: field 'transform': its 3x3 part is not a rotation")
     scale = data.get("scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
+    if not is_number(scale) or not scale > 0:
         raise DatasetError(f"{path}: field 'scale' must be a positive number, got {scale!r}")
     if not MIN_SCALE <= scale <= MAX_SCALE:  # 1e-300 would put every camera at infinity, and exit 0
         raise DatasetError(f"{path}: field 'scale' is {scale!r}, outside {MIN_SCALE:g}..{MAX_SCALE:g}: nerfstudio "

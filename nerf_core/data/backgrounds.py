@@ -21,10 +21,13 @@ import torch
 
 from nerf_core.errors import TrainError
 
-BACKGROUNDS = ("auto", "environment", "random", "white", "black", "white-then-random")
+# The names of the backgrounds, listed once; the other lists are built from this one.
 # Modes that cannot show an opaque image's background (a photograph, a world): they would have to
 # explain it with geometry inside the box.
 FIXED_BACKGROUNDS = ("random", "white", "black", "white-then-random")
+# What a RayBatcher composites ground truth onto ("auto" is decided before training: ``choose``).
+TRAINING_BACKGROUNDS = ("environment",) + FIXED_BACKGROUNDS
+BACKGROUNDS = ("auto",) + TRAINING_BACKGROUNDS  # ``train --background`` and ``check --background``
 AUTO_WHITE_FRACTION = 0.2  # white-then-random: white for this share of the training budget
 
 # An RGBA image counts as opaque when fewer than this share of its pixels are less than fully opaque

@@ -20,15 +20,13 @@ from typing import NamedTuple, Optional
 import torch
 
 from nerf_core.cameras.rays import rays_for_pixels
-from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION
+from nerf_core.data.backgrounds import AUTO_WHITE_FRACTION, TRAINING_BACKGROUNDS
 from nerf_core.data.error_map import ErrorMap
 from nerf_core.data.split import Split
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
 from nerf_core.image.pixel_filter import POINT, PixelFilter
 from nerf_core.utils import arguments
 
-# what a RayBatcher composites ground truth onto ("auto" is decided before: data.backgrounds.choose)
-TRAINING_BACKGROUNDS = ("environment", "random", "white", "black", "white-then-random")
 # ``train --train-rays``: where a training ray goes through its pixel (``footprint``)
 TRAIN_RAYS = ("filter", "centre")
 DEFAULT_TRAIN_RAYS = "centre"

@@ -20,7 +20,6 @@ Every problem with the input raises ``DatasetError`` whose message names the fil
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import List, Sequence
 
@@ -29,6 +28,7 @@ import torch
 
 from nerf_core.cameras.rays import Cameras
 from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.numbers import is_number
 
 # Reading transforms files is the contract's (shared with the add-on); DatasetError, FrameInfo,
 # detect_layout and dataset_problems stay importable from here for data's long-standing callers.
@@ -155,7 +155,7 @@ def load_dataset(
     if isinstance(splits, str) or not all(isinstance(s, str) for s in splits):
         raise TypeError(f"load_dataset: splits must be a list of split names ({', '.join(SPLITS)}), got {splits!r}")
     arguments.integer("load_dataset", "min_train_views", min_train_views, low=1)
-    if isinstance(downscale, bool) or not isinstance(downscale, (int, float)) or not math.isfinite(downscale):
+    if not is_number(downscale):
         raise TypeError(f"load_dataset: downscale must be an integer >= 1, got {downscale!r}")
     if int(downscale) != downscale or downscale < 1:
         raise DatasetError(f"downscale must be a positive integer, got {downscale!r}")

@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Dict, List, Optional, Sequence
 
 from nerf_core import contract
+from nerf_core.contract.numbers import is_number, is_real, is_whole, plain
 from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.data.batcher import (
     DEFAULT_RAY_SAMPLING,
@@ -22,6 +23,7 @@ from nerf_core.data.batcher import (
 from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
 from nerf_core.errors import TrainError
 from nerf_core.methods import catalog
+from nerf_core.methods.options import OptionError
 from nerf_core.methods.registry import available_methods, method_class
 from nerf_core.render.memory import DEFAULT_CHUNK
 from nerf_core.runs.folder import resume_dataset
@@ -259,6 +261,8 @@ class TrainConfig:
             raise TrainError(f"unknown method {self.method!r}; choose one of {', '.join(available_methods())}")
         try:
             cls.parse_options(self.options)  # the method's typed options: the same rules as build_model
+        except OptionError as exc:
+            raise TrainError(f"--set {exc.option}: {exc}") from None
         except (TypeError, ValueError) as exc:
             raise TrainError(f"--set: {exc}") from None
 
@@ -268,14 +272,6 @@ class TrainConfig:
 # words of the error, and the test. A wrong type or a zero would otherwise fail deep inside the run
 # (log_every=0: ZeroDivisionError), after the run folder is made; ``TrainConfig.check`` runs these
 # first, before anything is written. Ranges beyond a kind's (seed < 2^63, ...) are ``check``'s.
-def _integer(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _path(v) -> bool:
     return isinstance(v, (str, os.PathLike)) and bool(str(v).strip())
 
@@ -284,15 +280,14 @@ FIELD_KINDS = {
     "str": ("a string", lambda v: isinstance(v, str)),
     "path": ("a non-empty path (str)", _path),
     "folder": ("a non-empty path (str)", _path),
-    "int": ("an integer >= 0", lambda v: _integer(v) and v >= 0),
-    "positive_int": ("an integer >= 1", lambda v: _integer(v) and v >= 1),
-    "nonneg_int": ("an integer >= 0", lambda v: _integer(v) and v >= 0),
-    "positive_float": ("a finite number > 0", lambda v: _number(v) and v > 0),
-    "seconds": ("a finite number of seconds >= 0", lambda v: _number(v) and v >= 0),  # 0: "none at all"
+    "int": ("an integer >= 0", lambda v: is_whole(v) and v >= 0),
+    "positive_int": ("an integer >= 1", lambda v: is_whole(v) and v >= 1),
+    "nonneg_int": ("an integer >= 0", lambda v: is_whole(v) and v >= 0),
+    "positive_float": ("a finite number > 0", lambda v: is_number(v) and v > 0),
+    "seconds": ("a finite number of seconds >= 0", lambda v: is_number(v) and v >= 0),  # 0: "none at all"
     "seconds_list": ("a list of training times in seconds",
                      # NaN or a time past the budget: ``check`` says so in its own words
-                     lambda v: isinstance(v, (list, tuple)) and all(
-                         isinstance(t, (int, float)) and not isinstance(t, bool) for t in v)),
+                     lambda v: isinstance(v, (list, tuple)) and all(is_real(t) for t in v)),
     "options": ("a dict of option name (str) -> value ({} for the method's defaults)",
                 lambda v: isinstance(v, dict) and all(isinstance(k, str) for k in v)),
     "switch": ("True or False", lambda v: isinstance(v, bool)),
@@ -315,7 +310,8 @@ def _field_error(name: str, want: str, value) -> TrainError:
 
 def check_field_types(cfg: "TrainConfig") -> None:
     """Refuse a field of the wrong type or out of range (TrainError naming the field and what it must be);
-    TypeError when ``cfg`` is no TrainConfig at all.
+    TypeError when ``cfg`` is no TrainConfig at all. A numpy number is a number: it is stored back as
+    Python's (``contract.numbers.plain``), so that config.json and checkpoints can hold it.
 
     Each field's rule comes from its declared ``kind`` (``FIELD_KINDS``), its ``choices`` and, for
     ``Optional[...]`` fields, None; the CLI's argparse types check the same kinds for its flags.
@@ -329,6 +325,7 @@ def check_field_types(cfg: "TrainConfig") -> None:
         want, ok = FIELD_KINDS[f.metadata["kind"]]
         if not ok(v):
             raise _field_error(f.name, want, v)
+        setattr(cfg, f.name, plain(v))  # numpy's numbers as Python's: config.json must hold them
         if f.metadata["kind"] in _PATH_KINDS:
             try:
                 os.fsencode(v)
@@ -369,7 +366,7 @@ def _resume_conflicts(cli: TrainConfig, saved: dict) -> list:
 
 def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
     """The config to continue a run with: the checkpoint's, with the settings in ``RESUME_MAY_CHANGE``
-    taken from ``cli`` (the command line), and the dataset checked by ``runfolder.resume_dataset``.
+    taken from ``cli`` (the command line), and the dataset checked by ``runs.dataset_identity.resume_dataset``.
     Raises TrainError when the command line names another method or another dataset."""
     saved = dict(ckpt.get("config") or {})
     if cli.method and saved.get("method") and cli.method != saved["method"]:

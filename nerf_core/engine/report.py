@@ -22,7 +22,7 @@ from nerf_core.image.metrics import SSIM_WINDOW
 from nerf_core.image.pixel_filter import DEFAULT as DEFAULT_FILTER
 from nerf_core.runs.checkpoints import versions
 from nerf_core.runs.folder import record_written
-from nerf_core.runs.record import trained_with
+from nerf_core.runs.record import check_run_config, trained_with
 
 
 def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float, interval: dict) -> None:
@@ -36,13 +36,16 @@ def emit_step(log, cfg, opt, step: int, elapsed: float, loss: float, psnr: float
              lrs={g.get("name", str(k)): g["lr"] for k, g in enumerate(opt.param_groups)})
 
 
-def failure_line(exc: BaseException, batch_rays: Optional[int]) -> str:
+def failure_line(exc: BaseException, batch_rays: Optional[int], options: Optional[dict] = None) -> str:
     """One line for a RuntimeError or MemoryError inside training (no traceback). Out of memory names
-    what to turn down: the allocator's byte count alone does not say which setting asked for it."""
+    what to turn down: the allocator's byte count alone does not say which setting asked for it, so
+    the options the run set itself (``options``, its ``--set``) come first, then the usual sizes."""
     msg = (str(exc).splitlines() or [type(exc).__name__])[0]
     if isinstance(exc, MemoryError) or "alloc" in msg.lower() or "out of memory" in msg.lower():
-        msg = (f"not enough memory ({msg[:200]}); lower --batch-rays (now {batch_rays}) or the method's size "
-               "options (--set res_final=..., density_rank=..., width=..., occ_res=...)")
+        given = " ".join(f"{k}={v}" for k, v in (options or {}).items())
+        msg = (f"not enough memory ({msg[:200]}); " + (f"this run sets --set {given}; " if given else "")
+               + f"lower --batch-rays (now {batch_rays}) or the method's size options (--set res_final=..., "
+               "density_rank=..., width=..., occ_res=...) or sample more coarsely (step_ratio, march_steps)")
     return msg
 
 
@@ -173,4 +176,5 @@ def run_config(cfg, decisions: RunDecisions, model, dataset, run: Path, device, 
         # the dataset's film filter at its full resolution: render and eval draw edge pixels from it
         "pixel_filter": (ds.pixel_filter.full_resolution() if ds.pixel_filter else DEFAULT_FILTER).to_json(),
     })
+    check_run_config(rec, contract.config_path(run))  # what the readers take from it, by their own declaration
     return rec

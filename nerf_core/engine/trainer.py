@@ -241,7 +241,7 @@ class Trainer:
                 pass  # the failing file may be the --progress log itself; the message still reaches stderr
             raise TrainError(msg) from None
         except (RuntimeError, MemoryError) as exc:  # e.g. out of memory inside a model: one clear line, no traceback
-            msg = failure_line(exc, self.cfg.batch_rays)
+            msg = failure_line(exc, self.cfg.batch_rays, self.cfg.options)
             self.log.emit("error", message=f"training failed at step {self.state.step}: {msg}")
             raise TrainError(f"training failed at step {self.state.step}: {msg}") from exc
         finally:

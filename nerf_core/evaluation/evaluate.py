@@ -299,6 +299,9 @@ def evaluate_run(
               "trained at; its logged PSNR is not comparable with this one", file=sys.stderr)
     ds = load_dataset(dataset_path, splits=(split,), downscale=int(downscale))
     sp = ds.split(split)
+    unreached = record.reach_problem(sp.cameras.c2w[:, :3, 3].numpy())  # else every score is of an empty render
+    if unreached:
+        raise RunError(unreached)
     n = len(sp) if not max_views else min(len(sp), int(max_views))
     views = evenly_spaced(len(sp), n)
     bg = list(record.eval_background)

@@ -19,6 +19,7 @@ from nerf_core.data.batcher import Batcher, BatchOptions, RayBatcher
 from nerf_core.data.scene_box import box_length_unit
 from nerf_core.data.split import Split
 from nerf_core.image.losses import masked_mse
+from nerf_core.methods.environment_options import checked_environment
 from nerf_core.methods.options import MAX_GRID_RES, MethodOptions, PluginOptions
 from nerf_core.methods.registry import current_option_names
 from nerf_core.optim import Adam, TrainingOptimizer
@@ -86,7 +87,9 @@ class RadianceModel(nn.Module):
         """The typed options for ``options`` (old option names mapped to today's; the ``environment``
         entry excluded: ``build_model`` attaches it), with ``forced_options`` applied. Raises ValueError
         naming a bad option."""
-        given = {k: v for k, v in current_option_names(dict(options)).items() if k != "environment"}
+        declared = cls.Options.declared()
+        given = current_option_names(dict(options), declared or None)
+        checked_environment(cls.method_name, given.pop("environment", None))  # ``build_model`` attaches it
         return cls.Options.parse(cls.method_name, {**given, **cls.forced_options})
 
     @property

@@ -1,4 +1,4 @@
-"""The built-in methods. Importing this module registers them with ``base.register``.
+"""The built-in methods. Importing this module registers them with ``registry.register``.
 
 - ``vmgrid`` (DEFAULT_METHOD): VM-factorised grid, coarse-to-fine, occupancy-skipped; minutes on a CPU.
 - ``nerf``: the classic MLP NeRF with positional encoding and hierarchical sampling (CPU-sized).

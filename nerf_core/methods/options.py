@@ -12,10 +12,15 @@ it among the options; ``RUN_STATE_KEYS`` names those keys so that loading moves 
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any, ClassVar, Dict, Mapping, Optional, Sequence, Tuple
 
+from nerf_core.contract.numbers import is_bool, is_number, is_whole
+
 MAX_GRID_RES = 2048  # resolution options above this would ask for terabytes, not train
+MAX_SEED = 2 ** 63 - 1  # torch's generators take a signed 64-bit seed (as ``--seed``)
+MAX_STEPS = 10 ** 9  # step counts beyond this are no schedule a run reaches (a CPU makes ~10^4 steps an hour)
+MAX_WEIGHT = 100.0  # a loss weight beyond this drowns the photometric loss; the defaults are 1e-4 or 0
+MAX_REACH = 10.0  # shares of the box diagonal: beyond, every sample of every ray is "near a camera"
 
 
 def option(default: Any, doc: str, *, low: Optional[float] = None, high: Optional[float] = None,
@@ -63,6 +68,21 @@ class MethodOptions:
         return {name: f.metadata.get("doc", "") for name, f in cls.declared().items()}
 
     @classmethod
+    def allowed(cls) -> Dict[str, str]:
+        """name -> what each declared option may be, in the words of its error ("in [0.05, 64]", "one of
+        ...", "true or false"), for ``python -m nerf_core methods``."""
+        out = {}
+        for name, f in cls.declared().items():
+            meta, default = f.metadata, _default_of(f)
+            if meta.get("choices") is not None:
+                out[name] = "one of " + ", ".join(_shown(c) for c in meta["choices"])
+            elif isinstance(default, bool):
+                out[name] = "true or false"
+            else:
+                out[name] = ("a list of numbers " if isinstance(default, list) else "") + _range_text(meta)
+        return out
+
+    @classmethod
     def defaults(cls) -> Dict[str, Any]:
         """name -> default of each declared option."""
         return cls().to_dict()
@@ -72,25 +92,24 @@ class MethodOptions:
         """The options ``values`` asks for, over the defaults, every value checked.
 
         Raises:
-            ValueError: an option the method does not have, or a value of the wrong kind or out of its
-                bounds; the message names the method, the option and what it must be.
+            OptionError (a ValueError): an option the method does not have, a value of the wrong kind or
+                out of its bounds, or options that break a rule together (``check_together``); the message
+                names the method, the option and what it must be, and ``.option`` holds the option's name.
         """
         if not isinstance(values, Mapping):
             raise TypeError(f"{method}: options must be a dict of option name -> value, got {type(values).__name__}")
         declared = cls.declared()
         if not declared:
             return cls(extra=dict(values)) if "extra" in {f.name for f in dataclasses.fields(cls)} else cls()
-        unknown = set(values) - set(declared)
+        unknown = sorted(set(values) - set(declared), key=str)
         if unknown:
-            raise ValueError(f"{method}: unknown options {sorted(unknown)}; known: {sorted(declared)}")
-        for name, value in values.items():
-            _check_value(method, name, value, declared[name])
-        opts = cls(**{k: list(v) if isinstance(v, list) else v for k, v in values.items()})
+            raise OptionError(str(unknown[0]), f"{method}: unknown options {unknown}; known: {sorted(declared)}")
+        opts = cls(**{name: _check_value(method, name, value, declared[name]) for name, value in values.items()})
         opts.check_together(method)
         return opts
 
     def check_together(self, method: str) -> None:
-        """Rules between options (override; raise ValueError naming them)."""
+        """Rules between options (override; raise ``OptionError`` naming the option the user would change)."""
 
     def to_dict(self) -> Dict[str, Any]:
         """The options as the JSON-able dict that checkpoints and config.json hold."""
@@ -106,35 +125,49 @@ class PluginOptions(MethodOptions):
     extra: Dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
-def _check_value(method: str, name: str, value: Any, field: dataclasses.Field) -> None:
-    """Refuse ``value`` for option ``name`` when it is not of the default's kind or out of bounds."""
+class OptionError(ValueError):
+    """A method option refused: ``option`` is its name (``train`` says ``--set NAME`` with it)."""
+
+    def __init__(self, option: str, message: str):
+        super().__init__(message)
+        self.option = option
+
+
+def _check_value(method: str, name: str, value: Any, field: dataclasses.Field) -> Any:
+    """``value`` for option ``name`` as the option's own kind (a numpy number becomes a Python one);
+    OptionError when it is not of the default's kind or out of bounds."""
     meta, default = field.metadata, _default_of(field)
 
-    def bad(want: str) -> ValueError:
-        return ValueError(f"{method}: option {name!r} must be {want}, got {value!r}")
+    def bad(want: str) -> OptionError:
+        return OptionError(name, f"{method}: option {name!r} must be {want}, got {_shown_value(value)}")
 
     choices = meta.get("choices")
     if choices is not None:
+        if is_bool(value):
+            value = bool(value)
         if not any(value is c or (type(value) is type(c) and value == c) for c in choices):
             raise bad("one of " + ", ".join(_shown(c) for c in choices))
-        return
+        return value
     if isinstance(default, bool):
-        if not isinstance(value, bool):
+        if not is_bool(value):
             raise bad("true or false")
-        return
+        return bool(value)
     if isinstance(default, list):
-        if not isinstance(value, list) or any(not _finite_number(v) for v in value):
+        if not isinstance(value, (list, tuple)) or any(not is_number(v) for v in value):
             raise bad("a list of numbers, e.g. [0.1,0.2]")
         for v in value:
             _check_bounds(v, meta, lambda want: bad(f"a list of numbers {want}"))
-        return
+        return [float(v) for v in value]
     if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
+        if not is_whole(value):
             raise bad("a whole number")
+        value = int(value)
     elif isinstance(default, float):
-        if not _finite_number(value):
+        if not is_number(value):
             raise bad("a finite number")
+        value = float(value)
     _check_bounds(value, meta, bad)
+    return value
 
 
 def _check_bounds(value: float, meta: Mapping[str, Any], bad) -> None:
@@ -146,15 +179,21 @@ def _check_bounds(value: float, meta: Mapping[str, Any], bad) -> None:
 
 
 def _range_text(meta: Mapping[str, Any]) -> str:
-    low, high = meta.get("low"), meta.get("high")
+    low, high = _bound(meta.get("low")), _bound(meta.get("high"))
     if high is None:
-        return f"greater than {low:g}" if meta.get("open_low") else f">= {low:g}"
+        return f"greater than {low}" if meta.get("open_low") else f">= {low}"
     left, right = "(" if meta.get("open_low") else "[", ")" if meta.get("open_high") else "]"
-    return f"in {left}{low:g}, {high:g}{right}"
+    return f"in {left}{low}, {high}{right}"
 
 
-def _finite_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+def _bound(v: Any) -> Optional[str]:
+    """A bound as the user would type it: a whole number in full (2^63 - 1, not 9.22337e+18)."""
+    return None if v is None else str(v) if isinstance(v, int) else f"{v:g}"
+
+
+def _shown_value(value: Any, limit: int = 80) -> str:
+    text = repr(value.item() if hasattr(value, "item") and not isinstance(value, (list, tuple, dict)) else value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _default_of(field: dataclasses.Field) -> Any:

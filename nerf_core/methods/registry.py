@@ -10,7 +10,7 @@ from typing import Callable, Dict, Optional
 import torch
 
 from nerf_core.data.validation import checked_box
-from nerf_core.fields.environment import EnvironmentMap
+from nerf_core.methods.environment_options import build_environment
 
 _REGISTRY: Dict[str, Callable[..., "torch.nn.Module"]] = {}
 
@@ -89,12 +89,10 @@ def build_model(name: str, aabb: torch.Tensor, **options) -> torch.nn.Module:
         raise ValueError(f"build_model: unknown method {name!r}; choose one of {', '.join(sorted(_REGISTRY))}")
     aabb = checked_box("build_model", aabb)
     options = dict(options)
-    env_options = options.pop("environment", None)
+    environment = build_environment(name, options.pop("environment", None))  # checked before the build
     model = _REGISTRY[name](aabb=aabb, **options)
-    if env_options is not None:
-        if not isinstance(env_options, dict):
-            raise ValueError(f"option 'environment' must be a dict of EnvironmentMap options, got {env_options!r}")
-        model.attach_environment(EnvironmentMap(**env_options))
+    if environment is not None:
+        model.attach_environment(environment)
     return model
 
 
@@ -125,15 +123,20 @@ def saved_run_state(name: str, ckpt: dict) -> dict:
     return {k: options[k] for k in cls.Options.RUN_STATE_KEYS if k in options}
 
 
-def current_option_names(options: dict) -> dict:
+def current_option_names(options: dict, known=None) -> dict:
     """``options`` with each old option name (``RENAMED_OPTIONS``) replaced by today's name.
+
+    Args:
+        known: the option names the method declares, or None (any): an old name whose new name the
+            method does not have stays as it is, so the method refuses it under the name the user wrote
+            (``--set contract=true`` for nerf is "unknown option 'contract'", not 'unbounded').
 
     Raises:
         ValueError: an option given under its old and its new name with two different values.
     """
     out = dict(options)
     for old, new in RENAMED_OPTIONS.items():
-        if old in out:
+        if old in out and (known is None or new in known):
             value = out.pop(old)
             if new in out and out[new] != value:
                 raise ValueError(f"option {old!r} is the old name of {new!r}, and the two disagree "

@@ -24,11 +24,12 @@ import math
 
 import torch
 
+from nerf_core.contract.numbers import is_whole
 from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
 from nerf_core.fields.vm_touched import TouchedRows
 from nerf_core.methods import growth
-from nerf_core.methods.base import MAX_GRID_RES, RadianceModel, density_length
+from nerf_core.methods.base import RadianceModel, density_length
 from nerf_core.methods.registry import register
 from nerf_core.methods.vmgrid_options import VMGridOptions
 from nerf_core.optim import RowSparseAdam
@@ -279,15 +280,20 @@ class VMGrid(RadianceModel):
         return {"resolution": self.field.resolution, "res_final_budget": self.res_final_budget}
 
     def restore_run_state(self, state) -> None:
-        """Take back the last stage's size (checked: a crafted checkpoint could ask for terabytes). The
+        """Take back the last stage's size, checked against what the options allow: growth never goes
+        below res_init nor past max(res_final, res_budget_max) (``growth.budget_resolution``), so a
+        checkpoint's 2048 under options that allow 320 would jump a resumed run to ~10 GB of grids. The
         grid's own size comes with the weights: ``load_state_dict`` resizes to the stored planes."""
-        for name in ("resolution", "res_final_budget"):
+        o = self.opts
+        ranges = {"resolution": (o.res_init, max(o.res_final, o.res_budget_max)),
+                  "res_final_budget": (o.res_final, max(o.res_final, o.res_budget_max))}
+        for name, (low, high) in ranges.items():
             value = state.get(name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int)
-                                      or not 2 <= value <= MAX_GRID_RES):
-                raise ValueError(f"vmgrid: run state {name!r} must be a whole number in 2..{MAX_GRID_RES}, "
-                                 f"got {value!r}")
-        self.res_final_budget = state.get("res_final_budget")
+            if value is not None and not (is_whole(value) and low <= value <= high):
+                raise ValueError(f"vmgrid: run state {name!r} must be a whole number in {low}..{high} (what the "
+                                 f"run's options res_init, res_final and res_budget_max allow), got {value!r}")
+        budget = state.get("res_final_budget")
+        self.res_final_budget = None if budget is None else int(budget)
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         # The one place vmgrid's grids change size on loading: a checkpoint saved after growth has bigger

@@ -11,11 +11,12 @@ import math
 
 import torch
 
+from nerf_core.contract.numbers import is_whole
 from nerf_core.errors import RunError
 
 
 def _whole(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+    return is_whole(value) and value >= 0
 
 
 class TrainingOptimizer(torch.optim.Optimizer):

@@ -39,6 +39,7 @@ import torch
 
 from nerf_core.cameras.rays import Cameras
 from nerf_core.contract.errors import PoseError
+from nerf_core.contract.numbers import is_number, is_whole
 from nerf_core.contract.poses import MAX_COORDINATE, coordinate_problem, parse_pose
 from nerf_core.contract.transforms import MAX_FOCAL_PX, MIN_FOCAL_PX
 from nerf_core.errors import RunError
@@ -65,7 +66,7 @@ def _number(req: dict, key: str, where: str, positive: bool = False, default=Non
     value = req.get(key, default)
     if value is None and default is None and not positive:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_number(value):
         raise RequestError(f"{where}: field {key!r} must be a finite number, got {value!r}")
     if positive and value <= 0:
         raise RequestError(f"{where}: field {key!r} must be positive, got {value!r}")
@@ -104,7 +105,7 @@ def parse_request(req: Any) -> Dict[str, Any]:
             raise RequestError(f"{where}: field {key!r} is {out[key]:.4g} pixels, beyond {MAX_COORDINATE:.0e}")
     for key in ("w", "h"):
         v = req.get(key)
-        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SIDE:
+        if not is_whole(v) or not 1 <= v <= MAX_SIDE:
             raise RequestError(f"{where}: field {key!r} must be a whole number of pixels in 1..{MAX_SIDE}, got {v!r}")
         out[key] = v
     for key in ("near", "far"):

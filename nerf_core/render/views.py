@@ -10,7 +10,6 @@ and that view's ``psnr``/``ssim`` in renders.json (docs/CONTRACTS.md). File name
 from __future__ import annotations
 
 import math
-import numbers
 import os
 import sys
 import time
@@ -23,6 +22,7 @@ from nerf_core.cameras.rays import Cameras
 from nerf_core.contract import config_path
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.naming import render_files, unique_stems
+from nerf_core.contract.numbers import is_real
 from nerf_core.contract.outputs import OutputError, check_not_a_dataset_file, link_problem
 from nerf_core.contract.transforms import FrameInfo, detect_layout
 
@@ -277,7 +277,7 @@ def render_run(run, cameras_path, out, split="test", overwrite=False, device=Non
     if cameras_path is not None:
         arguments.path(f, "cameras_path", cameras_path)
     arguments.choice(f, "split", split, ("train", "val", "test"))
-    if isinstance(downscale, bool) or not isinstance(downscale, numbers.Real):
+    if not is_real(downscale):
         raise TypeError(f"{f}: downscale must be a number, got {downscale!r:.60}")
     # Its range is checked once the cameras are read: the message says how small they are.
     arguments.integer(f, "chunk", chunk, low=1)

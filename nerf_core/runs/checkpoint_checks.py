@@ -17,11 +17,11 @@ Each problem is a RunError naming the file and the entry.
 """
 from __future__ import annotations
 
-import math
 from typing import Dict
 
 import torch
 
+from nerf_core.contract.numbers import is_number, is_whole
 from nerf_core.errors import RunError
 from nerf_core.methods.base import MAX_GRID_RES, RadianceModel
 
@@ -29,11 +29,11 @@ RNG_KEYS = ("python", "numpy", "torch", "batches")
 
 
 def _whole(value, least: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+    return is_whole(value) and value >= least
 
 
 def _finite(value, least: float = 0.0, inclusive: bool = True) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_number(value):
         return False
     return value >= least if inclusive else value > least
 

@@ -12,7 +12,6 @@ File names come from ``nerf_core.contract``; the run folder's rules live in ``ne
 """
 from __future__ import annotations
 
-import json
 import os
 import pickle
 import platform
@@ -25,6 +24,8 @@ import numpy as np
 import torch
 
 from nerf_core import __version__, contract
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.jsonfile import parse_json_file
 from nerf_core.contract.paths import file_problem
 from nerf_core.errors import CheckpointRefused, RunError, TrainError
 from nerf_core.methods.base import RadianceModel
@@ -205,10 +206,12 @@ def check_checkpoint_of_run(ckpt: dict, ck: Path, run: Path) -> None:
     """Refuse (RunError) a checkpoint that another run wrote, judged by RUN/config.json when the run has
     one: ``train --resume`` must not continue (and rewrite config.json to) another run's method."""
     cfg_path = Path(contract.config_path(run))
+    if not cfg_path.exists():
+        return  # no config.json: the checkpoint's own record is all there is
     try:
-        config = json.loads(cfg_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return  # no readable config.json: the checkpoint's own record is all there is
+        config = parse_json_file(cfg_path)  # the record's reader (``runs.record``): the same JSON rules
+    except DatasetError as exc:
+        raise RunError(str(exc)) from None
     if isinstance(config, dict):
         _check_checkpoint_of_run(ckpt, config, ck, run)
 

@@ -2,20 +2,27 @@
 loaders of a trained run (``eval``, ``render``, ``serve``, ``open_run``) take from it.
 
 ``train`` writes config.json (``engine.report.run_config``): the ``TrainConfig`` fields plus what the
-trainer decided. The fields a loader uses are typed here; the whole file stays in ``RunRecord.raw``.
+trainer decided. The fields a loader uses are declared once, here (``RECORD_FIELDS``): the writer checks
+what it writes against them (``check_run_config``) and every reader reads through ``read_run_record``,
+with the dataset reader's JSON rules (``contract.jsonfile``: a key written twice refused, a number too
+long for a float read as inf and refused by name) and its near/far rules. The whole file stays in
+``RunRecord.raw``.
 """
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 from nerf_core import contract
+from nerf_core.contract.errors import DatasetError
+from nerf_core.contract.jsonfile import parse_json_file
+from nerf_core.contract.numbers import is_number, is_whole
 from nerf_core.contract.paths import file_problem, not_a_regular_file
+from nerf_core.contract.poses import MAX_COORDINATE, coordinate_problem
 from nerf_core.data.batcher import DEFAULT_RAY_SAMPLING, RAY_SAMPLING, RECORDED_BEFORE_TRAIN_RAYS, TRAIN_RAYS
 from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
+from nerf_core.data.validation import near_far_problem
 from nerf_core.errors import RunError
 
 WHITE = (1.0, 1.0, 1.0)
@@ -33,6 +40,7 @@ class RunRecord:
         near, far: the dataset's ray bounds in scene units, or None.
         eval_background: (3,) RGB the held-out views are scored on.
         downscale: the image downscale the run trained at.
+        aabb: ((xmin, ymin, zmin), (xmax, ymax, zmax)) the scene box trained in, or None.
         raw: the whole file as a dict.
     """
 
@@ -44,7 +52,47 @@ class RunRecord:
     far: Optional[float]
     eval_background: Tuple[float, float, float]
     downscale: int
+    aabb: Optional[Tuple[Tuple[float, ...], Tuple[float, ...]]]
     raw: dict
+
+    def reach_problem(self, origins: Sequence) -> Optional[str]:
+        """Why the recorded near/far keep every camera at ``origins`` (n, 3) from the scene box, or None:
+        the dataset reader's rule (``data.validation.near_far_problem``), for the views a loader renders
+        (before, ``eval`` scored empty renders with exit 0)."""
+        if self.aabb is None:
+            return None
+        return near_far_problem(self.near, self.far, self.aabb, origins, f"{self.path}")
+
+
+def _box(v) -> bool:
+    return (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(c, (list, tuple)) and len(c) == 3
+                                                        and all(is_number(x) for x in c) for c in v)
+            and all(lo < hi for lo, hi in zip(*v)) and coordinate_problem(v, "the box") is None)
+
+
+def _distance(v) -> bool:
+    return is_number(v) and v >= 0 and coordinate_problem([v], "") is None
+
+
+# The fields of config.json a loader reads: name -> (what it must be, its test, whether null may stand
+# for it). ``train`` writes each (``engine.report.run_config`` checks them with ``check_run_config``);
+# a file written before a field existed may lack it (``read_run_record`` gives its default).
+RECORD_FIELDS: Dict[str, Tuple[str, Callable[[Any], bool], bool]] = {
+    "dataset": ("the dataset's path (a string)", lambda v: isinstance(v, str), True),
+    # a number or list here would switch change detection off without a word (``runs.folder``)
+    "dataset_hash": ("the hash of the dataset's transforms files (a string of hex digits)",
+                     lambda v: isinstance(v, str) and bool(v) and all(c in "0123456789abcdef" for c in v), True),
+    "method": ("the method's name (a string)", lambda v: isinstance(v, str) and bool(v.strip()), False),
+    "downscale": ("a whole number >= 1", lambda v: is_whole(v) and v >= 1, False),
+    "eval_background": ("an RGB colour: 3 numbers in [0, 1]",
+                        lambda v: (isinstance(v, (list, tuple)) and len(v) == 3
+                                   and all(is_number(c) and 0 <= c <= 1 for c in v)),
+                        False),
+    # the dataset reader's rules (``data.validation.scene_fields``): finite, >= 0, within float32's reach
+    "near": (f"a number >= 0 within {MAX_COORDINATE:.0e} units (or null)", _distance, True),
+    "far": (f"a number >= 0 within {MAX_COORDINATE:.0e} units (or null)", _distance, True),
+    "aabb": ("the scene box: [[xmin, ymin, zmin], [xmax, ymax, zmax]] with each min below its max", _box, False),
+}
 
 
 def read_run_record(run: Path) -> RunRecord:
@@ -58,46 +106,31 @@ def read_run_record(run: Path) -> RunRecord:
     if problem:
         raise RunError(f"{cfg_path}: {problem}; is {run} a folder written by `python -m nerf_core train`?")
     try:
-        config = json.loads(cfg_path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise RunError(f"{cfg_path}: invalid JSON ({exc.msg} at line {exc.lineno})") from exc
-    except (OSError, UnicodeDecodeError, RecursionError) as exc:
-        raise RunError(f"{cfg_path}: cannot read ({exc.__class__.__name__}: {exc})") from exc
+        config = parse_json_file(cfg_path)  # the transforms files' reader: the same JSON rules
+    except DatasetError as exc:
+        raise RunError(str(exc)) from None
     if not isinstance(config, dict):
         raise RunError(f"{cfg_path}: expected the JSON object that `train` writes, got a {type(config).__name__}; "
                        f"is {run} a run folder?")
-    _check_run_config(config, cfg_path)
-    text = [config.get(k) if isinstance(config.get(k), str) else None for k in ("dataset_hash", "method")]
-    return RunRecord(path=cfg_path, dataset=config.get("dataset") or None, dataset_hash=text[0], method=text[1],
-                     near=config.get("near"), far=config.get("far"),
+    check_run_config(config, cfg_path)
+    box = config.get("aabb")
+    return RunRecord(path=cfg_path, dataset=config.get("dataset") or None, dataset_hash=config.get("dataset_hash"),
+                     method=config.get("method"), near=config.get("near"), far=config.get("far"),
                      eval_background=tuple(float(c) for c in config.get("eval_background", WHITE)),
-                     downscale=int(config.get("downscale", 1)), raw=config)
+                     downscale=int(config.get("downscale", 1)),
+                     aabb=None if box is None else (tuple(map(float, box[0])), tuple(map(float, box[1]))), raw=config)
 
 
-def _check_run_config(config: dict, cfg_path: Path) -> None:
-    """Refuse (RunError naming the field) the values of a run's config.json that ``eval``, ``render``
-    and ``serve`` read, when they are not what ``train`` writes (an edited or damaged file)."""
-    def bad(key, want):
-        raise RunError(f"{cfg_path}: field {key!r} must be {want}, got {config[key]!r}")
-
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-    if "dataset" in config and config["dataset"] is not None and not isinstance(config["dataset"], str):
-        bad("dataset", "the dataset's path (a string)")
-    if "downscale" in config and not (isinstance(config["downscale"], int) and not isinstance(config["downscale"], bool)
-                                      and config["downscale"] >= 1):
-        bad("downscale", "a whole number >= 1")
-    if "eval_background" in config:
-        bg = config["eval_background"]
-        if not (isinstance(bg, list) and len(bg) == 3 and all(number(c) and 0 <= c <= 1 for c in bg)):
-            bad("eval_background", "an RGB colour: 3 numbers in [0, 1]")
-    for key in ("near", "far"):
-        if config.get(key) is not None and not (number(config[key]) and config[key] >= 0):
-            bad(key, "a number >= 0 (or null)")
+def check_run_config(config: dict, where) -> None:
+    """Refuse (RunError naming ``where`` and the field) a value of ``RECORD_FIELDS`` that is not what
+    ``train`` writes (an edited or damaged file; or, from the writer, a bug), and near/far that leave
+    no sample between them."""
+    for key, (want, ok, nullable) in RECORD_FIELDS.items():
+        if key in config and not ((nullable and config[key] is None) or ok(config[key])):
+            raise RunError(f"{where}: field {key!r} must be {want}, got {config[key]!r}")
     near, far = config.get("near"), config.get("far")
     if near is not None and far is not None and far <= near:  # each alone is fine; together no ray has samples
-        raise RunError(f"{cfg_path}: field 'far' ({far}) must be greater than field 'near' ({near}); every view would "
+        raise RunError(f"{where}: field 'far' ({far}) must be greater than field 'near' ({near}); every view would "
                        "render empty")
 
 
@@ -113,7 +146,7 @@ def trained_with(config: dict) -> dict:
     """
     depth = config.get("depth") is True
     weight = config.get("depth_weight")
-    if depth and not (isinstance(weight, (int, float)) and not isinstance(weight, bool)):
+    if depth and not is_number(weight):
         weight = DEFAULT_DEPTH_WEIGHT  # the flag was left out: the documented default was used
     rays, sampling = config.get("train_rays"), config.get("ray_sampling")
     return {"depth": depth, "depth_weight": float(weight) if depth else None,

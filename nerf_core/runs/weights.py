@@ -56,10 +56,7 @@ def load_weights(model: RadianceModel, ckpt: dict, where: str = "checkpoint") ->
     Raises:
         RunError: weights that are not a dict of tensors, or that do not fit the model.
     """
-    weights = ckpt.get("model")
-    if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
-        raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
-                       f"got a {type(weights).__name__}")
+    weights = checked_weights(ckpt, where)
     weights, opt_state = model.upgrade_checkpoint(weights, ckpt.get("optimizer"))
     try:
         model.restore_run_state(saved_run_state(model.method_name, ckpt))
@@ -68,6 +65,15 @@ def load_weights(model: RadianceModel, ckpt: dict, where: str = "checkpoint") ->
     check_weights(model, weights, where)  # nothing mis-shaped or NaN reaches the model
     load_state_resizing(model, weights)
     return opt_state
+
+
+def checked_weights(ckpt: dict, where: str) -> dict:
+    """The checkpoint's ``model`` entry when it is a dict of tensors (RunError naming ``where`` otherwise)."""
+    weights = ckpt.get("model")
+    if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
+        raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
+                       f"got a {type(weights).__name__}")
+    return weights
 
 
 def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkpoint") -> RadianceModel:
@@ -90,10 +96,7 @@ def model_from_checkpoint(ckpt: dict, device: torch.device, where: str = "checkp
         box = None
     if box is None or box.shape != (2, 3) or not bool(torch.isfinite(box).all()):
         raise RunError(f"{where}: entry 'aabb' must be the scene box, 2 x 3 finite numbers (min, max)")
-    weights = ckpt["model"]
-    if not (isinstance(weights, dict) and all(isinstance(v, torch.Tensor) for v in weights.values())):
-        raise RunError(f"{where}: entry 'model' must be the model's weights (a dict of tensors), "
-                       f"got a {type(weights).__name__}")
+    checked_weights(ckpt, where)  # before the build: a foreign file fails by name, with no work done
     check_entries(ckpt, where)
     try:
         model = build_model(method, box, **saved_options(method, options))

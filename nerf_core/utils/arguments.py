@@ -1,4 +1,6 @@
 """The rules every public function of ``nerf_core.__all__`` applies to its arguments, in one place.
+What counts as a number or a whole number is ``nerf_core.contract.numbers``' (the readers below this
+layer need it too); this module builds the messages on it.
 
 The command line checks its flags with argparse types; the Python API checks the same things here,
 at the boundary, before any work or write: a wrong type raises TypeError, a value out of range
@@ -12,12 +14,13 @@ the modules that own those types call them.
 from __future__ import annotations
 
 import math
-import numbers
 import os
 from typing import Iterable, Optional
 
 import numpy as np
 import torch
+
+from nerf_core.contract.numbers import is_real, is_whole
 
 
 def _shown(value, limit: int = 60) -> str:
@@ -27,7 +30,7 @@ def _shown(value, limit: int = 60) -> str:
 
 def integer(func: str, name: str, value, low: Optional[int] = None, high: Optional[int] = None) -> int:
     """``value`` as an int (a Python or numpy integer, not a bool) in ``low..high``."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, np.integer)):
+    if not is_whole(value):
         raise TypeError(f"{func}: {name} must be an integer, got {_shown(value)}")
     value = int(value)
     if (low is not None and value < low) or (high is not None and value > high):
@@ -41,7 +44,7 @@ def number(func: str, name: str, value, low: Optional[float] = None, above: Opti
     """``value`` as a finite float, >= ``low``, > ``above`` and <= ``high`` where given."""
     if isinstance(value, torch.Tensor) and value.numel() == 1 and not value.dtype == torch.bool:
         value = value.item()
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.number)):
+    if not is_real(value):
         raise TypeError(f"{func}: {name} must be a number, got {_shown(value)}")
     value = float(value)
     want = " and ".join(s for s in (f">= {low}" if low is not None else "", f"> {above}" if above is not None else "",

@@ -2,7 +2,7 @@
 
 Methods and library code mark where the stages of a step begin and end::
 
-    from .. import profiling
+    from nerf_core.utils import profiling
     with profiling.stage("sampling"):
         t0, t1, ridx = sampling.occupied_samples(...)
 
@@ -12,7 +12,7 @@ stage nested inside another is charged to the inner one, so the totals add up to
 Inactive, ``stage`` is one global read returning a shared do-nothing context manager, so the marks
 can stay in the trainer's hot path. Stage names in use: ``sampling`` (ray marching, sample placement,
 occupancy-grid updates), ``field`` (density/colour queries of the network or grid), ``rendering``
-(volume-rendering compositing); ``benchmarks/bench/profile.py`` adds ``other_forward``, ``backward``
+(volume-rendering compositing); ``benchmarks/bench/profiler.py`` adds ``other_forward``, ``backward``
 and ``optimizer`` around the rest of its step.
 
 Standard library only: the addon and the contract tests may import this without torch.
