@@ -3,9 +3,15 @@ at step 0, so that rays skip them from the first step instead of waiting for tra
 
 A ray from a camera to the surface its depth map records crosses only empty space before it. A ray
 through a pixel the film left transparent (alpha 0) crosses nothing at all. Cells that such rays
-cross, stopped ``MARGIN_CELLS`` short of their surface, are empty, except cells within one cell of a
-surface point that any pixel's depth shows (a grazing ray passes the edge of a surface another pixel
-sees) or of a cell that no ray crosses. Cells that no ray crosses stay occupied: unseen is not empty.
+cross, stopped ``SHELL_CELLS + 0.5`` cells short of their surface, are empty, except cells within
+``SHELL_CELLS`` of a surface point that any pixel's depth shows (a grazing ray passes the edge of a
+surface another pixel sees, and a field's density rises over a few cells before its surface) or of a
+cell that no ray crosses. Cells that no ray crosses stay occupied: unseen is not empty.
+
+Two cells, measured: a trained vmgrid (multi, 5 minutes, 38.5 dB) puts a third of each ray's weight
+1-2 occupancy cells in front of the captured depth. Carving its grid with a one-cell shell dropped a
+test view from 36.15 to 22.35 dB (and training from the start with it stalled near 23 dB), with two
+35.63, with three 36.15; the carved box keeps 18 %, 27 % and 35 % of its cells.
 
 Depth 0 on an opaque pixel says nothing (a sensor's hole, a world at infinity), so those rays carve
 nothing.
@@ -22,9 +28,10 @@ from nerf_core.data.split import Split
 
 Tensor = torch.Tensor
 
-# A carving ray stops this many cells before its surface: the depth of a pixel is that of its centre
-# and a surface is not a plane across the pixel's footprint.
-MARGIN_CELLS = 1.5
+# Cells kept around every surface point (and every cell no ray crossed); a carving ray stops half a
+# cell more than that before its surface: the depth of a pixel is that of its centre, a surface is not
+# a plane across the pixel's footprint, and a field's density rises over a few cells before its surface.
+SHELL_CELLS = 2
 # Rays traced for carving (the train views are subsampled evenly to about this many): on a 64^3 grid a
 # ray crosses about 100 cells, so this is some 20 M cell lookups, a second or two on one core.
 MAX_RAYS = 200_000
@@ -40,7 +47,7 @@ def _cells(pts: Tensor, lo: Tensor, per_unit: Tensor, r: int) -> tuple[Tensor, T
 
 
 def free_cells(aabb: Tensor, resolution: int, split: Split, depth: Tensor,
-               max_rays: int = MAX_RAYS) -> Tensor:
+               max_rays: int = MAX_RAYS, shell: int = SHELL_CELLS) -> Tensor:
     """The cells of a ``resolution``^3 grid over ``aabb`` that the split's views show empty.
 
     Args:
@@ -50,6 +57,8 @@ def free_cells(aabb: Tensor, resolution: int, split: Split, depth: Tensor,
         depth: (v, h, w) float32 planar z-depth of the split's pixels, 0 where unknown (``Split.depth``).
         max_rays: about how many rays to trace (views are subsampled evenly; every pixel's surface
             point still protects its cell).
+        shell: cells kept around every surface point and every uncrossed cell (carving rays stop
+            ``shell + 0.5`` cells short of their surface).
     Returns:
         (r, r, r) bool, True where a cell is known to be empty.
     """
@@ -90,7 +99,7 @@ def free_cells(aabb: Tensor, resolution: int, split: Split, depth: Tensor,
             t0 = torch.minimum(t_a, t_b).amax(-1).clamp_min(0)
             t1 = torch.maximum(t_a, t_b).amin(-1)
             t_surf = zz[s:s + _CHUNK] / z_per_t
-            t1 = torch.where(empty[s:s + _CHUNK], t1, torch.minimum(t1, t_surf - MARGIN_CELLS * cell))
+            t1 = torch.where(empty[s:s + _CHUNK], t1, torch.minimum(t1, t_surf - (shell + 0.5) * cell))
             n = ((t1 - t0) / (0.5 * cell)).clamp_min(0).ceil().long()
             if int(n.sum()) == 0:
                 continue
@@ -106,4 +115,4 @@ def free_cells(aabb: Tensor, resolution: int, split: Split, depth: Tensor,
     # off keeps the edge of what no ray reached (the unseen underside of an object) and the cells that
     # grazing rays pass beside a surface.
     kept = (~crossed | surface).reshape(1, 1, r, r, r).float()
-    return F.max_pool3d(kept, 3, stride=1, padding=1)[0, 0] == 0
+    return F.max_pool3d(kept, 2 * shell + 1, stride=1, padding=shell)[0, 0] == 0

@@ -139,14 +139,18 @@ class VMGrid(RadianceModel):
         self.opacity.set(stats["acc_ema"])
 
     def step_size(self) -> float:
-        """Marching step in scene units: ``step_ratio`` voxels, coarser until the occupancy grid prunes.
+        """Marching step in scene units: ``step_ratio`` voxels, coarser until the occupancy grid prunes
+        (or was carved from the capture).
 
         Before the first prune every ray crosses the whole box (~100+ samples each); a coarser step
         then makes the first few dozen steps cheap while the field finds the coarse geometry. Density
         is per unit length, so nothing learnt is invalidated when the step refines.
         """
         s = self.opts.step_ratio * self.field.voxel_size()
-        return s if self.formed() else s * self.opts.warmup_step_scale
+        # A grid carved from the capture (``train --depth``) is no longer a wholly occupied box: its rays
+        # cross only the shell left around the surfaces, which the coarse step would jump over.
+        carved = self.occupancy.occupied_fraction < 0.95
+        return s if self.formed() or carved else s * self.opts.warmup_step_scale
 
     def training_hook(self, step, frac) -> bool:
         o = self.opts
