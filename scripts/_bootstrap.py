@@ -81,6 +81,18 @@ def whole_number(low: int, high: int, why: str = ""):
     return parse
 
 
+def share(text: str) -> float:
+    """An argparse ``type``: a finite number in [0, 1] (a colour channel); otherwise one line naming the
+    flag (argparse adds it). ``float`` alone takes nan, inf and -3."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:  # False for nan too
+        raise argparse.ArgumentTypeError(f"must be a number in [0, 1], got {text}")
+    return value
+
+
 def fail(prog: str, message: str) -> None:
     """A script's expected failure: one ``prog: error: message`` line on stderr, exit code 2."""
     print(f"{prog}: error: {message}", file=sys.stderr)

@@ -27,7 +27,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--engine", choices=("workbench", "cycles"), default="workbench")
     ap.add_argument("--samples", type=_bootstrap.whole_number(1, 1 << 24, "Cycles' samples a pixel"), default=8,
                     help="Cycles samples (default 8)")
-    ap.add_argument("--background", type=float, nargs=3, default=(0.08, 0.08, 0.08), metavar=("R", "G", "B"),
+    ap.add_argument("--background", type=_bootstrap.share, nargs=3, default=(0.08, 0.08, 0.08), metavar=("R", "G", "B"),
                     help="world colour behind the tiles (default dark grey)")
     # Blender clamps 0 to 1 % silently and would report a 0x0 image; past 1000 % a gallery is a poster
     ap.add_argument("--percent", type=_bootstrap.whole_number(1, 1000, "a share of the scene's resolution"),

@@ -38,6 +38,14 @@ def test_render_gallery_refuses_a_percent_or_samples_out_of_range(tmp_path, flag
     assert not (tmp_path / "g.png").exists()
 
 
+@pytest.mark.parametrize("value", ["nan", "inf", "-3", "1.5", "grey"])
+def test_render_gallery_refuses_a_background_that_is_not_a_colour(tmp_path, value):
+    # argparse's float took nan and inf, and Blender drew a black or white world from them
+    _refused(_script("render_gallery.py", "--out", tmp_path / "g.png", "--background", "0.1", value, "0.1",
+                     cwd=tmp_path), "argument --background:", "[0, 1]")
+    assert not (tmp_path / "g.png").exists()
+
+
 def test_make_demo_scene_refuses_an_out_that_is_not_a_blend(tmp_path):
     last = _refused(_script("make_demo_scene.py", "cube", "--out", "scene.png", cwd=tmp_path),
                     "--out", "scene.png", "writes a .blend file")
