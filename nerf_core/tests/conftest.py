@@ -289,8 +289,9 @@ def opened_run(model, config: Optional[dict] = None, step: int = 7, method: str 
     """A ``Run`` around ``model``, as ``open_run`` gives it, with ``config`` as its config.json (no dataset
     by default): for export tests that replace the loader (``use_model``)."""
     config = {"dataset": None, **(config or {})}
-    record = RunRecord(Path(path) / "config.json", config.get("dataset"), config.get("dataset_hash"), method,
-                       None, None, (1.0, 1.0, 1.0), 1, config)
+    record = RunRecord(path=Path(path) / "config.json", dataset=config.get("dataset"),
+                       dataset_hash=config.get("dataset_hash"), method=method, near=None, far=None,
+                       eval_background=(1.0, 1.0, 1.0), downscale=1, aabb=None, raw=config)
     return Run(Path(path), model, record, {"step": step, "method": method})
 
 
