@@ -22,7 +22,7 @@ from nerf_core.image.losses import depth_loss
 
 # ``train --depth-weight``'s default: the depth loss (a relative error, ``image.losses.depth_loss``)
 # against the colour MSE. Measured in docs/BENCHMARKS.md, "Depth as supervision".
-DEFAULT_DEPTH_WEIGHT = 0.02
+DEFAULT_DEPTH_WEIGHT = 0.002
 # A pixel is at a depth edge when the depths of its 3x3 neighbourhood differ by more than this share,
 # or some neighbour has no surface.
 EDGE_RATIO = 1.05
