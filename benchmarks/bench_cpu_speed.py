@@ -172,8 +172,11 @@ def chart(results: dict, path: str) -> bool:
                            (axes[1], "psnr", f"test PSNR (dB) after {results['seconds']:g} s")):
         base = [r["baseline"][key] or 0.0 for r in rows]
         new = [r["new"][key] or 0.0 for r in rows]
-        ax.bar([i - 0.2 for i in x], base, 0.4, label=f"baseline {results['baseline_commit']}", color="#999999")
-        ax.bar([i + 0.2 for i in x], new, 0.4, label=f"this commit {results['commit']}", color="#1f77b4")
+        # a flag A/B on one tree is labelled by its flags, not by two equal commits
+        ax.bar([i - 0.2 for i in x], base, 0.4, color="#999999",
+               label=f"baseline {results['baseline_commit']} {results.get('baseline_args', '')}".strip())
+        ax.bar([i + 0.2 for i in x], new, 0.4, color="#1f77b4",
+               label=f"this commit {results['commit']} {results.get('new_args', '')}".strip())
         if key == "psnr":
             lo = min(v for v in base + new if v) - 2
             ax.set_ylim(lo, max(base + new) + 1)
@@ -185,7 +188,7 @@ def chart(results: dict, path: str) -> bool:
         ax.set_xticklabels(scenes, rotation=30)
         ax.set_title(label, fontsize=10)
         ax.grid(axis="y", alpha=0.3)
-    axes[0].legend(fontsize=8, loc="upper left")
+    axes[0].legend(fontsize=8, loc="lower left")
     fig.suptitle("vmgrid on one CPU thread each, the two runs side by side", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
