@@ -49,6 +49,7 @@ from nerf_core.render.memory import DEFAULT_CHUNK, check_view_memory
 from nerf_core.runs.checkpoints import load_trained
 from nerf_core.utils.atomic import LinkRefused, atomic_file
 from nerf_core.utils.device import pick_device
+from nerf_core.utils.memory import OutOfMemory, named_out_of_memory
 
 PROGRESS_EVERY_S = 0.5
 MAX_SIDE = 16384  # a larger request is a mistake (wrong units), not a render
@@ -248,7 +249,9 @@ class RenderServer:
                     raise _Superseded()
                 self.emit("progress", id=req["id"], done=done, total=total, fraction=round(done / total, 4))
 
-        with torch.no_grad():
+        # an allocation that fails is one request's error naming the flag, not the end of the server
+        with torch.no_grad(), named_out_of_memory(f"serve --chunk {self.chunk}", "lower serve's --chunk, or "
+                                                  "ask for a smaller view"):
             res = render_view(self.model, cams, 0, background=(0.0, 0.0, 0.0), near=near, far=far,
                               chunk=self.chunk, on_chunk=on_chunk,
                               pixel_filter=self.film_filter if req["pixel_filter"] else None)
@@ -295,8 +298,9 @@ class RenderServer:
             self.emit("result", **self.render(req))
         except _Superseded:
             self.emit("skipped", id=obj.get("id"), reason="a newer request of the same group arrived")
-        except (RequestError, RunError) as exc:
-            self.emit("error", id=obj.get("id"), message=str(exc))
+        except (RequestError, RunError, OutOfMemory) as exc:
+            self.emit("error", id=obj.get("id"), message=f"request {obj.get('id')!r}: {exc}"
+                      if isinstance(exc, OutOfMemory) else str(exc))
         except OSError as exc:
             self.emit(
                 "error",

@@ -244,3 +244,24 @@ def test_a_final_render_request_draws_edges_through_the_runs_film_filter(trained
     assert np.allclose(np.load(tmp_path / "f.npy")[..., 3], filtered["acc"].numpy(), atol=1e-6)
     assert np.allclose(np.load(tmp_path / "c.npy")[..., 3], centre["acc"].numpy(), atol=1e-6)
     assert not np.allclose(filtered["acc"].numpy(), centre["acc"].numpy(), atol=1e-3)  # the outline differs
+
+
+def test_running_out_of_memory_is_one_request_error_naming_the_chunk_and_the_server_goes_on(trained_run, tmp_path,
+                                                                                               monkeypatch):
+    real = render_view
+    calls = []
+
+    def first_runs_out(*a, **k):
+        calls.append(1)
+        if len(calls) == 1:
+            raise MemoryError()  # a MemoryError is no RuntimeError: it ended the server before
+        return real(*a, **k)
+
+    monkeypatch.setattr("nerf_core.render.server.render_view", first_runs_out)
+    lines = [json.dumps(_req(1, tmp_path / "a.npy")), json.dumps(_req(2, tmp_path / "b.npy"))]
+    events = _serve(trained_run["run"], lines, chunk=512)
+    assert events[1]["event"] == "error" and events[1]["id"] == 1
+    message = events[1]["message"]
+    assert "serve --chunk 512: not enough memory" in message and "lower serve's --chunk" in message
+    assert events[2]["event"] == "result" and events[2]["id"] == 2
+    assert not (tmp_path / "a.npy").exists()
