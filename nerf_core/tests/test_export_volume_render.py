@@ -1,0 +1,63 @@
+"""The exported volume renders as the NeRF does (issue 57 part 4): the density under the renderer's own
+empty-space rule, the colour where the density is."""
+import pathlib
+import re
+
+import numpy as np
+import torch
+
+from nerf_core.export import field, grid, volume
+from nerf_core.methods.registry import build_model
+
+BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+EXPORT_DIR = pathlib.Path(__file__).resolve().parents[1] / "export"
+
+
+def _half_skipped_vmgrid():
+    """A vmgrid whose field has haze everywhere and whose occupancy grid is empty where x < 0."""
+    torch.manual_seed(0)
+    model = build_model("vmgrid", BOX, res_init=16)
+    r = model.occupancy.resolution
+    with torch.no_grad():
+        model.occupancy.binary.fill_(True)
+        model.occupancy.binary[: r // 2] = False
+    return model
+
+
+def test_exported_density_is_zero_where_the_renderer_skips():
+    model = _half_skipped_vmgrid()
+    pts = torch.rand(4000, 3) * 2 - 1
+    raw = model.density_at(pts)
+    assert float(raw[pts[:, 0] < -0.05].min()) > 0  # the field itself has density there: the rule must act
+    sigma = field.density(model, pts)
+    skipped = pts[:, 0] < 0
+    assert torch.all(sigma[skipped] == 0)
+    assert torch.equal(sigma[~skipped], raw[~skipped])
+    arrays = volume.volume_grids(model, BOX.double().numpy(), 24)
+    xs = grid.axes(BOX.double().numpy(), 24)[0]
+    assert np.all(arrays["density"][xs < 0] == 0) and np.all(arrays["color"][xs < 0] == 0)
+    assert np.all(arrays["density"][xs > 0] > 0)
+
+
+def test_the_renderer_skips_what_sampled_at_says():
+    """``sampled_at`` is the renderer's rule, not a copy of it: a ray that crosses only skipped cells
+    renders transparent although the field has density along it, and one through occupied cells does not."""
+    model = _half_skipped_vmgrid()
+    model.eval()
+    o = torch.tensor([[-0.5, -0.5, -3.0], [0.5, 0.5, -3.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    with torch.no_grad():
+        near, far = model.ray_interval(o, d)
+        out = model.render_rays(o, d, near, far, torch.ones(2, 3), training=False)
+    assert float(out["acc"][0]) == 0.0 and float(out["acc"][1]) > 0.0
+    assert not bool(model.sampled_at(torch.tensor([[-0.5, -0.5, 0.0]]))[0])
+    assert bool(model.sampled_at(torch.tensor([[0.5, 0.5, 0.0]]))[0])
+
+
+def test_only_export_field_reads_the_models_density():
+    """The mechanism: every exporter reads density through ``export.field.density`` (which applies the
+    renderer's empty-space rule); a module calling ``.density_at(`` itself would export the skipped haze."""
+    offenders = [p.name for p in EXPORT_DIR.glob("*.py")
+                 if p.name != "field.py" and re.search(r"\.density_at\(", p.read_text(encoding="utf-8"))]
+    assert offenders == []
+
