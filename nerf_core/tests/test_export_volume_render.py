@@ -61,3 +61,19 @@ def test_only_export_field_reads_the_models_density():
                  if p.name != "field.py" and re.search(r"\.density_at\(", p.read_text(encoding="utf-8"))]
     assert offenders == []
 
+
+def test_colour_reaches_one_node_past_the_opaque_nodes():
+    """Trilinear interpolation between an opaque coloured node and a black one outside would fade the
+    surface's colour to black where the density is still high: every neighbour of an opaque node is coloured."""
+    from nerf_core.tests.test_export_mesh import SphereModel
+
+    box = BOX.double().numpy()
+    arrays = volume.volume_grids(SphereModel(), box, 24)
+    threshold = -np.log1p(-volume.MIN_STEP_ALPHA) / float(grid.spacing(box, 24).mean())
+    opaque = arrays["density"] > threshold
+    coloured = arrays["color"].max(axis=-1) > 0
+    near = opaque.copy()
+    for a in range(3):  # the 3x3x3 neighbourhood; the sphere stays inside the box, so no wrap-around
+        near = near | np.roll(near, 1, axis=a) | np.roll(near, -1, axis=a)
+    assert (near & ~opaque).sum() > 100  # a shell of nodes that were black before
+    assert np.array_equal(coloured, near)
