@@ -1,5 +1,6 @@
 """Geometry back into Blender: the volume round trip (npz -> .vdb -> Volume object -> grids back,
 equal) and the mesh import, each in its own collection and in the scene's frame."""
+import json
 import os
 
 import bpy
@@ -66,3 +67,44 @@ def test_mesh_import_keeps_positions_and_colours_in_its_collection(tmp_path):
     col = np.array([d.color for d in obj.data.color_attributes["Col"].data])[:, :3]
     assert np.allclose(col, volume_files.srgb_to_linear(c / 255.0), atol=2e-3)  # read as sRGB, stored linear
     assert obj.active_material is not None
+
+
+def _through_view(scene, linear, path):
+    """(m, 3) scene-linear colours as ``scene``'s colour management shows them: (m, 3) display values."""
+    from PIL import Image
+
+    img = bpy.data.images.new("lin", len(linear), 1, float_buffer=True, alpha=True)
+    px = np.ones((len(linear), 4), np.float32)
+    px[:, :3] = linear
+    img.pixels.foreach_set(px.ravel())
+    scene.render.image_settings.file_format = "PNG"
+    img.save_render(path, scene=scene)
+    bpy.data.images.remove(img)
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64).reshape(-1, 3) / 255.0
+
+
+def test_volume_colours_undo_the_captures_view_transform(tmp_path):
+    """A capture rendered under AgX: the volume's colours, shown through AgX, are the NeRF's colours
+    again (the sRGB curve alone is off by up to a fifth of the range), and a scene that shows another
+    view transform is told so."""
+    scene = bpy.context.scene
+    scene.view_settings.view_transform, scene.view_settings.look = "AgX", "None"
+    rng = np.random.default_rng(1)
+    linear = np.concatenate([rng.random((300, 3)) ** 2 * 2, np.linspace(0, 1.5, 40)[:, None].repeat(3, 1)])
+    display = np.rint(_through_view(scene, linear, str(tmp_path / "fwd.png")) * 255).astype(np.uint8)
+    shape = (len(display), 1, 1)
+    npz = str(tmp_path / "volume.npz")
+    cm = {"display_device": "sRGB", "view_transform": "AgX", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    np.savez(npz, density=np.ones(shape, np.float32), color=display.reshape(shape + (3,)),
+             box=np.array([[0.0, 0, 0], [1.0, 1, 1]]), spacing=np.ones(3), level=np.float64(1.0),
+             format=np.str_("nerf_bridge.volume"), version=np.int64(1), color_management=np.str_(json.dumps(cm)))
+    obj = geometry_import.import_volume(scene, npz)
+    assert obj[geometry_import.NOTES_PROPERTY] == ""  # the scene shows what the capture was rendered with
+    back = volume_files.read_vdb(bpy.path.abspath(obj.data.filepath), shape, geometry_import.openvdb_dirs())
+    shown = _through_view(scene, back["color"].reshape(-1, 3), str(tmp_path / "back.png"))
+    assert np.abs(shown - display / 255.0).max() <= 2.5 / 255
+    srgb = _through_view(scene, volume_files.srgb_to_linear(display / 255.0), str(tmp_path / "srgb.png"))
+    assert np.abs(srgb - display / 255.0).max() > 0.1  # what the sRGB curve alone gave
+    scene.view_settings.view_transform = "Standard"
+    other = geometry_import.import_volume(scene, npz, str(tmp_path / "other.vdb"))
+    assert "'AgX'" in other[geometry_import.NOTES_PROPERTY] and "'Standard'" in other[geometry_import.NOTES_PROPERTY]

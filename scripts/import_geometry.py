@@ -120,9 +120,12 @@ def main(argv) -> int:
         obj = getattr(geometry_import, IMPORTERS[args.kind])(scene, geometry)
     except (ValueError, RuntimeError, OSError) as exc:
         fail(PROG, f"{geometry}: cannot import the {args.kind}: {exc}")
+    notes = [n for n in str(obj.get(geometry_import.NOTES_PROPERTY, "")).split("\n") if n]
+    for note in notes:
+        print(f"{PROG}: note: {note}", file=sys.stderr)
     save_blend(PROG, out)
     print(json.dumps({"out": out, "kind": args.kind, "object": obj.name, "collection": obj.users_collection[0].name,
-                      "geometry": geometry, "export": summary}))
+                      "geometry": geometry, "export": summary, "notes": notes}))
     return 0
 
 

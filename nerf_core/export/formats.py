@@ -16,6 +16,7 @@ from typing import Any, Callable, Dict, Optional
 import numpy as np
 
 from nerf_core.cameras.rays import Cameras
+from nerf_core.contract import colour_management
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.exports import MESH, VOLUME, ExportFormat, export_format
 from nerf_core.errors import RunError
@@ -103,6 +104,14 @@ def _volume_summary(arrays: dict) -> dict:
 
 writer(MESH.name, mesh.BYTES_PER_SAMPLE, _extract_mesh,
        lambda path, m: ply.write_mesh_ply(path, m.vertices, m.faces, m.colors), lambda m: dict(m.info))
-writer(VOLUME.name, volume.BYTES_PER_SAMPLE,
-       lambda job: volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say),
-       volume.write_volume, _volume_summary)
+def _extract_volume(job: ExportJob) -> dict:
+    arrays = volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say)
+    cm = colour_management.recorded(job.run.config.dataset) if job.run.config.dataset else None
+    if cm is None:
+        job.note("the dataset records no colour management (no nerf_capture/manifest.json): "
+                 "the volume's colours are taken as sRGB (the Standard view transform)")
+    arrays["color_management"] = volume.colour_record(cm)
+    return arrays
+
+
+writer(VOLUME.name, volume.BYTES_PER_SAMPLE, _extract_volume, volume.write_volume, _volume_summary)

@@ -1,11 +1,14 @@
 """The exported volume renders as the NeRF does (issue 57 part 4): the density under the renderer's own
 empty-space rule, the colour where the density is."""
+import json
 import pathlib
 import re
 
 import numpy as np
 import torch
 
+from nerf_core.cli.main import main
+from nerf_core.contract import colour_management
 from nerf_core.export import field, grid, volume
 from nerf_core.methods.registry import build_model
 
@@ -77,3 +80,40 @@ def test_colour_reaches_one_node_past_the_opaque_nodes():
         near = near | np.roll(near, 1, axis=a) | np.roll(near, -1, axis=a)
     assert (near & ~opaque).sum() > 100  # a shell of nodes that were black before
     assert np.array_equal(coloured, near)
+
+
+def _capture(tmp_path, cm):
+    ds = tmp_path / "dataset"
+    (ds / "nerf_capture").mkdir(parents=True)
+    manifest = {"format": "nerf_bridge.capture", "render": {"color_management": cm}}
+    (ds / "nerf_capture" / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    return ds
+
+
+AGX = {"display_device": "sRGB", "view_transform": "AgX", "look": "None", "exposure": 0.5, "gamma": 1.0,
+       "sequencer_colorspace": "sRGB"}
+
+
+def test_the_capture_manifest_gives_its_colour_management(tmp_path):
+    ds = _capture(tmp_path, AGX)
+    assert colour_management.recorded(str(ds)) == {k: AGX[k] for k in colour_management.STANDARD}
+    assert colour_management.recorded(str(tmp_path / "nowhere")) is None
+    for bad in ({"view_transform": 3}, {"gamma": 0}, {"exposure": float("nan")}, "AgX"):
+        assert colour_management.recorded(str(_capture(tmp_path / str(len(str(bad))), bad))) is None
+
+
+def test_the_volume_file_carries_the_captures_view_transform(monkeypatch, tmp_path, capsys):
+    from nerf_core.tests.conftest import use_model
+    from nerf_core.tests.test_export_mesh import SphereModel
+
+    ds = _capture(tmp_path, AGX)
+    use_model(monkeypatch, SphereModel(), config={"dataset": str(ds)})
+    out = tmp_path / "v.npz"
+    assert main(["export", "volume", str(tmp_path / "run"), "--out", str(out), "--resolution", "16"]) == 0
+    assert json.loads(str(volume.read_volume(out)["color_management"]))["view_transform"] == "AgX"
+    use_model(monkeypatch, SphereModel(), config={"dataset": str(tmp_path / "no capture")})
+    out2 = tmp_path / "v2.npz"
+    assert main(["export", "volume", str(tmp_path / "run"), "--out", str(out2), "--resolution", "16"]) == 0
+    assert json.loads(str(volume.read_volume(out2)["color_management"])) == {}
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert any("records no colour management" in n for n in summary["notes"])
