@@ -108,3 +108,22 @@ def test_volume_colours_undo_the_captures_view_transform(tmp_path):
     scene.view_settings.view_transform = "Standard"
     other = geometry_import.import_volume(scene, npz, str(tmp_path / "other.vdb"))
     assert "'AgX'" in other[geometry_import.NOTES_PROPERTY] and "'Standard'" in other[geometry_import.NOTES_PROPERTY]
+
+
+def test_a_view_transform_without_an_inverse_or_a_look_is_noted():
+    from addon.compare import display_colours
+
+    scene = bpy.context.scene
+    base = {"display_device": "sRGB", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    to_linear, notes = display_colours.to_linear_for({**base, "view_transform": "False Color"}, scene)
+    assert any("cannot be undone" in n and "'False Color'" in n for n in notes)
+    grey = np.full((1, 3), 0.5, np.float32)
+    assert np.allclose(to_linear(grey), volume_files.srgb_to_linear(grey), atol=1e-6)  # taken as sRGB
+    _, notes = display_colours.to_linear_for({**base, "view_transform": "AgX", "look": "AgX - Punchy"}, scene)
+    assert any("look 'AgX - Punchy' is not undone" in n for n in notes)
+    to_linear, notes = display_colours.to_linear_for({}, scene)
+    assert any("records no colour management" in n for n in notes)
+    # exposure and gamma are undone: display = view(linear * 2^e) ^ (1 / g)
+    to_linear, _ = display_colours.to_linear_for({**base, "view_transform": "Standard", "exposure": 1.0,
+                                                  "gamma": 2.0}, scene)
+    assert np.allclose(to_linear(grey), volume_files.srgb_to_linear(grey ** 2) / 2, atol=1e-6)
