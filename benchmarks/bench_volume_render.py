@@ -58,6 +58,9 @@ def main(argv) -> int:
     ap.add_argument("--threads", type=int, default=0, help="Cycles' CPU threads (0: all)")
     ap.add_argument("--view-transform", help="render under this view transform (default: the scene's own)")
     ap.add_argument("--biased", choices=("on", "off"), help="Cycles' biased volume ray marching (default: the scene's)")
+    ap.add_argument("--denoise", choices=("on", "off"), help="Cycles' denoiser (default: the scene's)")
+    ap.add_argument("--pixel-filter", choices=("auto", "none"), default="auto",
+                    help="auto: both renders filter pixels as the capture did; none: one ray per pixel centre in both")
     ap.add_argument("--precision", choices=("FULL", "HALF", "VARIABLE"), help="the Volume's grid precision")
     ap.add_argument("--step-rate", type=float, help="Cycles' volume step rate (scene); needs --biased on")
     a = ap.parse_args(argv)
@@ -76,7 +79,7 @@ def main(argv) -> int:
         json.dump({k: v for k, v in meta.items() if k != "frames"} | {"frames": frames}, fh)
     nerf_dir = os.path.join(a.out, "nerf")
     if not os.path.isfile(os.path.join(nerf_dir, "renders.json")):
-        _nerf_core("render", a.run, "--cameras", cams, "--out", nerf_dir, "--no-bar")
+        _nerf_core("render", a.run, "--cameras", cams, "--out", nerf_dir, "--no-bar", "--pixel-filter", a.pixel_filter)
 
     import bpy
     from mathutils import Matrix
@@ -99,6 +102,10 @@ def main(argv) -> int:
     scene.render.engine = "CYCLES"
     if a.biased:
         scene.cycles.volume_biased = a.biased == "on"
+    if a.pixel_filter == "none":
+        scene.render.filter_size = 0.01  # Blender's least: a point sample at each pixel's centre
+    if a.denoise:
+        scene.cycles.use_denoising = a.denoise == "on"
     if a.step_rate:
         scene.cycles.volume_step_rate = a.step_rate
     scene.cycles.samples = a.samples
@@ -132,7 +139,8 @@ def main(argv) -> int:
         print(json.dumps(row), flush=True)
     summary = {k: float(np.mean([r[k] for r in rows])) for k in ("cycles_vs_nerf", "cycles_vs_truth", "nerf_vs_truth")}
     print(json.dumps({"views": len(rows), "samples": a.samples, "view_transform": scene.view_settings.view_transform,
-                      "biased": scene.cycles.volume_biased, "precision": obj.data.render.precision,
+                      "biased": scene.cycles.volume_biased, "denoise": scene.cycles.use_denoising,
+                      "precision": obj.data.render.precision,
                       **summary}))
     return 0
 

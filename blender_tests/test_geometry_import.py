@@ -98,6 +98,7 @@ def test_volume_colours_undo_the_captures_view_transform(tmp_path):
     np.savez(npz, density=np.ones(shape, np.float32), color=display.reshape(shape + (3,)),
              box=np.array([[0.0, 0, 0], [1.0, 1, 1]]), spacing=np.ones(3), level=np.float64(1.0),
              format=np.str_("nerf_bridge.volume"), version=np.int64(1), color_management=np.str_(json.dumps(cm)))
+    scene.cycles.volume_biased = True  # else the import turns it on and says so (below)
     obj = geometry_import.import_volume(scene, npz)
     assert obj[geometry_import.NOTES_PROPERTY] == ""  # the scene shows what the capture was rendered with
     back = volume_files.read_vdb(bpy.path.abspath(obj.data.filepath), shape, geometry_import.openvdb_dirs())
@@ -106,8 +107,10 @@ def test_volume_colours_undo_the_captures_view_transform(tmp_path):
     srgb = _through_view(scene, volume_files.srgb_to_linear(display / 255.0), str(tmp_path / "srgb.png"))
     assert np.abs(srgb - display / 255.0).max() > 0.1  # what the sRGB curve alone gave
     scene.view_settings.view_transform = "Standard"
+    scene.cycles.volume_biased = False
     other = geometry_import.import_volume(scene, npz, str(tmp_path / "other.vdb"))
     assert "'AgX'" in other[geometry_import.NOTES_PROPERTY] and "'Standard'" in other[geometry_import.NOTES_PROPERTY]
+    assert geometry_import.BIASED_NOTE in other[geometry_import.NOTES_PROPERTY] and scene.cycles.volume_biased
 
 
 def test_a_view_transform_without_an_inverse_or_a_look_is_noted():
@@ -127,3 +130,49 @@ def test_a_view_transform_without_an_inverse_or_a_look_is_noted():
     to_linear, _ = display_colours.to_linear_for({**base, "view_transform": "Standard", "exposure": 1.0,
                                                   "gamma": 2.0}, scene)
     assert np.allclose(to_linear(grey), volume_files.srgb_to_linear(grey ** 2) / 2, atol=1e-6)
+
+
+def _render_blocks(scene, npz, path):
+    """Cycles' render, from above, of the volume of ``npz`` (2 x 2 blocks of colour over [0, 1]^2):
+    the display values at the blocks' centres (4, 3)."""
+    from mathutils import Matrix
+    from PIL import Image
+
+    geometry_import.import_volume(scene, npz, path + ".vdb")
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(cam)
+    cam.data.type, cam.data.ortho_scale = "ORTHO", 1.0
+    cam.matrix_world = Matrix.Translation((0.5, 0.5, 3.0))
+    scene.camera = cam
+    scene.render.engine, scene.cycles.device, scene.cycles.samples = "CYCLES", "CPU", 16
+    scene.cycles.use_denoising, scene.render.film_transparent = False, True
+    scene.render.resolution_x = scene.render.resolution_y = 24
+    scene.render.resolution_percentage, scene.render.threads_mode, scene.render.threads = 100, "FIXED", 1
+    scene.render.image_settings.file_format, scene.render.filepath = "PNG", path + ".png"
+    bpy.ops.render.render(write_still=True)
+    im = np.asarray(Image.open(path + ".png").convert("RGB"), dtype=np.float64) / 255.0
+    return np.array([im[24 - 1 - y, x] for x, y in ((6, 6), (18, 6), (6, 18), (18, 18))])
+
+
+def test_cycles_shows_an_agx_captures_volume_in_the_nerfs_colours(tmp_path):
+    """The whole path, rendered: an opaque volume of four display colours from an AgX capture, in a
+    scene under AgX, comes out of Cycles as those colours (the sRGB curve alone is 13/255 off here)."""
+    scene = bpy.context.scene
+    scene.world = bpy.data.worlds.new("black")
+    scene.view_settings.view_transform, scene.view_settings.look = "AgX", "None"
+    linear = np.array([[0.02, 0.02, 0.02], [0.6, 0.6, 0.6], [0.5, 0.1, 0.05], [0.05, 0.2, 0.6]])
+    display = np.rint(_through_view(scene, linear, str(tmp_path / "fwd.png")) * 255).astype(np.uint8)
+    color = np.zeros((12, 12, 3, 3), np.uint8)
+    for n, (i, j) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        color[6 * i:6 * i + 6, 6 * j:6 * j + 6] = display[n]
+    density = np.full((12, 12, 3), 1000.0, np.float32)
+    density[:, :, 2] = 0.0  # the top nodes empty: above them Cycles interpolates towards the grid's black outside
+    npz = str(tmp_path / "volume.npz")
+    cm = {"display_device": "sRGB", "view_transform": "AgX", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    np.savez(npz, density=density, color=color, box=np.array([[0.0, 0, 0], [1.0, 1, 0.2]]),
+             spacing=np.array([1 / 11, 1 / 11, 0.1]), level=np.float64(1.0), format=np.str_("nerf_bridge.volume"),
+             version=np.int64(1), color_management=np.str_(json.dumps(cm)))
+    shown = _render_blocks(scene, npz, str(tmp_path / "agx"))
+    assert np.abs(shown - display / 255.0).max() <= 4 / 255
+    srgb = _through_view(scene, volume_files.srgb_to_linear(display / 255.0), str(tmp_path / "srgb.png"))
+    assert np.abs(srgb - display / 255.0).max() > 0.04  # what the sRGB curve alone gave (0.051)
