@@ -35,7 +35,8 @@ def parse(argv):
     ap.add_argument("--out", required=True, help=".blend to write")
     ap.add_argument("--geometry", metavar="FILE",
                     help="where the export goes (default: a new RUN/geometry/<kind>_NNN.ply or .npz)")
-    ap.add_argument("--resolution", type=int, metavar="N", help="samples per axis (default: the model's grid)")
+    ap.add_argument("--resolution", type=int, metavar="N",
+                    help="samples per axis (default: the model's grid; a volume twice that, at most 320)")
     ap.add_argument("--faces", type=int, metavar="N", help="mesh: decimate to about N faces")
     add_python_option(ap, "the export")
     ap.add_argument("--overwrite", action="store_true",

@@ -69,14 +69,17 @@ class Writer:
     extract: Callable[[ExportJob], Any]
     write: Callable[[Path, Any], None]
     summary: Callable[[Any], dict]
+    detail_scale: int = 1  # the default grid: this many samples per model cell along each axis
+    default_max: int = 0  # and no more than this per axis (0: no cap but the grid's own)
 
 
 WRITERS: Dict[str, Writer] = {}
 
 
-def writer(name: str, bytes_per_sample: float, extract, write, summary=lambda result: {}) -> Writer:
+def writer(name: str, bytes_per_sample: float, extract, write, summary=lambda result: {}, detail_scale: int = 1,
+           default_max: int = 0) -> Writer:
     """Register the writer of the declared format ``name`` (``contract.exports.declare`` first)."""
-    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary)
+    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary, detail_scale, default_max)
     WRITERS[name] = w
     return w
 
@@ -114,4 +117,9 @@ def _extract_volume(job: ExportJob) -> dict:
     return arrays
 
 
-writer(VOLUME.name, volume.BYTES_PER_SAMPLE, _extract_volume, volume.write_volume, _volume_summary)
+# The volume's default grid is twice the model's: Cycles interpolates colours between the nodes in light,
+# and at the model's own plane size that blurs what the field's decoder keeps sharp. Measured (Cycles
+# against the NeRF's render, 2 views, 128 samples, under the captures' AgX): multi 34.44 -> 37.38 dB,
+# highfreq 27.00 -> 29.23 dB at 320^3 (229 MB .npz, 320 MB .vdb) against 160^3; 320 per axis at most.
+writer(VOLUME.name, volume.BYTES_PER_SAMPLE, _extract_volume, volume.write_volume, _volume_summary,
+       detail_scale=2, default_max=320)

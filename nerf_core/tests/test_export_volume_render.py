@@ -11,6 +11,7 @@ from nerf_core.cli.main import main
 from nerf_core.contract import colour_management
 from nerf_core.export import field, grid, volume
 from nerf_core.methods.registry import build_model
+from nerf_core.tests.test_export_mesh import SphereModel
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 EXPORT_DIR = pathlib.Path(__file__).resolve().parents[1] / "export"
@@ -117,3 +118,31 @@ def test_the_volume_file_carries_the_captures_view_transform(monkeypatch, tmp_pa
     assert json.loads(str(volume.read_volume(out2)["color_management"])) == {}
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert any("records no colour management" in n for n in summary["notes"])
+
+
+class _SmallSphere(SphereModel):
+    def detail_resolution(self):
+        return 12
+
+
+def test_a_volume_defaults_to_twice_the_models_grid_and_a_mesh_to_its_own(monkeypatch, tmp_path, capsys):
+    from nerf_core.tests.conftest import use_model
+
+    use_model(monkeypatch, _SmallSphere())
+    assert main(["export", "volume", str(tmp_path / "run"), "--out", str(tmp_path / "v.npz")]) == 0
+    assert volume.read_volume(tmp_path / "v.npz")["density"].shape == (24, 24, 24)
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["resolution"] == 24
+    assert main(["export", "mesh", str(tmp_path / "run"), "--out", str(tmp_path / "m.ply")]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["resolution"] == 12
+
+
+def test_a_finer_default_that_does_not_fit_falls_back_to_the_models_grid_with_a_note(monkeypatch, tmp_path, capsys):
+    from nerf_core.tests.conftest import use_model
+
+    use_model(monkeypatch, _SmallSphere())
+    # room for 12^3 and the working set, not for 24^3
+    monkeypatch.setattr(grid, "available_memory", lambda: grid.CHUNK_BYTES + 12 ** 3 * volume.BYTES_PER_SAMPLE + 100)
+    assert main(["export", "volume", str(tmp_path / "run"), "--out", str(tmp_path / "v.npz")]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["resolution"] == 12
+    assert any("24^3 grid does not fit in memory" in n for n in summary["notes"])
