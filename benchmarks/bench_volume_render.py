@@ -1,12 +1,14 @@
 """The exported volume rendered by Cycles, against the NeRF's own render and Blender's ground truth.
 
     python benchmarks/bench_volume_render.py --blend SCENE.blend --run RUN --out DIR [--views 3] [--samples 64]
+        [--threads N] [--view-transform NAME]
 
 Exports the run's volume (``python -m nerf_core export volume``), renders the first ``--views`` test
 views of the run's dataset with ``python -m nerf_core render``, then, in Blender, hides the scene's own
 objects from the render, imports the volume (``addon/compare/geometry_import.py``: the add-on's own
-import) and renders the same cameras with Cycles (transparent film, Standard view transform, so the
-emission's colour comes out as the NeRF's). Each image is composited onto white, as ``eval`` does, and
+import, which undoes the capture's recorded view transform) and renders the same cameras with Cycles
+(transparent film, the scene's own colour management unless ``--view-transform``, as a user would).
+Each image is composited onto white, as ``eval`` does, and
 compared: Cycles' volume against the NeRF's render, and against the ground truth; the NeRF's render
 against the ground truth for reference. Prints one JSON line per view and a summary as the last line.
 """
@@ -53,6 +55,14 @@ def main(argv) -> int:
     ap.add_argument("--views", type=int, default=3)
     ap.add_argument("--samples", type=int, default=64)
     ap.add_argument("--resolution", type=int, help="volume samples per axis (default: the export's)")
+    ap.add_argument("--threads", type=int, default=0, help="Cycles' CPU threads (0: all)")
+    ap.add_argument("--view-transform", help="render under this view transform (default: the scene's own)")
+    ap.add_argument("--biased", choices=("on", "off"), help="Cycles' biased volume ray marching (default: the scene's)")
+    ap.add_argument("--denoise", choices=("on", "off"), help="Cycles' denoiser (default: the scene's)")
+    ap.add_argument("--pixel-filter", choices=("auto", "none"), default="auto",
+                    help="auto: both renders filter pixels as the capture did; none: one ray per pixel centre in both")
+    ap.add_argument("--precision", choices=("FULL", "HALF", "VARIABLE"), help="the Volume's grid precision")
+    ap.add_argument("--step-rate", type=float, help="Cycles' volume step rate (scene); needs --biased on")
     a = ap.parse_args(argv)
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.run, "config.json"), encoding="utf-8") as fh:
@@ -69,7 +79,7 @@ def main(argv) -> int:
         json.dump({k: v for k, v in meta.items() if k != "frames"} | {"frames": frames}, fh)
     nerf_dir = os.path.join(a.out, "nerf")
     if not os.path.isfile(os.path.join(nerf_dir, "renders.json")):
-        _nerf_core("render", a.run, "--cameras", cams, "--out", nerf_dir, "--no-bar")
+        _nerf_core("render", a.run, "--cameras", cams, "--out", nerf_dir, "--no-bar", "--pixel-filter", a.pixel_filter)
 
     import bpy
     from mathutils import Matrix
@@ -81,14 +91,28 @@ def main(argv) -> int:
     for obj in scene.objects:
         if obj.type != "CAMERA":
             obj.hide_render = True  # the NeRF's volume alone, on a transparent film
-    geometry_import.import_volume(scene, npz, os.path.join(a.out, "volume.vdb"))
+    if a.view_transform:  # before the import, which compares the scene's colour management with the capture's
+        scene.view_settings.view_transform = a.view_transform
+    obj = geometry_import.import_volume(scene, npz, os.path.join(a.out, "volume.vdb"))
+    for note in str(obj.get(geometry_import.NOTES_PROPERTY, "")).split("\n"):
+        if note:
+            print(f"note: {note}", file=sys.stderr)
+    if a.precision:
+        obj.data.render.precision = a.precision
     scene.render.engine = "CYCLES"
+    if a.biased:
+        scene.cycles.volume_biased = a.biased == "on"
+    if a.pixel_filter == "none":
+        scene.render.filter_size = 0.01  # Blender's least: a point sample at each pixel's centre
+    if a.denoise:
+        scene.cycles.use_denoising = a.denoise == "on"
+    if a.step_rate:
+        scene.cycles.volume_step_rate = a.step_rate
     scene.cycles.samples = a.samples
     scene.cycles.device = "CPU"
+    scene.render.threads_mode = "FIXED" if a.threads else "AUTO"
+    scene.render.threads = max(1, a.threads)
     scene.render.film_transparent = True
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
     w = int(frames[0].get("w", meta.get("w")))
     h = int(frames[0].get("h", meta.get("h")))
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
@@ -114,7 +138,10 @@ def main(argv) -> int:
         rows.append(row)
         print(json.dumps(row), flush=True)
     summary = {k: float(np.mean([r[k] for r in rows])) for k in ("cycles_vs_nerf", "cycles_vs_truth", "nerf_vs_truth")}
-    print(json.dumps({"views": len(rows), "samples": a.samples, **summary}))
+    print(json.dumps({"views": len(rows), "samples": a.samples, "view_transform": scene.view_settings.view_transform,
+                      "biased": scene.cycles.volume_biased, "denoise": scene.cycles.use_denoising,
+                      "precision": obj.data.render.precision,
+                      **summary}))
     return 0
 
 

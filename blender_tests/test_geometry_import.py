@@ -1,5 +1,6 @@
 """Geometry back into Blender: the volume round trip (npz -> .vdb -> Volume object -> grids back,
 equal) and the mesh import, each in its own collection and in the scene's frame."""
+import json
 import os
 
 import bpy
@@ -66,3 +67,112 @@ def test_mesh_import_keeps_positions_and_colours_in_its_collection(tmp_path):
     col = np.array([d.color for d in obj.data.color_attributes["Col"].data])[:, :3]
     assert np.allclose(col, volume_files.srgb_to_linear(c / 255.0), atol=2e-3)  # read as sRGB, stored linear
     assert obj.active_material is not None
+
+
+def _through_view(scene, linear, path):
+    """(m, 3) scene-linear colours as ``scene``'s colour management shows them: (m, 3) display values."""
+    from PIL import Image
+
+    img = bpy.data.images.new("lin", len(linear), 1, float_buffer=True, alpha=True)
+    px = np.ones((len(linear), 4), np.float32)
+    px[:, :3] = linear
+    img.pixels.foreach_set(px.ravel())
+    scene.render.image_settings.file_format = "PNG"
+    img.save_render(path, scene=scene)
+    bpy.data.images.remove(img)
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64).reshape(-1, 3) / 255.0
+
+
+def test_volume_colours_undo_the_captures_view_transform(tmp_path):
+    """A capture rendered under AgX: the volume's colours, shown through AgX, are the NeRF's colours
+    again (the sRGB curve alone is off by up to a fifth of the range), and a scene that shows another
+    view transform is told so."""
+    scene = bpy.context.scene
+    scene.view_settings.view_transform, scene.view_settings.look = "AgX", "None"
+    rng = np.random.default_rng(1)
+    linear = np.concatenate([rng.random((300, 3)) ** 2 * 2, np.linspace(0, 1.5, 40)[:, None].repeat(3, 1)])
+    display = np.rint(_through_view(scene, linear, str(tmp_path / "fwd.png")) * 255).astype(np.uint8)
+    shape = (len(display), 1, 1)
+    npz = str(tmp_path / "volume.npz")
+    cm = {"display_device": "sRGB", "view_transform": "AgX", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    np.savez(npz, density=np.ones(shape, np.float32), color=display.reshape(shape + (3,)),
+             box=np.array([[0.0, 0, 0], [1.0, 1, 1]]), spacing=np.ones(3), level=np.float64(1.0),
+             format=np.str_("nerf_bridge.volume"), version=np.int64(1), color_management=np.str_(json.dumps(cm)))
+    scene.cycles.volume_biased = True  # else the import turns it on and says so (below)
+    obj = geometry_import.import_volume(scene, npz)
+    assert obj[geometry_import.NOTES_PROPERTY] == ""  # the scene shows what the capture was rendered with
+    back = volume_files.read_vdb(bpy.path.abspath(obj.data.filepath), shape, geometry_import.openvdb_dirs())
+    shown = _through_view(scene, back["color"].reshape(-1, 3), str(tmp_path / "back.png"))
+    assert np.abs(shown - display / 255.0).max() <= 2.5 / 255
+    srgb = _through_view(scene, volume_files.srgb_to_linear(display / 255.0), str(tmp_path / "srgb.png"))
+    assert np.abs(srgb - display / 255.0).max() > 0.1  # what the sRGB curve alone gave
+    scene.view_settings.view_transform = "Standard"
+    scene.cycles.volume_biased = False
+    other = geometry_import.import_volume(scene, npz, str(tmp_path / "other.vdb"))
+    assert "'AgX'" in other[geometry_import.NOTES_PROPERTY] and "'Standard'" in other[geometry_import.NOTES_PROPERTY]
+    assert geometry_import.BIASED_NOTE in other[geometry_import.NOTES_PROPERTY] and scene.cycles.volume_biased
+
+
+def test_a_view_transform_without_an_inverse_or_a_look_is_noted():
+    from addon.compare import display_colours
+
+    scene = bpy.context.scene
+    base = {"display_device": "sRGB", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    to_linear, notes = display_colours.to_linear_for({**base, "view_transform": "False Color"}, scene)
+    assert any("cannot be undone" in n and "'False Color'" in n for n in notes)
+    grey = np.full((1, 3), 0.5, np.float32)
+    assert np.allclose(to_linear(grey), volume_files.srgb_to_linear(grey), atol=1e-6)  # taken as sRGB
+    _, notes = display_colours.to_linear_for({**base, "view_transform": "AgX", "look": "AgX - Punchy"}, scene)
+    assert any("look 'AgX - Punchy' is not undone" in n for n in notes)
+    to_linear, notes = display_colours.to_linear_for({}, scene)
+    assert any("records no colour management" in n for n in notes)
+    # exposure and gamma are undone: display = view(linear * 2^e) ^ (1 / g)
+    to_linear, _ = display_colours.to_linear_for({**base, "view_transform": "Standard", "exposure": 1.0,
+                                                  "gamma": 2.0}, scene)
+    assert np.allclose(to_linear(grey), volume_files.srgb_to_linear(grey ** 2) / 2, atol=1e-6)
+
+
+def _render_blocks(scene, npz, path):
+    """Cycles' render, from above, of the volume of ``npz`` (2 x 2 blocks of colour over [0, 1]^2):
+    the display values at the blocks' centres (4, 3)."""
+    from mathutils import Matrix
+    from PIL import Image
+
+    geometry_import.import_volume(scene, npz, path + ".vdb")
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(cam)
+    cam.data.type, cam.data.ortho_scale = "ORTHO", 1.0
+    cam.matrix_world = Matrix.Translation((0.5, 0.5, 3.0))
+    scene.camera = cam
+    scene.render.engine, scene.cycles.device, scene.cycles.samples = "CYCLES", "CPU", 16
+    scene.cycles.use_denoising, scene.render.film_transparent = False, True
+    scene.render.resolution_x = scene.render.resolution_y = 24
+    scene.render.resolution_percentage, scene.render.threads_mode, scene.render.threads = 100, "FIXED", 1
+    scene.render.image_settings.file_format, scene.render.filepath = "PNG", path + ".png"
+    bpy.ops.render.render(write_still=True)
+    im = np.asarray(Image.open(path + ".png").convert("RGB"), dtype=np.float64) / 255.0
+    return np.array([im[24 - 1 - y, x] for x, y in ((6, 6), (18, 6), (6, 18), (18, 18))])
+
+
+def test_cycles_shows_an_agx_captures_volume_in_the_nerfs_colours(tmp_path):
+    """The whole path, rendered: an opaque volume of four display colours from an AgX capture, in a
+    scene under AgX, comes out of Cycles as those colours (the sRGB curve alone is 13/255 off here)."""
+    scene = bpy.context.scene
+    scene.world = bpy.data.worlds.new("black")
+    scene.view_settings.view_transform, scene.view_settings.look = "AgX", "None"
+    linear = np.array([[0.02, 0.02, 0.02], [0.6, 0.6, 0.6], [0.5, 0.1, 0.05], [0.05, 0.2, 0.6]])
+    display = np.rint(_through_view(scene, linear, str(tmp_path / "fwd.png")) * 255).astype(np.uint8)
+    color = np.zeros((12, 12, 3, 3), np.uint8)
+    for n, (i, j) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        color[6 * i:6 * i + 6, 6 * j:6 * j + 6] = display[n]
+    density = np.full((12, 12, 3), 1000.0, np.float32)
+    density[:, :, 2] = 0.0  # the top nodes empty: above them Cycles interpolates towards the grid's black outside
+    npz = str(tmp_path / "volume.npz")
+    cm = {"display_device": "sRGB", "view_transform": "AgX", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    np.savez(npz, density=density, color=color, box=np.array([[0.0, 0, 0], [1.0, 1, 0.2]]),
+             spacing=np.array([1 / 11, 1 / 11, 0.1]), level=np.float64(1.0), format=np.str_("nerf_bridge.volume"),
+             version=np.int64(1), color_management=np.str_(json.dumps(cm)))
+    shown = _render_blocks(scene, npz, str(tmp_path / "agx"))
+    assert np.abs(shown - display / 255.0).max() <= 4 / 255
+    srgb = _through_view(scene, volume_files.srgb_to_linear(display / 255.0), str(tmp_path / "srgb.png"))
+    assert np.abs(srgb - display / 255.0).max() > 0.04  # what the sRGB curve alone gave (0.051)

@@ -35,7 +35,8 @@ def parse(argv):
     ap.add_argument("--out", required=True, help=".blend to write")
     ap.add_argument("--geometry", metavar="FILE",
                     help="where the export goes (default: a new RUN/geometry/<kind>_NNN.ply or .npz)")
-    ap.add_argument("--resolution", type=int, metavar="N", help="samples per axis (default: the model's grid)")
+    ap.add_argument("--resolution", type=int, metavar="N",
+                    help="samples per axis (default: the model's grid; a volume twice that, at most 320)")
     ap.add_argument("--faces", type=int, metavar="N", help="mesh: decimate to about N faces")
     add_python_option(ap, "the export")
     ap.add_argument("--overwrite", action="store_true",
@@ -120,9 +121,12 @@ def main(argv) -> int:
         obj = getattr(geometry_import, IMPORTERS[args.kind])(scene, geometry)
     except (ValueError, RuntimeError, OSError) as exc:
         fail(PROG, f"{geometry}: cannot import the {args.kind}: {exc}")
+    notes = [n for n in str(obj.get(geometry_import.NOTES_PROPERTY, "")).split("\n") if n]
+    for note in notes:
+        print(f"{PROG}: note: {note}", file=sys.stderr)
     save_blend(PROG, out)
     print(json.dumps({"out": out, "kind": args.kind, "object": obj.name, "collection": obj.users_collection[0].name,
-                      "geometry": geometry, "export": summary}))
+                      "geometry": geometry, "export": summary, "notes": notes}))
     return 0
 
 

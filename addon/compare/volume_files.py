@@ -8,15 +8,18 @@ Grids written (``shared/CONVENTIONS.md``, "A volume for Blender"):
 - ``density`` (float): sigma per scene unit, unchanged: the capture's frame is Blender's world, so a
   Blender unit is a scene unit and Cycles' density (per Blender unit) is the field's sigma.
 - ``color`` (vec3 float): the field's colour, converted from the display values the NeRF renders to
-  Blender's scene-linear values (the sRGB curve), so that under the Standard view transform an opaque
-  surface shows the colour the NeRF shows.
+  Blender's scene-linear values by the caller's ``to_linear`` (``display_colours.to_linear_for``: the
+  inverse of the capture's recorded view transform); the sRGB curve by default, right for a capture
+  rendered under Standard. Under the capture's own view transform an opaque surface then shows the
+  colour the NeRF shows.
 Both on one transform: voxel (i, j, k) is the grid node at ``box[0] + (i, j, k) * spacing``.
 """
 from __future__ import annotations
 
+import json
 import os
 import sys
-from typing import Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -69,6 +72,28 @@ def read_npz(path: str) -> dict:
     return arrays
 
 
+def recorded_colour_management(arrays: dict) -> dict:
+    """The volume file's ``color_management`` (the capture's view transform, exposure...); {} when the
+    file has none (older files) or it cannot be read."""
+    try:
+        cm = json.loads(str(arrays.get("color_management", "{}")))
+    except ValueError:
+        return {}
+    return cm if isinstance(cm, dict) else {}
+
+
+def linear_colours(color: np.ndarray, to_linear: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """(..., 3) uint8 display colours -> (..., 3) float32 scene-linear, ``to_linear`` called once on the
+    distinct colours (a few thousand, where the grid has millions of nodes); black stays black."""
+    flat = color.reshape(-1, 3)
+    keys = (flat[:, 0].astype(np.int32) << 16) | (flat[:, 1].astype(np.int32) << 8) | flat[:, 2]
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    rgb = np.stack([(uniq >> 16) & 255, (uniq >> 8) & 255, uniq & 255], axis=1).astype(np.float32) / 255.0
+    lin = np.asarray(to_linear(rgb), dtype=np.float32).reshape(-1, 3)
+    lin[uniq == 0] = 0.0  # nodes left uncoloured are no light, whatever a view transform makes of black
+    return lin[inverse.reshape(-1)].reshape(color.shape)
+
+
 def grid_matrix(box: np.ndarray, spacing: np.ndarray) -> list:
     """OpenVDB's 4x4 index-to-world matrix (row vectors: translation in the last row)."""
     m = np.diag([*np.asarray(spacing, dtype=np.float64), 1.0])
@@ -76,16 +101,19 @@ def grid_matrix(box: np.ndarray, spacing: np.ndarray) -> list:
     return m.tolist()
 
 
-def npz_to_vdb(npz_path: str, vdb_path: str, openvdb_dirs: Sequence[str] = ()) -> dict:
-    """Write ``vdb_path`` (grids ``density`` and ``color``) from a volume ``.npz``; returns its arrays."""
+def npz_to_vdb(npz_path: str, vdb_path: str, openvdb_dirs: Sequence[str] = (),
+               to_linear: Optional[Callable[[np.ndarray], np.ndarray]] = None, arrays: Optional[dict] = None) -> dict:
+    """Write ``vdb_path`` (grids ``density`` and ``color``) from a volume ``.npz`` (or its ``arrays``,
+    already read), the colours through ``to_linear`` ((m, 3) display values in [0, 1] -> scene-linear;
+    default: the sRGB curve); returns its arrays."""
     vdb = load_openvdb(openvdb_dirs)
-    arrays = read_npz(npz_path)
+    arrays = read_npz(npz_path) if arrays is None else arrays
     xform = vdb.createLinearTransform(grid_matrix(arrays["box"], arrays["spacing"]))
     density = vdb.FloatGrid()
     density.copyFromArray(np.ascontiguousarray(arrays["density"], dtype=np.float32))  # exact: tolerance 0
     density.name, density.transform = DENSITY, xform
     color = vdb.Vec3SGrid()
-    linear = srgb_to_linear(arrays["color"].astype(np.float32) / 255.0).astype(np.float32)
+    linear = linear_colours(arrays["color"], to_linear or (lambda c: srgb_to_linear(c).astype(np.float32)))
     color.copyFromArray(np.ascontiguousarray(linear))  # default tolerance: exact
     color.name, color.transform = COLOR, xform
     with partial_path(vdb_path, os.path.splitext(vdb_path)[0] + PARTIAL_SUFFIX + ".vdb") as tmp:  # never through a link

@@ -16,6 +16,7 @@ from typing import Any, Callable, Dict, Optional
 import numpy as np
 
 from nerf_core.cameras.rays import Cameras
+from nerf_core.contract import colour_management
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.exports import MESH, VOLUME, ExportFormat, export_format
 from nerf_core.errors import RunError
@@ -68,14 +69,17 @@ class Writer:
     extract: Callable[[ExportJob], Any]
     write: Callable[[Path, Any], None]
     summary: Callable[[Any], dict]
+    detail_scale: int = 1  # the default grid: this many samples per model cell along each axis
+    default_max: int = 0  # and no more than this per axis (0: no cap but the grid's own)
 
 
 WRITERS: Dict[str, Writer] = {}
 
 
-def writer(name: str, bytes_per_sample: float, extract, write, summary=lambda result: {}) -> Writer:
+def writer(name: str, bytes_per_sample: float, extract, write, summary=lambda result: {}, detail_scale: int = 1,
+           default_max: int = 0) -> Writer:
     """Register the writer of the declared format ``name`` (``contract.exports.declare`` first)."""
-    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary)
+    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary, detail_scale, default_max)
     WRITERS[name] = w
     return w
 
@@ -103,6 +107,19 @@ def _volume_summary(arrays: dict) -> dict:
 
 writer(MESH.name, mesh.BYTES_PER_SAMPLE, _extract_mesh,
        lambda path, m: ply.write_mesh_ply(path, m.vertices, m.faces, m.colors), lambda m: dict(m.info))
-writer(VOLUME.name, volume.BYTES_PER_SAMPLE,
-       lambda job: volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say),
-       volume.write_volume, _volume_summary)
+def _extract_volume(job: ExportJob) -> dict:
+    arrays = volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say)
+    cm = colour_management.recorded(job.run.config.dataset) if job.run.config.dataset else None
+    if cm is None:
+        job.note("the dataset records no colour management (no nerf_capture/manifest.json): "
+                 "the volume's colours are taken as sRGB (the Standard view transform)")
+    arrays["color_management"] = volume.colour_record(cm)
+    return arrays
+
+
+# The volume's default grid is twice the model's: Cycles interpolates colours between the nodes in light,
+# and at the model's own plane size that blurs what the field's decoder keeps sharp. Measured (Cycles
+# against the NeRF's render, 2 views, 128 samples, under the captures' AgX): multi 34.44 -> 37.38 dB,
+# highfreq 27.00 -> 29.23 dB at 320^3 (229 MB .npz, 320 MB .vdb) against 160^3; 320 per axis at most.
+writer(VOLUME.name, volume.BYTES_PER_SAMPLE, _extract_volume, volume.write_volume, _volume_summary,
+       detail_scale=2, default_max=320)

@@ -27,7 +27,8 @@ def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite:
 
     Args:
         kind: a declared export ("mesh", "volume"; ``contract.exports.EXPORTS``).
-        resolution: samples per axis of the scene box; None: the model's own (``field.grid_resolution``).
+        resolution: samples per axis of the scene box; None: ``default_resolution`` (the model's own,
+            ``field.grid_resolution``, twice that for a volume).
         options: the format's own options, by ``Option.dest`` (``n_faces=``, ``level=``...).
         on_progress: called with (stage, share done in [0, 1]); on_note: with each note, as it arises.
 
@@ -54,7 +55,7 @@ def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite:
     if field.models_the_world(model):
         note(WORLD_NOTE)
     box = model.aabb.detach().cpu().double().numpy()
-    res = int(resolution or field.grid_resolution(model))
+    res = int(resolution or default_resolution(make, field.grid_resolution(model), note))
     grid.check_fits(res, make.bytes_per_sample, fixed=grid.CHUNK_BYTES)
     job = formats.ExportJob(opened, box, res, options, on_progress or (lambda stage, share: None), note, notes)
     with named_out_of_memory(f"--resolution {res}", OUT_OF_MEMORY_ADVICE):
@@ -65,6 +66,22 @@ def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite:
     return {"out": str(Path(out).resolve()), "kind": kind, "run": str(Path(run).resolve()), "step": opened.step,
             "method": opened.checkpoint.get("method"), "box": box.tolist(), "resolution": res,
             **make.summary(result), "seconds": round(time.perf_counter() - started, 3), "notes": notes}
+
+
+def default_resolution(make: formats.Writer, own: int, note: Callable[[str], None]) -> int:
+    """The grid without ``--resolution``: the format's ``detail_scale`` times the model's own ``own``
+    (at most its ``default_max``), or ``own`` with a note when that finer grid would not fit in memory."""
+    res = own * make.detail_scale
+    res = min(res, make.default_max) if make.default_max else res
+    res = max(own, min(res, grid.MAX_RESOLUTION))
+    if res > own:
+        try:
+            grid.check_fits(res, make.bytes_per_sample, fixed=grid.CHUNK_BYTES)
+        except ValueError:
+            note(f"a {res}^3 grid does not fit in memory: exported at the model's own {own}^3 "
+                 "(--resolution chooses)")
+            return own
+    return res
 
 
 def export_mesh(run, out, resolution: Optional[int] = None, n_faces: Optional[int] = None,

@@ -6,12 +6,17 @@
   Blender's density is this sigma unchanged (no unit conversion; see docs/CONTRACTS.md).
 - ``color``: (nx, ny, nz, 3) uint8, the field's colour (display-referred, as the NeRF renders it)
   seen head-on, looking up the density's gradient into the object (the mesh's vertex colour rule); black where
-  one grid step is less than 0.1 % opaque, where colour cannot show (and costs the most queries).
+  one grid step is less than 0.1 % opaque, where colour cannot show (and costs the most queries), unless a
+  neighbouring node is more opaque (``_near_opaque``: interpolation must not fade the colour at a surface).
 - ``box`` (2, 3) float64, ``spacing`` (3,) float64, ``level`` (the mesh's surface density),
   ``format`` "nerf_bridge.volume", ``version`` 1.
+- ``color_management`` (optional; a JSON object as a string): the view transform the capture's images
+  were rendered with (``contract.colour_management``), which the import undoes to turn ``color`` back
+  into scene-linear light; "{}" when unknown (the colours are then taken as sRGB).
 """
 from __future__ import annotations
 
+import json
 import zipfile
 from pathlib import Path
 from typing import Callable, Optional
@@ -44,6 +49,23 @@ def _into(density: np.ndarray, idx: np.ndarray, step: np.ndarray) -> np.ndarray:
     return d  # the gradient points into the object: a camera looking at the surface looks along it
 
 
+def _near_opaque(density: np.ndarray, i0: int, i1: int, threshold: float) -> np.ndarray:
+    """(i1 - i0, ny, nz) bool: the nodes of slab ``i0 <= i < i1`` with a node above ``threshold`` among
+    themselves and their 26 neighbours. Why the neighbours: a renderer interpolates the colour grid
+    trilinearly, so between a coloured node and a black one just outside the surface the colour fades
+    to black while the density there is still high (a dark rim on every silhouette)."""
+    lo, hi = max(0, i0 - 1), min(density.shape[0], i1 + 1)
+    m = density[lo:hi] > threshold
+    for a in range(3):  # the 3x3x3 box as three 1-D maxima
+        d = m.copy()
+        src, dst = [slice(None)] * 3, [slice(None)] * 3
+        src[a], dst[a] = slice(0, -1), slice(1, None)
+        d[tuple(dst)] |= m[tuple(src)]
+        d[tuple(src)] |= m[tuple(dst)]
+        m = d
+    return m[i0 - lo:i0 - lo + (i1 - i0)]
+
+
 def volume_grids(model, box: np.ndarray, resolution: int,
                  on_progress: Optional[Callable[[str, float], None]] = None) -> dict:
     """The arrays of the volume file (see the module docstring) for ``model`` inside ``box`` (2, 3)."""
@@ -59,7 +81,7 @@ def volume_grids(model, box: np.ndarray, resolution: int,
     per_slab = max(1, grid.CHUNK_POINTS // (res * res))
     for i0 in range(0, res, per_slab):
         i1 = min(res, i0 + per_slab)
-        part = np.argwhere(density[i0:i1] > threshold)
+        part = np.argwhere(_near_opaque(density, i0, i1, threshold))
         part[:, 0] += i0
         for s in range(0, len(part), grid.CHUNK_POINTS):
             idx = part[s:s + grid.CHUNK_POINTS]
@@ -69,6 +91,11 @@ def volume_grids(model, box: np.ndarray, resolution: int,
     return {"density": density, "color": color, "box": np.asarray(box, dtype=np.float64), "spacing": step,
             "level": np.float64(grid.iso_level(box, resolution)), "format": np.str_(FORMAT),
             "version": np.int64(VERSION)}
+
+
+def colour_record(cm: Optional[dict]) -> np.ndarray:
+    """The ``color_management`` member: ``cm`` (``contract.colour_management.recorded``) as JSON text."""
+    return np.str_(json.dumps(cm or {}, sort_keys=True))
 
 
 def write_volume(path: Path | str, arrays: dict) -> None:

@@ -215,6 +215,12 @@ class RadianceModel(nn.Module):
         """Colour (m, 3) in [0, 1] at world points (m, 3) seen along unit directions (m, 3), without grad."""
         raise NotImplementedError(f"method {self.method_name!r} does not offer its colour at points")
 
+    def sampled_at(self, pts: torch.Tensor) -> torch.Tensor:
+        """(m,) bool at world points (m, 3): False where the renderer skips space without sampling it
+        (an occupancy grid's empty cells), so that the density there never reaches a render. An export
+        gives those points zero density (``export.field.density``). True everywhere by default."""
+        return torch.ones(pts.shape[0], dtype=torch.bool, device=pts.device)
+
     def detail_resolution(self) -> int:
         """Samples per axis of the scene box that match the model's own detail (the export's default
         grid): 256 unless the method knows better."""

@@ -285,6 +285,11 @@ class NeRF(RadianceModel):
         return (self.fine if self.fine is not None else self.coarse).density(pts)
 
     @torch.no_grad()
+    def sampled_at(self, pts: Tensor) -> Tensor:
+        # the occupancy sampler marches where its grid is occupied; the hierarchical one everywhere
+        return super().sampled_at(pts) if self.occupancy is None else self.occupancy.query(pts)
+
+    @torch.no_grad()
     def colour_at(self, pts: Tensor, dirs: Tensor) -> Tensor:
         return (self.fine if self.fine is not None else self.coarse)(pts, dirs)[1]
 

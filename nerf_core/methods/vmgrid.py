@@ -354,6 +354,11 @@ class VMGrid(RadianceModel):
     def colour_at(self, pts: Tensor, dirs: Tensor) -> Tensor:
         return self.field.lookup().color(self.warp(pts), dirs)
 
+    @torch.no_grad()
+    def sampled_at(self, pts: Tensor) -> Tensor:
+        # the rule ``_samples`` marches by: a sample is taken where the occupancy grid says occupied
+        return self.occupancy.query(self.warp(pts))
+
     def detail_resolution(self) -> int:
         """The planes' size (halved when the grid spans the contracted world, twice the box)."""
         res = int(self.field.resolution)

@@ -314,7 +314,9 @@ def test_cli_writes_the_volume_file_of_the_contract(fake_run, tmp_path, capsys):
     assert (v["density"][inside] > 1e3).all() and (v["density"][r > RADIUS + 0.1] < 1e-3).all()
     top, bottom = inside & (pts[..., 2] > 0.05), inside & (pts[..., 2] < -0.05)
     assert (v["color"][top] == [255, 0, 0]).all() and (v["color"][bottom] == [0, 0, 255]).all()
-    assert not v["color"][r > RADIUS + 0.1].any()  # no colour where nothing is
+    # no colour where nothing is: the surface's nodes and their neighbours (one diagonal step, for
+    # Cycles' interpolation) are coloured, nothing farther out
+    assert not v["color"][r > RADIUS + 0.1 + float(np.linalg.norm(v["spacing"]))].any()
     assert summary["resolution"] == 24 and summary["density_range"][1] > 1e3
 
 

@@ -52,6 +52,8 @@ ALLOWED = {
         "checked as no link just before: a rename writes no content",
     ("addon/capture/files/frame_files.py", "save_render"):
         "the render passes' scratch EXR, in the capture's private scratch folder, read and removed at once",
+    ("addon/compare/display_colours.py", "save"):
+        "a scratch EXR of colours in its own new tempfile.TemporaryDirectory, read back and removed at once",
 }
 
 
