@@ -9,9 +9,10 @@ export carries this record along (``export.volume``). Standard library only: the
 from __future__ import annotations
 
 import json
-import math
 import os
 from typing import Optional
+
+from .numbers import is_number
 
 CAPTURE_MANIFEST = os.path.join("nerf_capture", "manifest.json")
 TEXT_FIELDS = ("display_device", "view_transform", "look")
@@ -42,7 +43,7 @@ def recorded(dataset_dir: str) -> Optional[dict]:
     for key in NUMBER_FIELDS:
         if key in cm:
             value = cm[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not is_number(value):
                 return None
             out[key] = float(value)
     return out if out["gamma"] > 0 else None
