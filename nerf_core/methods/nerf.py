@@ -125,9 +125,10 @@ class NeRF(RadianceModel):
         """Marching step in scene units: ``march_steps`` per box diagonal, coarser until the grid prunes."""
         diag = float((self.aabb[1] - self.aabb[0]).norm())
         step = diag / float(self.opts.march_steps)
-        # the share of the box, carved cells (``train --depth``) included: the coarse step is only there
-        # to make rays across a wholly occupied box cheap, and it would jump over a carved grid's thin shell
-        pruned = self.occupancy is not None and self.occupancy.occupied_fraction < 0.95
+        # the coarse step only makes rays across a wholly occupied box cheap; a grid the capture carved to
+        # a shell (``train --depth``) is marched finely at once, since the coarse step would jump over it
+        grid = self.occupancy
+        pruned = grid is not None and (grid.learnt_fraction < 0.95 or grid.shell_only)
         return step if pruned else step * float(self.opts.warmup_step_scale)
 
     def training_hook(self, step, frac) -> bool:

@@ -120,9 +120,6 @@ class VMGrid(RadianceModel):
     # box with no empty space to prune: an interior, where every ray ends on a wall. An object scene's
     # rays that miss the object keep this far lower, so the occupancy grid decides there as before.
     OPAQUE_RAYS = 0.9
-    # Occupied share of the box below which a grid carved from the capture marches finely from step 0
-    # (``step_size``): multi and thin keep 21-27 % after carving, highfreq 80 %.
-    CARVED_SHELL = 0.5
 
     def formed(self) -> bool:
         """True once coarse geometry exists: the occupancy grid prunes, or nearly every ray is stopped.
@@ -150,12 +147,10 @@ class VMGrid(RadianceModel):
         is per unit length, so nothing learnt is invalidated when the step refines.
         """
         s = self.opts.step_ratio * self.field.voxel_size()
-        # A grid carved from the capture (``train --depth``) down to a shell around the surfaces: its
-        # rays cross only that shell, which the coarse step would jump over, and they are short. Where
-        # the carving left most of the box (a scene that fills it: highfreq keeps 80 %), the fine step
-        # would make every early step cross the whole box finely: 2.1 dB lost at 60 s with 0.95 here.
-        carved = self.occupancy.occupied_fraction < self.CARVED_SHELL
-        return s if self.formed() or carved else s * self.opts.warmup_step_scale
+        # A grid carved from the capture (``train --depth``) down to a shell is marched finely at once
+        # (``OccupancyGrid.shell_only``). Where the carving left most of the box, the fine step would make
+        # every early step cross it finely: highfreq lost 2.1 dB at 60 s when any carving counted.
+        return s if self.formed() or self.occupancy.shell_only else s * self.opts.warmup_step_scale
 
     def training_hook(self, step, frac) -> bool:
         o = self.opts
