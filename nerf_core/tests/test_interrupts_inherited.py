@@ -36,3 +36,28 @@ def test_ignored_and_blocked_interrupts_are_honoured_again():
                          preexec_fn=_hostile_parent)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["(True,", "True)", "(True,", "False)"], out.stdout
+
+
+HUP_PROBE = """
+import signal
+from nerf_core.utils.interrupts import honour_interrupts
+blocked = lambda: signal.SIGHUP in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+before = blocked()
+honour_interrupts()
+print(before, blocked(), signal.getsignal(signal.SIGHUP) == signal.SIG_IGN)
+"""
+
+
+@pytest.mark.skipif(os.name != "posix", reason="signal masks are POSIX")
+@pytest.mark.parametrize("ignored", [False, True])
+def test_a_blocked_sighup_is_unblocked_and_an_ignored_one_stays_ignored(ignored):
+    def parent():
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+        if ignored:  # what nohup does: the run must survive the terminal closing
+            signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    out = subprocess.run([sys.executable, "-c", HUP_PROBE], capture_output=True, text=True, env=env, timeout=60,
+                         preexec_fn=parent)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "False", str(ignored)], out.stdout

@@ -115,8 +115,11 @@ def test_a_killed_run_resumes_or_tells_the_truth(dataset_factory, tmp_path, k):
 def _stop_after_first_checkpoint(ds, run, how: str) -> subprocess.CompletedProcess:
     """Start a trainer and, once its first checkpoint exists, stop it ``how``: "SIGHUP" (a closed
     terminal or ssh connection) or "closed stdout" (``train ... | head``: the reader goes away)."""
+    # the trainer starts as from a terminal: SIGHUP at its default, whatever the test worker inherited
+    # (an ignored SIGHUP, as nohup leaves it, is rightly kept ignored by the trainer)
     proc = subprocess.Popen(_train(ds, run, "--max-steps", "100000", "--log-every", "1"), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=_env(), cwd=REPO_ROOT)
+                            stderr=subprocess.PIPE, env=_env(), cwd=REPO_ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 60
         while not (run / "checkpoints" / "latest.pt").is_file() and time.monotonic() < deadline:

@@ -16,15 +16,18 @@ import threading
 
 def honour_interrupts() -> None:
     """Make Ctrl-C (SIGINT) and SIGTERM reach this process even if its parent left them ignored or
-    blocked: both are inherited across exec, and a parent such as Blender, a farm manager or a test
-    runner may have either in force when it starts us. Without this, Cancel could only end the
-    trainer with SIGKILL, after the add-on's grace period, and no checkpoint would be saved."""
+    blocked (and SIGHUP if it was blocked): both are inherited across exec, and a parent such as
+    Blender, a farm manager or a test runner may have either in force when it starts us. Without
+    this, Cancel could only end the trainer with SIGKILL, after the add-on's grace period, and no
+    checkpoint would be saved."""
     if threading.current_thread() is not threading.main_thread():
         return
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if hasattr(signal, "pthread_sigmask"):  # POSIX
-        wanted = {signal.SIGINT} | ({signal.SIGTERM} if hasattr(signal, "SIGTERM") else set())
+        # SIGHUP too: a blocked hangup is no ``nohup`` (which ignores it, and an ignored SIGHUP stays
+        # ignored: ``_stop_signals``); blocked, a closed terminal would leave the trainer running unseen
+        wanted = {getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
         signal.pthread_sigmask(signal.SIG_UNBLOCK, wanted)
 
 
