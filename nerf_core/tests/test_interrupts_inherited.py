@@ -51,10 +51,10 @@ print(before, blocked(), signal.getsignal(signal.SIGHUP) == signal.SIG_IGN)
 @pytest.mark.skipif(os.name != "posix", reason="signal masks are POSIX")
 @pytest.mark.parametrize("ignored", [False, True])
 def test_a_blocked_sighup_is_unblocked_and_an_ignored_one_stays_ignored(ignored):
-    def parent():
+    def parent():  # set both ways: the test runner itself may run under nohup
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
-        if ignored:  # what nohup does: the run must survive the terminal closing
-            signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        # ignored is what nohup does: the run must then survive the terminal closing
+        signal.signal(signal.SIGHUP, signal.SIG_IGN if ignored else signal.SIG_DFL)
 
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     out = subprocess.run([sys.executable, "-c", HUP_PROBE], capture_output=True, text=True, env=env, timeout=60,
