@@ -385,7 +385,7 @@ class Trainer:
         t0 = time.perf_counter()
         hook_frac, frac = state.update_budget(self.cfg.max_steps, self.cfg.max_seconds)  # once per step
         self._hook(hook_frac, frac)
-        batch = batcher.sample(self.decisions.batch_rays, frac)
+        batch = batcher.sample(model.rays_per_step(self.decisions.batch_rays), frac)
         out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, self.dataset.near, self.dataset.far,
                                  training=True)
         loss, mse = model.loss(out, batch.target, batch.weight)

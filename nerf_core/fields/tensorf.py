@@ -61,6 +61,31 @@ def upgrade_state_dict(state: dict, prefix: str = "") -> dict:
     return state
 
 
+def upgrade_checkpoint(weights: dict, optimizer_state=None) -> tuple:
+    """Checkpoints saved before the grids were stored channels-last: keys ``field.density_planes``
+    ... in (3, R, N, N) / (3, R, N, 1) order become ``field.density_planes_cl`` ... in (3, N, N, R) /
+    (3, N, R) order, and so do the Adam moments of the ``grids`` group (same parameter order)."""
+    old = [f"field.{name}" in weights for name in GRID_NAMES]
+    if not any(old):
+        return weights, optimizer_state
+    weights = upgrade_state_dict(dict(weights), "field.")
+    if not (isinstance(optimizer_state, dict) and isinstance(optimizer_state.get("state"), dict)
+            and isinstance(optimizer_state.get("param_groups"), list)):
+        return weights, optimizer_state
+    state = dict(optimizer_state["state"])
+    for group in optimizer_state["param_groups"]:
+        if not (isinstance(group, dict) and group.get("name") == "grids"):
+            continue
+        for pid, name in zip(group.get("params", []), GRID_NAMES):
+            moments = state.get(pid)
+            if not isinstance(moments, dict):
+                continue
+            convert = planes_to_stored if name.endswith("planes") else lines_to_stored
+            state[pid] = {k: convert(v) if isinstance(v, torch.Tensor) and v.dim() == 4 else v
+                          for k, v in moments.items()}
+    return weights, {**optimizer_state, "state": state}
+
+
 class TensorVMField(nn.Module):
     """VM-factorised density and appearance grids with a small view-dependent colour MLP.
 

@@ -175,7 +175,8 @@ class RadianceModel(nn.Module):
         Returns:
             dict with ``rgb`` (n_rays, 3), ``depth`` (n_rays,) distance along the ray, ``acc``
             (n_rays,) opacity, and optionally ``aux_loss`` (scalar, added by ``loss``), ``n_samples``
-            (int, samples evaluated for this batch) and what the method's own ``loss`` reads.
+            (int, samples evaluated for this batch), ``fits`` ((n_rays,) bool: the rays that a fixed-size
+            step rendered whole; ``loss`` leaves the others out) and what the method's own ``loss`` reads.
         """
         raise NotImplementedError
 
@@ -198,6 +199,9 @@ class RadianceModel(nn.Module):
             (loss, mse): scalar tensors; ``mse`` is the colour error that the PSNR is reported from.
             A method extends the loss by overriding this and adding to ``super().loss(...)``'s.
         """
+        fits = out.get("fits")  # (n,) bool: rays whose samples all fitted a fixed-size step's buffers
+        if fits is not None:
+            weight = fits.to(out["rgb"].dtype) if weight is None else weight * fits
         mse = masked_mse(out["rgb"], target, weight)
         loss = mse
         if out.get("aux_loss") is not None:
@@ -282,6 +286,12 @@ class RadianceModel(nn.Module):
                 step touched there (the cells of a grid, say) can update only that.
         """
         opt.step()
+
+    def rays_per_step(self, batch_rays: int) -> int:
+        """Rays the next training step draws: ``batch_rays`` (``--batch-rays`` or the method's default),
+        unless the method sizes its steps by samples (vmgrid's ``sample_budget``). Called before each
+        step's batch; a method changes its answer on its periodic steps only, so shapes stay fixed."""
+        return batch_rays
 
     def training_hook(self, step: int, frac: float | None) -> bool:
         """Called by the trainer before each step (occupancy updates, coarse-to-fine growth).

@@ -28,14 +28,15 @@ from nerf_core.contract.numbers import is_whole
 from nerf_core.fields import tensorf, vm_products
 from nerf_core.fields.tensorf import TensorVMField
 from nerf_core.fields.vm_touched import TouchedRows
-from nerf_core.methods import growth
+from nerf_core.methods import fixed_step, growth
 from nerf_core.methods.base import RadianceModel, density_length
 from nerf_core.methods.registry import register
+from nerf_core.methods.sample_budget import SampleBudget
 from nerf_core.methods.vmgrid_options import VMGridOptions
 from nerf_core.optim import RowSparseAdam
 from nerf_core.utils import profiling
 from nerf_core.utils.running_mean import RunningMean
-from nerf_core.volume import grad_scaling, marching, sampling, volrend
+from nerf_core.volume import grad_scaling, marching, padded, sampling, volrend
 from nerf_core.volume.contraction import outer_box, squeeze_into_outer_box
 from nerf_core.volume.occupancy import OccupancyGrid
 
@@ -97,6 +98,9 @@ class VMGrid(RadianceModel):
         self.opacity = RunningMean(0.0)
         self._near_gate, self._reach_units = grad_scaling.NearCameraGate(), None
         self._last_growth_step = 0
+        # ``sample_budget``: the fixed-shape step's sizes (made with the first batch), and the marching
+        # step they were measured at (a finer step rescales them at once, ``SampleBudget.rescale``)
+        self.budget, self._budget_step, self._box_cpu = None, None, None
 
     # ------------------------------------------------------------------ schedule
 
@@ -159,6 +163,8 @@ class VMGrid(RadianceModel):
         every = o.occ_every if step < 50 * o.occ_every else 2 * o.occ_every
         if step > 0 and step % every == 0:  # periodic steps may wait for the device: read what it keeps
             self.opacity.read()
+            if self.budget is not None:
+                self.budget.adapt()
             self._near_gate.recheck()
             self.update_occupancy()
         if frac is None:  # no budget given: growth follows an assumed ``budget_steps``
@@ -316,28 +322,8 @@ class VMGrid(RadianceModel):
                 else f"grid_sample, a slower fallback ({why})"}
 
     def upgrade_checkpoint(self, weights: dict, optimizer_state=None) -> tuple:
-        """Checkpoints saved before the grids were stored channels-last: keys ``field.density_planes``
-        ... in (3, R, N, N) / (3, R, N, 1) order become ``field.density_planes_cl`` ... in (3, N, N, R) /
-        (3, N, R) order, and so do the Adam moments of the ``grids`` group (same parameter order)."""
-        old = [f"field.{name}" in weights for name in tensorf.GRID_NAMES]
-        if not any(old):
-            return weights, optimizer_state
-        weights = tensorf.upgrade_state_dict(dict(weights), "field.")
-        if not (isinstance(optimizer_state, dict) and isinstance(optimizer_state.get("state"), dict)
-                and isinstance(optimizer_state.get("param_groups"), list)):
-            return weights, optimizer_state
-        state = dict(optimizer_state["state"])
-        for group in optimizer_state["param_groups"]:
-            if not (isinstance(group, dict) and group.get("name") == "grids"):
-                continue
-            for pid, name in zip(group.get("params", []), tensorf.GRID_NAMES):
-                moments = state.get(pid)
-                if not isinstance(moments, dict):
-                    continue
-                convert = vm_products.planes_to_stored if name.endswith("planes") else vm_products.lines_to_stored
-                state[pid] = {k: convert(v) if isinstance(v, torch.Tensor) and v.dim() == 4 else v
-                              for k, v in moments.items()}
-        return weights, {**optimizer_state, "state": state}
+        """Checkpoints saved before the grids were stored channels-last (``tensorf.upgrade_checkpoint``)."""
+        return tensorf.upgrade_checkpoint(weights, optimizer_state)
 
     # ------------------------------------------------------------------ rendering
 
@@ -370,8 +356,29 @@ class VMGrid(RadianceModel):
         t0 = torch.full(rays_o.shape[:1], float(near or 0.0), dtype=rays_d.dtype, device=rays_d.device)
         return t0, torch.full_like(t0, float("inf"))
 
+    def rays_per_step(self, batch_rays: int) -> int:
+        """``batch_rays`` rays, or with ``sample_budget`` as many as fill it (at most 4x ``batch_rays``)."""
+        if not self.opts.sample_budget or self.contracted:
+            return batch_rays
+        step = self.step_size()
+        n_steps = self._steps_per_ray(step)
+        if self.budget is None:
+            run = int(2 * self.occupancy.near_reach() / step) + 1
+            self.budget, self._budget_step = SampleBudget(self.opts.sample_budget, 4 * batch_rays, n_steps, run), step
+        elif step != self._budget_step:  # the marching step changed (geometry formed, the grid grew)
+            self.budget.rescale(self._budget_step / step)
+            self._budget_step = step
+        return self.budget.rays
+
+    def _steps_per_ray(self, step: float) -> int:
+        if self._box_cpu is None:  # the box is fixed: read once (on a GPU a read waits for the device)
+            self._box_cpu = self.aabb.detach().cpu()
+        return padded.steps_for_box(self._box_cpu, step, 4096)
+
     def render_rays(self, rays_o, rays_d, near, far, background, training):
         n_rays = rays_o.shape[0]
+        if training and self.budget is not None and torch.is_grad_enabled() and n_rays:
+            return self._render_fixed(rays_o, rays_d, near, far, background)
         t0, t1, ridx = self._samples(rays_o, rays_d, near, far, training)
         pts = self.warp(sampling.ray_points(rays_o, rays_d, ridx, 0.5 * (t0 + t1)))
         gscale = None
@@ -415,6 +422,22 @@ class VMGrid(RadianceModel):
             aux = self._regularisers(weights, t0, t1, ridx, n_rays)
             if torch.is_tensor(aux):
                 out["aux_loss"] = aux
+        return out
+
+    def _render_fixed(self, rays_o, rays_d, near, far, background):
+        """The training render with every shape fixed before the step (``fixed_step``, ``sample_budget``)."""
+        if self.field.touched is not None:
+            self.field.touched.clear()
+        reach = self._reach()
+        out = fixed_step.render_fixed(rays_o, rays_d, near, far, background, self.budget, self._budget_step,
+                                      self._steps_per_ray(self._budget_step), self.occupancy, self._density,
+                                      self.field.color, self.opts.color_weight,
+                                      lambda t: self._near_gate.scales(t, reach))
+        self.opacity.add(out["acc"])
+        aux = self._regularisers(out.pop("weights"), out.pop("t_starts"), out.pop("t_ends"), out.pop("ray_indices"),
+                                 rays_o.shape[0])
+        if torch.is_tensor(aux):
+            out["aux_loss"] = aux
         return out
 
     def _regularisers(self, weights, t0, t1, ridx, n_rays):

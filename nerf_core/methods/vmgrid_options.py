@@ -84,6 +84,8 @@ class VMGridOptions(MethodOptions):
                                  "over the cells the step's rays touched", choices=("adam", "sparse"))
     sparse_bias: str = option("none", "the sparse Adam's bias correction: none, or a step count per cell",
                               choices=BIAS_MODES)
+    sample_budget: int = option(0, "samples per training step, in buffers of fixed size, with the rays per step "
+                                   "following (0: a fixed number of rays per step instead)", low=0, high=1 << 24)
 
     def check_together(self, method: str) -> None:
         # The grid grows from res_init to res_final: the other way round it would shrink, which growth

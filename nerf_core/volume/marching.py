@@ -77,7 +77,7 @@ def colour_where_it_matters(weights: Tensor, acc: Tensor, ray_indices: Tensor, m
 
 def composite(weights: Tensor, ray_indices: Tensor, t_starts: Tensor, t_ends: Tensor, n_rays: int,
               background: Tensor, rgb: Tensor, coloured: Optional[Tensor] = None,
-              acc: Optional[Tensor] = None) -> Dict[str, Tensor]:
+              acc: Optional[Tensor] = None, coloured_pad: Optional[Tensor] = None) -> Dict[str, Tensor]:
     """Add up a ray batch's packed samples.
 
     Args:
@@ -89,6 +89,8 @@ def composite(weights: Tensor, ray_indices: Tensor, t_starts: Tensor, t_ends: Te
         rgb: (k, 3) colour of every sample, or (j, 3) of the samples at ``coloured`` only.
         coloured: (j,) long positions that ``rgb`` colours (``colour_where_it_matters``), or None.
         acc: (n_rays,) the rays' opacity when the caller already summed it, else None.
+        coloured_pad: (j,) bool, the entries of ``coloured`` that are a fixed-size buffer's padding
+            (``padded.compact``): they repeat a sample, so their weight is left out of the colour.
 
     Returns:
         {"rgb": (n_rays, 3) on the background, "depth": (n_rays,) expected distance (normalised by the
@@ -100,8 +102,10 @@ def composite(weights: Tensor, ray_indices: Tensor, t_starts: Tensor, t_ends: Te
         if coloured is None:
             colour = volrend.accumulate_along_rays_packed(weights, ray_indices, n_rays, rgb)
         else:
-            colour = volrend.accumulate_along_rays_packed(weights.index_select(0, coloured),
-                                                          ray_indices.index_select(0, coloured), n_rays, rgb)
+            w = weights.index_select(0, coloured)
+            if coloured_pad is not None:
+                w = w.masked_fill(coloured_pad, 0.0)
+            colour = volrend.accumulate_along_rays_packed(w, ray_indices.index_select(0, coloured), n_rays, rgb)
         mids = (0.5 * (t_starts + t_ends)).unsqueeze(-1)
         depth = volrend.accumulate_along_rays_packed(weights, ray_indices, n_rays, mids).squeeze(-1)
         depth = depth / acc.clamp_min(1e-6)
