@@ -85,22 +85,25 @@ def cmd_run(a) -> int:
 
     scene = os.path.basename(os.path.normpath(a.dataset)).split("-")[0]
     os.makedirs(a.out, exist_ok=True)
-    run = os.path.join(a.out, f"{scene}_{a.method}")
+    # A run with depth is its own series: a score with depth is never put beside a colours-only one as if
+    # they were the same (issue 56).
+    label = a.method + ("+depth" if a.depth else "")
+    run = os.path.join(a.out, f"{scene}_{label}")
     truth = read_geometry(os.path.join(a.dataset, "points3d.ply"))
     started = time.time()
     if not os.path.isfile(os.path.join(run, "checkpoints", "latest.pt")):
         train(TrainConfig(dataset=a.dataset, out=run, method=a.method, max_seconds=a.seconds, seed=0,
                           checkpoint_every=a.every, keep_checkpoints=1000, eval_views=0, stdout_events=False,
-                          show_bar=False))
+                          show_bar=False, depth=a.depth))
     pts = _elapsed_at(os.path.join(run, "progress.jsonl"))
     ckpts = sorted(glob.glob(os.path.join(run, "checkpoints", "step_*.pt")))
-    result = {"scene": scene, "method": a.method, "dataset": os.path.abspath(a.dataset), "budget_s": a.seconds,
+    result = {"scene": scene, "method": label, "dataset": os.path.abspath(a.dataset), "budget_s": a.seconds,
               "truth_points": int(len(truth.points)), "checkpoints": []}
     mesh_dir = os.path.join(a.out, "meshes")
     os.makedirs(mesh_dir, exist_ok=True)
     for ck in ckpts:
         step = int(os.path.basename(ck)[5:-3])
-        path = os.path.join(mesh_dir, f"{scene}_{a.method}_{step:07d}.ply")
+        path = os.path.join(mesh_dir, f"{scene}_{label}_{step:07d}.ply")
         summary = _export(run, path, checkpoint=ck, resolution=a.resolution)
         exported = (path, summary)
         entry = {"step": step, "train_seconds": round(_time_of(step, pts), 1),
@@ -111,7 +114,7 @@ def cmd_run(a) -> int:
         result["checkpoints"].append(entry)
         print(json.dumps(entry), flush=True)
     last = ckpts[-1]
-    final_mesh = os.path.join(mesh_dir, f"{scene}_{a.method}_final.ply")
+    final_mesh = os.path.join(mesh_dir, f"{scene}_{label}_final.ply")
     # the last checkpoint's mesh is the final one (same checkpoint, same flags): copied, not exported twice
     base = exported[1]
     if "error" not in base:
@@ -138,22 +141,22 @@ def cmd_run(a) -> int:
 
             from nerf_core.export import grid
             kw = {"level": grid.iso_level(np.asarray(base["box"]), base["resolution"])}
-        p = os.path.join(mesh_dir, f"{scene}_{a.method}_{name.replace(' ', '_')}.ply")
+        p = os.path.join(mesh_dir, f"{scene}_{label}_{name.replace(' ', '_')}.ply")
         s = _export(run, p, checkpoint=last, resolution=a.resolution, **kw)
         variants[name] = {"summary": {k: s.get(k) for k in ("faces", "level", "error", "seconds")},
                           "scores": _score(p, truth) if "error" not in s else None}
     if not a.no_256:
         t = time.perf_counter()
-        big = _export(run, os.path.join(mesh_dir, f"{scene}_{a.method}_256.ply"), checkpoint=last, resolution=256)
+        big = _export(run, os.path.join(mesh_dir, f"{scene}_{label}_256.ply"), checkpoint=last, resolution=256)
         result["extract_256"] = {"seconds": round(time.perf_counter() - t, 2), "faces": big.get("faces"),
                                  "error": big.get("error")}
     result["final"] = variants
     ev = evaluate_run(run, split="test", max_views=5, show_progress=False, print_fn=lambda s: None)
     result["eval"] = {k: ev.get(k) for k in ("psnr", "ssim", "depth_mae", "depth_rel", "step")}
     result["wall_seconds"] = round(time.time() - started, 1)
-    with open(os.path.join(a.out, f"{scene}_{a.method}.json"), "w", encoding="utf-8") as fh:
+    with open(os.path.join(a.out, f"{scene}_{label}.json"), "w", encoding="utf-8") as fh:
         json.dump(result, fh, indent=1)
-    print(json.dumps({"scene": scene, "method": a.method, "eval": result["eval"],
+    print(json.dumps({"scene": scene, "method": label, "eval": result["eval"],
                       "final": variants["default"]["scores"], "extract_256": result.get("extract_256")}))
     return 0
 
@@ -290,6 +293,8 @@ def main(argv) -> int:
     r.add_argument("--method", default="vmgrid")
     r.add_argument("--seconds", type=float, default=300.0)
     r.add_argument("--every", type=int, default=250, help="steps between checkpoints")
+    r.add_argument("--depth", action="store_true",
+                   help="train with the capture's depth maps (train --depth); the series is METHOD+depth")
     r.add_argument("--out", required=True)
     r.add_argument("--resolution", type=int, help="export resolution (default: the export's own default)")
     r.add_argument("--no-variants", action="store_true", help="skip the level and culling variants")

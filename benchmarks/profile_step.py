@@ -87,8 +87,9 @@ def main(argv=None) -> int:
         if not isinstance(model, VMGrid):
             raise SystemExit(f"profile_step: --res: method {model.method_name!r} has no grids to resample")
         model.field.upsample(args.res)
+    budgeted = isinstance(model, VMGrid) and bool(model.opts.sample_budget)
     try:  # through the library's own loader: any layout it reads
-        batch, near, far = training_batch(args.dataset, model, args.rays, device)
+        batch, near, far = training_batch(args.dataset, model, model.rays_per_step(args.rays), device)
     except DatasetError as exc:
         raise SystemExit(f"profile_step: {exc}")
     opt = make_optimizer(model, 1e-3)
@@ -106,6 +107,11 @@ def main(argv=None) -> int:
 
     for _ in range(3):
         step()
+    if budgeted:  # --set sample_budget=N: size the buffers from the warm-up, then draw the rays that fill them
+        model.budget.adapt()
+        batch, near, far = training_batch(args.dataset, model, model.rays_per_step(args.rays), device)
+        for _ in range(2):
+            step()
     sync()
     times = []
     for _ in range(args.steps):
@@ -114,8 +120,9 @@ def main(argv=None) -> int:
         sync()
         times.append(clock() - t0)
     kernels = model.kernels(device)
+    rays = f"{batch.rays_o.shape[0]} rays (sample budget {model.budget.sizes()})" if budgeted else f"{args.rays} rays"
     print(f"profile_step: {model.method_name}, grids {model.run_state().get('resolution', '-')}, "
-          f"{args.rays} rays, {device}, {args.threads} thread(s), kernels {kernels}: median step "
+          f"{rays}, {device}, {args.threads} thread(s), kernels {kernels}: median step "
           f"{1000 * statistics.median(times):.1f} ms (min {1000 * min(times):.1f}) over {args.steps} steps")
     if args.table:
         from torch.profiler import ProfilerActivity, profile
