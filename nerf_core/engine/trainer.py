@@ -29,7 +29,7 @@ from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.data import backgrounds
 from nerf_core.data.batcher import Batcher
-from nerf_core.data.depth import check_depth, depth_term
+from nerf_core.data.depth import check_depth, with_depth_term
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
@@ -389,7 +389,7 @@ class Trainer:
         out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, self.dataset.near, self.dataset.far,
                                  training=True)
         loss, mse = model.loss(out, batch.target, batch.weight)
-        loss = loss + depth_term(out, batch.depth, self.cfg.depth_weight)  # train --depth; 0 without
+        loss = with_depth_term(loss, out, batch.depth, self.cfg.depth_weight)  # train --depth; loss itself without
         self.opt.zero_grad(set_to_none=True)
         backward(loss)  # even for a bad loss (rolled back below): one read of what to check
         checked = self._checked(loss, mse, out, t0, stop)

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from nerf_core.data.carving import free_cells
-from nerf_core.data.depth import check_depth
+from nerf_core.data.depth import check_depth, with_depth_term
 from nerf_core.data.loading import load_dataset
 from nerf_core.errors import DatasetError
 from nerf_core.image.io import write_exr
@@ -24,6 +24,14 @@ def test_depth_loss_by_hand():
     # ray 1: |1 * 0.2| / 2 + 0 = 0.1; ray 2: 0 + 0.5; mean over the two rays with a surface
     assert float(depth_loss(depth, acc, target)) == pytest.approx(0.3)
     assert float(depth_loss(depth, acc, torch.zeros(3))) == 0.0
+
+
+def test_without_depth_the_step_loss_is_returned_unchanged():
+    # a colours-only step runs no extra op (an operator count per step would see a ``+ 0``)
+    loss = torch.tensor(0.25, requires_grad=True)
+    out = {"depth": torch.ones(3), "acc": torch.ones(3)}
+    assert with_depth_term(loss, out, None, 0.5) is loss
+    assert float(with_depth_term(loss, out, torch.tensor([2.0, 1.0, 0.0]), 0.5)) == pytest.approx(0.25 + 0.5 * 0.25)
 
 
 def test_the_carved_grid_keeps_every_surface_point_and_stays_near_the_true_volume(tmp_path):
