@@ -92,11 +92,12 @@ def depth_weight(weight: Optional[float]) -> float:
 
 
 def with_depth_term(loss: torch.Tensor, out: dict, target: Optional[torch.Tensor],
-                    weight: Optional[float]) -> torch.Tensor:
+                    ray_weight: Optional[torch.Tensor], weight: Optional[float]) -> torch.Tensor:
     """A step's ``loss`` () with what ``train --depth`` adds: ``depth_weight(weight)`` times ``depth_loss``
-    of the rendered ``out["depth"]`` and ``out["acc"]`` (n,) against ``target`` (n,) (``RayBatch.depth``).
-    ``loss`` itself when the batch carries no depth (colours only): no
+    of the rendered ``out["depth"]`` and ``out["acc"]`` (n,) against ``target`` (n,) (``RayBatch.depth``),
+    each ray weighted by ``ray_weight`` (n,) (``RayBatch.weight``: masks and the error-weighted sampler's
+    importance; None = uniform). ``loss`` itself when the batch carries no depth (colours only): no
     ``+ 0`` that a colours-only step would run for nothing."""
     if target is None:
         return loss
-    return loss + depth_weight(weight) * depth_loss(out["depth"], out["acc"], target)
+    return loss + depth_weight(weight) * depth_loss(out["depth"], out["acc"], target, ray_weight)

@@ -389,7 +389,7 @@ class Trainer:
         out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, self.dataset.near, self.dataset.far,
                                  training=True)
         loss, mse = model.loss(out, batch.target, batch.weight)
-        loss = with_depth_term(loss, out, batch.depth, self.cfg.depth_weight)  # train --depth; loss itself without
+        loss = with_depth_term(loss, out, batch.depth, batch.weight, self.cfg.depth_weight)  # --depth; else loss
         self.opt.zero_grad(set_to_none=True)
         backward(loss)  # even for a bad loss (rolled back below): one read of what to check
         checked = self._checked(loss, mse, out, t0, stop)
