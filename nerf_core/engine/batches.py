@@ -12,13 +12,15 @@ from nerf_core.data.batcher import Batcher, BatchOptions, footprint
 from nerf_core.data.carving import free_cells
 from nerf_core.data.depth import depth_targets
 from nerf_core.data.split import Dataset, Split
+from nerf_core.engine.config import TrainConfig
 from nerf_core.methods.base import RadianceModel
+from nerf_core.runs.events import EventLog
 
 
-def training_batcher(model: RadianceModel, dataset: Dataset, cfg, background: str, gen: torch.Generator,
-                     device: torch.device, log, is_main: bool, method: str) -> Batcher:
-    """The batcher of a run (``cfg`` its ``TrainConfig``) over ``dataset``'s train split; with ``--depth``
-    the model's occupancy grid is carved first (``carve_free_space``)."""
+def training_batcher(model: RadianceModel, dataset: Dataset, cfg: TrainConfig, background: str,
+                     gen: torch.Generator, device: torch.device, log: EventLog, is_main: bool, method: str) -> Batcher:
+    """The batcher of a run over ``dataset``'s train split, as ``cfg`` says (``train_rays``, ``depth``,
+    ``ray_sampling``); with ``--depth`` the model's occupancy grid is carved first (``carve_free_space``)."""
     train = dataset.split("train")
     if cfg.depth:
         carve_free_space(model, train, method, log, is_main)
@@ -27,7 +29,7 @@ def training_batcher(model: RadianceModel, dataset: Dataset, cfg, background: st
     return model.make_batcher(train, background, gen, device, options)
 
 
-def carve_free_space(model: RadianceModel, train: Split, method: str, log, is_main: bool) -> None:
+def carve_free_space(model: RadianceModel, train: Split, method: str, log: EventLog, is_main: bool) -> None:
     """Mark the cells of ``model``'s occupancy grid that ``train``'s depth (v, h, w) shows empty, and
     say how much of the box that was (stderr on the main process, and a ``note`` event on ``log``)."""
     grid = model.occupancy_grid()
