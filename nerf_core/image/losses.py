@@ -57,6 +57,21 @@ def depth_loss(depth: Tensor, acc: Tensor, target: Tensor, weight: Optional[Tens
     return (err * w).sum() / w.sum().clamp_min(torch.finfo(w.dtype).tiny)
 
 
+def alpha_loss(acc: Tensor, alpha: Tensor, weight: Optional[Tensor]) -> Tensor:
+    """The opacity supervision of ``train --alpha-weight``: the squared error between the rendered
+    opacity and the pixel's alpha on a transparent film, averaged over rays like the colour loss
+    (``masked_mse``: the same weights, the same normalisation).
+
+    Args:
+        acc: (n,) the rendered opacity (``out["acc"]``).
+        alpha: (n,) the pixels' alpha in [0, 1] (``RayBatch.alpha``).
+        weight: (n,) the batch's per-ray weights (``RayBatch.weight``), or None (uniform).
+    Returns:
+        () the loss.
+    """
+    return masked_mse(acc.unsqueeze(-1), alpha.unsqueeze(-1), weight)
+
+
 def total_variation_2d(planes: Tensor) -> Tensor:
     """Mean squared difference between neighbouring texels of (..., H, W) planes (smoothness prior)."""
     return (planes[..., 1:, :] - planes[..., :-1, :]).square().mean() + (

@@ -111,7 +111,8 @@ def test_a_depth_run_records_what_it_trained_with_and_eval_says_so(sphere_datase
     assert "the occupancy grid starts with" in p.stderr  # the carving says what it did
     config = json.loads((run / "config.json").read_text())
     assert (config["depth"], config["depth_weight"], config["train_rays"]) == (True, 0.1, "filter")
-    used = {"depth": True, "depth_weight": 0.1, "train_rays": "filter", "ray_sampling": "uniform"}
+    used = {"depth": True, "depth_weight": 0.1, "train_rays": "filter", "ray_sampling": "uniform",
+            "alpha_weight": 0.0}
     assert json.loads((run / "metrics.json").read_text())["trained_with"] == used
     p = _cli("eval", run, "--views", 1, "--device", "cpu", "--no-bar")
     assert p.returncode == 0, p.stderr
