@@ -46,6 +46,7 @@ def folder(text: str) -> str:
 
 
 positive_float = checked_number(float, "a number", lambda v: v > 0, "must be positive")
+nonneg_float = checked_number(float, "a number", lambda v: v >= 0, "must be >= 0")
 positive_int = checked_number(int, "an integer", lambda v: v > 0, "must be positive")
 nonneg_int = checked_number(int, "an integer", lambda v: v >= 0, "must be >= 0")
 

@@ -10,6 +10,7 @@ import dataclasses
 
 from nerf_core.cli.options import (
     folder,
+    nonneg_float,
     nonneg_int,
     parse_options,
     positive_float,
@@ -24,7 +25,7 @@ from nerf_core.methods.registry import current_option_names, method_class
 # A flag's ``kind`` (``engine.config.flag``) -> argparse keyword arguments.
 _KINDS = {
     "str": {}, "path": {}, "int": {"type": int}, "positive_int": {"type": positive_int},
-    "nonneg_int": {"type": nonneg_int},
+    "nonneg_int": {"type": nonneg_int}, "nonneg_float": {"type": nonneg_float},
     "positive_float": {"type": positive_float}, "folder": {"type": folder}, "seconds_list": {"type": seconds_list},
     "options": {"action": "append"}, "switch": {"action": "store_true"}, "switch_off": {"action": "store_false"},
 }

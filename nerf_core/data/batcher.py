@@ -57,11 +57,14 @@ class BatchOptions:
         depth: (v, h, w) float32 planar depth targets of the split's pixels (``train --depth``;
             ``data.depth.depth_targets``, 0 = unknown) that the batches carry as ``RayBatch.depth``, or None.
         sampling: which pixels are drawn (``train --ray-sampling``, one of ``RAY_SAMPLING``).
+        alpha: whether the batches carry the pixels' alpha as ``RayBatch.alpha`` (``train --alpha-weight``,
+            ``data.alpha``); needs a split with an alpha channel.
     """
 
     footprint: PixelFilter = POINT
     depth: Optional[torch.Tensor] = None
     sampling: str = DEFAULT_RAY_SAMPLING
+    alpha: bool = False
 
 
 class RayBatch(NamedTuple):
@@ -75,6 +78,8 @@ class RayBatch(NamedTuple):
         weight: (n,) float32 per-ray weight of the colour error (1 use, 0 ignore), or None (no masks).
         depth: (n,) float32 true distance along each ray to its surface, 0 where it is not known
             (``train --depth``; ``data.depth.depth_targets``), or None (colours only).
+        alpha: (n,) float32 alpha of each ray's pixel in [0, 1], what ``target`` was composited with
+            (``train --alpha-weight``; ``data.alpha``), or None (colours only).
     """
 
     rays_o: torch.Tensor
@@ -83,6 +88,7 @@ class RayBatch(NamedTuple):
     target: torch.Tensor
     weight: Optional[torch.Tensor]
     depth: Optional[torch.Tensor] = None
+    alpha: Optional[torch.Tensor] = None
 
 
 class Batcher:
@@ -116,7 +122,7 @@ class RayBatcher(Batcher):
         gen: a CPU ``torch.Generator`` that draws every random number (pixels, random colours), so a
             saved generator state replays the same batches.
         device: where the batches go.
-        options: the run's ``BatchOptions`` (the footprint, depth targets and sampling).
+        options: the run's ``BatchOptions`` (the footprint, depth targets, sampling and alpha).
     """
 
     def __init__(self, split: Split, background: str, gen: torch.Generator, device: torch.device,
@@ -142,6 +148,9 @@ class RayBatcher(Batcher):
             raise ValueError(f"RayBatcher: depth must be ({len(split)}, {split.height}, {split.width}) like the "
                              f"split's images, got {tuple(depth.shape)}")
         self.depth = depth
+        if options.alpha and not split.has_alpha:
+            raise ValueError("RayBatcher: options.alpha needs a split whose images have an alpha channel (RGBA)")
+        self.alpha = options.alpha
         self.errors = ErrorMap(len(split), split.height, split.width) if options.sampling == "error" else None
         self._tiles: Optional[torch.Tensor] = None  # the error map's tiles of the last batch drawn
         self.background = background
@@ -154,7 +163,8 @@ class RayBatcher(Batcher):
     def sample(self, n: int, frac: float = 1.0) -> RayBatch:
         """``n`` random rays at ``frac`` (in [0, 1]) of the training budget: a ``RayBatch`` of rays_o
         (n, 3), rays_d (n, 3), background (n, 3), ground-truth colour (n, 3) composited onto that
-        background, and the mask weight (n,) or None, all on ``device``.
+        background, the mask weight (n,) or None, and the depth and alpha (n,) that ``options`` ask for
+        (else None), all on ``device``.
         """
 
         if self.errors is None:
@@ -172,7 +182,7 @@ class RayBatcher(Batcher):
             bg = torch.rand(n, 3, generator=self.gen)
         else:
             bg = self.fixed_bg.expand(n, 3)
-        rgb, _ = self.split.pixels(view, j, i, bg)
+        rgb, alpha = self.split.pixels(view, j, i, bg)
         # drawn after the colours, so that centre rays replay the generator exactly as before
         offset = None if self.footprint.is_point else self.footprint.offsets(n, 1, gen=self.gen)[:, 0]
         rays_o, rays_d, z_per_t = rays_for_pixels(self.split.cameras, view, i, j, offset)
@@ -183,7 +193,8 @@ class RayBatcher(Batcher):
         depth = None if self.depth is None else self.depth[view, j, i] / z_per_t
         d = self.device
         return RayBatch(rays_o.to(d), rays_d.to(d), bg.to(d).contiguous(), rgb.to(d),
-                        None if weight is None else weight.to(d), None if depth is None else depth.to(d))
+                        None if weight is None else weight.to(d), None if depth is None else depth.to(d),
+                        alpha.to(d) if self.alpha else None)
 
     def observe(self, batch: RayBatch, out: dict) -> None:
         """Error-weighted sampling: the squared colour error of each ray moves its tile's estimate."""

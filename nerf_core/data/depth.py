@@ -91,10 +91,13 @@ def depth_weight(weight: Optional[float]) -> float:
     return DEFAULT_DEPTH_WEIGHT if weight is None else float(weight)
 
 
-def depth_term(out: dict, target: Optional[torch.Tensor], weight: Optional[float]):
-    """What ``train --depth`` adds to a step's loss: ``depth_weight(weight)`` times ``depth_loss`` of the
-    rendered ``out["depth"]`` and ``out["acc"]`` (n,) against ``target`` (n,) (``RayBatch.depth``); 0.0
-    when the batch carries no depth (colours only)."""
+def with_depth_term(loss: torch.Tensor, out: dict, target: Optional[torch.Tensor],
+                    ray_weight: Optional[torch.Tensor], weight: Optional[float]) -> torch.Tensor:
+    """A step's ``loss`` () with what ``train --depth`` adds: ``depth_weight(weight)`` times ``depth_loss``
+    of the rendered ``out["depth"]`` and ``out["acc"]`` (n,) against ``target`` (n,) (``RayBatch.depth``),
+    each ray weighted by ``ray_weight`` (n,) (``RayBatch.weight``: masks and the error-weighted sampler's
+    importance; None = uniform). ``loss`` itself when the batch carries no depth (colours only): no
+    ``+ 0`` that a colours-only step would run for nothing."""
     if target is None:
-        return 0.0
-    return depth_weight(weight) * depth_loss(out["depth"], out["acc"], target)
+        return loss
+    return loss + depth_weight(weight) * depth_loss(out["depth"], out["acc"], target, ray_weight)

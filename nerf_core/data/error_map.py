@@ -11,8 +11,9 @@ of the squared colour error of the rays drawn in it. A pixel is drawn with proba
 where k is its tile, a_k the tile's pixel count, e_k its estimate and A the split's pixel count: the
 uniform share keeps every pixel reachable and bounds the weight. A ray's weight is the ratio of the
 uniform probability to the one it was drawn with, w = (1 / A) / p(pixel) <= 1 / UNIFORM, and the loss
-(``image.losses.masked_mse``) is the weighted mean, so that its expectation is the uniform loss and the
-pixels that are already right are not fitted less, only sampled less.
+(``image.losses.masked_mse``; ``depth_loss`` with ``--depth``) is the weighted mean, so that its
+expectation is the uniform loss and the pixels that are already right are not fitted less, only
+sampled less.
 
 The estimate starts flat (every tile at ``START_ERROR``), so the first draws are uniform. The sampling
 table (a cumulative sum over the tiles) is rebuilt every ``REFRESH`` updates: between rebuilds each draw

@@ -12,6 +12,7 @@ from typing import Dict, List, Optional, Sequence
 
 from nerf_core import contract
 from nerf_core.contract.numbers import is_number, is_real, is_whole, plain
+from nerf_core.data.alpha import DEFAULT_ALPHA_WEIGHT
 from nerf_core.data.backgrounds import BACKGROUNDS
 from nerf_core.data.batcher import (
     DEFAULT_RAY_SAMPLING,
@@ -30,6 +31,7 @@ from nerf_core.runs.folder import resume_dataset
 
 MAX_BATCH_RAYS = 1 << 22  # rays a step; more would need tens of GB for the samples alone
 MAX_DEPTH_WEIGHT = 100.0  # the depth loss at 100x the colour error would teach geometry without colour
+MAX_ALPHA_WEIGHT = 100.0  # likewise: opacity without colour
 
 
 def flag(default, help: str, *, name: Optional[str] = None, kind: str = "str", metavar: Optional[str] = None,
@@ -45,7 +47,7 @@ def flag(default, help: str, *, name: Optional[str] = None, kind: str = "str", m
             ``--`` and the field's name with dashes.
         kind: what the value is, which decides both how the command line's text becomes the value
             (``cli.train``) and what ``check_field_types`` accepts from Python (``FIELD_KINDS``): "str",
-            "path", "int", "positive_int", "nonneg_int", "positive_float", "folder", "seconds_list",
+            "path", "int", "positive_int", "nonneg_int", "positive_float", "nonneg_float", "folder", "seconds_list",
             "options" (repeatable KEY=VALUE), "switch" (a flag that sets True) or "switch_off" (a flag
             that sets False).
         metavar, choices, required: as argparse's.
@@ -167,6 +169,11 @@ class TrainConfig:
     depth_weight: Optional[float] = flag(None, f"with --depth: the depth loss's weight against the colour error "
                                                f"(default {DEFAULT_DEPTH_WEIGHT:g})", kind="positive_float",
                                          metavar="W")
+    alpha_weight: float = flag(DEFAULT_ALPHA_WEIGHT, "also supervise the rendered opacity with the images' alpha "
+                                                     "(a capture on a transparent film): the squared error, at W "
+                                                     "times the colour error's weight. 0 (the default) = off, so "
+                                                     "that scores compare with colours-only tools",
+                               kind="nonneg_float", metavar="W")
     downscale: int = flag(1, "train on images downscaled by F", kind="positive_int", metavar="F")
     log_every: int = flag(50, "emit a step event every N steps", kind="positive_int", metavar="N")
     preview_every: Optional[int] = flag(None, "preview every N steps (default: every 30 s of training)",
@@ -253,6 +260,9 @@ class TrainConfig:
             if not (math.isfinite(self.depth_weight) and 0 < self.depth_weight <= MAX_DEPTH_WEIGHT):
                 raise TrainError(f"--depth-weight must be a finite number in (0, {MAX_DEPTH_WEIGHT:g}], got "
                                  f"{self.depth_weight}")
+        if not (math.isfinite(self.alpha_weight) and 0 <= self.alpha_weight <= MAX_ALPHA_WEIGHT):
+            raise TrainError(f"--alpha-weight must be a finite number in [0, {MAX_ALPHA_WEIGHT:g}] (0 = off), got "
+                             f"{self.alpha_weight}")
         if self.method is not None and not self.method.strip():
             raise TrainError("--method is empty; leave it out for the default method, or name one")
 
@@ -284,6 +294,7 @@ FIELD_KINDS = {
     "positive_int": ("an integer >= 1", lambda v: is_whole(v) and v >= 1),
     "nonneg_int": ("an integer >= 0", lambda v: is_whole(v) and v >= 0),
     "positive_float": ("a finite number > 0", lambda v: is_number(v) and v > 0),
+    "nonneg_float": ("a finite number >= 0", lambda v: is_number(v) and v >= 0),
     "seconds": ("a finite number of seconds >= 0", lambda v: is_number(v) and v >= 0),  # 0: "none at all"
     "seconds_list": ("a list of training times in seconds",
                      # NaN or a time past the budget: ``check`` says so in its own words
@@ -386,6 +397,8 @@ def merge_resumed_config(cli: TrainConfig, ckpt: dict) -> TrainConfig:
         merged["train_rays"] = RECORDED_BEFORE_TRAIN_RAYS
     if "ray_sampling" not in saved:  # ... and drew its pixels uniformly
         merged["ray_sampling"] = DEFAULT_RAY_SAMPLING
+    if "alpha_weight" not in saved:  # ... and without alpha supervision
+        merged["alpha_weight"] = DEFAULT_ALPHA_WEIGHT
     merged["resume"], merged["overwrite"] = True, False
     merged["dataset"], merged["dataset_moved"] = dataset, cli.dataset_moved
     return TrainConfig(**merged)

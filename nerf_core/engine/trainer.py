@@ -29,11 +29,10 @@ from nerf_core import contract
 from nerf_core.contract.errors import DatasetError
 from nerf_core.data import backgrounds
 from nerf_core.data.batcher import Batcher
-from nerf_core.data.depth import check_depth, depth_term
 from nerf_core.data.loading import load_dataset
 from nerf_core.data.split import Dataset
 from nerf_core.engine import distributed
-from nerf_core.engine.batches import training_batcher
+from nerf_core.engine.batches import check_supervision, training_batcher, with_supervision
 from nerf_core.engine.callbacks import CheckpointEvery, StepInterval, default_callbacks
 from nerf_core.engine.checkpointing import RunFacts
 from nerf_core.engine.config import TrainConfig, check_field_types, default_method, merge_resumed_config
@@ -167,8 +166,7 @@ class Trainer:
                 check_run_vs_dataset(self.run, self.cfg.dataset)
             self.dataset_hash, self.dataset_images = dataset_hash(self.cfg.dataset), dataset_images(self.cfg.dataset)
             dataset = load_dataset(self.cfg.dataset, downscale=self.cfg.downscale)
-            if self.cfg.depth:  # before the run folder: missing, damaged or mis-scaled depth is refused
-                check_depth(dataset, dataset.split("train"))
+            check_supervision(dataset, self.cfg)  # before the run folder: --depth's maps, --alpha-weight's film
             unscorable = evaluation_problem(dataset, self.cfg)
             if unscorable:
                 raise TrainError(unscorable)
@@ -389,7 +387,7 @@ class Trainer:
         out = model.render_batch(batch.rays_o, batch.rays_d, batch.background, self.dataset.near, self.dataset.far,
                                  training=True)
         loss, mse = model.loss(out, batch.target, batch.weight)
-        loss = loss + depth_term(out, batch.depth, self.cfg.depth_weight)  # train --depth; 0 without
+        loss = with_supervision(loss, out, batch, self.cfg)  # --depth, --alpha-weight; colours only: loss itself
         self.opt.zero_grad(set_to_none=True)
         backward(loss)  # even for a bad loss (rolled back below): one read of what to check
         checked = self._checked(loss, mse, out, t0, stop)

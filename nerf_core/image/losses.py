@@ -23,10 +23,10 @@ def masked_mse(pred: Tensor, gt: Tensor, weight: Optional[Tensor]) -> Tensor:
     return (err * weight).sum() / weight.sum().clamp_min(1.0)
 
 
-def depth_loss(depth: Tensor, acc: Tensor, target: Tensor) -> Tensor:
+def depth_loss(depth: Tensor, acc: Tensor, target: Tensor, weight: Optional[Tensor] = None) -> Tensor:
     """The depth supervision of ``train --depth``: the mean over rays with a known surface of the
     relative error of the rendered depth, |acc depth - acc target| / target, plus the transparency left
-    on those rays, 1 - acc.
+    on those rays, 1 - acc; with ``weight``, the mean over those rays weighted by the colour loss's weights.
 
     ``acc depth`` is the weights' sum of the sample distances, linear in the weights: the normalised
     depth alone has gradients that grow as 1 / acc, without bound on the transparent rays of a field
@@ -39,14 +39,37 @@ def depth_loss(depth: Tensor, acc: Tensor, target: Tensor) -> Tensor:
         depth: (n,) the rendered expected distance along each unit ray (normalised by the opacity).
         acc: (n,) the rendered opacity.
         target: (n,) the true distance along each ray, 0 where it is not known.
+        weight: (n,) the batch's per-ray weights (``RayBatch.weight``: a mask, times the importance
+            weight of ``--ray-sampling error``), or None (uniform). The error-weighted sampler draws
+            some rays more often than others; weighing each by its uniform over its drawn probability
+            keeps this loss an estimate of the uniform one, as the colour loss is.
     Returns:
-        () the loss, 0 when no ray has a surface.
+        () the loss, 0 when no ray has a surface (or every such ray has weight 0).
     """
     has = target > 0
-    n = has.sum().clamp_min(1)
     t = torch.where(has, target, torch.ones_like(target))
     err = torch.where(has, (acc * (depth - t)).abs() / t + (1.0 - acc), torch.zeros_like(depth))
-    return err.sum() / n
+    if weight is None:  # the count of rays with a surface (kept apart: bit-identical --depth runs)
+        return err.sum() / has.sum().clamp_min(1)
+    w = torch.where(has, weight, torch.zeros_like(weight))
+    # Normalised by the weights of the rays that count, not by clamp_min(1.0) as ``masked_mse``: a
+    # batch with few surface rays may weigh less than 1 in all, and the mean must not shrink with it.
+    return (err * w).sum() / w.sum().clamp_min(torch.finfo(w.dtype).tiny)
+
+
+def alpha_loss(acc: Tensor, alpha: Tensor, weight: Optional[Tensor]) -> Tensor:
+    """The opacity supervision of ``train --alpha-weight``: the squared error between the rendered
+    opacity and the pixel's alpha on a transparent film, averaged over rays like the colour loss
+    (``masked_mse``: the same weights, the same normalisation).
+
+    Args:
+        acc: (n,) the rendered opacity (``out["acc"]``).
+        alpha: (n,) the pixels' alpha in [0, 1] (``RayBatch.alpha``).
+        weight: (n,) the batch's per-ray weights (``RayBatch.weight``), or None (uniform).
+    Returns:
+        () the loss.
+    """
+    return masked_mse(acc.unsqueeze(-1), alpha.unsqueeze(-1), weight)
 
 
 def total_variation_2d(planes: Tensor) -> Tensor:

@@ -34,6 +34,17 @@ def density_length(aabb: torch.Tensor, unit: str) -> float:
     return box_length_unit(aabb) if unit == "box" else 1.0
 
 
+def ray_weights(out: Dict[str, torch.Tensor], weight: Optional[torch.Tensor]) -> Optional[torch.Tensor]:
+    """Each ray's weight in every loss term: the batch's ``weight`` (n,) (masks, importance; None =
+    uniform), times 0 for the rays a fixed-size step did not render whole (``out["fits"]`` (n,) bool,
+    vmgrid's ``sample_budget``). The one home of that rule, for the colour loss and the terms of
+    ``--depth`` and ``--alpha-weight`` alike."""
+    fits = out.get("fits")
+    if fits is None:
+        return weight
+    return fits.to(out["rgb"].dtype) if weight is None else weight * fits
+
+
 class RadianceModel(nn.Module):
     """Base class of every method: an ``nn.Module`` that renders batches of rays.
 
@@ -199,10 +210,7 @@ class RadianceModel(nn.Module):
             (loss, mse): scalar tensors; ``mse`` is the colour error that the PSNR is reported from.
             A method extends the loss by overriding this and adding to ``super().loss(...)``'s.
         """
-        fits = out.get("fits")  # (n,) bool: rays whose samples all fitted a fixed-size step's buffers
-        if fits is not None:
-            weight = fits.to(out["rgb"].dtype) if weight is None else weight * fits
-        mse = masked_mse(out["rgb"], target, weight)
+        mse = masked_mse(out["rgb"], target, ray_weights(out, weight))
         loss = mse
         if out.get("aux_loss") is not None:
             loss = loss + out["aux_loss"]

@@ -20,6 +20,7 @@ from nerf_core.contract.jsonfile import parse_json_file
 from nerf_core.contract.numbers import is_number, is_whole
 from nerf_core.contract.paths import file_problem, not_a_regular_file
 from nerf_core.contract.poses import MAX_COORDINATE, coordinate_problem
+from nerf_core.data.alpha import DEFAULT_ALPHA_WEIGHT
 from nerf_core.data.batcher import DEFAULT_RAY_SAMPLING, RAY_SAMPLING, RECORDED_BEFORE_TRAIN_RAYS, TRAIN_RAYS
 from nerf_core.data.depth import DEFAULT_DEPTH_WEIGHT
 from nerf_core.data.validation import near_far_problem
@@ -137,18 +138,20 @@ def check_run_config(config: dict, where) -> None:
 def trained_with(config: dict) -> dict:
     """What a run's training used beyond the colours, from its config.json dict, for every score to
     carry (``eval``'s JSON and metrics.json, the benchmark tables): a score with depth supervision is
-    not comparable with a colours-only peer's. Runs from before the flags trained without depth and
-    through the pixel centres.
+    not comparable with a colours-only peer's. Runs from before the flags trained without depth or
+    alpha and through the pixel centres.
 
     Returns:
         {"depth": bool, "depth_weight": float or None (the weight used; None without depth),
-         "train_rays": "centre" or "filter", "ray_sampling": "uniform" or "error"}.
+         "train_rays": "centre" or "filter", "ray_sampling": "uniform" or "error",
+         "alpha_weight": float (``--alpha-weight``; 0.0 = no alpha supervision)}.
     """
     depth = config.get("depth") is True
     weight = config.get("depth_weight")
     if depth and not is_number(weight):
         weight = DEFAULT_DEPTH_WEIGHT  # the flag was left out: the documented default was used
-    rays, sampling = config.get("train_rays"), config.get("ray_sampling")
+    rays, sampling, alpha = config.get("train_rays"), config.get("ray_sampling"), config.get("alpha_weight")
     return {"depth": depth, "depth_weight": float(weight) if depth else None,
             "train_rays": rays if rays in TRAIN_RAYS else RECORDED_BEFORE_TRAIN_RAYS,
-            "ray_sampling": sampling if sampling in RAY_SAMPLING else DEFAULT_RAY_SAMPLING}
+            "ray_sampling": sampling if sampling in RAY_SAMPLING else DEFAULT_RAY_SAMPLING,
+            "alpha_weight": float(alpha) if is_number(alpha) else DEFAULT_ALPHA_WEIGHT}

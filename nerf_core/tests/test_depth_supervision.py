@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from nerf_core.data.carving import free_cells
-from nerf_core.data.depth import check_depth
+from nerf_core.data.depth import check_depth, with_depth_term
 from nerf_core.data.loading import load_dataset
 from nerf_core.errors import DatasetError
 from nerf_core.image.io import write_exr
@@ -24,6 +24,28 @@ def test_depth_loss_by_hand():
     # ray 1: |1 * 0.2| / 2 + 0 = 0.1; ray 2: 0 + 0.5; mean over the two rays with a surface
     assert float(depth_loss(depth, acc, target)) == pytest.approx(0.3)
     assert float(depth_loss(depth, acc, torch.zeros(3))) == 0.0
+
+
+def test_depth_loss_takes_the_batch_weights_by_hand():
+    # the error-weighted sampler's importance weights (and masks) weigh the depth loss as the colour loss
+    depth = torch.tensor([2.2, 1.0, 5.0])
+    acc = torch.tensor([1.0, 0.5, 0.3])
+    target = torch.tensor([2.0, 1.0, 0.0])  # errors 0.1 and 0.5; the third ray does not count
+    weight = torch.tensor([0.5, 2.0, 7.0])
+    assert float(depth_loss(depth, acc, target, weight)) == pytest.approx((0.5 * 0.1 + 2.0 * 0.5) / 2.5)
+    assert float(depth_loss(depth, acc, target, torch.ones(3))) == float(depth_loss(depth, acc, target))
+    # one surface ray of weight 0.25: its own error, not shrunk by a denominator clamped at 1
+    assert float(depth_loss(depth, acc, torch.tensor([2.0, 0.0, 0.0]), torch.full((3,), 0.25))) == pytest.approx(0.1)
+    assert float(depth_loss(depth, acc, target, torch.tensor([0.0, 0.0, 1.0]))) == 0.0  # masked out
+
+
+def test_without_depth_the_step_loss_is_returned_unchanged():
+    # a colours-only step runs no extra op (an operator count per step would see a ``+ 0``)
+    loss = torch.tensor(0.25, requires_grad=True)
+    out = {"depth": torch.ones(3), "acc": torch.ones(3)}
+    assert with_depth_term(loss, out, None, None, 0.5) is loss
+    with_depth = with_depth_term(loss, out, torch.tensor([2.0, 1.0, 0.0]), None, 0.5)
+    assert float(with_depth) == pytest.approx(0.25 + 0.5 * 0.25)
 
 
 def test_the_carved_grid_keeps_every_surface_point_and_stays_near_the_true_volume(tmp_path):
@@ -89,7 +111,8 @@ def test_a_depth_run_records_what_it_trained_with_and_eval_says_so(sphere_datase
     assert "the occupancy grid starts with" in p.stderr  # the carving says what it did
     config = json.loads((run / "config.json").read_text())
     assert (config["depth"], config["depth_weight"], config["train_rays"]) == (True, 0.1, "filter")
-    used = {"depth": True, "depth_weight": 0.1, "train_rays": "filter", "ray_sampling": "uniform"}
+    used = {"depth": True, "depth_weight": 0.1, "train_rays": "filter", "ray_sampling": "uniform",
+            "alpha_weight": 0.0}
     assert json.loads((run / "metrics.json").read_text())["trained_with"] == used
     p = _cli("eval", run, "--views", 1, "--device", "cpu", "--no-bar")
     assert p.returncode == 0, p.stderr

@@ -210,3 +210,12 @@ def test_a_steady_fixed_shape_step_reads_nothing_back_from_the_device():
         counts[budget] = seen.seen
     assert counts[1 << 14] == [], counts[1 << 14]
     assert len(counts[0]) >= 3  # the packed step's compactions: what the control shows the count can see
+
+
+def test_every_loss_term_leaves_out_the_rays_a_fixed_step_cut():
+    from nerf_core.methods.base import ray_weights
+
+    out = {"rgb": torch.zeros(3, 3), "fits": torch.tensor([True, False, True])}
+    assert ray_weights(out, None).tolist() == [1.0, 0.0, 1.0]
+    assert ray_weights(out, torch.tensor([0.5, 2.0, 3.0])).tolist() == [0.5, 0.0, 3.0]
+    assert ray_weights({"rgb": torch.zeros(3, 3)}, None) is None  # the packed step: nothing to leave out
