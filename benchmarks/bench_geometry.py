@@ -208,8 +208,11 @@ def cmd_report(a) -> int:
                        label=f"tau {100 * tau:g} % of the diagonal")
                 for tau, style, face in zip(TAUS, ("--", "-"), ("white", None))]
     handles.append(Line2D([], [], color="grey", lw=0.6, ls=":", label="F = 0.9"))
-    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))
+    # A row of the legend holds about 2 entries per panel; a narrow figure (few scenes) takes more rows.
+    per_row = min(len(handles), max(2, 2 * ncol))
+    rows = -(-len(handles) // per_row)
+    fig.legend(handles=handles, loc="upper center", ncol=per_row, fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - (0.2 + 0.25 * rows) / fig.get_figheight()))
     fig.savefig(os.path.join(a.out, "geometry.png"), dpi=110)
     print("| scene | method | steps | F 0.5 % | F 1 % | P / R at 1 % | Chamfer-L1 | normal cons. | PSNR |"
           " depth_mae | depth_rel | 256^3 extraction |")
