@@ -35,7 +35,7 @@ from nerf_core.contract.numbers import is_number
 from nerf_core.contract.transforms import SPLITS, FrameInfo, frame_infos
 from nerf_core.data.backgrounds import small_subject_note
 from nerf_core.data.pixels import EXTRAS, camera_params, load_extra, load_pixels
-from nerf_core.data.scene_box import depth_points, estimate_aabb, pad_box_for_interior
+from nerf_core.data.scene_box import FACE_PAD, depth_points, estimate_aabb, pad_box_for_faces, pad_box_for_interior
 from nerf_core.data.split import Dataset, Split
 from nerf_core.data.validation import (
     black_train_problem,
@@ -217,6 +217,10 @@ def load_dataset(
         if inside_note:
             notes.append(inside_note)
             source += "; padded around the cameras standing inside it"
+    if inside_note is None:
+        aabb = pad_box_for_faces(aabb)
+        source += f"; grown {100 * FACE_PAD:g} % on each side, so that surfaces on its faces lie inside it"
+    if len(loaded["train"]):
         small = small_subject_note(loaded["train"].images)
         if small:
             notes.append(small)

@@ -30,7 +30,9 @@ def test_synthetic_round_trip(sphere_dataset):
     assert float(tr.cameras.cx[0]) == pytest.approx(meta["cx"]) and float(tr.cameras.cy[3]) == pytest.approx(meta["cy"])
     assert float(tr.cameras.fx[0]) == pytest.approx(meta["fl_x"], rel=1e-6)
     np.testing.assert_allclose(tr.cameras.c2w[2].numpy(), np.array(meta["frames"][2]["transform_matrix"]), atol=1e-6)
-    assert ds.aabb.tolist() == [[-1, -1, -1], [1, 1, 1]] and (ds.near, ds.far) == (1.0, 5.0)
+    # the declared box, grown so that surfaces on its faces lie inside it (``scene_box.pad_box_for_faces``)
+    assert np.allclose(ds.aabb.numpy(), [[-1.025] * 3, [1.025] * 3]) and (ds.near, ds.far) == (1.0, 5.0)
+    assert "surfaces on its faces" in ds.aabb_source
     z = read_exr(sphere_dataset / "train" / "r_1_depth.exr")["Z"]
     np.testing.assert_allclose(tr.depth[1].numpy(), z)
     png = np.asarray(Image.open(sphere_dataset / "train" / "r_1.png"))
@@ -389,3 +391,12 @@ def test_instant_ngp_scale_and_offset_are_named_as_not_applied(tmp_path, dataset
     (ds_path / "transforms.json").write_text(json.dumps({**meta, "scale": 0.33, "offset": [0.5, 0.5, 0.5]}))
     notes = load_dataset(ds_path).notes
     assert any("instant-ngp's 'scale' and 'offset' are not applied: poses are read as written" in n for n in notes)
+
+
+def test_a_declared_box_grows_by_the_face_pad_so_a_floor_on_its_face_lies_inside():
+    from nerf_core.data.scene_box import FACE_PAD, pad_box_for_faces
+
+    box = torch.tensor([[-1.0, -2.0, 0.0], [1.0, 2.0, 1.0]])
+    grown = pad_box_for_faces(box)
+    assert torch.allclose(grown, torch.tensor([[-1.025, -2.05, -0.0125], [1.025, 2.05, 1.0125]]))
+    assert FACE_PAD == 0.0125  # 2 cells of the default 160-cell grid (measured: docs/BENCHMARKS.md)
