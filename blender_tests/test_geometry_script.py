@@ -82,6 +82,9 @@ def test_import_geometry_script_lands_in_the_scene_frame(sphere_run, tmp_path, k
         obj.data.grids.load()
         grid = obj.data.grids["density"]
         m = np.array(grid.matrix_object)
-        assert np.allclose(m[:3, 3], [-1, -1, -1], atol=1e-6)  # node 0 at the box's corner
+        # node 0 at the corner of the box the run trained in: the declared [-1, 1]^3 grown 1.25 % per side
+        # (``scene_box.pad_box_for_faces``)
+        box = json.loads((sphere_run / "config.json").read_text())["aabb"]
+        assert np.allclose(m[:3, 3], box[0], atol=1e-6) and np.allclose(box[0], [-1.025] * 3, atol=1e-6)
         assert os.path.isfile(bpy.path.abspath(obj.data.filepath))
     assert os.path.isfile(summary["geometry"]) and summary["geometry"].startswith(str(sphere_run))
