@@ -50,15 +50,15 @@ class SampleBudget:
         self.samples = int(samples)
         self.max_rays = max(MIN_RAYS, int(max_rays))
         self._max: Optional[Tensor] = None  # (4,) float64 on the device: most wanted per ray since the last read
-        self._start(steps_per_ray, steps_per_run)
-
-    def _start(self, steps_per_ray: int, steps_per_run: int) -> None:
-        """Sizes for a grid that is occupied everywhere: every ray takes every step."""
-        per_ray = float(steps_per_ray)
-        self._resize(per_ray, per_ray / max(1, steps_per_run) + 1.0, per_ray, per_ray)
+        # What the sizes are made from (host floats): the last read maxima, or the start's assumption. A
+        # rescale scales these, so a finer step right after a read resizes at once, not at the next read.
+        per_ray = float(steps_per_ray)  # at the start, a grid occupied everywhere: every ray takes every step
+        self._sized_for = (per_ray, per_ray / max(1, steps_per_run) + 1.0, per_ray, per_ray)
+        self._resize(*self._sized_for)
 
     def _resize(self, samples: float, runs: float, visible: float, coloured: float) -> None:
         """Rays and buffers from what a ray wants of each buffer (samples, runs, visible, coloured)."""
+        self._sized_for = (samples, runs, visible, coloured)
         rays = self.samples / max(1.0, MARGIN * samples)
         self.rays = int(min(self.max_rays, max(MIN_RAYS, rays // MIN_RAYS * MIN_RAYS)))
         self.runs = _round_up(MARGIN * runs * self.rays)
@@ -73,19 +73,18 @@ class SampleBudget:
 
     def rescale(self, factor: float) -> None:
         """The marching step changed by 1 / ``factor`` (a finer step: factor > 1): a ray's samples change
-        by about that much at once, before the next read can show it."""
+        by about that much at once, before the next read can show it. Both the sizes in use and the
+        maxima gathered since the last read (measured at the old step) are scaled; no host read."""
         if self._max is not None:
             self._max = self._max * factor
-        else:
-            return
-        self._resize(*(float(v) for v in self._max.tolist()))
+        self._resize(*(v * factor for v in self._sized_for))
 
     def adapt(self) -> None:
-        """Read the maxima (one host read: call on periodic steps only) and resize; start a new window."""
-        if self._max is None:
-            return
-        self._resize(*(float(v) for v in self._max.tolist()))
-        self._max = None
+        """Read the maxima (one host read: call on periodic steps only) and resize; start a new window.
+        Without a step observed since the last read the sizes stay."""
+        if self._max is not None:
+            self._resize(*(float(v) for v in self._max.tolist()))
+            self._max = None
 
     def sizes(self) -> dict:
         return {"rays": self.rays, "samples": self.samples, "runs": self.runs, "visible": self.visible,

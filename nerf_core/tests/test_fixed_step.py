@@ -96,11 +96,16 @@ def test_the_budget_sizes_its_buffers_from_what_a_ray_wanted_with_a_margin_and_f
     assert b.rays == 2560  # 65536 / (1.25 * 20) = 2621 -> a multiple of 64 below
     assert b.runs == 12800  # 1.25 * 4 * 2560 = 12800, a multiple of 256
     assert b.visible == 38400 and b.coloured == 19200
-    b.rescale(2.0)  # no read since: nothing to rescale
-    assert b.rays == 2560
-    b.observe(2560, torch.tensor(2560 * 20), torch.tensor(2560 * 4), torch.tensor(2560 * 12), torch.tensor(2560 * 6))
-    b.rescale(2.0)  # the step halved: twice the samples a ray at once
+    b.rescale(2.0)  # the step halved right after a read: the read sizes double at once
+    assert b.rays == 1280  # 65536 / (1.25 * 40) = 1310 -> 1280
+    assert b.runs == 12800 and b.visible == 38400 and b.coloured == 19200  # 1.25 * (8, 24, 12) * 1280
+    b.adapt()  # nothing observed since the read: the sizes stay
     assert b.rays == 1280
+    b.observe(1280, torch.tensor(1280 * 40), torch.tensor(1280 * 8), torch.tensor(1280 * 24), torch.tensor(1280 * 12))
+    b.rescale(2.0)  # halved again: the observed maxima, measured at the old step, double with the sizes
+    assert b.rays == 640
+    b.adapt()  # the observed 40 samples a ray, doubled to 80: 65536 / (1.25 * 80) = 655 -> 640
+    assert b.rays == 640 and b.runs == 12800
 
 
 def _model(**options):
