@@ -8,6 +8,9 @@ views of the run's dataset with ``python -m nerf_core render``, then, in Blender
 objects from the render, imports the volume (``addon/compare/geometry_import.py``: the add-on's own
 import, which undoes the capture's recorded view transform) and renders the same cameras with Cycles
 (transparent film, the scene's own colour management unless ``--view-transform``, as a user would).
+A run that learned the world behind its box (an opaque capture's, ``background_used: environment``) also
+gets that world (``export world``, imported as the scene's World) and an opaque film, as the NeRF's own
+render shows it (``--world off``: the volume alone, on white).
 Each image is composited onto white, as ``eval`` does, and
 compared: Cycles' volume against the NeRF's render, and against the ground truth; the NeRF's render
 against the ground truth for reference. Prints one JSON line per view and a summary as the last line.
@@ -63,10 +66,17 @@ def main(argv) -> int:
                     help="auto: both renders filter pixels as the capture did; none: one ray per pixel centre in both")
     ap.add_argument("--precision", choices=("FULL", "HALF", "VARIABLE"), help="the Volume's grid precision")
     ap.add_argument("--step-rate", type=float, help="Cycles' volume step rate (scene); needs --biased on")
+    ap.add_argument("--world", choices=("auto", "off"), default="auto",
+                    help="auto: import the learned world when the run has one; off: the volume alone")
     a = ap.parse_args(argv)
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.run, "config.json"), encoding="utf-8") as fh:
-        dataset = json.load(fh)["dataset"]
+        config = json.load(fh)
+    dataset = config["dataset"]
+    with_world = a.world == "auto" and config.get("background_used") == "environment"
+    png = os.path.join(a.out, "world.png")
+    if with_world and not os.path.isfile(png):
+        _nerf_core("export", "world", a.run, "--out", png)
     with open(os.path.join(dataset, "transforms_test.json"), encoding="utf-8") as fh:
         meta = json.load(fh)
     frames = meta["frames"][: a.views]
@@ -94,7 +104,10 @@ def main(argv) -> int:
     if a.view_transform:  # before the import, which compares the scene's colour management with the capture's
         scene.view_settings.view_transform = a.view_transform
     obj = geometry_import.import_volume(scene, npz, os.path.join(a.out, "volume.vdb"))
-    for note in str(obj.get(geometry_import.NOTES_PROPERTY, "")).split("\n"):
+    notes = str(obj.get(geometry_import.NOTES_PROPERTY, "")).split("\n")
+    if with_world:
+        notes += str(geometry_import.import_world(scene, png).get(geometry_import.NOTES_PROPERTY, "")).split("\n")
+    for note in notes:
         if note:
             print(f"note: {note}", file=sys.stderr)
     if a.precision:
@@ -112,7 +125,7 @@ def main(argv) -> int:
     scene.cycles.device = "CPU"
     scene.render.threads_mode = "FIXED" if a.threads else "AUTO"
     scene.render.threads = max(1, a.threads)
-    scene.render.film_transparent = True
+    scene.render.film_transparent = not with_world  # the learned world behind, as the NeRF renders it
     w = int(frames[0].get("w", meta.get("w")))
     h = int(frames[0].get("h", meta.get("h")))
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = w, h, 100
@@ -140,7 +153,7 @@ def main(argv) -> int:
     summary = {k: float(np.mean([r[k] for r in rows])) for k in ("cycles_vs_nerf", "cycles_vs_truth", "nerf_vs_truth")}
     print(json.dumps({"views": len(rows), "samples": a.samples, "view_transform": scene.view_settings.view_transform,
                       "biased": scene.cycles.volume_biased, "denoise": scene.cycles.use_denoising,
-                      "precision": obj.data.render.precision,
+                      "precision": obj.data.render.precision, "world": with_world,
                       **summary}))
     return 0
 

@@ -176,3 +176,71 @@ def test_cycles_shows_an_agx_captures_volume_in_the_nerfs_colours(tmp_path):
     assert np.abs(shown - display / 255.0).max() <= 4 / 255
     srgb = _through_view(scene, volume_files.srgb_to_linear(display / 255.0), str(tmp_path / "srgb.png"))
     assert np.abs(srgb - display / 255.0).max() > 0.04  # what the sRGB curve alone gave (0.051)
+
+
+def _world_png(scene, path, cm):
+    """A world file (``export world``'s layout) of smooth colours, rendered through ``scene``'s view as a
+    capture's are (so that they lie in its gamut): (h, w, 3) uint8 and its directions (h, w, 3)."""
+    from nerf_core.export import world
+
+    w, h = 32, 16
+    dirs = world.blender_directions(w).numpy()  # what each pixel centre looks along
+    linear = (0.5 + 0.45 * dirs.reshape(-1, 3)) ** 2  # a colour per direction
+    image = np.rint(_through_view(scene, linear, path + ".fwd.png") * 255).astype(np.uint8).reshape(h, w, 3)
+    world.write_world(path, image, cm)
+    return image, dirs
+
+
+def _look_along(scene, d, path):
+    """Cycles' display colour (3,) of the world straight along direction ``d``: a camera of a tiny field
+    of view, one pixel filter's width."""
+    from mathutils import Matrix
+    from PIL import Image
+
+    cam = scene.camera
+    z = -np.asarray(d, float) / np.linalg.norm(d)
+    up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = x, np.cross(z, x), z
+    cam.matrix_world = Matrix(m.tolist())
+    scene.render.filepath = path
+    bpy.ops.render.render(write_still=True)
+    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float64)[2, 2] / 255.0
+
+
+def test_the_imported_world_shows_the_nerfs_world_along_each_direction_and_keeps_the_old_one(tmp_path):
+    """``export world``'s PNG as the scene's World, under AgX: a camera looking along a pixel's direction
+    sees that pixel's colour (Blender's equirectangular layout, the inverse of the capture's AgX), and the
+    scene's former world stays in the file."""
+    scene = bpy.context.scene
+    scene.world = old = bpy.data.worlds.new("Studio")
+    scene.view_settings.view_transform, scene.view_settings.look = "AgX", "None"
+    cm = {"display_device": "sRGB", "view_transform": "AgX", "look": "None", "exposure": 0.0, "gamma": 1.0}
+    png = str(tmp_path / "world_001.png")
+    image, dirs = _world_png(scene, png, cm)
+    new = geometry_import.import_world(scene, png)
+    assert scene.world == new and new.name == geometry_import.WORLD_NAME
+    assert old.use_fake_user and "'Studio' is kept" in new[geometry_import.NOTES_PROPERTY]
+    assert os.path.isfile(str(tmp_path / "world_001.exr"))
+    env = next(n for n in new.node_tree.nodes if n.type == "TEX_ENVIRONMENT")
+    assert env.image.is_float and bpy.path.abspath(env.image.filepath) == str(tmp_path / "world_001.exr")
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(cam)
+    scene.camera, cam.data.angle = cam, 0.002
+    scene.render.engine, scene.cycles.device, scene.cycles.samples = "CYCLES", "CPU", 4
+    scene.cycles.use_denoising, scene.render.film_transparent = False, False
+    scene.render.resolution_x = scene.render.resolution_y = 5
+    scene.render.resolution_percentage, scene.render.threads_mode, scene.render.threads = 100, "FIXED", 1
+    scene.render.image_settings.file_format = "PNG"
+    for i, j in ((3, 0), (3, 8), (8, 16), (8, 24), (12, 5), (5, 29)):
+        seen = _look_along(scene, dirs[i, j], str(tmp_path / f"look_{i}_{j}.png"))
+        assert np.abs(seen - image[i, j] / 255.0).max() <= 3 / 255, (i, j, seen * 255, image[i, j])
+    mirrored = _look_along(scene, dirs[3, 8] * np.array([1, -1, 1]), str(tmp_path / "mirror.png"))
+    assert np.abs(mirrored - image[3, 8] / 255.0).max() > 0.05  # the layout is not mirrored
+    with pytest.raises(ValueError, match="not a world file"):
+        from PIL import Image
+
+        Image.new("RGB", (8, 4)).save(str(tmp_path / "plain.png"))
+        geometry_import.import_world(scene, str(tmp_path / "plain.png"))

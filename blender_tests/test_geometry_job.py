@@ -104,7 +104,8 @@ def test_a_failed_export_reports_the_child_error(registered, tmp_path):
     assert job.state == "failed" and "no surface at density level" in job.message
 
 
-def test_the_panel_offers_both_imports(registered):
+def test_the_panel_offers_every_import(registered):
     assert hasattr(bpy.types, "NERF_OT_import_geometry")
     props = bpy.ops.nerf.import_geometry.get_rna_type().properties["geometry"]
-    assert set(props.enum_items.keys()) == {"MESH", "VOLUME"}
+    assert set(props.enum_items.keys()) == {"MESH", "VOLUME", "WORLD"}
+    assert {k.lower() for k in props.enum_items.keys()} == set(geometry_import.IMPORTERS)

@@ -1,12 +1,14 @@
 """Export a trained run's geometry and import it into a .blend beside the objects it was trained on.
 
-    python scripts/import_geometry.py --blend scene.blend --run RUN --kind mesh|volume --out OUT.blend
+    python scripts/import_geometry.py --blend scene.blend --run RUN --kind mesh|volume|world --out OUT.blend
     blender -b scene.blend --python scripts/import_geometry.py -- --run RUN --kind mesh --out OUT.blend
 
 Runs ``python -m nerf_core export KIND RUN`` in a child process (a progress bar on stderr; Ctrl+C stops
 it), writing a new ``RUN/geometry/<kind>_NNN`` file (``--geometry FILE`` to choose), then imports it:
-a coloured mesh into the ``NeRF Mesh`` collection, or a Volume object (its ``.vdb`` written beside the
-``.npz`` with Blender's own OpenVDB) into ``NeRF Volume``, in the scene's frame. Saves ``--out``
+a coloured mesh into the ``NeRF Mesh`` collection, a Volume object (its ``.vdb`` written beside the
+``.npz`` with Blender's own OpenVDB) into ``NeRF Volume``, in the scene's frame, or the world the run learned
+behind the scene (an opaque capture's) as the scene's World (its light in an ``.exr`` beside the ``.png``;
+the scene's old world is kept in the file). Saves ``--out``
 (never the scene file; an existing --out only with --overwrite) and prints a JSON summary as the last
 stdout line.
 """
@@ -24,17 +26,19 @@ from nerf_core.contract.exports import EXPORTS  # noqa: E402  (standard library 
 
 PROG = "import_geometry.py"
 # the exports of the table (nerf_core/contract/exports.py) that this script can bring into Blender
-IMPORTERS = {"mesh": "import_mesh", "volume": "import_volume"}
+# (names: geometry_import itself needs bpy, imported only after the export)
+IMPORTERS = {"mesh": "import_mesh", "volume": "import_volume", "world": "import_world"}
 assert set(IMPORTERS) <= set(EXPORTS), "an importer for an export the table does not declare"
 
 
 def parse(argv):
     ap = scene_parser(PROG, __doc__, "scene to import into")
     ap.add_argument("--run", required=True, help="training run folder (has checkpoints/latest.pt)")
-    ap.add_argument("--kind", required=True, choices=sorted(IMPORTERS), help="a coloured mesh or a volume")
+    ap.add_argument("--kind", required=True, choices=sorted(IMPORTERS),
+                    help="a coloured mesh, a volume, or the learned world (a run on opaque images)")
     ap.add_argument("--out", required=True, help=".blend to write")
     ap.add_argument("--geometry", metavar="FILE",
-                    help="where the export goes (default: a new RUN/geometry/<kind>_NNN.ply or .npz)")
+                    help="where the export goes (default: a new RUN/geometry/<kind>_NNN.ply, .npz or .png)")
     ap.add_argument("--resolution", type=int, metavar="N",
                     help="samples per axis (default: the model's grid; a volume twice that, at most 320)")
     ap.add_argument("--faces", type=int, metavar="N", help="mesh: decimate to about N faces")
@@ -89,6 +93,9 @@ def main(argv) -> int:
     for flag, value in (("--resolution", args.resolution), ("--faces", args.faces)):
         if value is not None and value < (2 if flag == "--resolution" else 1):
             fail(PROG, f"{flag} {value}: must be at least {2 if flag == '--resolution' else 1}")
+    if args.resolution and args.kind == "world":
+        fail(PROG, "--resolution: the world samples no grid over the scene box; its image is as wide as the "
+             "learned world's finest texture")
     if not os.path.isfile(contract.latest_checkpoint(run)) and not child_process.step_checkpoints(run):
         fail(PROG, f"--run {run}: no trained checkpoint (train it first with python -m nerf_core train)")
     try:
@@ -99,10 +106,10 @@ def main(argv) -> int:
     inputs = {"--blend": args.blend, "--out": out}
     if os.path.lexists(geometry):
         fail(PROG, f"--geometry {geometry}: exists; an export never replaces a file. Choose another name")
-    # A volume's .vdb, written beside the .npz, is an output too: the same rule.
+    # What the import writes beside the export (a volume's .vdb, a world's .exr) is an output too: the same rule.
     check_output(PROG, "--geometry", geometry, True, inputs, suffix=geometry_job.SUFFIX[args.kind])
-    if args.kind == "volume":
-        check_output(PROG, "--geometry", os.path.splitext(geometry)[0] + ".vdb", args.overwrite, inputs)
+    for ext in geometry_job.BESIDE[args.kind]:
+        check_output(PROG, "--geometry", os.path.splitext(geometry)[0] + ext, args.overwrite, inputs)
     python = torch_python(PROG, args.python)
     cmd = child_process.export_command(python, args.kind, run, geometry, checkpoint=checkpoint)
     if args.resolution:
@@ -125,7 +132,8 @@ def main(argv) -> int:
     for note in notes:
         print(f"{PROG}: note: {note}", file=sys.stderr)
     save_blend(PROG, out)
-    print(json.dumps({"out": out, "kind": args.kind, "object": obj.name, "collection": obj.users_collection[0].name,
+    collection = obj.users_collection[0].name if isinstance(obj, bpy.types.Object) else None  # a World has none
+    print(json.dumps({"out": out, "kind": args.kind, "object": obj.name, "collection": collection,
                       "geometry": geometry, "export": summary, "notes": notes}))
     return 0
 

@@ -178,7 +178,8 @@ def render_command(python: str, run: str, cameras: str, out: str, split: str = "
 
 
 def export_command(python: str, kind: str, run: str, out: str, checkpoint: str = "") -> List[str]:
-    """``nerf_core export mesh|volume RUN --out FILE`` (``kind``: "mesh" or "volume")."""
+    """``nerf_core export KIND RUN --out FILE`` (``kind``: a format of ``contract.exports``: "mesh", "volume",
+    "world")."""
     cmd = [python, "-m", "nerf_core", "export", kind, run, "--out", out]
     return cmd + (["--checkpoint", checkpoint] if checkpoint else [])
 

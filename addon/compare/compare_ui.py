@@ -63,7 +63,7 @@ def sync_geometry_settings(job: GeometryJob) -> None:
 
 
 def start_geometry(context, geometry: str) -> GeometryJob:
-    """Start ``nerf_core export mesh|volume`` of the panel's run into a fresh RUN/geometry file; the
+    """Start ``nerf_core export mesh|volume|world`` of the panel's run into a fresh RUN/geometry file; the
     result is imported when it ends. Shares Compare's job slot, so its Cancel stops it."""
     if jobs.is_running(train_ui.RENDER):
         raise SetupError("Compare is already busy (rendering views or exporting): wait for it or cancel.")
@@ -98,7 +98,10 @@ class NERF_OT_import_geometry(train_ui.StartsJob, bpy.types.Operator):
 
     geometry: EnumProperty(items=[("MESH", "Mesh", "A coloured mesh (marching cubes), in the NeRF Mesh collection"),
                                   ("VOLUME", "Volume", "A Volume object that Cycles renders as the NeRF, in the "
-                                                       "NeRF Volume collection")], default="MESH")
+                                                       "NeRF Volume collection"),
+                                  ("WORLD", "World", "The world the NeRF learned behind the scene (a run on opaque "
+                                                     "images) as the scene's World; the old one is kept")],
+                           default="MESH")
 
     def start(self, context):
         return start_geometry(context, self.geometry.lower())
@@ -150,6 +153,7 @@ class NERF_PT_compare(NerfPanel, bpy.types.Panel):
         row.enabled = not busy
         row.operator(NERF_OT_import_geometry.bl_idname, text="Import as Mesh", icon="MESH_DATA").geometry = "MESH"
         row.operator(NERF_OT_import_geometry.bl_idname, text="Import as Volume", icon="VOLUME_DATA").geometry = "VOLUME"
+        row.operator(NERF_OT_import_geometry.bl_idname, text="World", icon="WORLD").geometry = "WORLD"
         layout.operator("nerf.export_camera_path", icon="EXPORT")  # the active camera's animation
         if len(s.view_metrics):
             layout.template_list("NERF_UL_view_metrics", "", s, "view_metrics", s, "view_metrics_index", rows=4)

@@ -62,16 +62,17 @@ def describe(cm: dict) -> str:
            f"exposure {cm.get('exposure', 0.0):g}, gamma {cm.get('gamma', 1.0):g})"
 
 
-def to_linear_for(recorded: Optional[dict], scene) -> tuple[Callable[[np.ndarray], np.ndarray], list]:
+def to_linear_for(recorded: Optional[dict], scene,
+                  what: str = "volume") -> tuple[Callable[[np.ndarray], np.ndarray], list]:
     """The conversion of the capture's display colours (m, 3) float32 in [0, 1] to scene-linear
-    (m, 3) float32, undoing ``recorded`` (the volume file's ``color_management``; None or {}: unknown,
+    (m, 3) float32, undoing ``recorded`` (the ``what`` file's ``color_management``; None or {}: unknown,
     taken as Standard), and the notes a user should read: what could not be undone, and when the
     scene's own view settings differ from the capture's (its render then shows the captured light as
     the scene shows any object, not the NeRF's images)."""
     notes = []
     cm = dict(recorded or {})
     if not cm:
-        notes.append("the volume file records no colour management: its colours are taken as sRGB (Standard)")
+        notes.append(f"the {what} file records no colour management: its colours are taken as sRGB (Standard)")
         cm = {"display_device": "sRGB", "view_transform": "Standard", "look": "None", "exposure": 0.0, "gamma": 1.0}
     view = cm.get("view_transform", "Standard")
     space = INVERSE_SPACE.get(view)
@@ -80,13 +81,13 @@ def to_linear_for(recorded: Optional[dict], scene) -> tuple[Callable[[np.ndarray
                      "its colours are taken as sRGB (Standard)")
         space = "sRGB"
     if cm.get("look", "None") not in ("None", ""):
-        notes.append(f"the capture's look {cm['look']!r} is not undone: the volume keeps it in its colours")
+        notes.append(f"the capture's look {cm['look']!r} is not undone: the {what} keeps it in its colours")
     exposure, gamma = float(cm.get("exposure", 0.0)), float(cm.get("gamma", 1.0))
     vs = scene.view_settings
     here = {"view_transform": vs.view_transform, "look": vs.look, "exposure": vs.exposure, "gamma": vs.gamma}
     if any(here[k] != cm.get(k, here[k]) for k in ("view_transform", "look")) or \
             abs(here["exposure"] - exposure) > 1e-6 or abs(here["gamma"] - gamma) > 1e-6:
-        notes.append(f"the capture was rendered with {describe(cm)}, the scene shows {describe(here)}: the volume "
+        notes.append(f"the capture was rendered with {describe(cm)}, the scene shows {describe(here)}: the {what} "
                      "holds the captured light, so the scene shows it as it shows its own objects, not as the "
                      "NeRF's images; set the scene's colour management to the capture's to compare them")
 

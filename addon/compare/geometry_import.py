@@ -10,6 +10,10 @@ beside the objects they were trained on.
   emission sigma * colour (``color`` grid). Along a ray that is exactly the NeRF's integral
   ``sum T_i (1 - exp(-sigma_i delta_i)) c_i``, which is the solution of dL/ds = -sigma L + sigma c.
   The .blend keeps the .vdb's path, so a render farm renders it without the add-on.
+- World: the learned world behind the scene (``export world``'s equirectangular PNG, display values) as
+  the scene's World: an OpenEXR of its light beside the PNG (the same inverse of the capture's view
+  transform as the volume's colours), shown by an Environment Texture at strength 1, so that a camera
+  ray that leaves the NeRF's volume meets what the NeRF shows there. The scene's own world is kept.
 """
 from __future__ import annotations
 
@@ -17,10 +21,14 @@ import os
 import sys
 
 import bpy
+import numpy as np
 
+from ..bridge.core_contract import contract
+from ..file_writes import PARTIAL_SUFFIX, partial_path
 from . import display_colours, volume_files
 
 MESH_COLLECTION, VOLUME_COLLECTION = "NeRF Mesh", "NeRF Volume"
+WORLD_NAME = "NeRF World"
 NOTES_PROPERTY = "nerf_notes"  # a custom property of the imported object: the import's notes, one a line
 COLOR_ATTRIBUTE = "Col"  # the name Blender's PLY importer gives the vertex colours
 BIASED_NOTE = ("turned on Cycles' biased volumes (Render Properties > Volumes > Biased): the NeRF's volume then "
@@ -131,3 +139,75 @@ def import_volume(scene, npz_path: str, vdb_path: str = "", name: str = "NeRF Vo
         notes.append(BIASED_NOTE)
     obj[NOTES_PROPERTY] = "\n".join(notes)  # what the user should read (import_geometry.py prints them)
     return obj
+
+
+def _pixels(img) -> np.ndarray:
+    """(h, w, 4) float32 pixels of a Blender image, row 0 at the bottom (Blender's order)."""
+    out = np.empty(img.size[0] * img.size[1] * 4, dtype=np.float32)
+    img.pixels.foreach_get(out)
+    return out.reshape(img.size[1], img.size[0], 4)
+
+
+def world_light(scene, png_path: str, exr_path: str) -> list:
+    """Write ``exr_path``, the scene-linear light of the world file ``png_path`` (its display values through
+    the inverse of the recorded view transform, ``display_colours``); returns the notes."""
+    info = contract.world_file.read_world_info(png_path)  # ValueError naming the file: not ours
+    to_linear, notes = display_colours.to_linear_for(info["color_management"], scene, what="world")
+    src = bpy.data.images.load(png_path, check_existing=False)
+    try:
+        src.colorspace_settings.name = "Non-Color"  # the bytes / 255 as they are: the display values
+        w, h = src.size
+        if w < 2 or h < 1:
+            raise ValueError(f"{png_path}: an image of {w} x {h} pixels is no world")
+        px = _pixels(src)
+    finally:
+        bpy.data.images.remove(src)
+    px[..., :3] = to_linear(px[..., :3].reshape(-1, 3)).reshape(h, w, 3)
+    px[..., 3] = 1.0
+    img = bpy.data.images.new("nerf world light", w, h, alpha=False, float_buffer=True)
+    try:
+        img.pixels.foreach_set(px.ravel())
+        # never through a link; the extension last, as Blender picks the format by it
+        with partial_path(exr_path, os.path.splitext(exr_path)[0] + PARTIAL_SUFFIX + ".exr") as tmp:
+            img.filepath_raw, img.file_format = tmp, "OPEN_EXR"
+            img.save()
+    finally:
+        bpy.data.images.remove(img)
+    return notes
+
+
+def import_world(scene, png_path: str, exr_path: str = "", name: str = WORLD_NAME):
+    """Make the learned world of ``png_path`` (``export world``) the scene's World, its light written to
+    ``exr_path`` (default: beside the PNG, ``.exr``); the scene's former world is kept (a fake user), and
+    the notes say so. Returns the new World."""
+    exr_path = exr_path or os.path.splitext(png_path)[0] + ".exr"
+    notes = world_light(scene, png_path, exr_path)
+    image = bpy.data.images.load(exr_path, check_existing=False)  # a float file: scene-linear on load
+    image.name = name
+    world = bpy.data.worlds.new(name)
+    if world.node_tree is None:  # Blender 4.x; 5.x worlds always have nodes
+        world.use_nodes = True
+    nodes, links = world.node_tree.nodes, world.node_tree.links
+    for n in list(nodes):
+        nodes.remove(n)
+    env = nodes.new("ShaderNodeTexEnvironment")
+    env.image, env.interpolation, env.projection = image, "Linear", "EQUIRECTANGULAR"  # the NeRF's lookup is bilinear
+    background = nodes.new("ShaderNodeBackground")
+    background.inputs["Strength"].default_value = 1.0
+    out = nodes.new("ShaderNodeOutputWorld")
+    links.new(env.outputs["Color"], background.inputs["Color"])
+    links.new(background.outputs["Background"], out.inputs["Surface"])
+    for i, node in enumerate((env, background, out)):
+        node.location = (-600 + 300 * i, 0)
+    old = scene.world
+    if old is not None and old != world:
+        old.use_fake_user = True  # saved with the file although no scene shows it any more
+        notes.append(f"the scene's world {old.name!r} is kept in the file: World Properties switches back to it")
+    scene.world = world
+    world[NOTES_PROPERTY] = "\n".join(notes)
+    return world
+
+
+# what each export of the table becomes in Blender (``contract.exports``): import_geometry.py and the
+# Compare panel's geometry job look the importer up here
+IMPORTERS = {"mesh": import_mesh, "volume": import_volume, "world": import_world}

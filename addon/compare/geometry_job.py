@@ -1,7 +1,7 @@
-"""The geometry job: ``nerf_core export mesh|volume`` of a run in a child process (progress from its
+"""The geometry job: ``nerf_core export mesh|volume|world`` of a run in a child process (progress from its
 ``progress`` events, Cancel stops it), then the result imported into the scene (``geometry_import``).
 
-Each export goes to a new file ``RUN/geometry/<kind>_NNN.ply|.npz``: earlier exports, which a saved
+Each export goes to a new file ``RUN/geometry/<kind>_NNN.ply|.npz|.png``: earlier exports, which a saved
 .blend may still reference, are never overwritten."""
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ def stage_text(event) -> str:
 
 
 class GeometryJob(ProcessJob):
-    """``nerf_core export`` of a run into ``out``, then its mesh or volume imported into the scene."""
+    """``nerf_core export`` of a run into ``out``, then its mesh, volume or world imported into the scene."""
 
     kind = "export"
 
@@ -63,10 +63,7 @@ class GeometryJob(ProcessJob):
         if scene is None:
             return self.fail("The scene the export was started from is gone")
         try:
-            if self.geometry == "mesh":
-                obj = geometry_import.import_mesh(scene, self.out)
-            else:
-                obj = geometry_import.import_volume(scene, self.out)
+            obj = geometry_import.IMPORTERS[self.geometry](scene, self.out)
         except (ValueError, RuntimeError) as exc:
             return self.fail(f"{self.out}: cannot import the {self.geometry}: {exc}")
         except OSError as exc:

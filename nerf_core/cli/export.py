@@ -45,9 +45,12 @@ def _add_format(kinds, fmt: ExportFormat, help_fmt) -> None:
                          description=f"{fmt.help}: {fmt.extracts}. The last line of stdout is a JSON summary.")
     p.add_argument("run", metavar="RUN", help="run folder written by `train`")
     p.add_argument("--out", required=True, metavar="FILE", help=f"file to write (a {fmt.suffix} file)")
-    p.add_argument("--resolution", type=grid_res, metavar="N",
-                   help="samples per axis of the scene box (default: the model's own grid, 256 for nerf; "
-                        "a volume twice that, at most 320)")
+    if fmt.grid:
+        p.add_argument("--resolution", type=grid_res, metavar="N",
+                       help="samples per axis of the scene box (default: the model's own grid, 256 for nerf; "
+                            "a volume twice that, at most 320)")
+    else:
+        p.set_defaults(resolution=None)  # a world samples directions, not the box
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.add_argument("--checkpoint", metavar="FILE", help="checkpoint to use instead of RUN/checkpoints/latest.pt")
     p.add_argument("--device", metavar="DEV", help="torch device; default: cuda if available else cpu")

@@ -21,6 +21,7 @@ Submodules (re-exported here, so ``contract.resolve_intrinsics`` works like ``co
 - ``colmap_model``: COLMAP's sparse model files, read and written (``colmap_poses``: its pose rule);
   ``colmap_dataset``: a COLMAP folder as frames (the ``colmap`` layout) and our cameras as COLMAP's;
 - ``eight_bit``: how a float colour becomes an 8-bit level, for both ways of rendering a run;
+- ``world_file``: the world export's PNG and the text chunks it carries (read without Pillow);
 - ``outputs``: the output rule (no link written through, no input replaced or deleted, no dataset file written).
 """
 from __future__ import annotations
@@ -41,6 +42,7 @@ from . import (  # noqa: F401
     exports,
     nerfstudio_frame,
     outputs,
+    world_file,
 )
 from .errors import DatasetError, PoseError  # noqa: F401
 from .film import (  # noqa: F401

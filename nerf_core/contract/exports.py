@@ -47,7 +47,8 @@ class ExportFormat:
     """An export of a run: ``name`` (``export NAME``), ``suffix`` of its file (".ply"), ``help`` (one
     line), ``extracts`` (what it takes of the field), ``options`` (its own flags, besides the common
     ``--out --resolution --overwrite --checkpoint --device``), ``beside`` (suffixes of files that
-    others write beside it: the add-on's ``.vdb`` of a volume)."""
+    others write beside it: the add-on's ``.vdb`` of a volume), ``grid`` (False for a format that
+    samples no grid over the scene box, such as the world: it has no ``--resolution``)."""
 
     name: str
     suffix: str
@@ -55,6 +56,7 @@ class ExportFormat:
     extracts: str
     options: Tuple[Option, ...] = ()
     beside: Tuple[str, ...] = ()
+    grid: bool = True
 
 
 EXPORTS: Dict[str, ExportFormat] = {}
@@ -107,3 +109,10 @@ MESH = declare(ExportFormat(
 VOLUME = declare(ExportFormat(
     "volume", ".npz", "density and colour grids (.npz) for a Blender Volume",
     "density per scene unit and colour at the nodes of a grid over the scene box", beside=(".vdb",)))
+WORLD = declare(ExportFormat(
+    "world", ".png", "the learned world (light from infinity) as an equirectangular PNG for a Blender World",
+    "the world behind the scene box that an opaque capture's run learned, in Blender's equirectangular "
+    "layout, with the colours the NeRF renders",
+    options=(Option("--width", "positive_int", "image width in pixels, height half of it (default: the learned "
+                    "world's finest texture)"),),
+    beside=(".exr",), grid=False))

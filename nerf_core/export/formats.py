@@ -18,9 +18,9 @@ import numpy as np
 from nerf_core.cameras.rays import Cameras
 from nerf_core.contract import colour_management
 from nerf_core.contract.errors import DatasetError
-from nerf_core.contract.exports import MESH, VOLUME, ExportFormat, export_format
+from nerf_core.contract.exports import MESH, VOLUME, WORLD, ExportFormat, export_format
 from nerf_core.errors import RunError
-from nerf_core.export import mesh, ply, volume
+from nerf_core.export import mesh, ply, volume, world
 from nerf_core.render.run import DatasetChanged, Run
 
 CULLING = "the culling uses the cameras there now"
@@ -34,7 +34,7 @@ class ExportJob:
 
     run: Run
     box: np.ndarray
-    resolution: int
+    resolution: Optional[int]  # None for a format without a grid (``ExportFormat.grid``)
     options: Dict[str, Any]
     say: Callable[[str, float], None]
     note: Callable[[str], None]
@@ -107,13 +107,18 @@ def _volume_summary(arrays: dict) -> dict:
 
 writer(MESH.name, mesh.BYTES_PER_SAMPLE, _extract_mesh,
        lambda path, m: ply.write_mesh_ply(path, m.vertices, m.faces, m.colors), lambda m: dict(m.info))
-def _extract_volume(job: ExportJob) -> dict:
-    arrays = volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say)
+def _recorded_colours(job: ExportJob, what: str) -> Optional[dict]:
+    """The capture's colour management (``contract.colour_management.recorded``), or None with a note."""
     cm = colour_management.recorded(job.run.config.dataset) if job.run.config.dataset else None
     if cm is None:
-        job.note("the dataset records no colour management (no nerf_capture/manifest.json): "
-                 "the volume's colours are taken as sRGB (the Standard view transform)")
-    arrays["color_management"] = volume.colour_record(cm)
+        job.note(f"the dataset records no colour management (no nerf_capture/manifest.json): "
+                 f"the {what}'s colours are taken as sRGB (the Standard view transform)")
+    return cm
+
+
+def _extract_volume(job: ExportJob) -> dict:
+    arrays = volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say)
+    arrays["color_management"] = volume.colour_record(_recorded_colours(job, "volume"))
     return arrays
 
 
@@ -123,3 +128,18 @@ def _extract_volume(job: ExportJob) -> dict:
 # highfreq 27.00 -> 29.23 dB at 320^3 (229 MB .npz, 320 MB .vdb) against 160^3; 320 per axis at most.
 writer(VOLUME.name, volume.BYTES_PER_SAMPLE, _extract_volume, volume.write_volume, _volume_summary,
        detail_scale=2, default_max=320)
+
+
+def _extract_world(job: ExportJob) -> dict:
+    env = job.model.environment
+    if env is None:
+        raise RunError(f"{job.run.path}: the run learned no world (only a run on opaque images does, its "
+                       "background 'environment'): its background was a colour, so there is no world to export")
+    job.say("world", 0.0)
+    image = world.world_image(env, job.options.get("width"))
+    job.say("world", 1.0)
+    return {"image": image, "color_management": _recorded_colours(job, "world")}
+
+
+writer(WORLD.name, 0, _extract_world, lambda path, w: world.write_world(path, w["image"], w["color_management"]),
+       lambda w: {"width": int(w["image"].shape[1]), "height": int(w["image"].shape[0])})

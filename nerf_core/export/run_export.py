@@ -26,15 +26,16 @@ def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite:
     """Write format ``kind`` of the run folder ``run`` to ``out``.
 
     Args:
-        kind: a declared export ("mesh", "volume"; ``contract.exports.EXPORTS``).
+        kind: a declared export ("mesh", "volume", "world"; ``contract.exports.EXPORTS``).
         resolution: samples per axis of the scene box; None: ``default_resolution`` (the model's own,
-            ``field.grid_resolution``, twice that for a volume).
+            ``field.grid_resolution``, twice that for a volume); refused for a format without a grid.
         options: the format's own options, by ``Option.dest`` (``n_faces=``, ``level=``...).
         on_progress: called with (stage, share done in [0, 1]); on_note: with each note, as it arises.
 
     Returns:
         the summary: ``out``, ``kind``, ``run``, ``step``, ``method``, ``box``, ``resolution``,
-        ``seconds``, ``notes`` and the format's own fields (``Writer.summary``).
+        ``seconds``, ``notes`` and the format's own fields (``Writer.summary``); ``resolution`` is None
+        for a format without a grid.
 
     Raises:
         ValueError (an output refused, a grid too large, not enough memory, no surface, a missing
@@ -50,15 +51,20 @@ def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite:
         if message not in notes:
             notes.append(message)
             (on_note or (lambda s: None))(message)
+    if resolution is not None and not fmt.grid:
+        raise ValueError(f"--resolution: export {kind} samples no grid over the scene box; "
+                         + (f"its size is {fmt.options[0].flag}" if fmt.options else "it has no size to set"))
     opened = open_run(run, device=device, checkpoint=checkpoint)
     model = opened.model
-    if field.models_the_world(model):
+    if field.models_the_world(model) and fmt.grid:
         note(WORLD_NOTE)
     box = model.aabb.detach().cpu().double().numpy()
-    res = int(resolution or default_resolution(make, field.grid_resolution(model), note))
-    grid.check_fits(res, make.bytes_per_sample, fixed=grid.CHUNK_BYTES)
+    res = None
+    if fmt.grid:  # a world samples directions, not the box
+        res = int(resolution or default_resolution(make, field.grid_resolution(model), note))
+        grid.check_fits(res, make.bytes_per_sample, fixed=grid.CHUNK_BYTES)
     job = formats.ExportJob(opened, box, res, options, on_progress or (lambda stage, share: None), note, notes)
-    with named_out_of_memory(f"--resolution {res}", OUT_OF_MEMORY_ADVICE):
+    with named_out_of_memory(f"--resolution {res}" if res else f"export {kind}", OUT_OF_MEMORY_ADVICE):
         result = make.extract(job)
         check_output(out, overwrite, suffix=fmt.suffix)  # again: the path may have changed while we worked
         with writing(out):
@@ -95,3 +101,8 @@ def export_mesh(run, out, resolution: Optional[int] = None, n_faces: Optional[in
 def export_volume(run, out, resolution: Optional[int] = None, **common) -> dict:
     """``export_run("volume", ...)``: the density and colour grids (``.npz``, format in ``export.volume``)."""
     return export_run("volume", run, out, resolution, **common)
+
+
+def export_world(run, out, width: Optional[int] = None, **common) -> dict:
+    """``export_run("world", ...)``: the learned world as an equirectangular PNG (``export.world``)."""
+    return export_run("world", run, out, width=width, **common)
