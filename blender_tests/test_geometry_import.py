@@ -244,3 +244,32 @@ def test_the_imported_world_shows_the_nerfs_world_along_each_direction_and_keeps
 
         Image.new("RGB", (8, 4)).save(str(tmp_path / "plain.png"))
         geometry_import.import_world(scene, str(tmp_path / "plain.png"))
+
+
+def test_an_unbounded_runs_far_levels_become_child_volumes_on_their_own_grids(tmp_path):
+    npz = str(tmp_path / "volume.npz")
+    density, color, box, spacing = _volume_npz(npz)
+    arrays = dict(np.load(npz))
+    rng = np.random.default_rng(2)
+    far_box = np.stack([box.mean(0) - (box[1] - box[0]), box.mean(0) + (box[1] - box[0])])
+    far_density = (rng.random((5, 5, 5)) * 30).astype(np.float32)
+    far_color = rng.integers(0, 256, (5, 5, 5, 3), dtype=np.uint8)
+    np.savez(npz, **arrays, far_levels=np.int64(1), far1_density=far_density, far1_color=far_color,
+             far1_box=far_box, far1_spacing=(far_box[1] - far_box[0]) / 4)
+    obj = geometry_import.import_volume(bpy.context.scene, npz)
+    far = bpy.data.objects["NeRF Volume far 1"]
+    assert far.parent == obj and far.users_collection[0].name == geometry_import.VOLUME_COLLECTION
+    assert far.data.filepath == obj.data.filepath  # one .vdb, each object reads its own level's grids
+    attrs = {n.attribute_name for n in far.data.materials[0].node_tree.nodes if n.type == "ATTRIBUTE"}
+    assert attrs == {"density_far1", "color_far1"}
+    back = volume_files.read_vdb(bpy.path.abspath(obj.data.filepath),
+                                 {"density": density.shape, "density_far1": (5, 5, 5), "color_far1": (5, 5, 5)},
+                                 geometry_import.openvdb_dirs())
+    assert np.array_equal(back["density"], density) and np.array_equal(back["density_far1"], far_density)
+    assert np.allclose(back["density_far1_origin"], far_box[0]) and np.allclose(back["density_far1_step"],
+                                                                               (far_box[1] - far_box[0]) / 4)
+    assert np.allclose(back["color_far1"], volume_files.srgb_to_linear(far_color / 255.0), atol=1e-6)
+    np.savez(npz, **arrays, far_levels=np.int64(2), far1_density=far_density, far1_color=far_color,
+             far1_box=far_box, far1_spacing=(far_box[1] - far_box[0]) / 4)
+    with pytest.raises(volume_files.VolumeFileError, match="far level 2 of 2 is missing"):
+        geometry_import.import_volume(bpy.context.scene, npz, str(tmp_path / "other.vdb"))

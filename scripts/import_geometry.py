@@ -42,6 +42,9 @@ def parse(argv):
     ap.add_argument("--resolution", type=int, metavar="N",
                     help="samples per axis (default: the model's grid; a volume twice that, at most 320)")
     ap.add_argument("--faces", type=int, metavar="N", help="mesh: decimate to about N faces")
+    ap.add_argument("--far-levels", type=int, metavar="N",
+                    help="volume of an unbounded run: nested grids beyond the box (default 4, out to 16 times it; "
+                         "0: the box only, a far quicker render)")
     add_python_option(ap, "the export")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace an existing --out file (and a volume's .vdb beside --geometry)")
@@ -90,9 +93,10 @@ def main(argv) -> int:
     run = os.path.abspath(args.run)
     # The output rule: never the scene (by identity, so also through a linked folder), never a link.
     out = out_blend(PROG, args.out, args.overwrite, {"--blend": args.blend, "--geometry": args.geometry})
-    for flag, value in (("--resolution", args.resolution), ("--faces", args.faces)):
-        if value is not None and value < (2 if flag == "--resolution" else 1):
-            fail(PROG, f"{flag} {value}: must be at least {2 if flag == '--resolution' else 1}")
+    for flag, value, least in (("--resolution", args.resolution, 2), ("--faces", args.faces, 1),
+                               ("--far-levels", args.far_levels, 0)):
+        if value is not None and value < least:
+            fail(PROG, f"{flag} {value}: must be at least {least}")
     if args.resolution and args.kind == "world":
         fail(PROG, "--resolution: the world samples no grid over the scene box; its image is as wide as the "
              "learned world's finest texture")
@@ -116,6 +120,8 @@ def main(argv) -> int:
         cmd += ["--resolution", str(args.resolution)]
     if args.faces and args.kind == "mesh":
         cmd += ["--faces", str(args.faces)]
+    if args.far_levels is not None and args.kind == "volume":
+        cmd += ["--far-levels", str(args.far_levels)]
     summary = export(cmd, args.kind)
 
     import bpy

@@ -90,8 +90,9 @@ def import_mesh(scene, ply_path: str, name: str = "NeRF Mesh"):
     return obj
 
 
-def volume_material(name: str):
-    """Absorption sigma (black Volume Absorption: coefficient = density) plus emission sigma * colour."""
+def volume_material(name: str, grids: tuple = (volume_files.DENSITY, volume_files.COLOR)):
+    """Absorption sigma (black Volume Absorption: coefficient = density) plus emission sigma * colour, from
+    the Volume's density and colour grids named ``grids``."""
     mat = bpy.data.materials.new(name)
     if mat.node_tree is None:  # Blender 4.x; 5.x materials always have nodes (use_nodes is deprecated)
         mat.use_nodes = True
@@ -100,9 +101,9 @@ def volume_material(name: str):
         nodes.remove(n)
     out = nodes.new("ShaderNodeOutputMaterial")
     density = nodes.new("ShaderNodeAttribute")
-    density.attribute_name = volume_files.DENSITY
+    density.attribute_name = grids[0]
     color = nodes.new("ShaderNodeAttribute")
-    color.attribute_name = volume_files.COLOR
+    color.attribute_name = grids[1]
     absorb = nodes.new("ShaderNodeVolumeAbsorption")
     absorb.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     emit = nodes.new("ShaderNodeEmission")
@@ -118,19 +119,31 @@ def volume_material(name: str):
     return mat
 
 
-def import_volume(scene, npz_path: str, vdb_path: str = "", name: str = "NeRF Volume"):
-    """Write the ``.vdb`` of a volume ``.npz`` (beside it unless ``vdb_path``) and add it as a Volume
-    object in the ``NeRF Volume`` collection, with the NeRF's material; returns the object."""
-    vdb_path = vdb_path or os.path.splitext(npz_path)[0] + ".vdb"
-    arrays = volume_files.read_npz(npz_path)
-    to_linear, notes = display_colours.to_linear_for(volume_files.recorded_colour_management(arrays), scene)
-    volume_files.npz_to_vdb(npz_path, vdb_path, openvdb_dirs(), to_linear=to_linear, arrays=arrays)
+def _volume_object(scene, name: str, vdb_path: str, level: int):
+    """A Volume object ``name`` in the ``NeRF Volume`` collection showing level ``level`` of ``vdb_path``."""
     vol = bpy.data.volumes.new(name)
     vol.filepath = vdb_path
     obj = bpy.data.objects.new(name, vol)
     collection(scene, VOLUME_COLLECTION).objects.link(obj)
-    vol.materials.append(volume_material(name))
+    vol.materials.append(volume_material(name, volume_files.level_grids(level)))
     vol.grids.load()
+    return obj
+
+
+def import_volume(scene, npz_path: str, vdb_path: str = "", name: str = "NeRF Volume"):
+    """Write the ``.vdb`` of a volume ``.npz`` (beside it unless ``vdb_path``) and add it as a Volume
+    object in the ``NeRF Volume`` collection, with the NeRF's material, and one child object for each
+    far level of an unbounded run's volume (``NAME far K``); returns the box's object."""
+    vdb_path = vdb_path or os.path.splitext(npz_path)[0] + ".vdb"
+    arrays = volume_files.read_npz(npz_path)
+    to_linear, notes = display_colours.to_linear_for(volume_files.recorded_colour_management(arrays), scene)
+    volume_files.npz_to_vdb(npz_path, vdb_path, openvdb_dirs(), to_linear=to_linear, arrays=arrays)
+    obj = _volume_object(scene, name, vdb_path, 0)
+    # An unbounded run's world beyond the box: one object a level (each reads its own grids, so Cycles
+    # bounds each by its own voxels), parented to the box's, so that they move with it.
+    for level in range(1, volume_files.far_levels(arrays) + 1):
+        far = _volume_object(scene, f"{name} far {level}", vdb_path, level)
+        far.parent = obj
     cycles = getattr(scene, "cycles", None)
     if cycles is not None and not cycles.volume_biased:
         # Cycles' default (unbiased) volumes estimate the emission by random collisions: grainy, and

@@ -13,6 +13,9 @@ Grids written (``shared/CONVENTIONS.md``, "A volume for Blender"):
   rendered under Standard. Under the capture's own view transform an opaque surface then shows the
   colour the NeRF shows.
 Both on one transform: voxel (i, j, k) is the grid node at ``box[0] + (i, j, k) * spacing``.
+- ``density_far{k}``, ``color_far{k}`` for each far level k of an unbounded run's volume (its ``far{k}_*``
+  arrays: the world beyond the box, in nested grids twice as large each), on their own transforms;
+  each Volume object of the import reads one level (``level_grids``).
 """
 from __future__ import annotations
 
@@ -66,10 +69,32 @@ def read_npz(path: str) -> dict:
         raise VolumeFileError(f"{path}: not a volume file of `nerf_core export volume` ({exc})") from exc
     if str(arrays.get("format", "")) != FORMAT or not {"density", "color", "box", "spacing"} <= set(arrays):
         raise VolumeFileError(f"{path}: not a volume file of `nerf_core export volume` (format or grids missing)")
-    d, c = arrays["density"], arrays["color"]
-    if d.ndim != 3 or c.shape != d.shape + (3,) or arrays["box"].shape != (2, 3) or arrays["spacing"].shape != (3,):
-        raise VolumeFileError(f"{path}: grids of mismatched shapes {d.shape}, {c.shape}")
+    for level in range(far_levels(arrays) + 1):
+        d, c, box, spacing = (arrays.get(level_member(level, n)) for n in ("density", "color", "box", "spacing"))
+        if d is None or c is None or box is None or spacing is None:
+            raise VolumeFileError(f"{path}: far level {level} of {far_levels(arrays)} is missing")
+        if d.ndim != 3 or c.shape != d.shape + (3,) or box.shape != (2, 3) or spacing.shape != (3,):
+            raise VolumeFileError(f"{path}: grids of mismatched shapes {d.shape}, {c.shape}"
+                                  + (f" (far level {level})" if level else ""))
     return arrays
+
+
+def far_levels(arrays: dict) -> int:
+    """How many far grids the volume has beyond its box (0 for a bounded run's, and for older files)."""
+    try:
+        return max(0, int(arrays.get("far_levels", 0)))
+    except (TypeError, ValueError):
+        return 0
+
+
+def level_member(level: int, name: str) -> str:
+    """The ``.npz`` member of grid ``name`` ("density", "color", "box", "spacing") at ``level`` (0: the box)."""
+    return name if level == 0 else f"far{level}_{name}"
+
+
+def level_grids(level: int) -> tuple[str, str]:
+    """The ``.vdb``'s density and colour grid names at ``level`` (0: the box's)."""
+    return (DENSITY, COLOR) if level == 0 else (f"{DENSITY}_far{level}", f"{COLOR}_far{level}")
 
 
 def recorded_colour_management(arrays: dict) -> dict:
@@ -103,32 +128,43 @@ def grid_matrix(box: np.ndarray, spacing: np.ndarray) -> list:
 
 def npz_to_vdb(npz_path: str, vdb_path: str, openvdb_dirs: Sequence[str] = (),
                to_linear: Optional[Callable[[np.ndarray], np.ndarray]] = None, arrays: Optional[dict] = None) -> dict:
-    """Write ``vdb_path`` (grids ``density`` and ``color``) from a volume ``.npz`` (or its ``arrays``,
-    already read), the colours through ``to_linear`` ((m, 3) display values in [0, 1] -> scene-linear;
+    """Write ``vdb_path`` (grids ``density`` and ``color``, and each far level's) from a volume ``.npz`` (or
+    its ``arrays``, already read), the colours through ``to_linear`` ((m, 3) display values in [0, 1] -> scene-linear;
     default: the sRGB curve); returns its arrays."""
     vdb = load_openvdb(openvdb_dirs)
     arrays = read_npz(npz_path) if arrays is None else arrays
-    xform = vdb.createLinearTransform(grid_matrix(arrays["box"], arrays["spacing"]))
-    density = vdb.FloatGrid()
-    density.copyFromArray(np.ascontiguousarray(arrays["density"], dtype=np.float32))  # exact: tolerance 0
-    density.name, density.transform = DENSITY, xform
-    color = vdb.Vec3SGrid()
-    linear = linear_colours(arrays["color"], to_linear or (lambda c: srgb_to_linear(c).astype(np.float32)))
-    color.copyFromArray(np.ascontiguousarray(linear))  # default tolerance: exact
-    color.name, color.transform = COLOR, xform
+    undo = to_linear or (lambda c: srgb_to_linear(c).astype(np.float32))
+    grids = []
+    for level in range(far_levels(arrays) + 1):
+        member = lambda name: arrays[level_member(level, name)]  # noqa: E731
+        xform = vdb.createLinearTransform(grid_matrix(member("box"), member("spacing")))
+        names = level_grids(level)
+        density = vdb.FloatGrid()
+        density.copyFromArray(np.ascontiguousarray(member("density"), dtype=np.float32))  # exact: tolerance 0
+        density.name, density.transform = names[0], xform
+        color = vdb.Vec3SGrid()
+        color.copyFromArray(np.ascontiguousarray(linear_colours(member("color"), undo)))  # default tolerance: exact
+        color.name, color.transform = names[1], xform
+        grids += [density, color]
     with partial_path(vdb_path, os.path.splitext(vdb_path)[0] + PARTIAL_SUFFIX + ".vdb") as tmp:  # never through a link
-        vdb.write(tmp, grids=[density, color])
+        vdb.write(tmp, grids=grids)
     return arrays
 
 
-def read_vdb(vdb_path: str, shape: Sequence[int], openvdb_dirs: Sequence[str] = ()) -> dict:
+def read_vdb(vdb_path: str, shape, openvdb_dirs: Sequence[str] = ()) -> dict:
     """Grids of a written ``.vdb`` back: {name: (nx, ny, nz[, 3]) float32 array}, and for each grid
-    ``<name>_origin`` (the world position of voxel 0) and ``<name>_step`` (of voxel (1, 1, 1) minus it)."""
+    ``<name>_origin`` (the world position of voxel 0) and ``<name>_step`` (of voxel (1, 1, 1) minus it).
+    ``shape``: (nx, ny, nz) of the box's grids, or {grid name: shape} for the grids to read."""
     vdb = load_openvdb(openvdb_dirs)
     out = {}
     for g in vdb.readAllGridMetadata(vdb_path):
         grid = vdb.read(vdb_path, g.name)
-        arr = np.zeros(tuple(shape) + ((3,) if g.name == COLOR else ()), dtype=np.float32)
+        if isinstance(shape, dict):  # a shape for each grid name
+            if g.name not in shape:
+                continue
+            arr = np.zeros(tuple(shape[g.name]) + ((3,) if g.name.startswith(COLOR) else ()), dtype=np.float32)
+        else:
+            arr = np.zeros(tuple(shape) + ((3,) if g.name == COLOR else ()), dtype=np.float32)
         grid.copyToArray(arr)
         out[g.name] = arr
         origin = np.asarray(grid.transform.indexToWorld((0, 0, 0)))

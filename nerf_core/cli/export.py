@@ -12,7 +12,7 @@ import argparse
 import json
 import time
 
-from nerf_core.cli.options import checked_number, positive_float, positive_int
+from nerf_core.cli.options import checked_number, nonneg_int, positive_float, positive_int
 from nerf_core.contract.exports import EXPORTS, ExportFormat
 from nerf_core.export import colmap, formats
 from nerf_core.export.run_export import export_run
@@ -20,7 +20,7 @@ from nerf_core.runs.events import EventLog
 
 share = checked_number(float, "a number", lambda v: 0 <= v < 1, "must lie in [0, 1)")
 grid_res = checked_number(int, "an integer", lambda v: v >= 2, "must be at least 2 samples per axis")
-PARSERS = {"positive_int": positive_int, "positive_float": positive_float, "share": share}
+PARSERS = {"positive_int": positive_int, "nonneg_int": nonneg_int, "positive_float": positive_float, "share": share}
 PROGRESS_EVERY = 0.5  # seconds between progress events (the last, fraction 1, always goes)
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Dict, Optional, Tuple
 
 # How an option's value is read on the command line (``nerf_core.cli.options`` holds the parsers).
-OPTION_KINDS = ("positive_int", "positive_float", "share", "switch")
+OPTION_KINDS = ("positive_int", "nonneg_int", "positive_float", "share", "switch")
 
 
 @dataclass(frozen=True)
@@ -108,7 +108,10 @@ MESH = declare(ExportFormat(
     )))
 VOLUME = declare(ExportFormat(
     "volume", ".npz", "density and colour grids (.npz) for a Blender Volume",
-    "density per scene unit and colour at the nodes of a grid over the scene box", beside=(".vdb",)))
+    "density per scene unit and colour at the nodes of a grid over the scene box, and for a run that models "
+    "the world beyond it (unbounded), nested grids out to 2^N times the box", beside=(".vdb",),
+    options=(Option("--far-levels", "nonneg_int", "grids beyond the box of an unbounded run, each twice the one "
+                    "before (default 4: out to 16 times the box; 0: the box only)"),)))
 WORLD = declare(ExportFormat(
     "world", ".png", "the learned world (light from infinity) as an equirectangular PNG for a Blender World",
     "the world behind the scene box that an opaque capture's run learned, in Blender's equirectangular "

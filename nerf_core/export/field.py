@@ -47,8 +47,3 @@ def grid_resolution(model: RadianceModel) -> int:
     (halved when its grid spans the contracted world, twice the box), 256 for an MLP (its finest
     positional-encoding period is far below any grid that fits in memory)."""
     return model.detail_resolution()
-
-
-def models_the_world(model: RadianceModel) -> bool:
-    """True when the run models light from infinity or the world beyond its box (not geometry)."""
-    return model.models_world or model.contracted

@@ -20,7 +20,7 @@ from nerf_core.contract import colour_management
 from nerf_core.contract.errors import DatasetError
 from nerf_core.contract.exports import MESH, VOLUME, WORLD, ExportFormat, export_format
 from nerf_core.errors import RunError
-from nerf_core.export import mesh, ply, volume, world
+from nerf_core.export import grid, mesh, ply, volume, world
 from nerf_core.render.run import DatasetChanged, Run
 
 CULLING = "the culling uses the cameras there now"
@@ -71,15 +71,17 @@ class Writer:
     summary: Callable[[Any], dict]
     detail_scale: int = 1  # the default grid: this many samples per model cell along each axis
     default_max: int = 0  # and no more than this per axis (0: no cap but the grid's own)
+    beyond_box: bool = False  # it exports a contracted run's world beyond the box too (it notes how far)
 
 
 WRITERS: Dict[str, Writer] = {}
 
 
 def writer(name: str, bytes_per_sample: float, extract, write, summary=lambda result: {}, detail_scale: int = 1,
-           default_max: int = 0) -> Writer:
+           default_max: int = 0, beyond_box: bool = False) -> Writer:
     """Register the writer of the declared format ``name`` (``contract.exports.declare`` first)."""
-    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary, detail_scale, default_max)
+    w = Writer(export_format(name, "writer"), bytes_per_sample, extract, write, summary, detail_scale, default_max,
+               beyond_box)
     WRITERS[name] = w
     return w
 
@@ -102,7 +104,8 @@ def _extract_mesh(job: ExportJob) -> mesh.Mesh:
 
 def _volume_summary(arrays: dict) -> dict:
     d = arrays["density"]
-    return {"level": float(arrays["level"]), "density_range": [float(np.min(d)), float(np.max(d))]}
+    return {"level": float(arrays["level"]), "density_range": [float(np.min(d)), float(np.max(d))],
+            "far_levels": int(arrays.get("far_levels", 0))}
 
 
 writer(MESH.name, mesh.BYTES_PER_SAMPLE, _extract_mesh,
@@ -117,7 +120,22 @@ def _recorded_colours(job: ExportJob, what: str) -> Optional[dict]:
 
 
 def _extract_volume(job: ExportJob) -> dict:
+    levels = job.options.get("far_levels")
+    levels = (volume.FAR_LEVELS if job.model.contracted else 0) if levels is None else int(levels)
+    far_res = min(job.resolution, volume.FAR_RESOLUTION)
+    if levels:  # the far grids' memory too, before any work (each as large as a far_res^3 volume)
+        grid.check_fits(far_res, volume.BYTES_PER_SAMPLE * (levels + (job.resolution / far_res) ** 3),
+                        flag="--far-levels", fixed=grid.CHUNK_BYTES)
     arrays = volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say)
+    if levels and not job.model.contracted:
+        job.note(f"--far-levels {levels}: the run does not model the world beyond its box (not unbounded); "
+                 "the far grids hold nothing but what the field guesses there")
+    if job.model.contracted and not levels:
+        job.note("--far-levels 0: the run models the world beyond its scene box, and the volume covers the box only")
+    if levels:
+        arrays.update(volume.far_grids(job.model, job.box, levels, far_res, job.say))
+        job.note(f"the volume reaches {2 ** levels} times the box ({levels} nested grids of {far_res}^3 beyond it); "
+                 "past that the run's world is not exported")
     arrays["color_management"] = volume.colour_record(_recorded_colours(job, "volume"))
     return arrays
 
@@ -127,7 +145,7 @@ def _extract_volume(job: ExportJob) -> dict:
 # against the NeRF's render, 2 views, 128 samples, under the captures' AgX): multi 34.44 -> 37.38 dB,
 # highfreq 27.00 -> 29.23 dB at 320^3 (229 MB .npz, 320 MB .vdb) against 160^3; 320 per axis at most.
 writer(VOLUME.name, volume.BYTES_PER_SAMPLE, _extract_volume, volume.write_volume, _volume_summary,
-       detail_scale=2, default_max=320)
+       detail_scale=2, default_max=320, beyond_box=True)
 
 
 def _extract_world(job: ExportJob) -> dict:

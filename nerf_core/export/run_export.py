@@ -16,8 +16,9 @@ from nerf_core.render.run import open_run
 from nerf_core.utils.memory import named_out_of_memory
 
 OUT_OF_MEMORY_ADVICE = "lower the resolution (or --device cpu, when the GPU's memory is the smaller)"
-WORLD_NOTE = ("the run models the world beyond its scene box (light from infinity or a contracted world): "
-              "that is not geometry; the export covers the scene box only")
+ENVIRONMENT_NOTE = ("the run learned the world behind its scene box as light from infinity: that is not geometry; "
+                    "`export world` writes it as a Blender World")
+BEYOND_BOX_NOTE = "the run models the world beyond its scene box (contracted): the export covers the scene box only"
 
 
 def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite: bool = False, checkpoint=None,
@@ -56,8 +57,10 @@ def export_run(kind: str, run, out, resolution: Optional[int] = None, overwrite:
                          + (f"its size is {fmt.options[0].flag}" if fmt.options else "it has no size to set"))
     opened = open_run(run, device=device, checkpoint=checkpoint)
     model = opened.model
-    if field.models_the_world(model) and fmt.grid:
-        note(WORLD_NOTE)
+    if fmt.grid and model.models_world:
+        note(ENVIRONMENT_NOTE)
+    if fmt.grid and model.contracted and not make.beyond_box:
+        note(BEYOND_BOX_NOTE)
     box = model.aabb.detach().cpu().double().numpy()
     res = None
     if fmt.grid:  # a world samples directions, not the box

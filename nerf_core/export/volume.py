@@ -13,6 +13,12 @@
 - ``color_management`` (optional; a JSON object as a string): the view transform the capture's images
   were rendered with (``contract.colour_management``), which the import undoes to turn ``color`` back
   into scene-linear light; "{}" when unknown (the colours are then taken as sRGB).
+- ``far_levels`` (optional, int64, 0 when missing) and, for each level k = 1..far_levels, ``far{k}_density``,
+  ``far{k}_color``, ``far{k}_box``, ``far{k}_spacing``: the world beyond the box of a run that models it
+  (``unbounded``, scene contraction), as nested grids over the box grown 2^k times about its centre,
+  each zero inside the one before (``far_grids``). A floor that runs to the horizon is geometry there:
+  without it Cycles showed the learned world where the NeRF shows its floor (ground demo scene, 25.0
+  against 34.7 dB with four levels).
 """
 from __future__ import annotations
 
@@ -93,6 +99,41 @@ def volume_grids(model, box: np.ndarray, resolution: int,
             "version": np.int64(VERSION)}
 
 
+FAR_LEVELS = 4  # the far grids of a contracted run by default: out to 16 times the box (15/16 of the shell)
+FAR_RESOLUTION = 128  # nodes per axis of each far grid at most: detail shrinks with distance (contraction)
+
+
+def far_box(box: np.ndarray, level: int) -> np.ndarray:
+    """(2, 3) the box grown ``2 ** level`` times about its centre."""
+    centre, half = box.mean(axis=0), 0.5 * (box[1] - box[0])
+    return np.stack([centre - half * 2.0 ** level, centre + half * 2.0 ** level])
+
+
+def far_grids(model, box: np.ndarray, levels: int, resolution: int,
+              on_progress: Optional[Callable[[str, float], None]] = None) -> dict:
+    """The ``far{k}_*`` arrays (the module docstring) of ``model`` beyond ``box`` (2, 3): level k spans
+    ``far_box(box, k)`` with ``resolution`` nodes per axis and is zero at the nodes strictly inside
+    level k - 1's box (the box itself for k = 1), so that the levels add up to the field without counting
+    any place twice. Why nested grids: a contracted field's detail shrinks with the distance from the box
+    (its cells grow as r^2 in the box's own units), so each doubling of the reach needs the same number
+    of nodes; one grid over the whole reach would be 16x coarser in the box's neighbourhood."""
+    say = on_progress or (lambda stage, share: None)
+    out: dict = {"far_levels": np.int64(levels)}
+    inner = np.asarray(box, dtype=np.float64)
+    for k in range(1, levels + 1):
+        b = far_box(box, k)
+        arrays = volume_grids(model, b, resolution, lambda stage, share: say(f"far {k}/{levels} {stage}", share))
+        xs, ys, zs = grid.axes(b, resolution)
+        inside = [(v > inner[0, a]) & (v < inner[1, a]) for a, v in enumerate((xs, ys, zs))]
+        hollow = inside[0][:, None, None] & inside[1][None, :, None] & inside[2][None, None, :]
+        arrays["density"][hollow] = 0.0
+        arrays["color"][hollow] = 0
+        for name in ("density", "color", "box", "spacing"):
+            out[f"far{k}_{name}"] = arrays[name]
+        inner = b
+    return out
+
+
 def colour_record(cm: Optional[dict]) -> np.ndarray:
     """The ``color_management`` member: ``cm`` (``contract.colour_management.recorded``) as JSON text."""
     return np.str_(json.dumps(cm or {}, sort_keys=True))
@@ -122,4 +163,11 @@ def read_volume(path: Path | str) -> dict:
     d, c = arrays["density"], arrays["color"]
     if d.ndim != 3 or c.shape != d.shape + (3,) or arrays["box"].shape != (2, 3):
         raise ValueError(f"{path}: grids of mismatched shapes {d.shape} and {c.shape}")
+    for k in range(1, int(arrays.get("far_levels", 0)) + 1):
+        names = [f"far{k}_{n}" for n in ("density", "color", "box", "spacing")]
+        if not set(names) <= set(arrays):
+            raise ValueError(f"{path}: far level {k} of {int(arrays['far_levels'])} is missing")
+        fd, fc = arrays[names[0]], arrays[names[1]]
+        if fd.ndim != 3 or fc.shape != fd.shape + (3,) or arrays[names[2]].shape != (2, 3):
+            raise ValueError(f"{path}: far level {k}'s grids of mismatched shapes {fd.shape} and {fc.shape}")
     return arrays

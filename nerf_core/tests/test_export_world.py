@@ -125,3 +125,61 @@ def test_the_world_file_reader_needs_no_pillow_and_refuses_other_pngs(tmp_path):
     text.write_text("no png")
     with pytest.raises(ValueError, match="t.png: not a PNG file"):
         world_file.read_world_info(str(text))
+
+
+# ----------------------------------------------------------------------------------------------
+# An unbounded run's world beyond the box: the volume's far grids
+
+
+class FloorModel(SphereModel):
+    """A contracted run's field: the unit sphere in the box [-1, 1]^3 and a floor z < -0.9 to infinity."""
+
+    contracted = True
+
+    def density_at(self, pts):
+        floor = 1e3 * (pts[:, 2] < -0.9).float()
+        return torch.maximum(super().density_at(pts), floor)
+
+
+def test_far_grids_nest_each_twice_the_last_and_count_no_place_twice():
+    from nerf_core.export import volume
+
+    model = FloorModel()
+    box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    far = volume.far_grids(model, box, 2, 9)
+    assert int(far["far_levels"]) == 2
+    assert np.allclose(far["far1_box"], 2 * box) and np.allclose(far["far2_box"], 4 * box)
+    assert np.allclose(far["far1_spacing"], 4 / 8) and np.allclose(far["far2_spacing"], 8 / 8)
+    d1, d2 = far["far1_density"], far["far2_density"]
+    # level 1's nodes at -2, -1.5, ..., 2: the seven in (-1, 1) on every axis lie in the box, and hold nothing
+    assert d1[3:6, 3:6, 3:6].max() == 0 and d1.shape == (9, 9, 9)
+    assert d1[0, 0, 0] == 1e3 and d1[4, 4, 1] == 1e3  # the floor outside the box (z = -1.5), and under it
+    assert d2[3:6, 3:6, 3:6].max() == 0 and d2[0, 4, 0] == 1e3  # level 2 is empty inside level 1's box
+    assert (far["far1_color"][d1 > 0] > 0).any(axis=-1).all()  # the floor is coloured where it is dense
+
+
+def test_export_volume_of_an_unbounded_run_reaches_past_its_box(monkeypatch, tmp_path, capsys):
+    from nerf_core.export import volume
+
+    use_model(monkeypatch, FloorModel())
+    out = tmp_path / "v.npz"
+    assert main(["export", "volume", "run", "--out", str(out), "--resolution", "12"]) == 0
+    summary = _last(capsys)[0][-1]
+    assert summary["far_levels"] == volume.FAR_LEVELS
+    assert any(f"reaches {2 ** volume.FAR_LEVELS} times the box" in n for n in summary["notes"])
+    arrays = volume.read_volume(out)
+    assert arrays["far4_density"].shape == (12, 12, 12) and np.allclose(arrays["far4_box"][1], 16.0)
+    assert main(["export", "volume", "run", "--out", str(tmp_path / "v0.npz"), "--resolution", "12",
+                 "--far-levels", "0"]) == 0
+    summary = _last(capsys)[0][-1]
+    assert summary["far_levels"] == 0 and any("covers the box only" in n for n in summary["notes"])
+    assert "far1_density" not in volume.read_volume(tmp_path / "v0.npz")
+    use_model(monkeypatch, SphereModel())  # a bounded run: no far grids unless asked
+    assert main(["export", "volume", "run", "--out", str(tmp_path / "b.npz"), "--resolution", "12"]) == 0
+    summary = _last(capsys)[0][-1]
+    assert summary["far_levels"] == 0 and not any("beyond" in n for n in summary["notes"])
+    arrays = dict(np.load(out))
+    arrays.pop("far3_color")
+    np.savez(tmp_path / "cut.npz", **arrays)
+    with pytest.raises(ValueError, match="cut.npz: far level 3 of 4 is missing"):
+        volume.read_volume(tmp_path / "cut.npz")
