@@ -16,6 +16,7 @@ from nerf_core.data.carving import free_cells
 from nerf_core.data.depth import check_depth, depth_targets, with_depth_term
 from nerf_core.data.split import Dataset, Split
 from nerf_core.engine.config import TrainConfig
+from nerf_core.errors import RunError
 from nerf_core.methods.base import RadianceModel, ray_weights
 from nerf_core.runs.events import EventLog
 
@@ -47,7 +48,16 @@ def training_batcher(model: RadianceModel, dataset: Dataset, cfg: TrainConfig, b
 def with_supervision(loss: torch.Tensor, out: dict, batch: RayBatch, cfg: TrainConfig) -> torch.Tensor:
     """A step's ``loss`` () (the method's, from the colours) with the terms of ``--depth`` and
     ``--alpha-weight`` for ``batch`` and what the step rendered (``out``), each ray weighted as in the
-    colour loss (``batch.weight``); ``loss`` itself for a colours-only run, so that it runs no op more."""
+    colour loss (``batch.weight``); ``loss`` itself for a colours-only run, so that it runs no op more.
+
+    Raises RunError when the run asks for a term that the batch does not carry: a method's own batcher
+    (``RadianceModel.make_batcher``) that ignores ``BatchOptions.depth`` or ``.alpha`` would otherwise
+    train on colours alone while config.json says otherwise."""
+    for flag, asked, carried in (("--depth", cfg.depth, batch.depth),
+                                 ("--alpha-weight", cfg.alpha_weight, batch.alpha)):
+        if asked and carried is None:
+            raise RunError(f"{flag}: the method's batcher (make_batcher) gave a batch without it; the method "
+                           "does not support the flag, so train without it")
     weight = ray_weights(out, batch.weight)
     loss = with_depth_term(loss, out, batch.depth, weight, cfg.depth_weight)
     return with_alpha_term(loss, out, batch.alpha, weight, cfg.alpha_weight)

@@ -55,6 +55,14 @@ def test_the_step_adds_the_alpha_term_as_the_run_says():
     cfg = TrainConfig(dataset="ds", out="run", alpha_weight=2.0)
     assert float(with_supervision(loss, out, batch, cfg)) == pytest.approx(0.5 + 2.0 * 0.59 / 4)
     assert with_supervision(loss, out, batch, TrainConfig(dataset="ds", out="run")) is loss  # colours only
+    # a method's batcher that ignores the flags: refused, not trained on colours alone in silence
+    from nerf_core.errors import RunError
+
+    bare = batch._replace(alpha=None)
+    with pytest.raises(RunError, match="--alpha-weight: the method's batcher"):
+        with_supervision(loss, out, bare, cfg)
+    with pytest.raises(RunError, match="--depth: the method's batcher"):
+        with_supervision(loss, out, bare, TrainConfig(dataset="ds", out="run", depth=True))
 
 
 def test_batches_carry_the_alpha_the_target_was_composited_with(tmp_path):
