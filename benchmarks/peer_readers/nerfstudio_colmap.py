@@ -171,15 +171,16 @@ def setup_env(python: str) -> None:
     """The venv ``python`` lives in (``ENV/bin/python``), with the packages of ``NERFSTUDIO_PACKAGES``."""
     env = os.path.dirname(os.path.dirname(os.path.abspath(python)))
     if not os.path.exists(python):
-        subprocess.run([sys.executable if not os.path.exists("/usr/bin/python3") else "/usr/bin/python3",
-                        "-m", "venv", env], check=True)
+        # this interpreter's Python version, so the .pth below names site-packages it can import
+        subprocess.run([sys.executable, "-m", "venv", env], check=True)
     site = subprocess.run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                           check=True, capture_output=True, text=True).stdout.strip()
     ours = subprocess.run([sys.executable, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                           check=True, capture_output=True, text=True).stdout.strip()
     with open(os.path.join(site, "zz_project_venv.pth"), "w") as f:  # after ENV's own site-packages
         f.write(ours + "\n")
-    subprocess.run([python, "-m", "pip", "install", "--no-deps", *NERFSTUDIO_PACKAGES], check=True)
+    # pip talks on stderr: stdout ends with the summary line
+    subprocess.run([python, "-m", "pip", "install", "--no-deps", *NERFSTUDIO_PACKAGES], check=True, stdout=sys.stderr)
 
 
 def parse_args(argv):
