@@ -123,3 +123,23 @@ def test_the_child_imports_nothing_of_ours():
     with open(os.path.join(os.path.dirname(nc.__file__), "_nerfstudio_child.py")) as f:
         text = f.read()
     assert "nerf_core" not in text and "_bootstrap" not in text
+
+
+def test_expected_frames_are_named_as_the_export_names_its_images(tiny_dataset, tmp_path):
+    expected, aabb = nc.expected_frames(str(tiny_dataset(tmp_path / "src")))
+    assert [e["name"] for e in expected] == [f"r_{k}.png" for k in range(6)]
+    assert (expected[0]["fx"], expected[0]["cy"], expected[0]["w"]) == (5.0, 2.0, 4.0)
+    assert aabb.tolist() == [[-1, -1, -1], [1, 1, 1]]
+
+
+def test_refusals_are_one_line_and_exit_2(tiny_dataset, tmp_path, capsys):
+    src = str(tiny_dataset(tmp_path / "src"))
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("")
+    with pytest.raises(SystemExit) as exc:
+        nc.main(["--dataset", src, "--out", str(tmp_path / "full"), "--python", "python"])
+    assert exc.value.code == 2 and "not an empty folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # the export runs; a --python without nerfstudio is named
+        nc.main(["--dataset", src, "--out", str(tmp_path / "out"), "--python", "/bin/false"])
+    assert exc.value.code == 2 and "nerfstudio's colmap dataparser failed (exit 1)" in capsys.readouterr().err
+    assert os.path.isdir(tmp_path / "out" / "colmap" / "sparse" / "0")
