@@ -78,11 +78,16 @@ def _export(run, out, **kw) -> dict:
 
 
 def cmd_run(a) -> int:
+    import torch
+
     from nerf_core.engine.config import TrainConfig
     from nerf_core.engine.trainer import train
     from nerf_core.evaluation.evaluate import evaluate_run
     from nerf_core.export.ply import read_geometry
 
+    # one thread, as the docstring says: two runs side by side each starting a thread per core fought
+    # over the cores (635 steps in 5 minutes on glossy with depth, where one thread each makes thousands)
+    torch.set_num_threads(1)
     scene = os.path.basename(os.path.normpath(a.dataset)).split("-")[0]
     os.makedirs(a.out, exist_ok=True)
     # A run with depth is its own series: a score with depth is never put beside a colours-only one as if
