@@ -71,3 +71,36 @@ def test_manifest_records_the_addon_version(tmp_path, repo_root):
         version = tomllib.load(fh)["version"]
     manifest = json.loads((out / "nerf_capture" / "manifest.json").read_text())
     assert manifest["addon_version"] == version and version.count(".") == 2
+
+
+def test_the_occupancy_grid_carved_from_a_captures_depth_keeps_its_surface_and_little_else(tmp_path):
+    """Issue 56, on a real capture (Workbench, 32 views of 64 px with depth and points): no point of the
+    capture's points3d.ply lies in a cell that its depth marks empty at step 0, and the grid keeps less
+    than twice the sphere's true volume (the shell of two cells around its surface is the rest)."""
+    import torch
+
+    from nerf_core import load_dataset
+    from nerf_core.data.carving import free_cells
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=RADIUS, location=tuple(CENTRE), segments=64, ring_count=32)
+    scene = bpy.context.scene
+    spec = positions.LayoutSpec(layout="sphere", train=32, val=0, test=1, radius=5.0, seed=2)
+    cameras.create_cameras(scene, spec, 64, 64)
+    settings = plan_settings.CaptureSettings(out_dir=str(tmp_path / "ds"), engine="workbench", samples=1, res_x=64,
+                                             res_y=64, points=True, depth=True, n_points=4000,
+                                             layout=spec.to_dict())
+    assert job.CaptureJob(scene, settings).run()["status"] == "complete"
+    ds = load_dataset(tmp_path / "ds")
+    train = ds.split("train")
+    r = 48
+    free = free_cells(ds.aabb, r, train, train.depth)
+    pts = torch.as_tensor(np.vstack([PlyData.read(str(tmp_path / "ds" / "points3d.ply"))["vertex"][c]
+                                     for c in "xyz"]).T, dtype=torch.float32)
+    lo, hi = ds.aabb[0], ds.aabb[1]
+    cell = ((pts - lo) / (hi - lo) * r).floor().long().clamp(0, r - 1)
+    assert len(pts) > 500 and not free[cell[:, 0], cell[:, 1], cell[:, 2]].any()
+    box_volume = float(torch.prod(hi - lo))
+    sphere = 4 / 3 * np.pi * RADIUS ** 3 / box_volume
+    kept = 1 - float(free.float().mean())
+    assert sphere < kept < 2.0 * sphere, (kept, sphere)
