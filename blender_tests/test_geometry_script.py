@@ -88,3 +88,21 @@ def test_import_geometry_script_lands_in_the_scene_frame(sphere_run, tmp_path, k
         assert np.allclose(m[:3, 3], box[0], atol=1e-6) and np.allclose(box[0], [-1.025] * 3, atol=1e-6)
         assert os.path.isfile(bpy.path.abspath(obj.data.filepath))
     assert os.path.isfile(summary["geometry"]) and summary["geometry"].startswith(str(sphere_run))
+
+
+def test_import_geometry_world_of_a_run_without_a_world_is_one_line(sphere_run, tmp_path):
+    """A run on a transparent film learned no world: the script says so in one line, and writes nothing."""
+    bpy.ops.mesh.primitive_uv_sphere_add(radius=RADIUS)
+    scene = tmp_path / "scene.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(scene))
+    out = tmp_path / "with_world.blend"
+    env = dict(os.environ, PYTHONPATH=os.getcwd(), OMP_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, os.path.join("scripts", "import_geometry.py"), "--blend", str(scene),
+                           "--run", str(sphere_run), "--kind", "world", "--out", str(out), "--python", sys.executable],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 2 and "learned no world" in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists() and not list((sphere_run / "geometry").glob("world_*"))
+    proc = subprocess.run([sys.executable, os.path.join("scripts", "import_geometry.py"), "--blend", str(scene),
+                           "--run", str(sphere_run), "--kind", "world", "--out", str(out), "--resolution", "64"],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 2 and "--resolution: the world samples no grid" in proc.stderr
