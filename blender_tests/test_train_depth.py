@@ -18,6 +18,12 @@ def test_depth_is_on_only_where_every_train_view_has_a_map(tmp_path):
     assert not off and "Use Depth is unchecked" in note
     resumed, note = train_ui.depth_choice(str(with_depth), True, resume=True)
     assert not resumed and "keeps its own settings" in note  # --depth on a resume would be a changed flag
+    reaching = make_dataset(tmp_path / "reaching", n_train=4, w=24, h=20)  # a floor past the box: unbounded
+    for name in ("train", "test"):
+        path = reaching / f"transforms_{name}.json"
+        path.write_text(json.dumps({**json.loads(path.read_text()), "beyond_box": ["Ground"]}))
+    off, note = train_ui.depth_choice(str(reaching), True, resume=False)
+    assert not off and "reach past its box" in note
     without = make_dataset(tmp_path / "without", n_train=4, w=24, h=20, depth=False)
     off, note = train_ui.depth_choice(str(without), True, resume=False)
     assert not off and "no depth maps" in note

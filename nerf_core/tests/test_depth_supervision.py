@@ -153,3 +153,27 @@ def test_depth_weight_out_of_range_is_refused_naming_the_flag(sphere_dataset, tm
 
     with pytest.raises(TrainError, match=r"--depth-weight\)? must be a finite number"):
         TrainConfig(dataset=str(sphere_dataset), out=str(tmp_path / "r"), depth=True, depth_weight=weight).check()
+
+
+def test_depth_targets_keep_only_surfaces_inside_the_runs_box(tmp_path):
+    """A surface past the box (a floor to the horizon, the learned world) is not the grid's to fit."""
+    from nerf_core.cameras.rays import rays_for_pixels
+    from nerf_core.data.depth import depth_targets
+    from nerf_core.tests.conftest import make_dataset
+
+    ds = load_dataset(make_dataset(tmp_path / "ds", n_train=4, w=24, h=20))
+    tr = ds.split("train")
+    full = depth_targets(tr)
+    assert torch.equal(depth_targets(tr, ds.aabb), full)  # the sphere lies in the box: nothing is dropped
+    half = ds.aabb.clone()
+    half[0, 2] = 0.0  # the box's upper half only
+    cut = depth_targets(tr, half)
+    v, h, w = full.shape
+    jj, ii = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    for view in range(v):
+        o, d, z_per_t = rays_for_pixels(tr.cameras, torch.full((h * w,), view), ii.reshape(-1), jj.reshape(-1))
+        z = (o + d * (full[view].reshape(-1) / z_per_t)[:, None])[:, 2].reshape(h, w)
+        known = full[view] > 0
+        assert torch.equal(cut[view][known & (z > 0.02)], full[view][known & (z > 0.02)])  # clear of the cut
+        assert not cut[view][known & (z < -0.02)].any()
+    assert 0 < int((cut > 0).sum()) < int((full > 0).sum())
