@@ -20,7 +20,7 @@ def main(argv) -> int:
                    masks_path=Path("masks") if (data / "masks").is_dir() else None,
                    load_3D_points=True, eval_mode="all", downscale_factor=1)
     config = ColmapDataParserConfig(data=data, **options)
-    outputs = config.setup()._generate_dataparser_outputs("train")
+    outputs = config.setup().get_dataparser_outputs(split="train")  # its public call
     cams = outputs.cameras
     n = len(outputs.image_filenames)
 

@@ -7,7 +7,7 @@
 2. ``PY _nerfstudio_child.py DIR/colmap DIR/nerfstudio.json``: nerfstudio 1.1.5's
    ``ColmapDataParserConfig(data=DIR/colmap, colmap_path="sparse/0", images_path="images",
    masks_path="masks" (when the export wrote masks), load_3D_points=True, eval_mode="all",
-   downscale_factor=1).setup()._generate_dataparser_outputs("train")``, its defaults otherwise
+   downscale_factor=1).setup().get_dataparser_outputs(split="train")``, its defaults otherwise
    (orientation "up", centre "poses", auto_scale_poses), written as JSON: image names, fx fy cx cy
    width height, camera_to_worlds (3x4), dataparser_transform and dataparser_scale, number of points;
 3. here, against the capture's own ``transforms_train.json`` (``nerf_core.contract.frame_infos``):
