@@ -7,6 +7,7 @@ nothing of this project: nerfstudio's environment need not have it.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -44,7 +45,11 @@ def main(argv) -> int:
         "dataparser_scale": float(outputs.dataparser_scale),
         "num_points3D": None if points is None else int(points.shape[0]),
     }
-    out.write_text(json.dumps(result, indent=1))
+    # a new file, never through a link (the project's atomic writer is not importable here: this runs
+    # under nerfstudio's interpreter, which imports nothing of ours); the caller gives a fresh folder
+    fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(json.dumps(result, indent=1))
     return 0
 
 

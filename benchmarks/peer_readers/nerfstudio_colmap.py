@@ -53,6 +53,7 @@ REPO = os.path.dirname(os.path.dirname(HERE))
 sys.path[:0] = [p for p in (REPO, os.path.join(REPO, "scripts")) if p not in sys.path]
 import _bootstrap  # noqa: E402,F401  (puts the checkout on sys.path, honours interrupts)
 from nerf_core.contract.camera_files import image_size  # noqa: E402
+from nerf_core.utils.atomic import write_text_atomic  # noqa: E402
 from nerf_core.contract.intrinsics import resolve_intrinsics  # noqa: E402
 from nerf_core.contract.nerfstudio_frame import to_dataset_pose  # noqa: E402
 from nerf_core.contract.transforms import frame_infos  # noqa: E402
@@ -177,8 +178,7 @@ def setup_env(python: str) -> None:
                           check=True, capture_output=True, text=True).stdout.strip()
     ours = subprocess.run([sys.executable, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                           check=True, capture_output=True, text=True).stdout.strip()
-    with open(os.path.join(site, "zz_project_venv.pth"), "w") as f:  # after ENV's own site-packages
-        f.write(ours + "\n")
+    write_text_atomic(os.path.join(site, "zz_project_venv.pth"), ours + "\n")  # after ENV's own site-packages
     # pip talks on stderr: stdout ends with the summary line
     subprocess.run([python, "-m", "pip", "install", "--no-deps", *NERFSTUDIO_PACKAGES], check=True, stdout=sys.stderr)
 
@@ -223,8 +223,7 @@ def main(argv=None) -> int:
     summary.update(dataset=os.path.abspath(a.dataset), out=out, nerfstudio=ns.get("nerfstudio_version"),
                    torch=ns.get("torch_version"), options=ns.get("options"), failures=failures,
                    commands=[" ".join(export_cmd), " ".join(child_cmd)])
-    with open(os.path.join(out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=1)
+    write_text_atomic(os.path.join(out, "summary.json"), json.dumps(summary, indent=1))
     for line in failures:
         print(f"FAILED: {line}")
     print(json.dumps(summary))

@@ -123,9 +123,9 @@ def _extract_volume(job: ExportJob) -> dict:
     levels = job.options.get("far_levels")
     levels = (volume.FAR_LEVELS if job.model.contracted else 0) if levels is None else int(levels)
     far_res = min(job.resolution, volume.FAR_RESOLUTION)
-    if levels:  # the far grids' memory too, before any work (each as large as a far_res^3 volume)
-        grid.check_fits(far_res, volume.BYTES_PER_SAMPLE * (levels + (job.resolution / far_res) ** 3),
-                        flag="--far-levels", fixed=grid.CHUNK_BYTES)
+    if levels:  # before any work: the box's grid and every far grid are held together until the write
+        per_far_node = volume.BYTES_PER_SAMPLE * (levels + (job.resolution / far_res) ** 3)
+        grid.check_fits(far_res, per_far_node, flag="--far-levels", fixed=grid.CHUNK_BYTES)
     arrays = volume.volume_grids(job.model, job.box, job.resolution, on_progress=job.say)
     if levels and not job.model.contracted:
         job.note(f"--far-levels {levels}: the run does not model the world beyond its box (not unbounded); "
